@@ -1,0 +1,1 @@
+"""The ``roslink-mqtt`` command line: one module per subcommand, dispatched by ``main``."""

@@ -1,0 +1,29 @@
+"""Fleet configuration (robots.yaml): robots, keys, users, grants, mapping rules.
+
+Core install only (pyyaml); the broker and the bridge both read it.
+"""
+
+from .loader import load_fleet, parse_fleet
+from .model import (
+    BridgeSettings,
+    BrokerSettings,
+    Direction,
+    Fleet,
+    Grant,
+    Robot,
+    Role,
+    RosQos,
+    Rule,
+    ServiceRule,
+    TlsSettings,
+    User,
+    VelocityLimits,
+)
+from .passwords import PasswordHashError, hash_password, verify_password
+from .yamlsource import ConfigError
+
+__all__ = [
+    "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "Fleet", "Grant", "PasswordHashError",
+    "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
+    "hash_password", "load_fleet", "parse_fleet", "verify_password",
+]

@@ -1,0 +1,398 @@
+"""robots.yaml → :class:`Fleet`, with errors that name file, line and key path."""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path as FsPath
+from typing import Any
+
+from ..protocol.enums import RobotType
+from ..protocol.messages import SPECS_BY_NAME
+from ..protocol.messages import Direction as MsgDirection
+from ..topics import OPERATORS, TopicError, check_name, check_path
+from .model import (
+    BridgeSettings,
+    BrokerSettings,
+    Direction,
+    Fleet,
+    Grant,
+    Robot,
+    Role,
+    RosQos,
+    Rule,
+    ServiceRule,
+    TlsSettings,
+    User,
+    VelocityLimits,
+)
+from .passwords import PasswordHashError, check_hash_format
+from .yamlsource import ConfigError, Path, Source, load_yaml
+
+_REQUIRED: Any = object()
+_ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
+_ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
+_RESERVED_FROM = ("call", "provide", "response")
+_MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
+
+
+def load_fleet(path: str | FsPath) -> Fleet:
+    """Load and validate a fleet file; raise ConfigError (with file:line) if anything is wrong."""
+    name = str(path)
+    try:
+        text = FsPath(path).read_text(encoding="utf-8")
+    except OSError as err:
+        raise ConfigError(f"cannot read fleet file: {err.strerror or err}", file=name) from None
+    return parse_fleet(text, name)
+
+
+def parse_fleet(text: str, file: str = "<string>") -> Fleet:
+    return _FleetReader(load_yaml(text, file)).fleet()
+
+
+class _FleetReader:
+    def __init__(self, source: Source) -> None:
+        self.src = source
+
+    # -- primitive readers --------------------------------------------------
+    def err(self, path: Path, message: str) -> ConfigError:
+        return self.src.error(path, message)
+
+    def get(self, path: Path) -> Any:
+        value: Any = self.src.data
+        for part in path:
+            value = value[part]
+        return value
+
+    def mapping(self, path: Path, allowed: tuple[str, ...]) -> dict[str, Any]:
+        value = self.get(path)
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise self.err(path, f"expected a mapping, got {_show(value)}")
+        for key in value:
+            if key not in allowed:
+                hint = _closest(key, allowed)
+                raise self.err(path + (key,), f"unknown key '{key}'" + (f" (did you mean '{hint}'?)" if hint else
+                                                                         f"; allowed: {', '.join(allowed)}"))
+        return value
+
+    def sequence(self, path: Path) -> list[Any]:
+        value = self.get(path)
+        if value is None:
+            return []
+        if not isinstance(value, list):
+            raise self.err(path, f"expected a list, got {_show(value)}")
+        return value
+
+    def value(self, parent: Path, key: str, check: Callable[[Path, Any], Any], default: Any = _REQUIRED) -> Any:
+        data = self.get(parent)
+        path = parent + (key,)
+        if not isinstance(data, dict) or key not in data or data[key] is None:
+            if default is _REQUIRED:
+                raise self.err(parent, f"missing required key '{key}'")
+            return default
+        return check(path, data[key])
+
+    def integer(self, lo: int, hi: int) -> Callable[[Path, Any], int]:
+        def check(path: Path, v: Any) -> int:
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise self.err(path, f"expected integer {lo}..{hi}, got {_show(v)}")
+            return v
+        return check
+
+    def number(self, lo: float, hi: float = math.inf, *, open_low: bool = False) -> Callable[[Path, Any], float]:
+        def check(path: Path, v: Any) -> float:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if ok:
+                ok = (v > lo if open_low else v >= lo) and v <= hi
+            if not ok:
+                low = f"> {lo}" if open_low else f">= {lo}"
+                rng = low if hi == math.inf else f"{low} and <= {hi}"
+                raise self.err(path, f"expected a finite number {rng}, got {_show(v)}")
+            return float(v)
+        return check
+
+    def string(self, path: Path, v: Any) -> str:
+        if not isinstance(v, str) or not v:
+            raise self.err(path, f"expected a non-empty string, got {_show(v)}")
+        return v
+
+    def boolean(self, path: Path, v: Any) -> bool:
+        if not isinstance(v, bool):
+            raise self.err(path, f"expected true or false, got {_show(v)}")
+        return v
+
+    def choice(self, choices: tuple[str, ...]) -> Callable[[Path, Any], str]:
+        def check(path: Path, v: Any) -> str:
+            if not isinstance(v, str) or v not in choices:
+                raise self.err(path, f"expected one of {', '.join(choices)}, got {_show(v)}")
+            return v
+        return check
+
+    def topic_name(self, what: str) -> Callable[[Path, Any], str]:
+        def check(path: Path, v: Any) -> str:
+            try:
+                return check_name(v, what)
+            except TopicError as e:
+                raise self.err(path, str(e)) from None
+        return check
+
+    def topic_path(self, path: Path, v: Any) -> str:
+        try:
+            return check_path(v, "topic")
+        except TopicError as e:
+            raise self.err(path, str(e)) from None
+
+    def ros_type(self, kind: str) -> Callable[[Path, Any], str]:
+        def check(path: Path, v: Any) -> str:
+            if not isinstance(v, str) or not _ROS_TYPE.match(v) or f"/{kind}/" not in v:
+                raise self.err(path, f"expected a ROS {kind} type like "
+                                     f"{'geometry_msgs/msg/Twist' if kind == 'msg' else 'std_srvs/srv/Trigger'}, "
+                                     f"got {_show(v)}")
+            return v
+        return check
+
+    def ros_name(self, path: Path, v: Any) -> str:
+        if not isinstance(v, str) or not _ROS_NAME.match(v):
+            raise self.err(path, f"expected a ROS name like 'cmd_vel' or '/robot/odom', got {_show(v)}")
+        return v
+
+    def password_hash(self, path: Path, v: Any) -> str:
+        if not isinstance(v, str):
+            raise self.err(path, f"expected a password hash string, got {_show(v)}")
+        try:
+            check_hash_format(v)
+        except PasswordHashError as e:
+            raise self.err(path, str(e)) from None
+        return v
+
+    # -- sections -------------------------------------------------------------
+    def fleet(self) -> Fleet:
+        root: Path = ()
+        self.mapping(root, ("prefix", "broker", "robots", "users"))
+        prefix = self.value(root, "prefix", self.topic_path, "roslink")
+        broker = self.broker(("broker",)) if "broker" in self.get(root) else BrokerSettings()
+        robots = self.robots(("robots",))
+        users = self.users(("users",), robots)
+        return Fleet(self.src.file, prefix, broker, robots, users)
+
+    def broker(self, path: Path) -> BrokerSettings:
+        self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload"))
+        port = self.integer(1, 65535)
+        tls = None
+        if self.get(path) and self.get(path).get("tls") is not None:
+            tp = path + ("tls",)
+            self.mapping(tp, ("port", "certfile", "keyfile", "cafile"))
+            tls = TlsSettings(self.value(tp, "port", port, 8883), self.value(tp, "certfile", self.string),
+                              self.value(tp, "keyfile", self.string), self.value(tp, "cafile", self.string, None))
+        return BrokerSettings(
+            host=self.value(path, "host", self.string, "127.0.0.1"),
+            port=self.value(path, "port", port, 1883),
+            ws_port=self.value(path, "ws_port", self.integer(0, 65535), 8083) or None,
+            tls=tls,
+            max_payload=self.value(path, "max_payload", self.integer(1024, 256 * 1024 * 1024), 4 * 1024 * 1024),
+        )
+
+    def robots(self, path: Path) -> dict[str, Robot]:
+        data = self.get(path) if "robots" in self.src.data else None
+        if not data:
+            raise self.err((), "missing required key 'robots' (at least one robot)")
+        if not isinstance(data, dict):
+            raise self.err(path, f"expected a mapping of robot name to settings, got {_show(data)}")
+        robots: dict[str, Robot] = {}
+        seen_ids: dict[int, str] = {}
+        seen_keys: dict[str, str] = {}
+        for name in data:
+            rp = path + (name,)
+            self.topic_name("robot name")(rp, name)
+            if name == OPERATORS:
+                raise self.err(rp, f"'{OPERATORS}' is reserved in the topic tree; choose another robot name")
+            robot = self.robot(rp, name)
+            if robot.system_id in seen_ids:
+                raise self.err(rp + ("system_id",), f"system_id {robot.system_id} is already used by robot "
+                                                    f"'{seen_ids[robot.system_id]}'")
+            if robot.key in seen_keys:
+                raise self.err(rp + ("key",), f"key is already used by robot '{seen_keys[robot.key]}'")
+            seen_ids[robot.system_id], seen_keys[robot.key] = name, name
+            robots[name] = robot
+        return robots
+
+    def robot(self, path: Path, name: str) -> Robot:
+        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services"))
+        types = tuple(t.name.lower() for t in RobotType)
+        rtype = self.value(path, "type", self.choice(types), "ground")
+        return Robot(
+            name=name,
+            system_id=self.value(path, "system_id", self.integer(0, 65535)),
+            key=self.value(path, "key", self.string),
+            password_hash=self.value(path, "password", self.password_hash),
+            type=RobotType[rtype.upper()],
+            bridge=self.bridge(path + ("bridge",)) if self.get(path).get("bridge") is not None else BridgeSettings(),
+            rules=self.rules(path + ("rules",)) if "rules" in self.get(path) else (),
+            services=self.services(path + ("services",)) if "services" in self.get(path) else (),
+        )
+
+    def limits(self, path: Path) -> VelocityLimits:
+        self.mapping(path, ("linear", "angular"))
+        d = VelocityLimits()
+        return VelocityLimits(self.value(path, "linear", self.number(0), d.linear),
+                              self.value(path, "angular", self.number(0), d.angular))
+
+    def bridge(self, path: Path) -> BridgeSettings:
+        self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
+                            "operator_timeout", "command_timeout", "limits"))
+        d = BridgeSettings()
+        positive = self.number(0, 3600, open_low=True)
+
+        def url(p: Path, v: Any) -> str:
+            if not isinstance(v, str) or not _MQTT_URL.match(v):
+                raise self.err(p, f"expected a broker URL like mqtt://host:1883 or mqtts://host:8883, got {_show(v)}")
+            return v
+
+        return BridgeSettings(
+            broker_url=self.value(path, "broker", url, d.broker_url),
+            password=self.value(path, "password", self.string, None),
+            password_file=self.value(path, "password_file", self.string, None),
+            keepalive=self.value(path, "keepalive", self.integer(1, 65535), d.keepalive),
+            heartbeat_period=self.value(path, "heartbeat_period", positive, d.heartbeat_period),
+            operator_timeout=self.value(path, "operator_timeout", positive, d.operator_timeout),
+            command_timeout=self.value(path, "command_timeout", positive, d.command_timeout),
+            limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else d.limits,
+        )
+
+    def rules(self, path: Path) -> tuple[Rule, ...]:
+        rules = tuple(self.rule(path + (i,), i) for i in range(len(self.sequence(path))))
+        outputs: dict[tuple[Direction, str], Rule] = {}
+        ros_sides: dict[str, Rule] = {}
+        for rule in rules:
+            rp = path + (rule.index,)
+            key = (rule.direction, rule.mqtt_topic)
+            if key in outputs:
+                raise self.err(rp + ("mqtt_topic",), f"{rule.label} duplicates {outputs[key].label}: "
+                                                     f"same MQTT topic in the same direction")
+            outputs[key] = rule
+            other = ros_sides.get(rule.ros_topic)
+            if other is not None:
+                if other.direction is not rule.direction:
+                    raise self.err(rp + ("ros_topic",), f"{rule.label} and {other.label} loop: the same ROS topic "
+                                                        "is both published to and read from MQTT")
+                if rule.direction is Direction.MQTT_TO_ROS:
+                    raise self.err(rp + ("ros_topic",), f"{rule.label} duplicates {other.label}: two MQTT topics "
+                                                        "write the same ROS topic")
+            ros_sides.setdefault(rule.ros_topic, rule)
+        return rules
+
+    def rule(self, path: Path, index: int) -> Rule:
+        self.mapping(path, ("direction", "ros_topic", "ros_type", "mqtt_topic", "preset", "mqtt_qos", "retain",
+                            "ros_qos", "max_rate", "fields", "limits"))
+        direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
+        mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
+        first = mqtt_topic.split("/")[0]
+        if direction is Direction.ROS_TO_MQTT and (first != "state" or "/" not in mqtt_topic):
+            raise self.err(path + ("mqtt_topic",), f"a ros_to_mqtt rule publishes under state/, e.g. "
+                                                   f"state/{mqtt_topic.split('/')[-1]}; got '{mqtt_topic}'")
+        if direction is Direction.MQTT_TO_ROS and first in _RESERVED_FROM + ("state",):
+            raise self.err(path + ("mqtt_topic",), f"'{first}/' is reserved; an mqtt_to_ros rule reads "
+                                                   f"from/<user>/<mqtt_topic>, e.g. cmd/twist")
+        preset = self.value(path, "preset", self.choice(tuple(SPECS_BY_NAME)), None)
+        if preset is not None:
+            wanted = MsgDirection.STATE if direction is Direction.ROS_TO_MQTT else MsgDirection.COMMAND
+            if SPECS_BY_NAME[preset].direction is not wanted:
+                raise self.err(path + ("preset",), f"preset '{preset}' is a {SPECS_BY_NAME[preset].direction.value} "
+                                                   f"message and cannot be used in a {direction.value} rule")
+        qos = RosQos()
+        if self.get(path).get("ros_qos") is not None:
+            qp = path + ("ros_qos",)
+            self.mapping(qp, ("depth", "reliability", "durability"))
+            qos = RosQos(self.value(qp, "depth", self.integer(1, 10000), qos.depth),
+                         self.value(qp, "reliability", self.choice(("reliable", "best_effort")), qos.reliability),
+                         self.value(qp, "durability", self.choice(("volatile", "transient_local")), qos.durability))
+        fields: dict[str, str] = {}
+        if self.get(path).get("fields") is not None:
+            fp = path + ("fields",)
+            raw = self.get(fp)
+            if not isinstance(raw, dict):
+                raise self.err(fp, f"expected a mapping of MQTT field to ROS field path, got {_show(raw)}")
+            for k, v in raw.items():
+                fields[k] = self.string(fp + (k,), v)
+        return Rule(
+            index=index,
+            direction=direction,
+            ros_topic=self.value(path, "ros_topic", self.ros_name),
+            ros_type=self.value(path, "ros_type", self.ros_type("msg")),
+            mqtt_topic=mqtt_topic,
+            preset=preset,
+            mqtt_qos=self.value(path, "mqtt_qos", self.integer(0, 2), 0),
+            retain=self.value(path, "retain", self.boolean, False),
+            ros_qos=qos,
+            max_rate=self.value(path, "max_rate", self.number(0, 10000, open_low=True), None),
+            fields=fields,
+            limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else None,
+            line=self.src.line_of(path),
+        )
+
+    def services(self, path: Path) -> tuple[ServiceRule, ...]:
+        out: list[ServiceRule] = []
+        names: set[str] = set()
+        for i in range(len(self.sequence(path))):
+            sp = path + (i,)
+            self.mapping(sp, ("name", "ros_service", "ros_type", "read_only", "timeout"))
+            ros_service = self.value(sp, "ros_service", self.ros_name)
+            name = self.value(sp, "name", self.topic_path, None) or ros_service.strip("/~").replace("/", "_")
+            if name in names:
+                raise self.err(sp + ("name",), f"service name '{name}' is used twice")
+            names.add(name)
+            out.append(ServiceRule(name, ros_service, self.value(sp, "ros_type", self.ros_type("srv")),
+                                   self.value(sp, "read_only", self.boolean, False),
+                                   self.value(sp, "timeout", self.number(0, 3600, open_low=True), 5.0),
+                                   self.src.line_of(sp)))
+        return tuple(out)
+
+    def users(self, path: Path, robots: dict[str, Robot]) -> dict[str, User]:
+        data = self.get(path) if "users" in self.src.data else None
+        if data is None:
+            return {}
+        if not isinstance(data, dict):
+            raise self.err(path, f"expected a mapping of user name to settings, got {_show(data)}")
+        keys = {r.key for r in robots.values()}
+        users: dict[str, User] = {}
+        for name in data:
+            up = path + (name,)
+            self.topic_name("user name")(up, name)
+            if name in robots:
+                raise self.err(up, f"'{name}' is both a robot and a user; login names must be unique")
+            self.mapping(up, ("password", "grants", "admin"))
+            grants = []
+            for i in range(len(self.sequence(up + ("grants",))) if "grants" in self.get(up) else 0):
+                gp = up + ("grants", i)
+                self.mapping(gp, ("key", "role"))
+                key = self.value(gp, "key", self.string)
+                if key not in keys:
+                    raise self.err(gp + ("key",), "no robot has this key")
+                grants.append(Grant(key, Role(self.value(gp, "role", self.choice(tuple(r.value for r in Role))))))
+            users[name] = User(name, self.value(up, "password", self.password_hash), tuple(grants),
+                               self.value(up, "admin", self.boolean, False))
+        return users
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
+    if value is None:
+        return "nothing"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return repr(value)
+
+
+def _closest(key: str, allowed: tuple[str, ...]) -> str | None:
+    import difflib
+
+    match = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.75)
+    return match[0] if match else None

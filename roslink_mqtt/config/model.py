@@ -1,0 +1,181 @@
+"""The fleet as typed, validated objects (what robots.yaml becomes).
+
+Everything here is immutable: the broker swaps a whole new Fleet on SIGHUP
+instead of editing one in place, so a half-applied reload cannot exist.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from ..protocol.enums import RobotType
+from ..topics import TopicTree
+
+
+class Role(StrEnum):
+    OPERATOR = "operator"  # may watch and command
+    VIEWER = "viewer"  # may watch, and call read-only services
+
+
+class Direction(StrEnum):
+    ROS_TO_MQTT = "ros_to_mqtt"
+    MQTT_TO_ROS = "mqtt_to_ros"
+
+
+@dataclass(frozen=True, slots=True)
+class TlsSettings:
+    port: int
+    certfile: str
+    keyfile: str
+    cafile: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class BrokerSettings:
+    host: str = "127.0.0.1"
+    port: int = 1883
+    ws_port: int | None = 8083
+    tls: TlsSettings | None = None
+    max_payload: int = 4 * 1024 * 1024
+
+
+@dataclass(frozen=True, slots=True)
+class VelocityLimits:
+    """Absolute limits; every commanded component is clamped into ±limit."""
+
+    linear: float = 0.5  # m/s
+    angular: float = 1.5  # rad/s
+
+
+@dataclass(frozen=True, slots=True)
+class RosQos:
+    depth: int = 10
+    reliability: str = "reliable"  # reliable | best_effort
+    durability: str = "volatile"  # volatile | transient_local
+
+
+@dataclass(frozen=True, slots=True)
+class Rule:
+    """One topic mapping between the robot's ROS graph and MQTT."""
+
+    index: int
+    direction: Direction
+    ros_topic: str
+    ros_type: str
+    mqtt_topic: str  # under state/ (ros_to_mqtt) or from/<user>/ (mqtt_to_ros)
+    preset: str | None = None
+    mqtt_qos: int = 0
+    retain: bool = False
+    ros_qos: RosQos = field(default_factory=RosQos)
+    max_rate: float | None = None  # Hz; newest wins
+    fields: dict[str, str] = field(default_factory=dict)  # mqtt field -> ros field path
+    limits: VelocityLimits | None = None
+    line: int | None = None
+
+    @property
+    def label(self) -> str:
+        arrow = "→"
+        if self.direction is Direction.ROS_TO_MQTT:
+            return f"rules[{self.index}] ({self.ros_topic} {arrow} {self.mqtt_topic})"
+        return f"rules[{self.index}] ({self.mqtt_topic} {arrow} {self.ros_topic})"
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceRule:
+    """A ROS service on the robot that MQTT users may call."""
+
+    name: str  # MQTT name: call/<name>
+    ros_service: str
+    ros_type: str
+    read_only: bool = False  # viewers may call read-only services
+    timeout: float = 5.0
+    line: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class BridgeSettings:
+    broker_url: str = "mqtt://127.0.0.1:1883"
+    password: str | None = None  # plaintext: demo only; prefer env or password_file
+    password_file: str | None = None
+    keepalive: int = 5  # s
+    heartbeat_period: float = 1.0  # s
+    operator_timeout: float = 1.5  # s
+    command_timeout: float = 1.0  # s
+    limits: VelocityLimits = field(default_factory=VelocityLimits)
+
+
+@dataclass(frozen=True, slots=True)
+class Robot:
+    name: str
+    system_id: int
+    key: str
+    password_hash: str
+    type: RobotType = RobotType.GROUND
+    bridge: BridgeSettings = field(default_factory=BridgeSettings)
+    rules: tuple[Rule, ...] = ()
+    services: tuple[ServiceRule, ...] = ()
+
+    def service(self, name: str) -> ServiceRule | None:
+        return next((s for s in self.services if s.name == name), None)
+
+
+@dataclass(frozen=True, slots=True)
+class Grant:
+    key: str
+    role: Role
+
+
+@dataclass(frozen=True, slots=True)
+class User:
+    name: str
+    password_hash: str
+    grants: tuple[Grant, ...] = ()
+    admin: bool = False
+
+
+@dataclass(frozen=True)
+class Fleet:
+    file: str
+    prefix: str
+    broker: BrokerSettings
+    robots: dict[str, Robot]
+    users: dict[str, User]
+
+    @property
+    def topics(self) -> TopicTree:
+        return TopicTree(self.prefix)
+
+    def robot_by_key(self, key: str) -> Robot | None:
+        return next((r for r in self.robots.values() if r.key == key), None)
+
+    def roles_of(self, user: str) -> dict[str, Role]:
+        """Robots a user may access, with the strongest role granted for each."""
+        u = self.users.get(user)
+        if u is None:
+            return {}
+        if u.admin:
+            return {name: Role.OPERATOR for name in self.robots}
+        roles: dict[str, Role] = {}
+        for grant in u.grants:
+            robot = self.robot_by_key(grant.key)
+            if robot is not None and roles.get(robot.name) is not Role.OPERATOR:
+                roles[robot.name] = grant.role
+        return roles
+
+    def users_of(self, robot: str) -> dict[str, Role]:
+        """Users granted ``robot`` (admins included), with their role."""
+        out: dict[str, Role] = {}
+        for name in self.users:
+            role = self.roles_of(name).get(robot)
+            if role is not None:
+                out[name] = role
+        return out
+
+    def password_hash(self, username: str) -> str | None:
+        """The stored hash for a robot or user login name."""
+        if username in self.robots:
+            return self.robots[username].password_hash
+        if username in self.users:
+            return self.users[username].password_hash
+        return None

@@ -1,0 +1,80 @@
+"""Mosquitto-compatible password hashes.
+
+We store credentials exactly as ``mosquitto_passwd`` writes them so a single
+robots.yaml serves the embedded broker and an exported Mosquitto password
+file alike:
+
+* ``$7$<iterations>$<salt b64>$<hash b64>`` — PBKDF2-HMAC-SHA512 (what we write)
+* ``$6$<salt b64>$<hash b64>`` — SHA512(password + salt), Mosquitto ≤ 1.6 (verified only)
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import hashlib
+import hmac
+import os
+
+DEFAULT_ITERATIONS = 1000
+SALT_BYTES = 12  # what mosquitto_passwd uses
+MAX_ITERATIONS = 10_000_000
+
+
+class PasswordHashError(ValueError):
+    """A stored hash is not in a format we (and Mosquitto) understand."""
+
+
+def hash_password(password: str, *, iterations: int = DEFAULT_ITERATIONS, salt: bytes | None = None) -> str:
+    """Hash ``password`` the way ``mosquitto_passwd`` does (PBKDF2-SHA512)."""
+    if not password:
+        raise ValueError("password must not be empty")
+    if not 1 <= iterations <= MAX_ITERATIONS:
+        raise ValueError(f"iterations must be 1..{MAX_ITERATIONS}")
+    salt = os.urandom(SALT_BYTES) if salt is None else salt
+    digest = hashlib.pbkdf2_hmac("sha512", password.encode(), salt, iterations)
+    return f"$7${iterations}${_b64(salt)}${_b64(digest)}"
+
+
+def check_hash_format(stored: str) -> None:
+    """Raise PasswordHashError unless ``stored`` is a hash we can verify."""
+    _parse(stored)
+
+
+def verify_password(password: str, stored: str) -> bool:
+    """True when ``password`` matches ``stored``; constant-time comparison."""
+    algorithm, iterations, salt, expected = _parse(stored)
+    if algorithm == "7":
+        actual = hashlib.pbkdf2_hmac("sha512", password.encode(), salt, iterations)
+    else:
+        actual = hashlib.sha512(password.encode() + salt).digest()
+    return hmac.compare_digest(actual, expected)
+
+
+def _parse(stored: str) -> tuple[str, int, bytes, bytes]:
+    if not isinstance(stored, str):
+        raise PasswordHashError("password hash must be a string")
+    parts = stored.split("$")
+    try:
+        if len(parts) == 5 and parts[0] == "" and parts[1] == "7":
+            iterations = int(parts[2])
+            if not 1 <= iterations <= MAX_ITERATIONS:
+                raise PasswordHashError(f"iteration count {iterations} out of range")
+            return "7", iterations, _unb64(parts[3]), _unb64(parts[4])
+        if len(parts) == 4 and parts[0] == "" and parts[1] == "6":
+            return "6", 1, _unb64(parts[2]), _unb64(parts[3])
+    except (ValueError, binascii.Error) as err:
+        if isinstance(err, PasswordHashError):
+            raise
+        raise PasswordHashError(f"malformed password hash ({err})") from None
+    raise PasswordHashError(
+        "not a Mosquitto password hash (expected $7$<iterations>$<salt>$<hash>; "
+        "make one with `roslink-mqtt passwd`)")
+
+
+def _b64(raw: bytes) -> str:
+    return base64.b64encode(raw).decode("ascii")
+
+
+def _unb64(text: str) -> bytes:
+    return base64.b64decode(text.encode("ascii"), validate=True)

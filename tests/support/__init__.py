@@ -1,0 +1,1 @@
+"""Helpers shared by integration tests: free ports, process management, real brokers."""

@@ -1,0 +1,38 @@
+"""Start a real Mosquitto broker (the OS package) on a free loopback port."""
+
+from __future__ import annotations
+
+import getpass
+import shutil
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from .net import free_port, wait_for_port
+
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+
+
+@contextmanager
+def run_mosquitto(workdir: Path, extra_conf: str = "", port: int | None = None) -> Iterator[int]:
+    """Run mosquitto with ``extra_conf`` appended; yield its port; stop it afterwards."""
+    port = port or free_port()
+    conf = workdir / "mosquitto.conf"
+    # Started as root, mosquitto drops to user "mosquitto", who cannot read pytest's private tmp dirs.
+    user = getpass.getuser()
+    conf.write_text(f"user {user}\nlistener {port} 127.0.0.1\npersistence false\nlog_dest stderr\n"
+                    f"{extra_conf}\n")
+    log = open(workdir / "mosquitto.log", "wb")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=log, stderr=subprocess.STDOUT)
+    try:
+        wait_for_port(port)
+        yield port
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
