@@ -103,3 +103,15 @@ def test_random_json_objects_raise_only_protocol_error(obj) -> None:
             decode(data, expected)
         except ProtocolError:
             pass
+
+
+def test_error_reply_shape() -> None:
+    import orjson
+
+    from roslink_mqtt.protocol import error_reply
+
+    body = orjson.loads(error_reply("roslink/t/from/a/cmd/twist", "payload.lx: bad", message_id=100,
+                                    sequence_number=5))
+    assert body == {"topic": "roslink/t/from/a/cmd/twist", "error": "payload.lx: bad", "message_id": 100,
+                    "sequence_number": 5}
+    assert orjson.loads(error_reply("t", "x")) == {"topic": "t", "error": "x"}

@@ -12,6 +12,7 @@ from .codec import (
     decode_object,
     encode,
     encode_message,
+    error_reply,
     loads,
 )
 from .enums import AckResult, FlightMode, RobotType, SystemStatus
@@ -24,5 +25,5 @@ __all__ = [
     "DEFAULT_MAX_BYTES", "ROSLINK_VERSION", "ROS_VERSION", "SPECS", "SPECS_BY_ID", "SPECS_BY_NAME",
     "AckResult", "Direction", "Envelope", "Field", "FlightMode", "Kind", "MessageId", "MessageSpec",
     "ProtocolError", "RobotType", "SequenceTracker", "SystemStatus", "Verdict",
-    "decode", "decode_object", "encode", "encode_message", "loads", "spec_for", "validate_payload",
+    "decode", "decode_object", "encode", "encode_message", "error_reply", "loads", "spec_for", "validate_payload",
 ]

@@ -162,4 +162,15 @@ def _check_header(obj: dict[str, Any]) -> dict[str, int]:
 
 
 __all__ = ["Envelope", "MessageId", "ROSLINK_VERSION", "ROS_VERSION", "decode", "decode_object", "encode",
-           "encode_message", "loads"]
+           "encode_message", "error_reply", "loads"]
+
+
+def error_reply(topic: str, reason: str, *, message_id: int | None = None,
+                sequence_number: int | None = None) -> bytes:
+    """The JSON object published on ``to/<user>/error`` (docs/protocol.md, *Errors*)."""
+    body: dict[str, Any] = {"topic": topic, "error": reason}
+    if message_id is not None:
+        body["message_id"] = int(message_id)
+    if sequence_number is not None:
+        body["sequence_number"] = sequence_number
+    return orjson.dumps(body)

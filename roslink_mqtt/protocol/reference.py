@@ -1,0 +1,80 @@
+"""Markdown reference of every ROSLink message, generated from the schema table.
+
+docs/protocol.md embeds this output between markers, and a test checks they
+agree, so the document client writers read cannot drift from the code.
+Run ``python -m roslink_mqtt.protocol.reference`` to regenerate.
+"""
+
+from __future__ import annotations
+
+import base64
+
+import orjson
+
+from .codec import Envelope, encode
+from .messages import SPECS, Direction, Field, Kind, MessageSpec
+
+BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
+END = "<!-- END GENERATED: message reference -->"
+
+_EXAMPLES: dict[str, dict] = {
+    "heartbeat": {"type": 1, "name": "turtle1", "system_status": 4, "owner_id": "alice", "mode": 0, "session": 3},
+    "robot_status": {"voltage_battery": 12.1, "current_battery": -1.5, "battery_remaining": 87.0},
+    "global_motion": {"time_boot_ms": 52100, "x": 1.2, "y": -0.4, "z": 0.0, "vx": 0.2, "vy": 0.0, "vz": 0.0,
+                      "wx": 0.0, "wy": 0.0, "wz": 0.5, "roll": 0.0, "pitch": 0.0, "yaw": 1.57},
+    "gps_raw_info": {"fix_type": 3, "lat": 24.7136, "lon": 46.6753, "alt": 612.0, "satellites_visible": 9},
+    "range_finder_data": {"range_min": 0.12, "range_max": 10.0, "angle_min": -1.57, "angle_max": 1.57,
+                          "angle_increment": 1.57, "ranges": [2.5, None, 0.8]},
+    "image": {"width": 2, "height": 2, "format": "jpeg", "data": base64.b64encode(b"\xff\xd8\xff").decode()},
+    "map": {"width": 2, "height": 2, "resolution": 0.05, "origin_x": -5.0, "origin_y": -5.0,
+            "data": [0, 0, 100, -1]},
+    "geo_tagged_image": {"lat": 24.7136, "lon": 46.6753, "alt": 612.0, "format": "jpeg",
+                         "data": base64.b64encode(b"\xff\xd8\xff").decode()},
+    "twist": {"lx": 0.2, "ly": 0.0, "lz": 0.0, "ax": 0.0, "ay": 0.0, "az": 0.5},
+    "go_to_waypoint": {"frame_type": 0, "x": 2.0, "y": 1.0, "z": 0.0},
+    "takeoff": {"altitude": 1.5},
+    "set_mode": {"mode": "GUIDED"},
+    "emergency_stop": {"reason": "person in the aisle"},
+    "ack": {"command": 100, "command_sequence": 17, "result": 3, "text": "operator alice went away"},
+}
+
+
+def example(spec: MessageSpec) -> dict:
+    return dict(_EXAMPLES.get(spec.name, {}))
+
+
+def _field_row(f: Field) -> str:
+    kind = f.kind.value
+    if f.bounds and f.kind in (Kind.INT, Kind.INT_LIST):
+        kind += f" {f.bounds[0]}..{f.bounds[1]}"
+    default = "required" if f.required else f"default `{orjson.dumps(f.default).decode()}`"
+    return f"| `{f.name}` | {kind} | {default} | {f.doc} |"
+
+
+def _topic(spec: MessageSpec) -> str:
+    if spec.name == "heartbeat":
+        return "`roslink/<robot>/heartbeat` (retained)"
+    if spec.direction is Direction.STATE:
+        return f"`roslink/<robot>/state/{spec.name}`"
+    return f"`roslink/<robot>/from/<user>/cmd/{spec.name}`"
+
+
+def render() -> str:
+    out = [BEGIN, ""]
+    for spec in SPECS:
+        out.append(f"### {int(spec.message_id)} {spec.name}")
+        out.append("")
+        out.append(f"Topic: {_topic(spec)}." + (f" {spec.doc}" if spec.doc else ""))
+        out.append("")
+        if spec.fields:
+            out += ["| field | type | | meaning |", "|---|---|---|---|", *(_field_row(f) for f in spec.fields), ""]
+        else:
+            out += ["No fields: send `{}`.", ""]
+        wire = encode(Envelope(spec.message_id, example(spec), system_id=1, sequence_number=17), validate=True)
+        out += ["```json", wire.decode(), "```", ""]
+    out.append(END)
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    print(render())
