@@ -131,7 +131,7 @@ SPECS: tuple[MessageSpec, ...] = (
         _i("errors_count", UINT32, default=0),
     )),
     MessageSpec(MessageId.GLOBAL_MOTION, "global_motion", _STATE, (
-        _i("time_boot_ms", UINT64, "ms since the bridge started", default=0),
+        _i("time_boot_ms", UINT64, "time of the measurement, ms (ROS clock)", default=0),
         _f("x", "m"), _f("y", "m"), _f("z", "m"),
         _f("vx", "m/s"), _f("vy", "m/s"), _f("vz", "m/s"),
         _f("wx", "rad/s"), _f("wy", "rad/s"), _f("wz", "rad/s"),

@@ -1,0 +1,4 @@
+"""The robot side: an rclpy node mapping ROS topics and services to MQTT. Needs the ``[bridge]`` extra.
+
+Imports rclpy, never amqtt (DESIGN §2).
+"""

@@ -1,0 +1,295 @@
+"""ROS message ↔ JSON-ready dict, with one specialised converter built per type.
+
+``to_dict`` is generated Python source per message type (attribute reads,
+``tolist()`` for arrays, base64 for byte arrays), compiled once and cached, so
+the hot ROS→MQTT path does no per-message introspection. ``from_dict`` walks a
+field table built once per type; it is strict because its input is untrusted:
+unknown fields, wrong types, out-of-range integers, wrong array lengths and
+bad base64 are :class:`ConversionError` naming the field path.
+
+JSON conventions (those rosbridge clients know): nested messages are objects,
+``uint8[]``/``byte[]`` are base64 strings, time is ``{"sec", "nanosec"}``.
+JSON has no NaN or infinity, so non-finite floats travel as the strings
+``"NaN"``, ``"Infinity"`` and ``"-Infinity"`` and round-trip exactly.
+"""
+
+from __future__ import annotations
+
+import array
+import base64
+import binascii
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import orjson
+from rosidl_parser import definition as d
+
+from .ros_types import load_interface
+
+
+class ConversionError(ValueError):
+    """Untrusted JSON does not fit the ROS type; the message names the field path."""
+
+
+NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
+_INT_RANGES = {
+    "int8": (-(2**7), 2**7 - 1), "uint8": (0, 2**8 - 1), "int16": (-(2**15), 2**15 - 1), "uint16": (0, 2**16 - 1),
+    "int32": (-(2**31), 2**31 - 1), "uint32": (0, 2**32 - 1), "int64": (-(2**63), 2**63 - 1),
+    "uint64": (0, 2**64 - 1), "char": (0, 255), "wchar": (0, 2**16 - 1),
+}
+_FLOATS = ("float", "double", "long double")
+_BYTE_LIKE = ("uint8", "octet")  # carried as base64
+
+
+def _nf(x: float) -> Any:
+    """JSON form of a float: itself when finite, else its name."""
+    if x != x:
+        return "NaN"
+    return "Infinity" if x > 0 else "-Infinity"
+
+
+def _nf_list(values: list[float]) -> list[Any]:
+    return [v if math.isfinite(v) else _nf(v) for v in values]
+
+
+def _b64(data: Any) -> str:
+    if isinstance(data, (bytes, bytearray)):
+        raw = bytes(data)
+    elif isinstance(data, array.array) or hasattr(data, "tobytes"):
+        raw = data.tobytes()
+    else:  # list of 1-byte bytes objects (byte[]) or ints
+        raw = b"".join(x if isinstance(x, bytes) else bytes((x,)) for x in data)
+    return base64.b64encode(raw).decode("ascii")
+
+
+def _describe(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + (value if len(value) <= 32 else value[:29] + "...") + '"'
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, list):
+        return f"an array of {len(value)}"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__
+
+
+def _namespaced(t: d.NamespacedType) -> type:
+    return load_interface("/".join(t.namespaces) + "/" + t.name)
+
+
+@dataclass
+class Converter:
+    """Both directions for one ROS message type."""
+
+    ros_type: type
+    to_dict: Callable[[Any], dict[str, Any]]  # plain Python values only
+    from_dict: Callable[[Any], Any]
+    _to_obj: Callable[[Any], dict[str, Any]]  # float arrays stay numpy views (for orjson)
+
+    def to_json(self, msg: Any) -> bytes:
+        """JSON bytes of ``msg``: the hot path of ROS→MQTT rules.
+
+        Float arrays are handed to orjson as zero-copy numpy views, which it
+        writes in their shortest form (float32 ``0.1`` stays ``0.1``); that is
+        2–3× faster than going through Python lists for a laser scan.
+        """
+        return orjson.dumps(self._to_obj(msg), option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+_CACHE: dict[type, Converter] = {}
+
+
+def converter_for(cls: type) -> Converter:
+    """The converter for ``cls``, built on first use and cached for the process."""
+    conv = _CACHE.get(cls)
+    if conv is None:
+        conv = Converter(cls, _build_to_dict(cls, numpy=False), _Reader(cls).read, _build_to_dict(cls, numpy=True))
+        _CACHE[cls] = conv
+    return conv
+
+
+def _float_view(values: Any) -> Any:
+    """A numpy view of a float array (array.array or ndarray) if all finite, else a list with names."""
+    view = values if type(values) is np.ndarray else np.frombuffer(values, dtype=values.typecode)
+    if np.isfinite(view).all():
+        return view
+    return _nf_list(view.tolist())
+
+
+# -- ROS → dict: generated source ------------------------------------------------------
+
+def _build_to_dict(cls: type, numpy: bool) -> Callable[[Any], dict[str, Any]]:
+    env: dict[str, Any] = {"_nf": _nf, "_nf_list": _nf_list, "_b64": _b64, "isfinite": math.isfinite,
+                           "all": all, "map": map, "_float_view": _float_view}
+    nested = "_to_obj" if numpy else "to_dict"
+    items = []
+    pre = []  # statements computing array values before the dict literal
+    for i, (name, slot) in enumerate(zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)):
+        attr = f"m.{name}"
+        if isinstance(slot, d.BasicType):
+            if slot.typename in _FLOATS:
+                pre.append(f"v{i} = {attr}\n    if not isfinite(v{i}): v{i} = _nf(v{i})")
+                items.append(f"{name!r}: v{i}")
+            elif slot.typename == "octet":
+                items.append(f"{name!r}: {attr}[0]")  # bytes of length 1 -> int
+            else:
+                items.append(f"{name!r}: {attr}")
+        elif isinstance(slot, d.AbstractGenericString):
+            items.append(f"{name!r}: {attr}")
+        elif isinstance(slot, d.NamespacedType):
+            env[f"c{i}"] = getattr(converter_for(_namespaced(slot)), nested)
+            items.append(f"{name!r}: c{i}({attr})")
+        elif isinstance(slot, d.AbstractNestedType):
+            inner = slot.value_type
+            if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
+                items.append(f"{name!r}: _b64({attr})")
+            elif isinstance(inner, d.BasicType) and inner.typename in _FLOATS and numpy:
+                items.append(f"{name!r}: _float_view({attr})")
+            elif isinstance(inner, d.BasicType) and inner.typename in _FLOATS:
+                pre.append(f"v{i} = {attr}.tolist()\n    if not all(map(isfinite, v{i})): v{i} = _nf_list(v{i})")
+                items.append(f"{name!r}: v{i}")
+            elif isinstance(inner, d.BasicType) and isinstance(slot, d.Array):
+                items.append(f"{name!r}: {attr}.tolist()")  # numpy array
+            elif isinstance(inner, d.BasicType):
+                items.append(f"{name!r}: ({attr}.tolist() if hasattr({attr}, 'tolist') else list({attr}))")
+            elif isinstance(inner, d.NamespacedType):
+                env[f"c{i}"] = getattr(converter_for(_namespaced(inner)), nested)
+                items.append(f"{name!r}: [c{i}(x) for x in {attr}]")
+            else:  # strings
+                items.append(f"{name!r}: list({attr})")
+        else:  # pragma: no cover - rosidl has no other member kinds
+            raise TypeError(f"{cls.__name__}.{name}: unsupported field type {slot!r}")
+    body = "".join(f"    {stmt}\n" for stmt in pre)
+    src = f"def to_dict(m):\n{body}    return {{{', '.join(items)}}}\n"
+    exec(compile(src, f"<to_dict {cls.__module__}.{cls.__name__}>", "exec"), env)  # noqa: S102 - our own source
+    return env["to_dict"]
+
+
+# -- dict → ROS: strict reader over a field table built once -------------------------------
+
+class _Reader:
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+        self.fields: dict[str, Callable[[str, Any], Any]] = {
+            name: self._checker(slot)
+            for name, slot in zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)
+        }
+        self.names = ", ".join(self.fields) or "none"
+
+    def read(self, data: Any, path: str = "") -> Any:
+        if not isinstance(data, dict):
+            raise ConversionError(f"{path or 'message'}: expected an object, got {_describe(data)}")
+        msg = self.cls()
+        fields = self.fields
+        for key, value in data.items():
+            check = fields.get(key)
+            field_path = f"{path}.{key}" if path else key
+            if check is None:
+                raise ConversionError(f"{field_path}: unknown field for {self.cls.__name__} (fields: {self.names})")
+            setattr(msg, key, check(field_path, value))
+        return msg
+
+    def _checker(self, slot: Any) -> Callable[[str, Any], Any]:
+        if isinstance(slot, d.BasicType):
+            return _scalar_checker(slot.typename)
+        if isinstance(slot, d.AbstractGenericString):
+            limit = getattr(slot, "maximum_size", None)
+
+            def check_string(path: str, v: Any) -> str:
+                if not isinstance(v, str):
+                    raise ConversionError(f"{path}: expected string, got {_describe(v)}")
+                if limit is not None and len(v) > limit:
+                    raise ConversionError(f"{path}: string longer than {limit}")
+                return v
+            return check_string
+        if isinstance(slot, d.NamespacedType):
+            sub = converter_for(_namespaced(slot))
+            reader_holder: dict[str, Any] = {}
+
+            def check_nested(path: str, v: Any) -> Any:
+                reader = reader_holder.get("r")
+                if reader is None:
+                    reader = reader_holder["r"] = _Reader(sub.ros_type)
+                return reader.read(v, path)
+            return check_nested
+        return self._sequence_checker(slot)
+
+    def _sequence_checker(self, slot: Any) -> Callable[[str, Any], Any]:
+        inner = slot.value_type
+        exact = slot.size if isinstance(slot, d.Array) else None
+        maximum = getattr(slot, "maximum_size", None) if isinstance(slot, d.BoundedSequence) else None
+
+        def check_length(path: str, n: int) -> None:
+            if exact is not None and n != exact:
+                raise ConversionError(f"{path}: expected exactly {exact} items, got {n}")
+            if maximum is not None and n > maximum:
+                raise ConversionError(f"{path}: expected at most {maximum} items, got {n}")
+
+        if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
+            as_bytes_list = inner.typename == "octet"
+
+            def check_bytes(path: str, v: Any) -> Any:
+                if isinstance(v, str):
+                    try:
+                        raw = base64.b64decode(v, validate=True)
+                    except (binascii.Error, ValueError) as err:
+                        raise ConversionError(f"{path}: invalid base64 ({err})") from None
+                elif isinstance(v, list):
+                    item = _scalar_checker("uint8")
+                    raw = bytes(item(f"{path}[{i}]", x) for i, x in enumerate(v))
+                else:
+                    raise ConversionError(f"{path}: expected base64 string, got {_describe(v)}")
+                check_length(path, len(raw))
+                return [bytes((b,)) for b in raw] if as_bytes_list else raw
+            return check_bytes
+
+        item_check = self._checker(inner)
+
+        def check_list(path: str, v: Any) -> Any:
+            if not isinstance(v, list):
+                raise ConversionError(f"{path}: expected array, got {_describe(v)}")
+            check_length(path, len(v))
+            return [item_check(f"{path}[{i}]", x) for i, x in enumerate(v)]
+        return check_list
+
+
+def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
+    if typename in _FLOATS:
+        def check_float(path: str, v: Any) -> float:
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                return float(v)
+            if isinstance(v, str) and v in NON_FINITE:
+                return NON_FINITE[v]
+            raise ConversionError(f"{path}: expected number, got {_describe(v)}")
+        return check_float
+    if typename == "boolean":
+        def check_bool(path: str, v: Any) -> bool:
+            if not isinstance(v, bool):
+                raise ConversionError(f"{path}: expected true or false, got {_describe(v)}")
+            return v
+        return check_bool
+    if typename == "octet":
+        def check_octet(path: str, v: Any) -> bytes:
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 255:
+                raise ConversionError(f"{path}: expected integer 0..255, got {_describe(v)}")
+            return bytes((v,))
+        return check_octet
+    lo, hi = _INT_RANGES[typename]
+
+    def check_int(path: str, v: Any) -> int:
+        if isinstance(v, float) and v.is_integer():
+            v = int(v)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ConversionError(f"{path}: expected integer, got {_describe(v)}")
+        if not lo <= v <= hi:
+            raise ConversionError(f"{path}: expected integer {lo}..{hi}, got {v}")
+        return v
+    return check_int

@@ -1,0 +1,94 @@
+"""The bridge's MQTT connection: dial out, stay connected, never block ROS.
+
+paho runs its own network thread. Callbacks here only hand data over; the
+ROS side publishes from that thread (rclpy publishers are thread-safe) and
+MQTT publishes from the executor are queued by paho, so neither side ever
+waits for the other.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+
+import paho.mqtt.client as mqtt
+
+from ..mqtt import BrokerUrl, make_client
+
+log = logging.getLogger("roslink_mqtt.bridge.link")
+
+
+class MqttLink:
+    def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl,
+                 keepalive: int, will: tuple[str, bytes], subscriptions: Callable[[], list[tuple[str, int]]],
+                 on_message: Callable[[str, bytes], None],
+                 on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
+                 ca_file: str | None = None, max_reconnect_delay: float = 2.0) -> None:
+        self.url, self.keepalive = url, keepalive
+        self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
+        self.connected = threading.Event()
+        self.client = make_client(client_id, username=username, password=password, url=url, ca_file=ca_file,
+                                  max_reconnect_delay=max_reconnect_delay)
+        will_topic, will_payload = will
+        self.client.will_set(will_topic, will_payload, qos=1, retain=True)
+        self.client.on_connect = self._handle_connect
+        self.client.on_disconnect = self._handle_disconnect
+        self.client.on_message = self._handle_message
+        self.client.on_connect_fail = self._handle_connect_fail
+        self._refused_logged = False
+
+    # -- lifecycle ------------------------------------------------------------
+    def start(self) -> None:
+        """Connect in the background; retries forever (start order does not matter)."""
+        self.client.connect_async(self.url.host, self.url.port, keepalive=self.keepalive)
+        self.client.loop_start()
+
+    def stop(self, last_words: list[tuple[str, bytes, int, bool]] = ()) -> None:
+        """Publish ``last_words`` (e.g. the offline heartbeat), then disconnect cleanly."""
+        if self.connected.is_set():
+            infos = [self.client.publish(t, p, qos=q, retain=r) for t, p, q, r in last_words]
+            for info in infos:
+                try:
+                    info.wait_for_publish(timeout=1.0)
+                except (RuntimeError, ValueError):
+                    pass
+        self.client.disconnect()
+        self.client.loop_stop()
+
+    # -- traffic ----------------------------------------------------------------
+    def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
+        """Queue a message; dropped (not queued) while disconnected, so stale state is never replayed."""
+        if self.connected.is_set():
+            self.client.publish(topic, payload, qos=qos, retain=retain)
+
+    # -- paho callbacks (network thread) ------------------------------------------
+    def _handle_connect(self, client: mqtt.Client, _userdata, _flags, reason, _props) -> None:
+        if reason.is_failure:
+            if not self._refused_logged:
+                log.error("broker %s refused the connection: %s", self.url, reason)
+                self._refused_logged = True
+            return
+        self._refused_logged = False
+        subs = self._subscriptions()
+        if subs:
+            client.subscribe(subs)
+        self.connected.set()
+        log.info("connected to %s", self.url)
+        self._on_up()
+
+    def _handle_disconnect(self, _client, _userdata, _flags, reason, _props) -> None:
+        was_up = self.connected.is_set()
+        self.connected.clear()
+        if was_up:
+            log.warning("lost the broker %s (%s); reconnecting", self.url, reason)
+            self._on_down(str(reason))
+
+    def _handle_connect_fail(self, _client, _userdata) -> None:
+        log.debug("broker %s not reachable yet; retrying", self.url)
+
+    def _handle_message(self, _client, _userdata, message: mqtt.MQTTMessage) -> None:
+        try:
+            self._on_message(message.topic, message.payload)
+        except Exception:  # a bug in one handler must not kill the network thread
+            log.exception("error handling %s", message.topic)

@@ -1,0 +1,105 @@
+"""``roslink-mqtt-bridge``: run the bridge for one robot of the fleet.
+
+    roslink-mqtt-bridge --config config/robots.yaml --robot turtle1 [--broker mqtt://127.0.0.1:1883]
+                        [--ros-args -r __ns:=/robot1 -r cmd_vel:=/base/cmd_vel]
+
+The robot's password comes from ``ROSLINK_MQTT_PASSWORD``, ``--password-file``,
+the config's ``bridge.password_file`` or (demo only) ``bridge.password`` —
+never from the command line, where ``ps`` would show it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+PASSWORD_ENV = "ROSLINK_MQTT_PASSWORD"
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="roslink-mqtt-bridge", description=__doc__.split("\n\n")[0],
+                                epilog="Everything after --ros-args goes to ROS (remapping, namespace, parameters).")
+    p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    p.add_argument("--robot", required=True, help="robot name in the fleet file")
+    p.add_argument("--broker", help="broker URL, overrides bridge.broker (mqtt://, mqtts://, ws://, wss://)")
+    p.add_argument("--password-file", help=f"file whose first line is the robot's password (or set {PASSWORD_ENV})")
+    p.add_argument("--ca-file", help="CA bundle for mqtts:// / wss:// brokers")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    return p.parse_args(argv)
+
+
+def resolve_password(args: argparse.Namespace, bridge_password: str | None, bridge_password_file: str | None,
+                     config_dir: Path) -> str:
+    if os.environ.get(PASSWORD_ENV):
+        return os.environ[PASSWORD_ENV]
+    file = args.password_file or bridge_password_file
+    if file:
+        path = Path(file) if Path(file).is_absolute() or args.password_file else config_dir / file
+        try:
+            return path.read_text(encoding="utf-8").splitlines()[0].strip()
+        except (OSError, IndexError) as err:
+            raise SystemExit(f"roslink-mqtt-bridge: cannot read password file {path}: {err}") from None
+    if bridge_password:
+        return bridge_password
+    raise SystemExit(f"roslink-mqtt-bridge: no password for robot '{args.robot}': set {PASSWORD_ENV}, "
+                     "--password-file or bridge.password_file in the config")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    from rclpy.utilities import remove_ros_args
+
+    from ..config import ConfigError, load_fleet
+    from ..mqtt import parse_broker_url
+    from .node import Bridge
+    from .rules import RuleError
+
+    args = parse_args(remove_ros_args(argv)[1:])
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        fleet = load_fleet(args.config)
+    except ConfigError as err:
+        print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
+        return 2
+    robot = fleet.robots.get(args.robot)
+    if robot is None:
+        print(f"roslink-mqtt-bridge: no robot '{args.robot}' in {args.config} "
+              f"(robots: {', '.join(fleet.robots)})", file=sys.stderr)
+        return 2
+    try:
+        url = parse_broker_url(args.broker or robot.bridge.broker_url)
+    except ValueError as err:
+        print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
+        return 2
+    password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
+                                Path(args.config).resolve().parent)
+    rclpy.init(args=argv)
+    try:
+        node = rclpy.create_node("roslink_mqtt_bridge")
+        bridge = Bridge(fleet, robot, node, password=password, broker_url=url, ca_file=args.ca_file)
+    except RuleError as err:
+        print(f"roslink-mqtt-bridge: {args.config}: robots.{robot.name}.{err}", file=sys.stderr)
+        rclpy.shutdown()
+        return 2
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    bridge.start()
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        bridge.stop()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

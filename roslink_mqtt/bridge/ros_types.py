@@ -1,0 +1,33 @@
+"""Load ROS interface classes from their names (``geometry_msgs/msg/Twist``)."""
+
+from __future__ import annotations
+
+import importlib
+from functools import cache
+
+
+class UnknownTypeError(ValueError):
+    """The named ROS interface is not installed (or the name is malformed)."""
+
+
+@cache
+def load_interface(name: str) -> type:
+    """The message or service class for ``pkg/msg/Type`` or ``pkg/srv/Type``."""
+    parts = name.split("/")
+    if len(parts) != 3 or parts[1] not in ("msg", "srv") or not all(parts):
+        raise UnknownTypeError(f"'{name}' is not a ROS type name like geometry_msgs/msg/Twist")
+    package, kind, type_name = parts
+    try:
+        module = importlib.import_module(f"{package}.{kind}")
+    except ImportError:
+        raise UnknownTypeError(f"unknown type '{name}': ROS package '{package}' is not installed") from None
+    cls = getattr(module, type_name, None)
+    if not isinstance(cls, type):
+        raise UnknownTypeError(f"unknown type '{name}': '{package}' has no {kind} '{type_name}'")
+    return cls
+
+
+def type_name(cls: type) -> str:
+    """``geometry_msgs/msg/Twist`` for the Twist class (inverse of :func:`load_interface`)."""
+    package, kind = cls.__module__.split(".")[:2]
+    return f"{package}/{kind}/{cls.__name__}"

@@ -1,0 +1,165 @@
+"""Compile robots.yaml rules into ready-to-run handlers, once, at bridge start.
+
+Everything that can be decided before the first message is decided here —
+type classes loaded, preset checked against the type, converter built, topic
+strings formatted — so the per-message path is a few calls. Any problem is a
+:class:`RuleError` naming the rule, raised before the bridge connects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import orjson
+
+from ..config import Robot, Rule, VelocityLimits
+from ..config.model import Direction
+from ..protocol import SPECS_BY_NAME, Envelope, MessageSpec, encode
+from ..topics import TopicTree
+from .convert import ConversionError, converter_for
+from .presets import COMMAND_PRESETS, STATE_PRESETS
+from .ros_types import UnknownTypeError, load_interface
+from .safety import VELOCITY_TYPES
+
+
+class RuleError(ValueError):
+    """A rule that cannot run (unknown type, preset/type mismatch, …); names the rule."""
+
+
+@dataclass
+class Outbound:
+    """ros_to_mqtt: a ROS message becomes MQTT bytes on one topic."""
+
+    rule: Rule
+    ros_cls: type
+    topic: str
+    serialize: Callable[[Any], bytes]
+    period: float  # 0 = no throttle
+
+
+@dataclass
+class Inbound:
+    """mqtt_to_ros: a payload from a user becomes a ROS message on one topic."""
+
+    rule: Rule
+    ros_cls: type
+    spec: MessageSpec | None  # the ROSLink message for preset rules; None for generic JSON
+    build: Callable[[Any], Any]  # validated payload (preset) or parsed JSON (generic) -> ROS message
+    is_velocity: bool
+    limits: VelocityLimits
+
+
+def _load(rule: Rule) -> type:
+    try:
+        return load_interface(rule.ros_type)
+    except UnknownTypeError as err:
+        raise RuleError(f"{rule.label}: {err}") from None
+
+
+def _get_path(data: dict[str, Any], path: str) -> Any:
+    for part in path.split("."):
+        data = data[part]
+    return data
+
+
+def _set_path(data: dict[str, Any], path: str, value: Any) -> None:
+    parts = path.split(".")
+    for part in parts[:-1]:
+        data = data.setdefault(part, {})
+    data[parts[-1]] = value
+
+
+def _check_field_paths(rule: Rule, ros_cls: type) -> None:
+    """Every ``fields`` target must exist in the ROS type, or the rule fails at start."""
+    for mqtt_field, ros_path in rule.fields.items():
+        cls: Any = ros_cls
+        for part in ros_path.split("."):
+            fields = cls.get_fields_and_field_types() if hasattr(cls, "get_fields_and_field_types") else {}
+            if part not in fields:
+                raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}")
+            sub = fields[part]
+            cls = load_interface(sub.replace("/", "/msg/", 1)) if sub.count("/") == 1 else None
+
+
+def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
+    ros_cls = _load(rule)
+    topic = topics.state(robot.name, rule.mqtt_topic.removeprefix("state/"))
+    period = 1.0 / rule.max_rate if rule.max_rate else 0.0
+    if rule.preset is not None:
+        preset = STATE_PRESETS.get(rule.preset)
+        if preset is None:
+            raise RuleError(f"{rule.label}: preset '{rule.preset}' is not produced from ROS topics "
+                            f"(state presets: {', '.join(STATE_PRESETS)})")
+        if rule.ros_type not in preset.ros_types:
+            raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
+                            f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+        message_id, system_id, convert = SPECS_BY_NAME[rule.preset].message_id, robot.system_id, preset.convert
+        sequence = 0
+
+        def serialize_preset(msg: Any) -> bytes:
+            nonlocal sequence
+            sequence = (sequence + 1) & 0xFFFFFFFF
+            return encode(Envelope(message_id, convert(msg), system_id, sequence))
+
+        return Outbound(rule, ros_cls, topic, serialize_preset, period)
+    converter = converter_for(ros_cls)
+    to_dict = converter.to_dict
+    if rule.fields:
+        _check_field_paths(rule, ros_cls)
+        selected = tuple(rule.fields.items())
+
+        def serialize_fields(msg: Any) -> bytes:
+            d = to_dict(msg)
+            return orjson.dumps({k: _get_path(d, path) for k, path in selected})
+
+        return Outbound(rule, ros_cls, topic, serialize_fields, period)
+    return Outbound(rule, ros_cls, topic, converter.to_json, period)
+
+
+def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
+    ros_cls = _load(rule)
+    limits = rule.limits or robot.bridge.limits
+    is_velocity = rule.ros_type in VELOCITY_TYPES
+    if rule.preset is not None:
+        preset = COMMAND_PRESETS.get(rule.preset)
+        if preset is None:
+            raise RuleError(f"{rule.label}: preset '{rule.preset}' is not a command preset "
+                            f"(command presets: {', '.join(COMMAND_PRESETS)})")
+        if rule.ros_type not in preset.ros_types:
+            raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
+                            f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+        build = preset.build
+        return Inbound(rule, ros_cls, SPECS_BY_NAME[rule.preset], lambda p: build(p, ros_cls), is_velocity, limits)
+    from_dict = converter_for(ros_cls).from_dict
+    if rule.fields:
+        _check_field_paths(rule, ros_cls)
+        mapping = tuple(rule.fields.items())
+
+        def build_fields(data: Any) -> Any:
+            if not isinstance(data, dict):
+                raise ConversionError("expected a JSON object")
+            unknown = sorted(set(data) - set(rule.fields))
+            if unknown:
+                raise ConversionError(f"unknown field '{unknown[0]}' (fields: {', '.join(rule.fields)})")
+            nested: dict[str, Any] = {}
+            for mqtt_field, path in mapping:
+                if mqtt_field in data:
+                    _set_path(nested, path, data[mqtt_field])
+            return from_dict(nested)
+
+        return Inbound(rule, ros_cls, None, build_fields, is_velocity, limits)
+    return Inbound(rule, ros_cls, None, from_dict, is_velocity, limits)
+
+
+def compile_rules(robot: Robot, topics: TopicTree) -> tuple[list[Outbound], dict[str, Inbound]]:
+    """All of a robot's rules; inbound keyed by the leaf under ``from/<user>/`` (e.g. ``cmd/twist``)."""
+    outbound: list[Outbound] = []
+    inbound: dict[str, Inbound] = {}
+    for rule in robot.rules:
+        if rule.direction is Direction.ROS_TO_MQTT:
+            outbound.append(compile_outbound(rule, robot, topics))
+        else:
+            inbound[rule.mqtt_topic] = compile_inbound(rule, robot)
+    return outbound, inbound

@@ -1,0 +1,89 @@
+"""A small synchronous paho wrapper for tests: connect as a fleet user, collect what arrives."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import orjson
+
+from roslink_mqtt.mqtt import make_client
+
+
+@dataclass
+class Received:
+    topic: str
+    payload: bytes
+    retain: bool
+    at: float
+
+    def json(self):
+        return orjson.loads(self.payload)
+
+
+class TestClient:
+    __test__ = False
+
+    def __init__(self, port: int, username: str | None, password: str | None, client_id: str | None = None,
+                 keepalive: int = 30) -> None:
+        self.client = make_client(client_id or f"test-{username}-{time.monotonic_ns()}", username=username,
+                                  password=password, url=f"mqtt://127.0.0.1:{port}")
+        self.messages: queue.Queue[Received] = queue.Queue()
+        self.connack: queue.Queue[int] = queue.Queue()
+        self.client.on_connect = lambda c, u, f, rc, p: self.connack.put(rc.value)
+        self.client.on_message = lambda c, u, m: self.messages.put(
+            Received(m.topic, m.payload, bool(m.retain), time.monotonic()))
+        self.port, self.keepalive = port, keepalive
+
+    def connect(self, timeout: float = 5.0) -> int:
+        self.client.connect("127.0.0.1", self.port, keepalive=self.keepalive)
+        self.client.loop_start()
+        return self.connack.get(timeout=timeout)
+
+    def subscribe(self, topic: str, qos: int = 1) -> None:
+        done = threading.Event()
+        self.client.on_subscribe = lambda *a: done.set()
+        self.client.subscribe(topic, qos)
+        assert done.wait(5), f"no SUBACK for {topic}"
+
+    def publish(self, topic: str, payload: bytes | str | dict, qos: int = 1, retain: bool = False) -> None:
+        if isinstance(payload, dict):
+            payload = orjson.dumps(payload)
+        info = self.client.publish(topic, payload, qos=qos, retain=retain)
+        if qos:
+            info.wait_for_publish(5)
+
+    def wait_for(self, predicate: Callable[[Received], bool], timeout: float = 10.0) -> Received:
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError("no matching message")
+            try:
+                msg = self.messages.get(timeout=remaining)
+            except queue.Empty:
+                raise TimeoutError("no matching message") from None
+            if predicate(msg):
+                return msg
+
+    def drain(self, seconds: float) -> list[Received]:
+        end, out = time.monotonic() + seconds, []
+        while (left := end - time.monotonic()) > 0:
+            try:
+                out.append(self.messages.get(timeout=left))
+            except queue.Empty:
+                break
+        return out
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+    def __enter__(self) -> TestClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
