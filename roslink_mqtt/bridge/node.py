@@ -57,7 +57,7 @@ class Bridge:
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
         self.session = int(time.time()) & 0xFFFFFFFF  # grows with every start
         self.owner = ""  # user who last commanded the robot
-        self.estopped = False
+        self.motion_blocked: str | None = None  # why velocity commands are refused (e-stop, disarmed)
         self.sequences = SequenceTracker()
         self._heartbeat_seq = 0
         outbound, self.inbound = compile_rules(robot, self.topics)
@@ -99,7 +99,7 @@ class Bridge:
         return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
 
     def publish_heartbeat(self) -> None:
-        status = SystemStatus.EMERGENCY if self.estopped else SystemStatus.ACTIVE
+        status = SystemStatus.EMERGENCY if self.motion_blocked else SystemStatus.ACTIVE
         self.link.publish(self.topics.heartbeat(self.robot.name), self._heartbeat(status), qos=1, retain=True)
 
     # -- ROS → MQTT ------------------------------------------------------------------
@@ -164,25 +164,28 @@ class Bridge:
             else:
                 msg = rule.build(loads(payload))
             if rule.is_velocity:
-                if self.estopped:
-                    self.refuse(user, topic, "emergency stop is active: send cmd/arm to resume", message_id,
+                if self.motion_blocked:
+                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id,
                                 sequence)
                     return
                 make_safe_twist(msg, rule.limits)
         except (ProtocolError, ConversionError, CommandRefused, UnsafeCommand) as err:
             self.refuse(user, topic, str(err), message_id, sequence)
             return
-        if rule.spec is not None and rule.spec.name == "emergency_stop":
-            self.emergency_stop(user)
-        elif rule.spec is not None and rule.spec.name == "arm":
-            self.estopped = False
+        preset = rule.spec.name if rule.spec is not None else None
+        if preset == "emergency_stop":
+            self.block_motion(f"emergency stop by {user}")
+        elif preset == "disarm":
+            self.block_motion(f"disarmed by {user}")
+        elif preset == "arm":
+            self.motion_blocked = None
         self.owner = user
         self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
 
-    def emergency_stop(self, user: str) -> None:
+    def block_motion(self, reason: str) -> None:
         """Zero every velocity output and refuse motion until an operator arms again."""
-        self.estopped = True
-        self.stop_motion(f"emergency stop by {user}")
+        self.motion_blocked = reason
+        self.stop_motion(reason)
 
     def stop_motion(self, reason: str) -> None:
         for rule, pub in self.velocity_publishers:

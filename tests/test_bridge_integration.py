@@ -1,0 +1,144 @@
+"""Sim robot + bridge + broker as real processes; users on plain MQTT clients."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+import orjson
+import pytest
+
+from roslink_mqtt.protocol import MessageId, decode
+
+from .support.fleet_brokers import mosquitto_with_logins
+from .support.mqtt_client import TestClient
+from .support.procs import bridge_args, bridge_env, run
+from .support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(90)
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    work = tmp_path_factory.mktemp("bridge")
+    from geometry_msgs.msg import Twist
+
+    with mosquitto_with_logins(work) as port, \
+            run(["-m", "roslink_mqtt.sim"], work / "sim.log") as sim, \
+            run(bridge_args("turtle1", port), work / "bridge.log", bridge_env("turtle1")) as bridge:
+        probe = RosProbe()
+        cmd_vel = probe.watch(Twist, "/cmd_vel")
+        try:
+            with TestClient(port, "alice", "alice-demo") as alice:
+                assert alice.connect() == 0
+                alice.subscribe("roslink/turtle1/#")
+                alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
+                               timeout=20)
+                yield {"port": port, "work": work, "cmd_vel": cmd_vel, "alice": alice, "sim": sim, "bridge": bridge}
+        finally:
+            probe.close()
+
+
+def _state(alice: TestClient, name: str, timeout: float = 10.0):
+    return alice.wait_for(lambda m: m.topic == f"roslink/turtle1/state/{name}", timeout)
+
+
+def test_state_messages_arrive_as_roslink(stack) -> None:
+    alice = stack["alice"]
+    for name, mid in [("global_motion", MessageId.GLOBAL_MOTION), ("robot_status", MessageId.ROBOT_STATUS),
+                      ("range_finder_data", MessageId.RANGE_FINDER_DATA), ("gps_raw_info", MessageId.GPS_RAW_INFO)]:
+        env = decode(_state(alice, name).payload, mid)  # validates the schema too
+        assert env.system_id == 1 and env.sequence_number is not None
+    scan = decode(_state(alice, "range_finder_data").payload, MessageId.RANGE_FINDER_DATA).payload
+    assert len(scan["ranges"]) == 360 and all(r is None or 0 < r <= 8.0 for r in scan["ranges"])
+    status = decode(_state(alice, "robot_status").payload).payload
+    assert 0 < status["battery_remaining"] <= 100 and status["voltage_battery"] > 11
+
+
+def test_mosquitto_sub_sees_retained_heartbeat(stack) -> None:
+    out = subprocess.run(["mosquitto_sub", "-p", str(stack["port"]), "-u", "bob", "-P", "bob-demo",
+                          "-t", "roslink/turtle1/heartbeat", "-C", "1", "-W", "5", "-v"],
+                         capture_output=True, text=True, timeout=10)
+    topic, payload = out.stdout.strip().split(" ", 1)
+    hb = orjson.loads(payload)
+    assert topic == "roslink/turtle1/heartbeat"
+    assert hb["message_id"] == 0 and hb["payload"]["name"] == "turtle1" and hb["payload"]["system_status"] == 4
+
+
+def test_alice_twist_moves_the_robot_within_limits(stack) -> None:
+    alice, cmd_vel = stack["alice"], stack["cmd_vel"]
+    start_x = decode(_state(alice, "global_motion").payload).payload["x"]
+    t0 = time.monotonic()
+    for seq in range(1, 16):
+        alice.publish("roslink/turtle1/from/alice/cmd/twist",
+                      {"message_id": 100, "sequence_number": seq, "payload": {"lx": 0.4, "az": 9.0}}, qos=0)
+        time.sleep(0.1)
+    _, twist = cmd_vel.wait_for(lambda m: m.linear.x > 0, after=t0)
+    assert twist.linear.x == pytest.approx(0.4) and twist.angular.z == pytest.approx(1.5)  # clamped to the limit
+    assert all(abs(m.angular.z) <= 1.5 and abs(m.linear.x) <= 0.5 for _, m in cmd_vel.since(t0))
+    moved = alice.wait_for(lambda m: m.topic.endswith("global_motion")
+                           and abs(orjson.loads(m.payload)["payload"]["x"] - start_x) > 0.05)
+    assert moved
+
+
+def test_bob_viewer_twist_is_refused(stack, tmp_path: Path) -> None:
+    cmd_vel = stack["cmd_vel"]
+    with TestClient(stack["port"], "bob", "bob-demo") as bob:
+        assert bob.connect() == 0
+        bob.subscribe("roslink/turtle1/to/bob/#")
+        t0 = time.monotonic()
+        bob.publish("roslink/turtle1/from/bob/cmd/twist", {"lx": 0.3})
+        err = bob.wait_for(lambda m: m.topic == "roslink/turtle1/to/bob/error").json()
+        assert "not an operator" in err["error"] and err["topic"].endswith("/from/bob/cmd/twist")
+        time.sleep(0.5)
+        assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.3)]
+
+
+@pytest.mark.parametrize(("payload", "fragment"), [
+    (b"not json", "not JSON"),
+    (b'{"lx": "fast"}', 'payload.lx: expected number, got "fast"'),
+    (b'{"lx": 1e999}', "non-finite"),
+    (b'{"lxx": 0.2}', "unknown field 'lxx'"),
+    (b'{"message_id": 101, "payload": {"x": 1, "y": 2}}', "does not match the topic"),
+    (b"[" * 100000, "not JSON"),
+])
+def test_malformed_commands_never_reach_ros(stack, payload: bytes, fragment: str) -> None:
+    alice, cmd_vel = stack["alice"], stack["cmd_vel"]
+    t0 = time.monotonic()
+    alice.publish("roslink/turtle1/from/alice/cmd/twist", payload)
+    err = alice.wait_for(lambda m: m.topic == "roslink/turtle1/to/alice/error").json()
+    assert fragment in err["error"]
+    time.sleep(0.3)
+    assert cmd_vel.since(t0) == [] or all(m.linear.x == 0 and m.angular.z == 0 for _, m in cmd_vel.since(t0))
+    assert stack["bridge"].popen.poll() is None
+
+
+def test_unknown_command_and_stale_sequence(stack) -> None:
+    alice = stack["alice"]
+    alice.publish("roslink/turtle1/from/alice/cmd/fly", {"x": 1})
+    assert "no mapping for 'cmd/fly'" in alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")).json()["error"]
+    twist = {"message_id": 100, "sequence_number": 5000, "payload": {"lx": 0.0}}
+    alice.publish("roslink/turtle1/from/alice/cmd/twist", twist)
+    alice.publish("roslink/turtle1/from/alice/cmd/twist", twist)
+    err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")).json()
+    assert err["error"].startswith("duplicate sequence_number 5000") and err["sequence_number"] == 5000
+
+
+def test_emergency_stop_latches_until_arm(stack) -> None:
+    alice, cmd_vel = stack["alice"], stack["cmd_vel"]
+    t0 = time.monotonic()
+    alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {})
+    cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=t0)
+    alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.2})
+    err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")).json()
+    assert "emergency stop by alice: send cmd/arm to resume" in err["error"]
+    hb = alice.wait_for(lambda m: m.topic.endswith("/heartbeat")).json()
+    assert hb["payload"]["system_status"] == 6  # EMERGENCY
+    # resuming is an explicit operator action: arm
+    alice.publish("roslink/turtle1/from/alice/cmd/arm", {})
+    t1 = time.monotonic()
+    for _ in range(20):
+        alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.25}, qos=0)
+        time.sleep(0.05)
+    cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.25), after=t1)
