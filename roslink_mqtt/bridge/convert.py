@@ -235,6 +235,7 @@ class _Reader:
 
         if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
             as_bytes_list = inner.typename == "octet"
+            as_ints = isinstance(slot, d.Array)  # fixed uint8[N] is a numpy array: wants ints
 
             def check_bytes(path: str, v: Any) -> Any:
                 if isinstance(v, str):
@@ -248,7 +249,9 @@ class _Reader:
                 else:
                     raise ConversionError(f"{path}: expected base64 string, got {_describe(v)}")
                 check_length(path, len(raw))
-                return [bytes((b,)) for b in raw] if as_bytes_list else raw
+                if as_bytes_list:
+                    return [bytes((b,)) for b in raw]
+                return list(raw) if as_ints else raw
             return check_bytes
 
         item_check = self._checker(inner)
