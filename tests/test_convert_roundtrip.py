@@ -36,7 +36,7 @@ def installed_types() -> list[str]:
 
 def _names(package: str, kind: str, init: Path) -> set[str]:
     out = set()
-    for line in init.read_text().splitlines():  # "from pkg.msg._foo import Foo  # noqa: F401"
+    for line in init.read_text().splitlines():  # lines like: from pkg.msg._foo import Foo
         parts = line.split()
         if len(parts) >= 4 and parts[0] == "from" and parts[1].startswith(f"{package}.{kind}._") \
                 and parts[2] == "import":
@@ -114,7 +114,7 @@ def test_round_trip(name: str) -> None:
 
         @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None)
         @given(strategy(c))
-        def check(data):
+        def check(data, conv=conv):
             msg = conv.from_dict(data)
             as_dict = conv.to_dict(msg)
             wire = conv.to_json(msg)
