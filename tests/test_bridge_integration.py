@@ -30,7 +30,7 @@ def stack(tmp_path_factory):
         probe = RosProbe()
         cmd_vel = probe.watch(Twist, "/cmd_vel")
         try:
-            with TestClient(port, "alice", "alice-demo") as alice:
+            with TestClient(port, "alice", "alice-demo", operator=True) as alice:
                 assert alice.connect() == 0
                 alice.subscribe("roslink/turtle1/#")
                 alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
@@ -142,3 +142,15 @@ def test_emergency_stop_latches_until_arm(stack) -> None:
         alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.25}, qos=0)
         time.sleep(0.05)
     cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.25), after=t1)
+
+
+def test_commands_without_operator_heartbeat_are_refused(stack) -> None:
+    cmd_vel = stack["cmd_vel"]
+    with TestClient(stack["port"], "admin", "admin-demo") as silent:  # an operator without presence
+        assert silent.connect() == 0
+        silent.subscribe("roslink/turtle1/to/admin/error")
+        t0 = time.monotonic()
+        silent.publish("roslink/turtle1/from/admin/cmd/twist", {"lx": 0.3})
+        err = silent.wait_for(lambda m: m.topic.endswith("/to/admin/error")).json()
+        assert "no live operator heartbeat from 'admin'" in err["error"]
+        assert cmd_vel.since(t0) == [] or all(m.linear.x == 0 for _, m in cmd_vel.since(t0))

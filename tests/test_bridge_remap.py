@@ -28,7 +28,7 @@ def test_ros_args_remap_and_namespace(tmp_path) -> None:
         try:
             remapped = probe.watch(Twist, "/base/cmd_vel")
             default = probe.watch(Twist, "/robot1/cmd_vel")
-            with TestClient(port, "carol", "carol-demo") as carol:
+            with TestClient(port, "carol", "carol-demo", operator=True) as carol:
                 assert carol.connect() == 0
                 carol.subscribe("roslink/turtle2/#")
                 # odom is read from /robot1/odom (namespace), published on the unchanged MQTT topic

@@ -57,10 +57,11 @@ class MqttLink:
         self.client.loop_stop()
 
     # -- traffic ----------------------------------------------------------------
-    def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
+    def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> mqtt.MQTTMessageInfo | None:
         """Queue a message; dropped (not queued) while disconnected, so stale state is never replayed."""
         if self.connected.is_set():
-            self.client.publish(topic, payload, qos=qos, retain=retain)
+            return self.client.publish(topic, payload, qos=qos, retain=retain)
+        return None
 
     # -- paho callbacks (network thread) ------------------------------------------
     def _handle_connect(self, client: mqtt.Client, _userdata, _flags, reason, _props) -> None:

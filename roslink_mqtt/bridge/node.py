@@ -1,8 +1,9 @@
-"""The bridge node: ROS topics ↔ MQTT per the robot's rules, with checks on every command."""
+"""The bridge: ROS topics ↔ MQTT per the robot's rules, with presence, checks and failsafe stops."""
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from typing import Any
 
@@ -10,7 +11,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from ..config import Fleet, Robot, Role, RosQos
+from ..presence import OperatorTracker
 from ..protocol import (
+    AckResult,
     Envelope,
     MessageId,
     ProtocolError,
@@ -22,13 +25,18 @@ from ..protocol import (
     loads,
 )
 from ..topics import Kind, TopicTree
-from .convert import ConversionError
+from .convert import ConversionError, converter_for
+from .failsafe import Failsafe
 from .link import MqttLink
 from .presets import CommandRefused
+from .ros_types import load_interface
 from .rules import Inbound, Outbound, compile_rules
 from .safety import UnsafeCommand, make_safe_twist
 
 log = logging.getLogger("roslink_mqtt.bridge")
+
+SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
+GOAL_PRESETS = ("go_to_waypoint", "takeoff")
 
 
 def ros_qos(q: RosQos, *, latched: bool = False) -> QoSProfile:
@@ -49,17 +57,29 @@ class _Throttle:
 
 
 class Bridge:
-    """Owns one rclpy node (composition, not inheritance: no clashes with rclpy's own attributes)."""
+    """Owns one rclpy node (composition, not inheritance: no clashes with rclpy's own attributes).
+
+    Threads: ROS callbacks and the supervision timer run in the executor;
+    MQTT messages arrive on paho's network thread. ``_lock`` serialises
+    everything that touches motion state, so a stop and a command can never
+    interleave.
+    """
 
     def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
                  ca_file: str | None = None) -> None:
         self.node = node
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
+        settings = robot.bridge
         self.session = int(time.time()) & 0xFFFFFFFF  # grows with every start
         self.owner = ""  # user who last commanded the robot
         self.motion_blocked: str | None = None  # why velocity commands are refused (e-stop, disarmed)
         self.sequences = SequenceTracker()
-        self._heartbeat_seq = 0
+        self.operators = OperatorTracker(settings.operator_timeout)
+        self.failsafe = Failsafe(settings.command_timeout)
+        self._lock = threading.RLock()
+        self._heartbeat_seq = self._ack_seq = 0
+        self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
+        self._stop_repeats_left = 0
         outbound, self.inbound = compile_rules(robot, self.topics)
         self.velocity_publishers: list[tuple[Inbound, Any]] = []
         self.publishers_by_rule: dict[str, Any] = {}
@@ -71,25 +91,47 @@ class Bridge:
             self.publishers_by_rule[name] = pub
             if rule.is_velocity:
                 self.velocity_publishers.append((rule, pub))
+        self.failsafe_actions = [
+            (node.create_publisher(load_interface(a.ros_type), a.ros_topic, 10),
+             converter_for(load_interface(a.ros_type)).from_dict(a.message))
+            for a in settings.on_failsafe]
         self.link = MqttLink(
             client_id=f"roslink-bridge-{robot.name}", username=robot.name, password=password, url=broker_url,
-            keepalive=robot.bridge.keepalive, will=(self.topics.heartbeat(robot.name),
-                                                    self._heartbeat(SystemStatus.OFFLINE)),
-            subscriptions=self.mqtt_subscriptions, on_message=self.on_mqtt, on_up=self.publish_heartbeat,
-            ca_file=ca_file)
-        node.create_timer(robot.bridge.heartbeat_period, self.publish_heartbeat)
-        log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules", robot.name, len(outbound), len(self.inbound))
+            keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
+                                                self._heartbeat(SystemStatus.OFFLINE)),
+            subscriptions=self.mqtt_subscriptions, on_message=self.on_mqtt, on_up=self.on_link_up,
+            on_down=self.on_link_down, ca_file=ca_file)
+        node.create_timer(settings.heartbeat_period, self.publish_heartbeat)
+        node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
+        log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs", robot.name, len(outbound),
+                 len(self.inbound), len(self.velocity_publishers))
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
         self.link.start()
 
     def stop(self) -> None:
-        """Clean shutdown: tell everyone we are offline (the will covers unclean ones)."""
+        """Clean shutdown: stop the robot, tell everyone we are offline (the will covers unclean ones)."""
+        with self._lock:
+            self._publish_zero_velocity()
         self.link.stop([(self.topics.heartbeat(self.robot.name), self._heartbeat(SystemStatus.OFFLINE), 1, True)])
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
-        return [(self.topics.all_from_users(self.robot.name), 1)]
+        subs = [(self.topics.all_from_users(self.robot.name), 1)]
+        subs += [(self.topics.operators_of(user), 1) for user in sorted(self.fleet.users_of(self.robot.name))]
+        return subs
+
+    def on_link_up(self) -> None:
+        with self._lock:
+            self.failsafe.link_up = True
+            self._pending_heartbeat = None
+        self.publish_heartbeat()
+
+    def on_link_down(self, reason: str) -> None:
+        with self._lock:
+            why = self.failsafe.link_lost()
+            if why:
+                self.trigger_stop(f"{why} ({reason})")
 
     # -- presence ------------------------------------------------------------------
     def _heartbeat(self, status: SystemStatus) -> bytes:
@@ -100,7 +142,65 @@ class Bridge:
 
     def publish_heartbeat(self) -> None:
         status = SystemStatus.EMERGENCY if self.motion_blocked else SystemStatus.ACTIVE
-        self.link.publish(self.topics.heartbeat(self.robot.name), self._heartbeat(status), qos=1, retain=True)
+        info = self.link.publish(self.topics.heartbeat(self.robot.name), self._heartbeat(status), qos=1, retain=True)
+        with self._lock:
+            if info is not None and self._pending_heartbeat is None:
+                self._pending_heartbeat = (time.monotonic(), info)
+
+    # -- supervision (executor, 20 Hz) -------------------------------------------------
+    def supervise(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self._check_link(now)
+            for user in self.operators.expire(now):
+                why = self.failsafe.operator_gone(user)
+                if why:
+                    self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")
+            why = self.failsafe.tick(now, self.operators.live_users())
+            if why:
+                self.trigger_stop(why)
+            if self._stop_repeats_left > 0:
+                self._stop_repeats_left -= 1
+                self._publish_zero_velocity()
+
+    def _check_link(self, now: float) -> None:
+        """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
+        pending = self._pending_heartbeat
+        if pending is None:
+            return
+        sent_at, info = pending
+        if info.is_published():
+            self._pending_heartbeat = None
+            if not self.failsafe.link_up and self.link.connected.is_set():
+                self.failsafe.link_up = True
+                log.info("broker answers again")
+        elif now - sent_at > self.robot.bridge.link_timeout and self.failsafe.link_up:
+            why = self.failsafe.link_lost()
+            log.warning("broker silent for %.2f s", now - sent_at)
+            if why:
+                self.trigger_stop(f"{why} (no answer for {self.robot.bridge.link_timeout:g} s)")
+
+    def trigger_stop(self, reason: str) -> None:
+        """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why."""
+        with self._lock:
+            self.failsafe.stopped()
+            self._publish_zero_velocity()
+            self._stop_repeats_left = round(self.robot.bridge.stop_hold * SUPERVISION_RATE)
+            for pub, msg in self.failsafe_actions:
+                pub.publish(msg)
+        log.warning("failsafe stop of %s: %s", self.robot.name, reason)
+        self.publish_ack(0, None, AckResult.FAILSAFE, reason)
+
+    def _publish_zero_velocity(self) -> None:
+        for rule, pub in self.velocity_publishers:
+            pub.publish(rule.ros_cls())
+
+    def publish_ack(self, command: int, sequence: int | None, result: AckResult, text: str) -> None:
+        self._ack_seq = (self._ack_seq + 1) & 0xFFFFFFFF
+        payload = {"command": int(command), "command_sequence": -1 if sequence is None else sequence,
+                   "result": int(result), "text": text}
+        self.link.publish(self.topics.state(self.robot.name, "ack"),
+                          encode(Envelope(MessageId.ACK, payload, self.robot.system_id, self._ack_seq)), qos=1)
 
     # -- ROS → MQTT ------------------------------------------------------------------
     def _subscribe_ros(self, out: Outbound) -> None:
@@ -134,7 +234,12 @@ class Bridge:
     # -- MQTT → ROS (paho network thread) ---------------------------------------------
     def on_mqtt(self, topic: str, payload: bytes) -> None:
         parsed = self.topics.parse(topic)
-        if parsed is None or parsed.kind is not Kind.FROM or parsed.robot != self.robot.name:
+        if parsed is None:
+            return
+        if parsed.kind is Kind.OPERATOR:
+            self.on_operator(parsed.user, parsed.client_id, payload)
+            return
+        if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name:
             return
         user, name = parsed.user, parsed.name
         rule = self.inbound.get(name)
@@ -148,8 +253,16 @@ class Bridge:
             return
         self.handle_command(user, topic, rule, payload)
 
+    def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
+        with self._lock:
+            if not self.operators.heartbeat(user, client_id, payload, time.monotonic()):
+                why = self.failsafe.operator_gone(user)
+                if why:
+                    self.trigger_stop(f"{why} (last-will)")
+
     def handle_command(self, user: str, topic: str, rule: Inbound, payload: bytes) -> None:
         message_id = sequence = None
+        preset = rule.spec.name if rule.spec is not None else None
         try:
             if rule.spec is not None:
                 envelope = decode(payload, rule.spec.message_id)
@@ -164,33 +277,41 @@ class Bridge:
             else:
                 msg = rule.build(loads(payload))
             if rule.is_velocity:
-                if self.motion_blocked:
-                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id,
-                                sequence)
-                    return
                 make_safe_twist(msg, rule.limits)
         except (ProtocolError, ConversionError, CommandRefused, UnsafeCommand) as err:
             self.refuse(user, topic, str(err), message_id, sequence)
             return
-        preset = rule.spec.name if rule.spec is not None else None
-        if preset == "emergency_stop":
-            self.block_motion(f"emergency stop by {user}")
-        elif preset == "disarm":
-            self.block_motion(f"disarmed by {user}")
-        elif preset == "arm":
-            self.motion_blocked = None
-        self.owner = user
-        self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
+        with self._lock:
+            if preset != "emergency_stop" and not self.operators.is_live(user):
+                self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
+                                         f"on {self.topics.prefix}/operators/{user}/<client_id> every second",
+                            message_id, sequence)
+                return
+            if rule.is_velocity or preset in GOAL_PRESETS:
+                if self.motion_blocked:
+                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence)
+                    return
+                self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
+                if rule.is_velocity:
+                    self.failsafe.velocity_command(user, time.monotonic())
+                else:
+                    self.failsafe.goal_command(user)
+            if preset == "emergency_stop":
+                self.block_motion(f"emergency stop by {user}")
+            elif preset == "disarm":
+                self.block_motion(f"disarmed by {user}")
+            elif preset == "arm":
+                self.motion_blocked = None
+            self.owner = user
+            self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
 
     def block_motion(self, reason: str) -> None:
         """Zero every velocity output and refuse motion until an operator arms again."""
-        self.motion_blocked = reason
-        self.stop_motion(reason)
-
-    def stop_motion(self, reason: str) -> None:
-        for rule, pub in self.velocity_publishers:
-            pub.publish(rule.ros_cls())
-        log.warning("stopped %s: %s", self.robot.name, reason)
+        with self._lock:
+            self.motion_blocked = reason
+            self.failsafe.stopped()
+            self._publish_zero_velocity()
+        log.warning("motion blocked on %s: %s", self.robot.name, reason)
 
     def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
                sequence: int | None = None) -> None:

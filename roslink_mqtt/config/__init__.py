@@ -8,6 +8,7 @@ from .model import (
     BridgeSettings,
     BrokerSettings,
     Direction,
+    FailsafeAction,
     Fleet,
     Grant,
     Robot,
@@ -23,7 +24,8 @@ from .passwords import PasswordHashError, hash_password, verify_password
 from .yamlsource import ConfigError
 
 __all__ = [
-    "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "Fleet", "Grant", "PasswordHashError",
+    "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
+    "PasswordHashError",
     "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",
 ]

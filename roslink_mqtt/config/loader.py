@@ -16,6 +16,7 @@ from .model import (
     BridgeSettings,
     BrokerSettings,
     Direction,
+    FailsafeAction,
     Fleet,
     Grant,
     Robot,
@@ -242,7 +243,8 @@ class _FleetReader:
 
     def bridge(self, path: Path) -> BridgeSettings:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
-                            "operator_timeout", "command_timeout", "limits"))
+                            "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
+                            "on_failsafe"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -259,8 +261,23 @@ class _FleetReader:
             heartbeat_period=self.value(path, "heartbeat_period", positive, d.heartbeat_period),
             operator_timeout=self.value(path, "operator_timeout", positive, d.operator_timeout),
             command_timeout=self.value(path, "command_timeout", positive, d.command_timeout),
+            link_timeout=self.value(path, "link_timeout", positive, d.link_timeout),
+            stop_hold=self.value(path, "stop_hold", self.number(0, 60), d.stop_hold),
             limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else d.limits,
+            on_failsafe=self.failsafe_actions(path + ("on_failsafe",)) if "on_failsafe" in self.get(path) else (),
         )
+
+    def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:
+        out = []
+        for i in range(len(self.sequence(path))):
+            ap = path + (i,)
+            self.mapping(ap, ("ros_topic", "ros_type", "message"))
+            message = self.get(ap).get("message") or {}
+            if not isinstance(message, dict):
+                raise self.err(ap + ("message",), f"expected a mapping (the ROS message as JSON), got {_show(message)}")
+            out.append(FailsafeAction(self.value(ap, "ros_topic", self.ros_name),
+                                      self.value(ap, "ros_type", self.ros_type("msg")), message))
+        return tuple(out)
 
     def rules(self, path: Path) -> tuple[Rule, ...]:
         rules = tuple(self.rule(path + (i,), i) for i in range(len(self.sequence(path))))

@@ -94,6 +94,15 @@ class ServiceRule:
 
 
 @dataclass(frozen=True, slots=True)
+class FailsafeAction:
+    """A ROS message the bridge publishes on every failsafe stop (e.g. cancel a goal, raise an e-stop line)."""
+
+    ros_topic: str
+    ros_type: str
+    message: dict = field(default_factory=dict)  # JSON form of the message (generic conversion)
+
+
+@dataclass(frozen=True, slots=True)
 class BridgeSettings:
     broker_url: str = "mqtt://127.0.0.1:1883"
     password: str | None = None  # plaintext: demo only; prefer env or password_file
@@ -102,7 +111,10 @@ class BridgeSettings:
     heartbeat_period: float = 1.0  # s
     operator_timeout: float = 1.5  # s
     command_timeout: float = 1.0  # s
+    link_timeout: float = 0.5  # s without PUBACK for a heartbeat = broker lost
+    stop_hold: float = 0.5  # s: zero velocity is repeated at 20 Hz this long after a stop
     limits: VelocityLimits = field(default_factory=VelocityLimits)
+    on_failsafe: tuple[FailsafeAction, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import orjson
 
+from roslink_mqtt.client.presence import OperatorPresence
 from roslink_mqtt.mqtt import make_client
 
 
@@ -28,9 +29,12 @@ class TestClient:
     __test__ = False
 
     def __init__(self, port: int, username: str | None, password: str | None, client_id: str | None = None,
-                 keepalive: int = 30) -> None:
-        self.client = make_client(client_id or f"test-{username}-{time.monotonic_ns()}", username=username,
-                                  password=password, url=f"mqtt://127.0.0.1:{port}")
+                 keepalive: int = 30, operator: bool = False) -> None:
+        """``operator=True`` runs operator presence (heartbeat + last-will), as commanding clients must."""
+        self.client_id = client_id or f"test-{username}-{time.monotonic_ns()}"
+        self.client = make_client(self.client_id, username=username, password=password,
+                                  url=f"mqtt://127.0.0.1:{port}")
+        self.presence = OperatorPresence(self.client, username, self.client_id) if operator else None
         self.messages: queue.Queue[Received] = queue.Queue()
         self.connack: queue.Queue[int] = queue.Queue()
         self.client.on_connect = lambda c, u, f, rc, p: self.connack.put(rc.value)
@@ -41,7 +45,11 @@ class TestClient:
     def connect(self, timeout: float = 5.0) -> int:
         self.client.connect("127.0.0.1", self.port, keepalive=self.keepalive)
         self.client.loop_start()
-        return self.connack.get(timeout=timeout)
+        rc = self.connack.get(timeout=timeout)
+        if rc == 0 and self.presence is not None:
+            self.presence.beat()
+            self.presence.start()
+        return rc
 
     def subscribe(self, topic: str, qos: int = 1) -> None:
         done = threading.Event()
@@ -79,6 +87,8 @@ class TestClient:
         return out
 
     def close(self) -> None:
+        if self.presence is not None:
+            self.presence.stop()
         self.client.disconnect()
         self.client.loop_stop()
 

@@ -1,0 +1,58 @@
+"""When must the robot stop? Pure decision logic, driven by the bridge's clock.
+
+Triggers (DESIGN §5): the operator who last commanded motion goes away; the
+bridge loses the broker; the velocity stream goes silent for
+``command_timeout`` (dead-man). The bridge calls :meth:`Failsafe.tick`
+often (20 Hz) and acts on the reason it returns; events that are known at
+once (a last-will, a disconnect) are checked with :meth:`operator_gone` and
+:meth:`link_lost` straight away.
+
+"Motion" is a velocity stream (twist) or an autonomous goal (waypoint,
+takeoff): both stop when their operator or the broker goes away; only the
+stream has a dead-man timeout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Failsafe:
+    command_timeout: float
+    motion_owner: str | None = None  # who commanded the current motion
+    active: bool = False  # motion in progress since the last stop
+    last_velocity_at: float | None = None  # set while a velocity stream runs
+    link_up: bool = False
+
+    def velocity_command(self, user: str, now: float) -> None:
+        self.motion_owner, self.active, self.last_velocity_at = user, True, now
+
+    def goal_command(self, user: str) -> None:
+        self.motion_owner, self.active = user, True
+
+    def tick(self, now: float, live_users: set[str]) -> str | None:
+        """The reason to stop now, or None. Only reports while motion is in progress."""
+        if not self.active:
+            return None
+        if not self.link_up:
+            return "lost the broker"
+        if self.motion_owner not in live_users:
+            return f"operator {self.motion_owner} went away"
+        if self.last_velocity_at is not None and now - self.last_velocity_at > self.command_timeout:
+            return f"no velocity command for {self.command_timeout:g} s (dead-man)"
+        return None
+
+    def operator_gone(self, user: str) -> str | None:
+        """Reason to stop when ``user`` goes away, if they own the motion."""
+        if self.active and user == self.motion_owner:
+            return f"operator {user} went away"
+        return None
+
+    def link_lost(self) -> str | None:
+        self.link_up = False
+        return "lost the broker" if self.active else None
+
+    def stopped(self) -> None:
+        """A stop was carried out: no motion until a live operator commands again."""
+        self.active, self.last_velocity_at = False, None

@@ -1,0 +1,54 @@
+"""Failsafe decisions and operator presence as pure logic (the fault-injection tests prove the timing)."""
+
+from __future__ import annotations
+
+from roslink_mqtt.bridge.failsafe import Failsafe
+from roslink_mqtt.presence import OperatorTracker, operator_heartbeat
+
+
+def test_dead_man_only_while_streaming() -> None:
+    f = Failsafe(command_timeout=1.0, link_up=True)
+    assert f.tick(0.0, {"alice"}) is None  # nothing moving
+    f.velocity_command("alice", 0.0)
+    assert f.tick(0.9, {"alice"}) is None
+    assert "dead-man" in f.tick(1.1, {"alice"})
+    f.stopped()
+    assert f.tick(5.0, {"alice"}) is None  # stopped once, not again and again
+
+
+def test_operator_gone_and_link_lost() -> None:
+    f = Failsafe(command_timeout=1.0, link_up=True)
+    f.velocity_command("alice", 0.0)
+    assert f.operator_gone("bob") is None
+    assert f.operator_gone("alice") == "operator alice went away"
+    assert f.tick(0.1, set()) == "operator alice went away"
+    assert f.link_lost() == "lost the broker"
+    f.stopped()
+    assert f.link_lost() is None
+
+
+def test_goal_has_no_dead_man_but_stops_when_operator_leaves() -> None:
+    f = Failsafe(command_timeout=1.0, link_up=True)
+    f.goal_command("carol")
+    assert f.tick(100.0, {"carol"}) is None
+    assert f.tick(100.0, set()) == "operator carol went away"
+
+
+def test_operator_tracker() -> None:
+    t = OperatorTracker(timeout=1.5)
+    assert t.heartbeat("alice", "laptop", b"x", 0.0)
+    assert t.heartbeat("alice", "phone", b"x", 0.5)
+    assert not t.heartbeat("bob", "pc", b"", 0.5)  # a clear for an unknown client
+    assert t.expire(1.6) == []  # phone still live
+    assert t.is_live("alice")
+    assert t.expire(2.1) == ["alice"]
+    assert not t.is_live("alice")
+    t.heartbeat("carol", "c1", b"x", 3.0)
+    assert not t.heartbeat("carol", "c1", b"", 3.1)  # last-will
+    assert t.live_users() == set()
+
+
+def test_operator_heartbeat_payload_is_a_roslink_heartbeat() -> None:
+    from roslink_mqtt.protocol import MessageId, decode
+    env = decode(operator_heartbeat("alice", "laptop-1", 3), MessageId.HEARTBEAT)
+    assert env.payload["owner_id"] == "alice" and env.payload["name"] == "laptop-1"
