@@ -13,7 +13,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 PASSWORD_ENV = "ROSLINK_MQTT_PASSWORD"
@@ -52,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     import rclpy
     from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import remove_ros_args
 
     from ..config import ConfigError, load_fleet
@@ -78,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
                                 Path(args.config).resolve().parent)
-    rclpy.init(args=argv)
+    # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
+    # could publish the final zero velocity and the offline heartbeat.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = rclpy.create_node("roslink_mqtt_bridge")
         bridge = Bridge(fleet, robot, node, password=password, broker_url=url, ca_file=args.ca_file)
@@ -88,13 +93,28 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     executor = MultiThreadedExecutor(num_threads=2)
     executor.add_node(node)
+    stopping = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stopping.set())
+    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        finally:
+            stopping.set()
+
+    spinner = threading.Thread(target=spin, name="ros-executor", daemon=True)
+    spinner.start()
     bridge.start()
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        while not stopping.wait(0.5):
+            pass
     finally:
-        bridge.stop()
+        bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
+        executor.shutdown(timeout_sec=2)
+        spinner.join(timeout=2)
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

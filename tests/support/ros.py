@@ -17,6 +17,7 @@ class Watch:
     """Every message seen on one topic, with its arrival time (monotonic)."""
 
     def __init__(self) -> None:
+        self.subscription: Any = None
         self.items: list[tuple[float, Any]] = []
         self.cond = threading.Condition()
 
@@ -37,6 +38,14 @@ class Watch:
                 if left <= 0:
                     raise TimeoutError(f"no matching message in {timeout} s ({len(self.items)} seen)")
                 self.cond.wait(left)
+
+    def wait_matched(self, timeout: float = 10.0) -> None:
+        """Block until a publisher is matched, so a one-shot message cannot be missed."""
+        deadline = time.monotonic() + timeout
+        while self.subscription.get_publisher_count() == 0:
+            if time.monotonic() > deadline:
+                raise TimeoutError("no publisher matched")
+            time.sleep(0.05)
 
     def since(self, t: float) -> list[tuple[float, Any]]:
         with self.cond:
@@ -64,7 +73,7 @@ class RosProbe:
 
     def watch(self, msg_type: type, topic: str, qos: Any = 10) -> Watch:
         w = Watch()
-        self.node.create_subscription(msg_type, topic, w.add, qos)
+        w.subscription = self.node.create_subscription(msg_type, topic, w.add, qos)
         return w
 
     def publisher(self, msg_type: type, topic: str, qos: Any = 10) -> Any:

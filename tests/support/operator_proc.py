@@ -1,0 +1,58 @@
+"""A teleoperating client as its own process, so tests can SIGKILL or SIGSTOP it.
+
+    python -m tests.support.operator_proc PORT USER PASSWORD ROBOT [--stream-seconds S] [--lx V]
+
+Runs operator presence and publishes twist commands at 10 Hz for S seconds
+(forever if not given), then keeps only its presence alive.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import orjson
+
+from roslink_mqtt.client.presence import OperatorPresence
+from roslink_mqtt.mqtt import make_client
+from roslink_mqtt.topics import TopicTree
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("port", type=int)
+    p.add_argument("user")
+    p.add_argument("password")
+    p.add_argument("robot")
+    p.add_argument("--stream-seconds", type=float, default=None)
+    p.add_argument("--lx", type=float, default=0.2)
+    p.add_argument("--client-id", default=None)
+    p.add_argument("--waypoint", action="store_true", help="send one go_to_waypoint instead of a twist stream")
+    args = p.parse_args()
+    client_id = args.client_id or f"op-{args.user}-{time.monotonic_ns()}"
+    client = make_client(client_id, username=args.user, password=args.password,
+                         url=f"mqtt://127.0.0.1:{args.port}")
+    presence = OperatorPresence(client, args.user, client_id)
+    client.connect("127.0.0.1", args.port, keepalive=2)
+    client.loop_start()
+    while not client.is_connected():
+        time.sleep(0.02)
+    presence.beat()
+    presence.start()
+    print("operator ready", flush=True)
+    topic = TopicTree().command(args.robot, args.user, "twist")
+    start, seq = time.monotonic(), 0
+    while args.waypoint:  # the same goal once a second (idempotent), no velocity stream
+        client.publish(TopicTree().command(args.robot, args.user, "go_to_waypoint"),
+                       orjson.dumps({"x": 2.0, "y": 1.0}), qos=1)
+        time.sleep(1.0)
+    while True:
+        if args.stream_seconds is None or time.monotonic() - start < args.stream_seconds:
+            seq += 1
+            client.publish(topic, orjson.dumps({"message_id": 100, "sequence_number": seq,
+                                                "payload": {"lx": args.lx}}), qos=0)
+        time.sleep(0.1)
+
+
+if __name__ == "__main__":
+    main()
