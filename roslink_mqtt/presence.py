@@ -51,7 +51,10 @@ class OperatorTracker:
             del self._seen[key]
         return sorted(u for u in users if not self.is_live(u))
 
-    def is_live(self, user: str) -> bool:
+    def is_live(self, user: str, client_id: str | None = None) -> bool:
+        """Any client of ``user`` live, or that one client when ``client_id`` is given."""
+        if client_id is not None:
+            return (user, client_id) in self._seen
         return any(u == user for u, _ in self._seen)
 
     def live_users(self) -> set[str]:

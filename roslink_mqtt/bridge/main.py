@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"roslink-mqtt-bridge: {args.config}: robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
         return 2
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = MultiThreadedExecutor(num_threads=4)  # provided services may hold two
     executor.add_node(node)
     stopping = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stopping.set())

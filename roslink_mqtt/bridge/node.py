@@ -32,6 +32,7 @@ from .presets import CommandRefused
 from .ros_types import load_interface
 from .rules import Inbound, Outbound, compile_rules
 from .safety import UnsafeCommand, make_safe_twist
+from .services import ProvidedServices, ServiceCaller
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -95,6 +96,10 @@ class Bridge:
             (node.create_publisher(load_interface(a.ros_type), a.ros_topic, 10),
              converter_for(load_interface(a.ros_type)).from_dict(a.message))
             for a in settings.on_failsafe]
+        role_of = self.role_of
+        self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of)
+        self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
+                                         self.operators.is_live, self.refuse)
         self.link = MqttLink(
             client_id=f"roslink-bridge-{robot.name}", username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
@@ -105,6 +110,12 @@ class Bridge:
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
         log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs", robot.name, len(outbound),
                  len(self.inbound), len(self.velocity_publishers))
+
+    def role_of(self, user: str) -> Role | None:
+        return self.fleet.roles_of(user).get(self.robot.name)
+
+    def _publish_reliable(self, topic: str, payload: bytes) -> None:
+        self.link.publish(topic, payload, qos=1)
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
@@ -162,6 +173,8 @@ class Bridge:
             if self._stop_repeats_left > 0:
                 self._stop_repeats_left -= 1
                 self._publish_zero_velocity()
+        self.caller.expire(now)
+        self.provided.refresh()
 
     def _check_link(self, now: float) -> None:
         """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
@@ -242,13 +255,22 @@ class Bridge:
         if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name:
             return
         user, name = parsed.user, parsed.name
+        kind, _, leaf = name.partition("/")
+        if kind == "call" and leaf:
+            self.caller.handle(user, leaf, payload)
+            return
+        if kind == "provide" and leaf:
+            self.provided.offer(user, leaf, topic, payload)
+            return
+        if kind == "response" and leaf:
+            self.provided.response(user, leaf, topic, payload)
+            return
         rule = self.inbound.get(name)
         if rule is None:
             self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
                                      f"(commands: {', '.join(sorted(self.inbound)) or 'none'})")
             return
-        role = self.fleet.roles_of(user).get(self.robot.name)
-        if role is not Role.OPERATOR:
+        if self.role_of(user) is not Role.OPERATOR:
             self.refuse(user, topic, f"user '{user}' is not an operator of {self.robot.name}")
             return
         self.handle_command(user, topic, rule, payload)

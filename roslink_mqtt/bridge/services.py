@@ -1,0 +1,334 @@
+"""Services in both directions (DESIGN §6).
+
+* :class:`ServiceCaller` — MQTT users call the robot's ROS services:
+  ``from/<user>/call/<name>`` ``{"id", "args"}`` → ``to/<user>/reply/<name>``
+  ``{"id", "result", "values" | "error"}``. Calls are asynchronous: the MQTT
+  thread never waits for ROS, and a slow service never blocks topics.
+* :class:`ProvidedServices` — an MQTT client *provides* a service to ROS:
+  the bridge creates the ROS service while the provider is live, forwards each
+  call as ``to/<provider>/request/<name>`` and answers with the provider's
+  ``from/<provider>/response/<name>``. When the provider withdraws or goes
+  away, the ROS service is destroyed and waiting ROS calls fail cleanly.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import orjson
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from ..config import Robot, Role, ServiceRule
+from ..protocol import ProtocolError, loads
+from ..topics import TopicTree
+from .convert import ConversionError, converter_for
+from .ros_types import UnknownTypeError, load_interface
+
+log = logging.getLogger("roslink_mqtt.bridge.services")
+
+Publish = Callable[[str, bytes], None]
+MAX_ID_LENGTH = 128
+
+
+def _reply(call_id: Any, *, values: dict | None = None, error: str | None = None) -> bytes:
+    if error is not None:
+        return orjson.dumps({"id": call_id, "result": False, "error": error})
+    return orjson.dumps({"id": call_id, "result": True, "values": values or {}})
+
+
+def parse_request(payload: bytes) -> tuple[Any, dict]:
+    """``{"id": …, "args": {…}}`` → (id, args); ProtocolError on anything else."""
+    body = loads(payload)
+    if not isinstance(body, dict):
+        raise ProtocolError("expected a JSON object {\"id\": …, \"args\": {…}}")
+    unknown = sorted(set(body) - {"id", "args"})
+    if unknown:
+        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: id, args)")
+    call_id = body.get("id")
+    if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
+        raise ProtocolError("id: expected a string or integer")
+    if isinstance(call_id, str) and len(call_id) > MAX_ID_LENGTH:
+        raise ProtocolError(f"id: longer than {MAX_ID_LENGTH} characters")
+    args = body.get("args", {})
+    if not isinstance(args, dict):
+        raise ProtocolError("args: expected an object")
+    return call_id, args
+
+
+@dataclass
+class _Pending:
+    user: str
+    call_id: Any
+    reply_topic: str
+    deadline: float
+    timeout: float
+    future: Any
+    client: Any
+
+
+class ServiceCaller:
+    """Calls the robot's configured ROS services on behalf of MQTT users."""
+
+    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
+                 role_of: Callable[[str], Role | None]) -> None:
+        self.robot, self.topics, self.publish, self.role_of = robot, topics, publish, role_of
+        self._lock = threading.Lock()
+        self._pending: dict[int, _Pending] = {}
+        self._ids = itertools.count(1)
+        self.clients: dict[str, tuple[ServiceRule, Any, Any]] = {}
+        group = ReentrantCallbackGroup()
+        for rule in robot.services:
+            srv = load_interface(rule.ros_type)
+            self.clients[rule.name] = (rule, srv, node.create_client(srv, rule.ros_service, callback_group=group))
+
+    def handle(self, user: str, name: str, payload: bytes) -> None:
+        """A call from ``user`` to service ``name`` (MQTT thread: never blocks)."""
+        reply_topic = self.topics.reply(self.robot.name, user, name)
+        try:
+            call_id, args = parse_request(payload)
+        except ProtocolError as err:
+            self.publish(reply_topic, _reply(None, error=str(err)))
+            return
+        entry = self.clients.get(name)
+        if entry is None:
+            known = ", ".join(sorted(self.clients)) or "none"
+            self.publish(reply_topic, _reply(call_id, error=f"unknown service '{name}' (services: {known})"))
+            return
+        rule, srv, client = entry
+        role = self.role_of(user)
+        if role is None or (role is Role.VIEWER and not rule.read_only):
+            self.publish(reply_topic, _reply(call_id, error=f"user '{user}' may not call '{name}' "
+                                                            f"(operators only; it is not read-only)"))
+            return
+        try:
+            request = converter_for(srv.Request).from_dict(args)
+        except ConversionError as err:
+            self.publish(reply_topic, _reply(call_id, error=f"bad arguments: args.{err}"))
+            return
+        if not client.service_is_ready():
+            self.publish(reply_topic, _reply(call_id, error=f"service not available: {rule.ros_service} "
+                                                            f"({rule.ros_type}) has no server"))
+            return
+        future = client.call_async(request)
+        key = next(self._ids)
+        with self._lock:
+            self._pending[key] = _Pending(user, call_id, reply_topic, time.monotonic() + rule.timeout, rule.timeout,
+                                          future, client)
+        future.add_done_callback(lambda f, key=key, srv=srv: self._done(key, srv, f))
+
+    def _done(self, key: int, srv: Any, future: Any) -> None:
+        with self._lock:
+            pending = self._pending.pop(key, None)
+        if pending is None:  # already answered as a timeout
+            return
+        if future.cancelled() or future.exception() is not None:
+            self.publish(pending.reply_topic, _reply(pending.call_id, error=f"service failed: {future.exception()}"))
+            return
+        values = converter_for(srv.Response).to_dict(future.result())
+        self.publish(pending.reply_topic, _reply(pending.call_id, values=values))
+
+    def expire(self, now: float) -> None:
+        """Answer calls past their timeout (called from the bridge's supervision timer)."""
+        with self._lock:
+            late = [(k, p) for k, p in self._pending.items() if now > p.deadline]
+            for k, _ in late:
+                del self._pending[k]
+        for _, p in late:
+            p.client.remove_pending_request(p.future)
+            self.publish(p.reply_topic, _reply(p.call_id, error=f"timeout: no answer within {p.timeout:g} s"))
+
+
+@dataclass
+class _Provided:
+    user: str
+    name: str
+    srv: Any
+    timeout: float
+    client_id: str | None = None  # the provider's presence id: the service lives while that client does
+    service: Any = None  # the rclpy Service while it exists (created/destroyed by refresh only)
+    waiting: dict[Any, tuple[threading.Event, list]] = field(default_factory=dict)
+    ending: tuple[float, str] | None = None  # (since, why): failing calls, destroyed once they have answered
+
+    def end(self, reason: str) -> None:
+        """Fail every waiting call now; the service itself goes once those replies are out."""
+        if self.ending is None:
+            self.ending = (time.monotonic(), reason)
+        for event, box in list(self.waiting.values()):
+            box.append(("error", reason))
+            event.set()
+
+
+class ProvidedServices:
+    """ROS services whose implementation lives in an MQTT client.
+
+    MQTT messages only edit the table of offers; :meth:`refresh`, run by the
+    executor, creates and destroys the rclpy services to match, so ROS
+    entities are never touched from paho's thread. Each waiting ROS call holds
+    an executor thread, so at most ``max_concurrent`` may wait at once: the
+    supervision timer that stops the robot must always find a free thread.
+    """
+
+    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
+                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
+                 error: Callable[[str, str, str], None], max_concurrent: int = 2) -> None:
+        self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
+        self.role_of, self.is_live, self.error = role_of, is_live, error
+        self.group = ReentrantCallbackGroup()
+        self._lock = threading.RLock()
+        self._slots = threading.BoundedSemaphore(max_concurrent)
+        self.offers: dict[tuple[str, str], _Provided] = {}  # (user, name) -> offer
+        self._retired: list[_Provided] = []  # withdrawn offers whose ROS service still exists
+        self._ids = itertools.count(1)
+
+    # -- provider side (MQTT thread) ------------------------------------------------
+    def offer(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """A retained ``provide/<name>``: ``{"type": "pkg/srv/T", "timeout": s, "client_id": …}``, or empty.
+
+        ``client_id`` names the provider's operator-presence client: the ROS
+        service exists while that client is live (else while any client of the
+        user is), so the provider's death removes it even if the same user is
+        logged in elsewhere.
+        """
+        if not payload:
+            self.withdraw(user, name, "withdrawn by the provider")
+            return
+        if self.role_of(user) is not Role.OPERATOR:
+            self.error(user, topic, f"user '{user}' may not provide services on {self.robot.name} (operators only)")
+            return
+        try:
+            body = loads(payload)
+            if not isinstance(body, dict) or not isinstance(body.get("type"), str):
+                raise ProtocolError('expected {"type": "pkg/srv/Type"} (optional "timeout", "client_id")')
+            unknown = sorted(set(body) - {"type", "timeout", "client_id"})
+            if unknown:
+                raise ProtocolError(f"unknown field '{unknown[0]}' (fields: type, timeout, client_id)")
+            client_id = body.get("client_id")
+            if client_id is not None and not isinstance(client_id, str):
+                raise ProtocolError("client_id: expected a string")
+            timeout = body.get("timeout", 5.0)
+            if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
+                raise ProtocolError("timeout: expected seconds, 0 < timeout <= 3600")
+            if "/srv/" not in body["type"]:
+                raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
+            srv = load_interface(body["type"])
+        except (ProtocolError, UnknownTypeError) as err:
+            self.error(user, topic, str(err))
+            return
+        with self._lock:
+            taken = [u for (u, n), o in self.offers.items() if n == name and u != user]
+            if taken:
+                self.error(user, topic, f"service '{name}' is already provided by {taken[0]}")
+                return
+            old = self.offers.get((user, name))
+            if old is not None and old.srv is srv:
+                old.timeout, old.client_id = float(timeout), client_id
+                return  # the same offer again (e.g. retained redelivery after a reconnect)
+            if old is not None:
+                self._retire(old, "re-offered with another type")
+            self.offers[(user, name)] = _Provided(user, name, srv, float(timeout), client_id)
+
+    def withdraw(self, user: str, name: str, reason: str) -> None:
+        with self._lock:
+            offer = self.offers.pop((user, name), None)
+            if offer is not None:
+                self._retire(offer, reason)
+
+    def _retire(self, offer: _Provided, reason: str) -> None:
+        offer.end(reason)
+        self._retired.append(offer)
+
+    # -- reconcile (executor thread) -------------------------------------------------------
+    def refresh(self) -> None:
+        """Create services whose provider is live; destroy withdrawn ones and those whose provider left."""
+        with self._lock:
+            self._retired = [offer for offer in self._retired if not self._destroy_when_done(offer)]
+            for offer in self.offers.values():
+                live = self.is_live(offer.user, offer.client_id)
+                if live and offer.service is None:
+                    offer.ending = None
+                    offer.service = self.node.create_service(
+                        offer.srv, offer.name, lambda req, resp, o=offer: self._serve(o, req, resp),
+                        callback_group=self.group)
+                    log.info("providing ROS service %s for %s", offer.service.srv_name, offer.user)
+                elif live and offer.ending is not None:
+                    offer.ending = None  # the provider came back before its service was removed
+                elif not live and offer.service is not None:
+                    offer.end(f"provider {offer.user} went away")
+                    self._destroy_when_done(offer)
+
+    def _destroy_when_done(self, offer: _Provided, grace: float = 0.3) -> bool:
+        """Destroy the service once no call waits and the last reply had time to go out."""
+        if offer.service is not None:
+            if offer.waiting or offer.ending is None or time.monotonic() - offer.ending[0] < grace:
+                return False
+            self.node.destroy_service(offer.service)
+            offer.service = None
+            log.info("removed ROS service %s: %s", offer.name, offer.ending[1])
+        return True
+
+    def response(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """``from/<provider>/response/<name>``: wake the ROS call waiting for it."""
+        try:
+            body = loads(payload)
+            if not isinstance(body, dict) or "id" not in body:
+                raise ProtocolError('expected {"id": …, "result": true, "values": {…}}')
+        except ProtocolError as err:
+            self.error(user, topic, str(err))
+            return
+        with self._lock:
+            offer = self.offers.get((user, name))
+            waiter = offer.waiting.get(body["id"]) if offer is not None else None
+        if waiter is None:
+            self.error(user, topic, f"no pending request with id {body['id']!r} for '{name}'")
+            return
+        event, box = waiter
+        box.append(("ok", body))
+        event.set()
+
+    # -- ROS side (executor thread, reentrant group) ---------------------------------------
+    def _serve(self, offer: _Provided, request: Any, response: Any) -> Any:
+        if offer.ending is not None:
+            return _failed(response, offer.ending[1])
+        if not self._slots.acquire(blocking=False):
+            return _failed(response, f"too many concurrent calls to provided services on {self.robot.name}")
+        call_id = f"{self.robot.name}-{next(self._ids)}"
+        event, box = threading.Event(), []
+        with self._lock:
+            offer.waiting[call_id] = (event, box)
+        try:
+            args = converter_for(type(request)).to_dict(request)
+            self.publish(self.topics.request(self.robot.name, offer.user, offer.name),
+                         orjson.dumps({"id": call_id, "args": args}))
+            if not event.wait(offer.timeout):
+                return _failed(response, f"provider {offer.user} did not answer within {offer.timeout:g} s")
+            status, body = box[0]
+            if status == "error":
+                return _failed(response, body)
+            if body.get("result") is False:
+                return _failed(response, str(body.get("error", "provider reported failure")))
+            try:
+                return converter_for(type(response)).from_dict(body.get("values") or {})
+            except ConversionError as err:
+                return _failed(response, f"provider sent a bad response: {err}")
+        finally:
+            with self._lock:
+                offer.waiting.pop(call_id, None)
+            self._slots.release()
+
+
+def _failed(response: Any, reason: str) -> Any:
+    """A response that says it failed, where the type can say so (success/message fields)."""
+    fields = response.get_fields_and_field_types()
+    if "success" in fields:
+        response.success = False
+    if "message" in fields and fields["message"] == "string":
+        response.message = reason
+    log.warning("provided service call failed: %s", reason)
+    return response
