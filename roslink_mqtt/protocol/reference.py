@@ -2,7 +2,7 @@
 
 docs/protocol.md embeds this output between markers, and a test checks they
 agree, so the document client writers read cannot drift from the code.
-Run ``python -m roslink_mqtt.protocol.reference`` to regenerate.
+Run ``python -m roslink_mqtt.protocol.reference --write docs/protocol.md`` to regenerate in place.
 """
 
 from __future__ import annotations
@@ -76,5 +76,20 @@ def render() -> str:
     return "\n".join(out)
 
 
+def write(path: str) -> None:
+    """Replace the generated section of ``path`` (between the markers) with a fresh render."""
+    from pathlib import Path
+
+    doc = Path(path)
+    text = doc.read_text()
+    start, end = text.index(BEGIN), text.index(END) + len(END)
+    doc.write_text(text[:start] + render() + text[end:])
+
+
 if __name__ == "__main__":
-    print(render())
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--write":
+        write(sys.argv[2])
+    else:
+        print(render())
