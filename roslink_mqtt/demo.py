@@ -1,31 +1,222 @@
-"""``make demo``: show the working parts on this machine.
+"""``make demo``: the whole system on this machine, in about 20 seconds.
 
-Grows with the project; each stage prints what it proves.
+Starts the embedded broker, the simulated robot and the bridge as real
+processes (DDS kept on loopback, a fresh ROS domain), then plays a short
+scene with plain MQTT clients: a viewer watches live ROSLink messages, an
+operator drives the robot, a malformed command is refused, a ROS service is
+called over MQTT, and the operator's silence triggers the dead-man stop.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
+import queue
+import socket
+import subprocess
 import sys
+import time
+from contextlib import ExitStack
+from pathlib import Path
 
-from .cli.fleet_cmd import summary
+import orjson
+
 from .config import load_fleet
-from .protocol import MessageId, ProtocolError, decode, encode_message
+from .mqtt import make_client
+from .presence import operator_heartbeat
+from .protocol import MessageId, decode
+from .ros_env import local_ros_env
+from .topics import TopicTree
+
+DEMO_PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo", "bob": "bob-demo"}
 
 
-def main(config: str = "config/robots.yaml") -> int:
-    fleet = load_fleet(config)
-    print(summary(fleet))
-    topic = fleet.topics.command("turtle1", "alice", "twist")
-    wire = encode_message(MessageId.TWIST, {"lx": 0.2, "az": 0.5}, system_id=1, sequence_number=17)
-    print(f"\nalice → {topic}\n  {wire.decode()}")
-    print(f"  decoded: {decode(wire, MessageId.TWIST)}")
-    for bad in (b'{"lx": "fast"}', b'{"lx": 1e999}', b'{"lxx": 0.1}', b"not json"):
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket() as s:
         try:
-            decode(bad, MessageId.TWIST)
-        except ProtocolError as err:
-            print(f"  refused {bad.decode()!r}: {err}")
+            s.bind(("127.0.0.1", port))
+            return True
+        except OSError:
+            return False
+
+
+def _wait_port(port: int, proc: subprocess.Popen, what: str, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise SystemExit(f"demo: {what} exited early (code {proc.returncode}); see its log")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.1)
+    raise SystemExit(f"demo: {what} did not open port {port}")
+
+
+class Scene:
+    """Plain MQTT clients (no SDK needed): what any Node-RED flow or phone app would do."""
+
+    def __init__(self, port: int, topics: TopicTree) -> None:
+        self.topics, self.inbox = topics, queue.Queue()
+        self.viewer = self._client("bob", "demo-viewer", port)
+        self.viewer.on_message = lambda c, u, m: self.inbox.put((m.topic, m.payload))
+        self.viewer.connect("127.0.0.1", port)
+        self.viewer.loop_start()
+        self.viewer.subscribe([(topics.heartbeat("turtle1"), 1), (topics.all_state("turtle1"), 0)])
+        self.operator = self._client("alice", "demo-alice", port)
+        self.operator.will_set(topics.operator("alice", "demo-alice"), b"", qos=1, retain=True)
+        self.replies: queue.Queue = queue.Queue()
+        self.operator.on_message = lambda c, u, m: self.replies.put((m.topic, m.payload))
+        self.operator.connect("127.0.0.1", port)
+        self.operator.loop_start()
+        self.operator.subscribe(f"{topics.prefix}/turtle1/to/alice/#", 1)
+
+    @staticmethod
+    def _client(user: str, client_id: str, port: int):
+        return make_client(client_id, username=user, password=DEMO_PASSWORDS[user], url=f"mqtt://127.0.0.1:{port}")
+
+    def beat(self) -> None:
+        self.operator.publish(self.topics.operator("alice", "demo-alice"), operator_heartbeat("alice", "demo-alice"),
+                              qos=1, retain=True)
+
+    def watch(self, seconds: float, show: set[str]) -> dict[str, dict]:
+        """Print the state messages named in ``show`` for ``seconds``; return the latest of each."""
+        latest: dict[str, dict] = {}
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            try:
+                topic, payload = self.inbox.get(timeout=left)
+            except queue.Empty:
+                break
+            name = topic.rsplit("/", 1)[1]
+            env = decode(payload)
+            latest[name] = env.payload
+            if name in show:
+                print(f"  bob sees {topic}: {_summary(name, env.payload)}")
+                show.discard(name)
+        return latest
+
+    def reply(self, timeout: float = 5.0) -> tuple[str, dict]:
+        topic, payload = self.replies.get(timeout=timeout)
+        return topic, orjson.loads(payload)
+
+    def close(self) -> None:
+        self.operator.publish(self.topics.operator("alice", "demo-alice"), b"", qos=1, retain=True)
+        for c in (self.operator, self.viewer):
+            c.disconnect()
+            c.loop_stop()
+
+
+def _summary(name: str, p: dict) -> str:
+    if name == "heartbeat":
+        status = {4: "ACTIVE", 6: "EMERGENCY", 8: "OFFLINE"}.get(p["system_status"], p["system_status"])
+        return f"{p['name']} {status} session={p['session']}"
+    if name == "global_motion":
+        return f"x={p['x']:+.2f} y={p['y']:+.2f} yaw={p['yaw']:+.2f} vx={p['vx']:.2f} wz={p['wz']:.2f}"
+    if name == "robot_status":
+        return f"battery {p['battery_remaining']:.1f}% {p['voltage_battery']:.2f} V"
+    if name == "range_finder_data":
+        hits = [r for r in p["ranges"] if r is not None]
+        return f"{len(p['ranges'])} beams, nearest wall {min(hits):.2f} m" if hits else "no returns"
+    if name == "gps_raw_info":
+        return f"fix {p['fix_type']} lat {p['lat']:.6f} lon {p['lon']:.6f}"
+    if name == "ack":
+        return f"ack result={p['result']} '{p['text']}'"
+    return orjson.dumps(p).decode()[:100]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
+    parser.add_argument("--config", default="config/robots.yaml")
+    parser.add_argument("--logs", default="run/demo", help="where the processes' logs go")
+    args = parser.parse_args(argv)
+    fleet = load_fleet(args.config)
+    topics = fleet.topics
+    logs = Path(args.logs)
+    logs.mkdir(parents=True, exist_ok=True)
+    port = fleet.broker.port if _port_free(fleet.broker.port) else _free_port()
+    env = local_ros_env()
+    print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (DDS on loopback), "
+          f"logs in {logs}/")
+    with ExitStack() as stack:
+        def start(name: str, cmd: list[str], extra_env: dict[str, str] | None = None) -> subprocess.Popen:
+            log = open(logs / f"{name}.log", "wb")  # noqa: SIM115 - closed by the stack
+            stack.callback(log.close)
+            proc = subprocess.Popen([sys.executable, *cmd], stdout=log, stderr=subprocess.STDOUT,
+                                    env={**env, **(extra_env or {}), "PYTHONUNBUFFERED": "1"})
+            stack.callback(_stop, proc)
+            return proc
+
+        broker = start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
+                                  "--port", str(port), "--ws-port", "0"])
+        _wait_port(port, broker, "the broker")
+        print("1. embedded broker up (authentication + ROSLink-key ACLs)")
+        start("sim", ["-m", "roslink_mqtt.sim"])
+        start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot", "turtle1",
+                         "--broker", f"mqtt://127.0.0.1:{port}"], {"ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
+        print("2. simulated robot and bridge for turtle1 started")
+        scene = Scene(port, topics)
+        stack.callback(scene.close)
+        print("3. bob (viewer) subscribes to roslink/turtle1/heartbeat and roslink/turtle1/state/# :")
+        latest = scene.watch(8.0, {"heartbeat", "global_motion", "robot_status", "range_finder_data",
+                                   "gps_raw_info"})
+        if "heartbeat" not in latest:
+            print("  the robot did not come online; see the logs")
+            return 1
+        start_x = latest.get("global_motion", {}).get("x", 0.0)
+        print("4. alice (operator) announces her presence and drives: lx=0.4 m/s, az=0.5 rad/s for 2 s")
+        cmd = topics.command("turtle1", "alice", "twist")
+        for seq in range(1, 21):
+            if seq % 10 == 1:
+                scene.beat()
+            scene.operator.publish(cmd, orjson.dumps({"message_id": int(MessageId.TWIST), "sequence_number": seq,
+                                                      "payload": {"lx": 0.4, "az": 0.5}}))
+            time.sleep(0.1)
+        motion = scene.watch(0.5, {"global_motion"}).get("global_motion") or {}
+        print(f"  the robot moved {abs(motion.get('x', start_x) - start_x):.2f} m in x")
+        print("5. alice sends a malformed twist {\"lx\": \"fast\"}:")
+        scene.beat()
+        scene.operator.publish(cmd, b'{"lx": "fast"}')
+        topic, body = scene.reply()
+        print(f"  {topic}: {body['error']}")
+        print("6. alice calls the robot's ROS service 'reset' over MQTT:")
+        for attempt in range(10):
+            scene.beat()
+            scene.operator.publish(topics.call("turtle1", "alice", "reset"), orjson.dumps({"id": attempt, "args": {}}))
+            topic, body = scene.reply()
+            if body.get("result"):
+                break
+            time.sleep(0.5)
+        print(f"  {topic}: {orjson.dumps(body).decode()}")
+        print("7. alice drives again, then goes silent: the dead-man stops the robot")
+        for seq in range(21, 31):
+            scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,
+                                                      "payload": {"lx": 0.3}}))
+            time.sleep(0.1)
+        scene.beat()
+        latest = scene.watch(2.0, {"ack"})
+        if "ack" not in latest:
+            print("  (no failsafe notice seen)")
+        print("Done: stopping the bridge (its offline heartbeat is retained), robot and broker.")
     return 0
 
 
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(2)  # SIGINT: clean shutdown
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
 if __name__ == "__main__":
-    sys.exit(main(*sys.argv[1:]))
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    sys.exit(main())

@@ -154,6 +154,15 @@ def test_other_errors() -> None:
         converter_for(Odometry).from_dict({"pose": {"covariance": [0.0, 1.0]}})
 
 
+def test_float32_overflow_and_nul_refused() -> None:
+    from sensor_msgs.msg import LaserScan
+    from std_msgs.msg import String
+    with pytest.raises(ConversionError, match="out of range for float32"):
+        converter_for(LaserScan).from_dict({"range_max": 1e39})
+    with pytest.raises(ConversionError, match="NUL"):
+        converter_for(String).from_dict({"data": "a\x00b"})
+
+
 def test_time_and_non_finite_conventions() -> None:
     from sensor_msgs.msg import LaserScan
     scan = LaserScan()

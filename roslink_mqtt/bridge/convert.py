@@ -206,6 +206,8 @@ class _Reader:
             def check_string(path: str, v: Any) -> str:
                 if not isinstance(v, str):
                     raise ConversionError(f"{path}: expected string, got {_describe(v)}")
+                if "\0" in v:  # ROS strings end at NUL: the rest would vanish silently
+                    raise ConversionError(f"{path}: string contains a NUL character")
                 if limit is not None and len(v) > limit:
                     raise ConversionError(f"{path}: string longer than {limit}")
                 return v
@@ -264,10 +266,17 @@ class _Reader:
         return check_list
 
 
+FLOAT32_MAX = 3.4028234663852886e38
+
+
 def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
     if typename in _FLOATS:
+        limit = FLOAT32_MAX if typename == "float" else math.inf
+
         def check_float(path: str, v: Any) -> float:
             if isinstance(v, (int, float)) and not isinstance(v, bool):
+                if abs(v) > limit and math.isfinite(v):  # would silently become infinity in a float32
+                    raise ConversionError(f"{path}: {v!r} is out of range for float32")
                 return float(v)
             if isinstance(v, str) and v in NON_FINITE:
                 return NON_FINITE[v]
