@@ -19,6 +19,7 @@ import array
 import base64
 import binascii
 import math
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +35,7 @@ class ConversionError(ValueError):
     """Untrusted JSON does not fit the ROS type; the message names the field path."""
 
 
+_pack_f = struct.Struct("<f").pack
 NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
 _INT_RANGES = {
     "int8": (-(2**7), 2**7 - 1), "uint8": (0, 2**8 - 1), "int16": (-(2**15), 2**15 - 1), "uint16": (0, 2**16 - 1),
@@ -266,16 +268,22 @@ class _Reader:
         return check_list
 
 
-FLOAT32_MAX = 3.4028234663852886e38
+def _fits_float32(v: float) -> bool:
+    """False when ``v`` would silently become infinity in a float32 (struct rounds like the C layer)."""
+    try:
+        _pack_f(v)
+    except OverflowError:
+        return False
+    return True
 
 
 def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
     if typename in _FLOATS:
-        limit = FLOAT32_MAX if typename == "float" else math.inf
+        single = typename == "float"
 
         def check_float(path: str, v: Any) -> float:
             if isinstance(v, (int, float)) and not isinstance(v, bool):
-                if abs(v) > limit and math.isfinite(v):  # would silently become infinity in a float32
+                if single and not _fits_float32(v):
                     raise ConversionError(f"{path}: {v!r} is out of range for float32")
                 return float(v)
             if isinstance(v, str) and v in NON_FINITE:
