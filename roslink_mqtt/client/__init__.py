@@ -1,5 +1,52 @@
-"""Client SDK for programs without ROS (core install: paho-mqtt, orjson, pyyaml — no rclpy, no amqtt)."""
+"""Client SDK for programs without ROS (core install: paho-mqtt, orjson, pyyaml — no rclpy, no amqtt).
 
+Two ways in:
+
+* :class:`RobotClient` — one login to the fleet's broker: robots and their
+  presence, typed ROSLink state, commands, service calls (sync and asyncio),
+  services provided to ROS.
+* the rclpy-shaped API — ``create_node``, ``spin``, publishers,
+  subscriptions, services and clients — so code written here moves to real ROS
+  by changing ``import roslink_mqtt.client as rclpy`` to ``import rclpy``.
+
+See docs/sdk.md.
+"""
+
+from .context import create_node, init, ok, shutdown, spin, spin_once, spin_until_future_complete, try_shutdown
+from .directory import RobotInfo
+from .errors import CommandRefused, ConnectError, RobotError, RoslinkError, ServiceError, ServiceTimeout
+from .messages import (
+    Ack,
+    Arm,
+    Disarm,
+    EmergencyStop,
+    GeoTaggedImage,
+    GetMap,
+    GlobalMotion,
+    GoToWaypoint,
+    GpsRawInfo,
+    Heartbeat,
+    Image,
+    Land,
+    Map,
+    RangeFinderData,
+    RobotStatus,
+    RoslinkMessage,
+    SetMode,
+    Takeoff,
+    Twist,
+)
+from .node import Client, Node, Publisher, Service, Subscription, Timer
 from .presence import OperatorPresence
+from .providers import ProvidedService
+from .robot_client import RobotClient
+from .subscriptions import StateSubscription
 
-__all__ = ["OperatorPresence"]
+__all__ = [
+    "Ack", "Arm", "Client", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop", "GeoTaggedImage", "GetMap",
+    "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land", "Map", "Node", "OperatorPresence",
+    "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
+    "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",
+    "Subscription", "Takeoff", "Timer", "Twist", "create_node", "init", "ok", "shutdown", "spin", "spin_once",
+    "spin_until_future_complete", "try_shutdown",
+]

@@ -1,0 +1,72 @@
+"""Commands to a robot: topic, validated payload and a sequence number per command stream.
+
+The robot drops stale and duplicate commands per (user, command) using the
+envelope's ``sequence_number``. Counting from 1 in every process would make a
+restarted program look stale (its numbers trail the previous run's), so each
+stream starts from the wall clock in milliseconds: a later process starts
+ahead of an earlier one, and serial-number arithmetic handles the wrap every
+49 days. Payloads of ROSLink commands are validated here with the same rules
+the robot applies, so a typo fails at the call site, not as an error report.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import orjson
+
+from ..protocol import SPECS, Direction, encode_message, spec_for
+from ..topics import TopicTree, check_path
+
+COMMAND_NAMES = frozenset(spec.name for spec in SPECS if spec.direction is Direction.COMMAND)
+RESERVED = ("call", "provide", "response")  # leaves with their own API (services)
+
+
+def command_leaf(name: str) -> str:
+    """``"twist"`` → ``"cmd/twist"``; ``"cmd/twist"`` and generic rule names (``"led"``) stay as they are."""
+    name = name.strip("/")
+    leaf = f"cmd/{name}" if name in COMMAND_NAMES else name
+    check_path(leaf, "command")
+    if leaf.split("/", 1)[0] in RESERVED:
+        raise ValueError(f"'{leaf}' is a service topic: use call()/provide() (or create_client/create_service)")
+    return leaf
+
+
+def roslink_command(leaf: str) -> str | None:
+    """The ROSLink command name a leaf carries (``cmd/twist`` → ``twist``), None for generic rules."""
+    kind, _, name = leaf.partition("/")
+    return name if kind == "cmd" and name in COMMAND_NAMES else None
+
+
+class CommandStreams:
+    """Builds what to publish for a command; thread-safe (several threads may command)."""
+
+    def __init__(self, topics: TopicTree, user: str, start: int | None = None) -> None:
+        self.topics, self.user = topics, user
+        self._start = (int(time.time() * 1000) if start is None else start) & 0xFFFFFFFF
+        self._next: dict[tuple[str, str], int] = {}
+        self._lock = threading.Lock()
+
+    def next_sequence(self, robot: str, leaf: str) -> int:
+        with self._lock:
+            seq = self._next.get((robot, leaf), self._start)
+            self._next[(robot, leaf)] = (seq + 1) & 0xFFFFFFFF
+            return seq
+
+    def build(self, robot: str, name: str, payload: dict[str, Any] | None = None) -> tuple[str, bytes, int | None]:
+        """(topic, bytes, sequence_number or None) for ``name`` with ``payload``.
+
+        ROSLink commands go out as envelopes with a sequence number (validated,
+        ProtocolError on a bad payload); generic rules carry the ROS message as
+        plain JSON, unvalidated (only the robot knows the ROS type).
+        """
+        leaf = command_leaf(name)
+        topic = self.topics.from_user(robot, self.user, leaf)
+        message = roslink_command(leaf)
+        if message is None:
+            return topic, orjson.dumps(payload if payload is not None else {}), None
+        seq = self.next_sequence(robot, leaf)
+        data = encode_message(spec_for(message).message_id, dict(payload or {}), sequence_number=seq)
+        return topic, data, seq

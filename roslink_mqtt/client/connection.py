@@ -1,0 +1,190 @@
+"""One MQTT connection for the SDK: login, operator presence, subscriptions that survive reconnects.
+
+paho forgets subscriptions when a clean session reconnects, and a robot
+refuses commands from a user whose presence heartbeat is gone, so both are
+restored on every CONNACK. Subscriptions wait for their SUBACK: a reply can
+arrive milliseconds after a call is published, and a call made before the
+broker has accepted the reply subscription would lose it. A refused
+subscription (SUBACK 0x80, e.g. a wildcard a broker's ACL does not allow) is
+reported to the caller and forgotten, not retried on every reconnect.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import paho.mqtt.client as mqtt
+
+from ..mqtt import BrokerUrl, make_client, parse_broker_url
+from ..topics import TopicTree
+from .errors import ConnectError
+from .presence import OperatorPresence
+
+log = logging.getLogger("roslink_mqtt.client")
+
+Handler = Callable[[str, bytes, bool], None]  # (topic, payload, retained); runs on the network thread
+
+
+@dataclass
+class _Subscription:
+    qos: int
+    handlers: list[Handler] = field(default_factory=list)
+
+
+class Connection:
+    """A paho client plus the bookkeeping every SDK object needs.
+
+    Handlers run on paho's network thread and must not block; they hand user
+    work to a :class:`~roslink_mqtt.client.dispatch.CallbackQueue`.
+    """
+
+    def __init__(self, *, username: str, password: str | None, url: str | BrokerUrl, client_id: str,
+                 topics: TopicTree, presence: bool = True, ca_file: str | None = None,
+                 insecure_tls: bool = False, keepalive: int = 5) -> None:
+        self.username, self.client_id, self.topics = username, client_id, topics
+        self.url = parse_broker_url(url) if isinstance(url, str) else url
+        self.keepalive = keepalive
+        self.client = make_client(client_id, username=username, password=password, url=self.url,
+                                  ca_file=ca_file, insecure_tls=insecure_tls)
+        # Created before CONNECT: the presence last-will must be part of the CONNECT packet.
+        self.presence = OperatorPresence(self.client, username, client_id, topics=topics) if presence else None
+        self._lock = threading.RLock()
+        self._subs: dict[str, _Subscription] = {}
+        self._pending_suback: dict[int, tuple[str, threading.Event, list[bool]]] = {}
+        self._connack = threading.Event()
+        self._connack_failure: str | None = None
+        self._network_thread: int | None = None
+        self.connected = threading.Event()
+        self._closing = False
+        self.on_connected: list[Callable[[], None]] = []  # run on the network thread after every CONNACK
+        self.client.on_connect = self._on_connect
+        self.client.on_disconnect = self._on_disconnect
+        self.client.on_message = self._on_message
+        self.client.on_subscribe = self._on_subscribe
+
+    # -- lifecycle --------------------------------------------------------------------
+    def connect(self, timeout: float = 10.0) -> None:
+        """Connect and wait for the broker to accept the login; raise ConnectError otherwise."""
+        try:
+            self.client.connect(self.url.host, self.url.port, keepalive=self.keepalive)
+        except (OSError, ValueError) as err:
+            raise ConnectError(f"cannot reach the broker at {self.url}: {err}") from None
+        self.client.loop_start()
+        if not self._connack.wait(timeout) or self._connack_failure is not None:
+            reason = self._connack_failure or f"no answer within {timeout:g} s"
+            self.client.disconnect()
+            self.client.loop_stop()
+            raise ConnectError(f"broker {self.url} refused {self.username}: {reason}")
+        if self.presence is not None:
+            self.presence.start()
+
+    def close(self) -> None:
+        """Sign off: clear our presence (robots stop trusting us at once), then disconnect."""
+        self._closing = True
+        if self.presence is not None:
+            self.presence.stop()
+        self.client.disconnect()
+        self.client.loop_stop()
+        self.connected.clear()
+
+    def on_network_thread(self) -> bool:
+        return threading.get_ident() == self._network_thread
+
+    # -- paho callbacks (network thread) -------------------------------------------------
+    def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
+        self._network_thread = threading.get_ident()
+        if reason.is_failure:
+            self._connack_failure = str(reason)
+            self._connack.set()
+            return
+        with self._lock:
+            for topic, sub in self._subs.items():
+                result, mid = client.subscribe(topic, sub.qos)
+                if result == mqtt.MQTT_ERR_SUCCESS:
+                    self._pending_suback[mid] = (topic, threading.Event(), [])
+        if self.presence is not None:
+            self.presence.beat()
+        for hook in list(self.on_connected):
+            try:
+                hook()
+            except Exception:
+                log.exception("on_connected hook failed")
+        self.connected.set()
+        self._connack.set()
+
+    def _on_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
+        if self.connected.is_set() and not self._closing:
+            log.warning("%s: disconnected from %s (%s); reconnecting", self.client_id, self.url, reason)
+        self.connected.clear()
+
+    def _on_subscribe(self, _client: mqtt.Client, _userdata: Any, mid: int, reasons: list[Any], _props: Any) -> None:
+        with self._lock:
+            pending = self._pending_suback.pop(mid, None)
+            if pending is None:
+                return
+            topic, event, box = pending
+            granted = bool(reasons) and not any(r.is_failure for r in reasons)
+            if not granted:
+                self._subs.pop(topic, None)  # refused: do not ask again on every reconnect
+            box.append(granted)
+        event.set()
+
+    def _on_message(self, _client: mqtt.Client, _userdata: Any, msg: mqtt.MQTTMessage) -> None:
+        topic = msg.topic
+        with self._lock:
+            handlers: dict[int, Handler] = {}
+            for pattern, sub in self._subs.items():
+                if mqtt.topic_matches_sub(pattern, topic):
+                    for handler in sub.handlers:
+                        handlers.setdefault(id(handler), handler)
+        for handler in handlers.values():
+            try:
+                handler(topic, msg.payload, bool(msg.retain))
+            except Exception:
+                log.exception("handler for %s failed", topic)
+
+    # -- subscriptions -------------------------------------------------------------------
+    def subscribe(self, topic: str, handler: Handler, qos: int = 1, timeout: float = 5.0) -> bool:
+        """Route ``topic`` (a filter) to ``handler``; True once the broker granted it.
+
+        Off the network thread this waits for the SUBACK; False means the
+        broker refused the filter (0x80) or did not answer in time. While
+        disconnected the filter is kept and subscribed on reconnect.
+        """
+        with self._lock:
+            sub = self._subs.get(topic)
+            if sub is not None:
+                if handler not in sub.handlers:
+                    sub.handlers.append(handler)
+                return True
+            self._subs[topic] = _Subscription(qos, [handler])
+            result, mid = self.client.subscribe(topic, qos)
+            if result != mqtt.MQTT_ERR_SUCCESS:
+                return False  # not connected: _on_connect subscribes it
+            event, box = threading.Event(), []
+            self._pending_suback[mid] = (topic, event, box)
+        if self.on_network_thread():
+            return True  # cannot wait for our own thread; the SUBACK is handled when it comes
+        if not event.wait(timeout):
+            log.warning("%s: no SUBACK for %s within %g s", self.client_id, topic, timeout)
+            return False
+        return box[0]
+
+    def unsubscribe(self, topic: str, handler: Handler) -> None:
+        with self._lock:
+            sub = self._subs.get(topic)
+            if sub is None:
+                return
+            if handler in sub.handlers:
+                sub.handlers.remove(handler)
+            if not sub.handlers:
+                del self._subs[topic]
+                self.client.unsubscribe(topic)
+
+    def publish(self, topic: str, payload: bytes, qos: int = 1, retain: bool = False) -> mqtt.MQTTMessageInfo:
+        """Queue a message (paho sends it, or keeps QoS>0 ones for after a reconnect)."""
+        return self.client.publish(topic, payload, qos=qos, retain=retain)

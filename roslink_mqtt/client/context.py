@@ -1,0 +1,100 @@
+"""rclpy's module-level functions: ``init``, ``create_node``, ``spin``, ``spin_once``, ``shutdown``.
+
+There is no ROS graph to join, so ``init`` only marks the context live and
+``shutdown`` destroys the nodes still alive (withdrawing their services and
+clearing their presence). ``create_node`` works without ``init``: a program
+without ROS should not fail for a missing ceremony.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import Future
+from typing import Any
+
+from .node import Node
+
+
+class Context:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._nodes: list[Node] = []
+        self._ok = False
+
+    def init(self) -> None:
+        self._ok = True
+
+    def ok(self) -> bool:
+        return self._ok
+
+    def add(self, node: Node) -> None:
+        with self._lock:
+            self._ok = True
+            self._nodes.append(node)
+
+    def remove(self, node: Node) -> None:
+        with self._lock:
+            if node in self._nodes:
+                self._nodes.remove(node)
+
+    def shutdown(self) -> None:
+        with self._lock:
+            nodes, self._nodes = list(self._nodes), []
+            self._ok = False
+        for node in nodes:
+            node.destroy_node()
+
+
+_DEFAULT = Context()
+
+
+def default_context() -> Context:
+    return _DEFAULT
+
+
+def init(args: Any = None, *, context: Context | None = None, **_rclpy_options: Any) -> None:
+    """Mark the context live (``args`` accepted for rclpy compatibility and ignored)."""
+    (context or _DEFAULT).init()
+
+
+def ok(*, context: Context | None = None) -> bool:
+    return (context or _DEFAULT).ok()
+
+
+def shutdown(*, context: Context | None = None, **_rclpy_options: Any) -> None:
+    """Destroy every node still alive."""
+    (context or _DEFAULT).shutdown()
+
+
+def try_shutdown(*, context: Context | None = None) -> None:
+    shutdown(context=context)
+
+
+def create_node(node_name: str, *, robot: str | None = None, url: str | None = None, username: str | None = None,
+                password: str | None = None, **options: Any) -> Node:
+    """Connect a :class:`Node` for ``robot`` (see Node for the options and their environment defaults)."""
+    return Node(node_name, robot=robot, url=url, username=username, password=password, **options)
+
+
+def spin_once(node: Node, *, executor: Any = None, timeout_sec: float | None = None) -> None:
+    """Run at most one callback, waiting up to ``timeout_sec`` (None: until one comes)."""
+    node._callbacks.run_once(timeout_sec)
+
+
+def spin(node: Node, executor: Any = None) -> None:
+    """Run the node's callbacks until it is destroyed or ``shutdown()`` (Ctrl-C raises KeyboardInterrupt)."""
+    while not node.destroyed and ok():
+        node._callbacks.run_once(0.5)
+
+
+def spin_until_future_complete(node: Node, future: Future[Any], executor: Any = None,
+                               timeout_sec: float | None = None) -> None:
+    """Spin until ``future`` is done or ``timeout_sec`` passes."""
+    future.add_done_callback(lambda _f: node._callbacks.wake())  # no polling delay when it completes
+    deadline = None if timeout_sec is None else time.monotonic() + timeout_sec
+    while not future.done() and not node.destroyed:
+        left = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
+        if left <= 0:
+            return
+        node._callbacks.run_once(left)

@@ -1,0 +1,357 @@
+"""A ROS-like ``Node`` for programs without ROS: the rclpy names, carried over MQTT.
+
+Code written against this API moves to real ROS by changing the import (and
+dropping the connection arguments): publishers, subscriptions, services,
+clients, timers, a logger and ``spin``. Messages are dicts typed by the ROS
+type name (``"geometry_msgs/msg/Twist"``, ``"std_srvs/srv/SetBool"``); the
+robot's bridge converts them to and from real ROS messages.
+
+One node is bound to one robot and is one MQTT connection (with operator
+presence). Callbacks — subscriptions, services, timers — run only inside
+``spin``/``spin_once``, as in rclpy; service *calls* resolve without spinning,
+so ``client.call()`` works anywhere, even inside a callback.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+from ..topics import DEFAULT_PREFIX, check_name
+from .calls import Values
+from .commands import command_leaf, roslink_command
+from .dispatch import CallbackQueue, Scheduler
+from .errors import RobotError
+from .logger import Logger
+from .messages import RoslinkMessage
+from .robot_client import DEFAULT_CALL_TIMEOUT, RobotClient
+from .subscriptions import StateItem, StateSubscription
+
+ENV_ROBOT = "ROSLINK_ROBOT"
+MsgType = str | type[RoslinkMessage]
+
+
+def ros_shaped_to_roslink(command: str, msg: dict[str, Any]) -> dict[str, Any]:
+    """Accept rclpy-shaped dicts on ROSLink command topics (the robot's preset expects ROSLink fields).
+
+    ``{"linear": {"x": .2}, "angular": {"z": .5}}`` on ``cmd/twist`` becomes
+    ``{"lx": .2, "az": .5}``; a PoseStamped/Pose/Point on ``cmd/go_to_waypoint``
+    becomes ``{"x", "y", "z"}``; ``{"data": true}`` (std_msgs/Bool) on a command
+    without fields (``arm``, ``disarm``, ``land``) becomes ``{}``. ROSLink-shaped
+    dicts pass unchanged.
+    """
+    if command == "twist" and ("linear" in msg or "angular" in msg):
+        lin, ang = msg.get("linear") or {}, msg.get("angular") or {}
+        return {"lx": lin.get("x", 0.0), "ly": lin.get("y", 0.0), "lz": lin.get("z", 0.0),
+                "ax": ang.get("x", 0.0), "ay": ang.get("y", 0.0), "az": ang.get("z", 0.0)}
+    if command == "go_to_waypoint" and ("pose" in msg or "position" in msg):
+        pose = msg.get("pose", msg)
+        point = pose.get("position", pose) if isinstance(pose, dict) else {}
+        return {"x": point.get("x", 0.0), "y": point.get("y", 0.0), "z": point.get("z", 0.0)}
+    if command in ("arm", "disarm", "land", "get_map") and set(msg) == {"data"}:
+        if msg["data"] is not True:
+            raise ValueError(f"{command}: {{'data': {msg['data']!r}}} would do nothing; send {{'data': True}}")
+        return {}
+    return msg
+
+
+class Publisher:
+    """Publishes to ``<prefix>/<robot>/from/<user>/<topic>``: a ROSLink command or a generic rule's input."""
+
+    def __init__(self, node: Node, msg_type: MsgType, topic: str, qos_profile: Any) -> None:
+        self._node, self.msg_type, self.qos_profile = node, msg_type, qos_profile
+        self.leaf = command_leaf(topic)
+        self.command = roslink_command(self.leaf)  # "twist" etc., None for generic rules
+        self.topic = node.client.topics.from_user(node.robot, node.client.username, self.leaf)
+
+    @property
+    def topic_name(self) -> str:
+        return self.leaf
+
+    def publish(self, msg: dict[str, Any] | RoslinkMessage) -> None:
+        """Send one message (validated locally for ROSLink commands: ProtocolError on a bad field)."""
+        payload = msg.payload() if isinstance(msg, RoslinkMessage) else msg
+        if not isinstance(payload, dict):
+            raise TypeError(f"publish() takes a dict of message fields, got {type(msg).__name__}")
+        if self.command is not None:
+            payload = ros_shaped_to_roslink(self.command, payload)
+        self._node.client.command(self._node.robot, self.leaf, payload)
+
+    def get_subscription_count(self) -> int:
+        """1 while the robot is online (its bridge is the only reader), else 0."""
+        info = self._node.client.robot(self._node.robot)
+        return int(info is not None and info.online)
+
+    def destroy(self) -> None:
+        self._node.destroy_publisher(self)
+
+
+class Subscription:
+    """Delivers ``<prefix>/<robot>/state/<topic>`` to a callback during spin.
+
+    With a type name (``"nav_msgs/msg/Odometry"``) the callback gets the
+    message as a dict — the ROSLink payload for preset topics, the ROS message
+    for generic rules. With a ROSLink message class (``GlobalMotion``) it gets
+    the typed object.
+    """
+
+    def __init__(self, node: Node, msg_type: MsgType, topic: str, callback: Callable[[Any], None],
+                 qos_profile: Any) -> None:
+        self._node, self.msg_type, self.callback, self.qos_profile = node, msg_type, callback, qos_profile
+        self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
+        self._sub: StateSubscription = node.client.subscribe(node.robot, topic, self._deliver)
+        self.topic_name = f"state/{self._sub.name}"
+
+    def _deliver(self, item: StateItem) -> None:
+        if self.typed:
+            if isinstance(item, self.msg_type):  # type: ignore[arg-type]
+                self.callback(item)
+        else:
+            self.callback(item.payload() if isinstance(item, RoslinkMessage) else item)
+
+    def destroy(self) -> None:
+        self._node.destroy_subscription(self)
+
+    def _close(self) -> None:
+        self._sub.close()
+
+
+class Service:
+    """A ROS service on the robot implemented here: ``callback(request: dict, response: dict) -> dict``.
+
+    As in rclpy the callback fills ``response`` and returns it (returning None
+    means "the response I filled in"). Raising fails the ROS call with the text.
+    """
+
+    def __init__(self, node: Node, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any],
+                 timeout: float) -> None:
+        self._node, self.srv_type, self.srv_name, self.callback = node, srv_type, srv_name.strip("/"), callback
+        self._offer = node.client.provide(node.robot, self.srv_name, srv_type, self._handle, timeout=timeout)
+
+    def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        response: dict[str, Any] = {}
+        result = self.callback(request, response)
+        return response if result is None else result
+
+    @property
+    def refused(self) -> str | None:
+        """Why the robot refused to provide it (e.g. not an operator), None while accepted."""
+        return self._offer.refused
+
+    def destroy(self) -> None:
+        self._node.destroy_service(self)
+
+    def _close(self) -> None:
+        self._offer.withdraw()
+
+
+class Client:
+    """Calls a ROS service on the robot through its bridge (``call``, ``call_async``)."""
+
+    def __init__(self, node: Node, srv_type: str, srv_name: str, timeout: float) -> None:
+        self._node, self.srv_type, self.srv_name, self.timeout = node, srv_type, srv_name.strip("/"), timeout
+
+    def call_async(self, request: dict[str, Any] | None = None) -> Future[Values]:
+        """A future with the response dict (``result()``, ``done()``); ServiceError on failure."""
+        return self._node.client.call_future(self._node.robot, self.srv_name, request, self.timeout)
+
+    def call(self, request: dict[str, Any] | None = None, timeout_sec: float | None = None) -> Values:
+        """Blocking call; works without spinning. Raises ServiceError / ServiceTimeout."""
+        return self._node.client.call(self._node.robot, self.srv_name, request,
+                                      self.timeout if timeout_sec is None else timeout_sec)
+
+    def service_is_ready(self) -> bool:
+        """Best effort: the robot is online (the bridge answers for its services; it cannot be asked cheaply)."""
+        info = self._node.client.robot(self._node.robot)
+        return info is not None and info.online
+
+    def wait_for_service(self, timeout_sec: float | None = None) -> bool:
+        """Wait until :meth:`service_is_ready`; False on timeout."""
+        robot = self._node.robot
+        return self._node.client.directory.wait(lambda robots: robot in robots and robots[robot].online,
+                                                float("inf") if timeout_sec is None else timeout_sec)
+
+    def destroy(self) -> None:
+        self._node.destroy_client(self)
+
+
+class Timer:
+    """Runs ``callback`` every ``period`` s inside spin; a tick is skipped while the previous one still waits."""
+
+    def __init__(self, node: Node, period: float, callback: Callable[[], None]) -> None:
+        if period <= 0:
+            raise ValueError("timer period must be positive")
+        self._node, self.timer_period_ns, self.callback = node, int(period * 1e9), callback
+        self._period, self._queued, self.cancelled = period, threading.Event(), False
+        self._handle = node._scheduler.call_later(period, self._tick)
+
+    def _tick(self) -> None:
+        if self.cancelled:
+            return
+        if not self._queued.is_set():
+            self._queued.set()
+            self._node._callbacks.put(self._run)
+        self._handle = self._node._scheduler.call_later(self._period, self._tick)
+
+    def _run(self) -> None:
+        self._queued.clear()
+        if not self.cancelled:
+            self.callback()
+
+    def cancel(self) -> None:
+        self.cancelled = True
+        self._node._scheduler.cancel(self._handle)
+
+    def is_canceled(self) -> bool:
+        return self.cancelled
+
+    def destroy(self) -> None:
+        self._node.destroy_timer(self)
+
+
+class Node:
+    """rclpy.node.Node's shape for one robot; see the module docstring.
+
+    Connection arguments default to ``ROSLINK_URL``, ``ROSLINK_USERNAME``,
+    ``ROSLINK_PASSWORD`` and ``ROSLINK_ROBOT``, so ``create_node("name")``
+    alone works when the environment names the robot and the login.
+    """
+
+    def __init__(self, node_name: str, *, robot: str | None = None, url: str | None = None,
+                 username: str | None = None, password: str | None = None, client_id: str | None = None,
+                 ca_file: str | None = None, insecure_tls: bool = False, prefix: str = DEFAULT_PREFIX,
+                 presence: bool = True, connect_timeout: float = 10.0, keepalive: int = 5,
+                 call_timeout: float = DEFAULT_CALL_TIMEOUT) -> None:
+        self._name = check_name(node_name, "node name")
+        robot = robot or os.environ.get(ENV_ROBOT)
+        if not robot:
+            raise ValueError(f"no robot: pass robot= or set {ENV_ROBOT}")
+        self.robot = check_name(robot, "robot")
+        self.call_timeout = call_timeout
+        self._callbacks = CallbackQueue()
+        self._scheduler = Scheduler(f"{node_name}-timers")
+        self._logger = Logger(node_name)
+        username = username or os.environ.get("ROSLINK_USERNAME") or ""
+        self.client = RobotClient(username or None, password, url=url, robots=[self.robot],
+                                  client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(3)}",
+                                  presence=presence, ca_file=ca_file, insecure_tls=insecure_tls, prefix=prefix,
+                                  keepalive=keepalive, on_error=self._on_robot_error, callbacks=self._callbacks)
+        self._entities: list[Publisher | Subscription | Service | Client | Timer] = []
+        self._destroyed = False
+        try:
+            self.client.connect(connect_timeout)
+        except Exception:
+            self._scheduler.close()
+            raise
+        from .context import default_context
+
+        default_context().add(self)
+
+    # -- identity ---------------------------------------------------------------------
+    def get_name(self) -> str:
+        return self._name
+
+    def get_namespace(self) -> str:
+        return "/"  # ROS names are resolved in the namespace of the robot's bridge node
+
+    def get_logger(self) -> Logger:
+        return self._logger
+
+    @property
+    def destroyed(self) -> bool:
+        return self._destroyed
+
+    # -- entities -----------------------------------------------------------------------
+    def create_publisher(self, msg_type: MsgType, topic: str, qos_profile: Any = 10, **_rclpy_options: Any
+                         ) -> Publisher:
+        """``topic`` under ``from/<user>/``: ``"cmd/twist"`` (or ``"twist"``) or a generic rule's name."""
+        return self._add(Publisher(self, msg_type, topic, qos_profile))
+
+    def create_subscription(self, msg_type: MsgType, topic: str, callback: Callable[[Any], None],
+                            qos_profile: Any = 10, **_rclpy_options: Any) -> Subscription:
+        """``topic`` under ``state/``: ``"state/global_motion"`` or ``"global_motion"``."""
+        return self._add(Subscription(self, msg_type, topic, callback, qos_profile))
+
+    def create_service(self, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any], *,
+                       timeout: float = 5.0, **_rclpy_options: Any) -> Service:
+        """Provide ROS service ``srv_name`` on the robot while this node lives (operators only).
+
+        ``timeout`` is how long the robot lets a ROS caller wait for us.
+        """
+        return self._add(Service(self, srv_type, srv_name, callback, timeout))
+
+    def create_client(self, srv_type: str, srv_name: str, *, timeout: float | None = None,
+                      **_rclpy_options: Any) -> Client:
+        return self._add(Client(self, srv_type, srv_name, self.call_timeout if timeout is None else timeout))
+
+    def create_timer(self, timer_period_sec: float, callback: Callable[[], None], **_rclpy_options: Any) -> Timer:
+        return self._add(Timer(self, timer_period_sec, callback))
+
+    def destroy_publisher(self, publisher: Publisher) -> bool:
+        return self._remove(publisher)  # nothing on the robot to remove: its rules are static
+
+    def destroy_subscription(self, subscription: Subscription) -> bool:
+        if self._remove(subscription):
+            subscription._close()
+            return True
+        return False
+
+    def destroy_service(self, service: Service) -> bool:
+        """Withdraw the service: the robot removes the ROS side, and calls waiting for us fail at once."""
+        if self._remove(service):
+            service._close()
+            return True
+        return False
+
+    def destroy_client(self, client: Client) -> bool:
+        return self._remove(client)
+
+    def destroy_timer(self, timer: Timer) -> bool:
+        if self._remove(timer):
+            timer.cancel()
+            return True
+        return False
+
+    def destroy_node(self) -> None:
+        """Withdraw services, stop timers, clear presence, disconnect."""
+        if self._destroyed:
+            return
+        self._destroyed = True
+        for entity in list(self._entities):
+            if isinstance(entity, Timer):
+                entity.cancel()
+        self.client.close()  # withdraws every provided service first
+        self._scheduler.close()
+        self._entities.clear()
+        self._callbacks.wake()
+        from .context import default_context
+
+        default_context().remove(self)
+
+    # -- internals ------------------------------------------------------------------------
+    def _add(self, entity: Any) -> Any:
+        if self._destroyed:
+            raise RuntimeError(f"node {self._name} was destroyed")
+        self._entities.append(entity)
+        return entity
+
+    def _remove(self, entity: Any) -> bool:
+        try:
+            self._entities.remove(entity)
+            return True
+        except ValueError:
+            return False
+
+    def _on_robot_error(self, error: RobotError) -> None:
+        for entity in self._entities:
+            if isinstance(entity, Service) and entity.refused == error.error:
+                self._logger.error(f"{self.robot} refused service '{entity.srv_name}': {error.error}")
+                return
+        self._logger.warning(f"{self.robot} refused {error.topic}: {error.error}", throttle_duration_sec=5.0)
+
+    def __repr__(self) -> str:
+        return f"<Node {self._name} robot={self.robot} user={self.client.username}>"

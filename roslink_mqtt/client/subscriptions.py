@@ -1,0 +1,119 @@
+"""A subscription to one robot state stream, consumed by callback, blocking iteration or ``async for``.
+
+ROSLink state (``state/global_motion`` …) arrives as typed message objects;
+generic rules (``state/<anything>`` carrying a plain ROS message as JSON)
+arrive as dicts. Without a callback, messages wait in a bounded queue that
+drops the *oldest* when full: for robot state the newest value matters, and a
+slow consumer must not grow memory without bound.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+from collections.abc import AsyncIterator, Callable, Iterator
+from typing import Any
+
+from ..protocol import ProtocolError, loads
+from .dispatch import CallbackQueue
+from .messages import RoslinkMessage, parse_state
+
+log = logging.getLogger("roslink_mqtt.client")
+
+StateItem = RoslinkMessage | dict[str, Any]
+
+
+def parse_state_item(payload: bytes, robot: str, name: str) -> StateItem | None:
+    """Typed message for ROSLink payloads, a dict for generic JSON, None for anything else."""
+    try:
+        return parse_state(payload, robot=robot, state_name=name)
+    except ProtocolError as err:
+        roslink_error = err
+    try:
+        body = loads(payload)
+    except ProtocolError:
+        body = None
+    if isinstance(body, dict) and "message_id" not in body:
+        return body  # a generic rule's ROS message
+    log.debug("ignoring malformed state message on %s/%s: %s", robot, name, roslink_error)
+    return None
+
+
+class StateSubscription:
+    """Messages from ``<prefix>/<robot>/state/<name>``; close() to stop."""
+
+    def __init__(self, robot: str, name: str, topic: str, callback: Callable[[StateItem], None] | None,
+                 callbacks: CallbackQueue, maxsize: int = 100,
+                 on_close: Callable[[StateSubscription], None] | None = None) -> None:
+        self.robot, self.name, self.topic = robot, name, topic
+        self.callback, self._callbacks, self._on_close = callback, callbacks, on_close
+        self.latest: StateItem | None = None
+        self.received = 0
+        self.closed = False
+        self._queue: queue.Queue[StateItem] = queue.Queue(maxsize)
+        self._async: tuple[asyncio.AbstractEventLoop, asyncio.Queue[StateItem]] | None = None
+        self._lock = threading.Lock()
+
+    # network thread
+    def deliver(self, topic: str, payload: bytes, _retained: bool) -> None:
+        item = parse_state_item(payload, self.robot, self.name)
+        if item is None or self.closed:
+            return
+        self.latest = item
+        self.received += 1
+        if self.callback is not None:
+            callback = self.callback
+            self._callbacks.put(lambda: callback(item))
+        elif self._async is not None:
+            loop, aqueue = self._async
+            loop.call_soon_threadsafe(_put_latest, aqueue, item)
+        else:
+            _put_latest(self._queue, item)
+
+    def get(self, timeout: float | None = None) -> StateItem:
+        """The next message; raises TimeoutError when none arrives within ``timeout`` s."""
+        try:
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"no {self.name} from {self.robot} within {timeout} s") from None
+
+    def __iter__(self) -> Iterator[StateItem]:
+        while not self.closed:
+            try:
+                yield self._queue.get(timeout=0.5)
+            except queue.Empty:
+                continue
+
+    async def __aiter__(self) -> AsyncIterator[StateItem]:
+        aqueue: asyncio.Queue[StateItem] = asyncio.Queue(self._queue.maxsize)
+        with self._lock:
+            self._async = (asyncio.get_running_loop(), aqueue)
+        while not self.closed:
+            yield await aqueue.get()
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            if self._on_close is not None:
+                self._on_close(self)
+
+    def __enter__(self) -> StateSubscription:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def _put_latest(q: queue.Queue | asyncio.Queue, item: StateItem) -> None:
+    """Put, dropping the oldest item when the queue is full."""
+    while True:
+        try:
+            q.put_nowait(item)
+            return
+        except (queue.Full, asyncio.QueueFull):
+            try:
+                q.get_nowait()
+            except (queue.Empty, asyncio.QueueEmpty):
+                pass
