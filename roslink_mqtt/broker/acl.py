@@ -1,0 +1,275 @@
+"""Who may read and write which topic: DESIGN §3 as pure logic, derived from a :class:`Fleet`.
+
+One list of :class:`AclEntry` per login is the single source of truth. The embedded
+broker's topic plugin decides from it, and ``roslink-mqtt acl export`` writes the same
+list as a Mosquitto ACL file, so the two brokers cannot drift apart.
+
+With ``P`` the fleet prefix (``roslink``):
+
+* robot ``R`` writes ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/+/#``, and reads
+  ``P/R/from/+/#`` plus ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
+* user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
+  writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
+  ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``.
+* an admin reads and writes ``#`` and reads ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
+* an unknown login (and anonymous) may do nothing.
+
+The three actions a broker asks about:
+
+* ``publish`` / ``receive``: the concrete topic must match a WRITE / READ pattern.
+* ``subscribe``: the topic *filter* is accepted when it can match at least one topic the
+  login may read (so ``roslink/#`` and ``roslink/+/heartbeat`` work for discovery). That
+  alone would leak, so the broker must also check ``receive`` on every delivery, live
+  and retained. Mosquitto 2.0 accepts every filter and filters on delivery; both
+  deliver exactly the readable messages.
+
+Nothing here imports amqtt: this module is the unit-testable part of the broker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from enum import IntFlag, StrEnum
+
+from ..config import Fleet, Role
+from ..topics import OPERATORS
+
+SYS_TOPICS = "$SYS/#"
+
+
+class Access(IntFlag):
+    READ = 1
+    WRITE = 2
+    READWRITE = 3
+
+    @property
+    def mosquitto(self) -> str:
+        """The word a Mosquitto ACL file uses for this access."""
+        return {Access.READ: "read", Access.WRITE: "write", Access.READWRITE: "readwrite"}[self]
+
+
+class Action(StrEnum):
+    """What a broker asks about; the values equal amqtt's ``amqtt.contexts.Action``."""
+
+    PUBLISH = "publish"
+    SUBSCRIBE = "subscribe"
+    RECEIVE = "receive"
+
+
+@dataclass(frozen=True, slots=True)
+class AclEntry:
+    """One pattern (an MQTT topic filter) and what the login may do on topics it matches."""
+
+    pattern: str
+    access: Access
+    levels: tuple[str, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "levels", tuple(self.pattern.split("/")))
+
+
+# -- MQTT filter algebra --------------------------------------------------------------
+
+
+def topic_matches(filter_levels: tuple[str, ...] | list[str], topic_levels: list[str]) -> bool:
+    """MQTT 3.1.1 §4.7 matching of a concrete topic against a filter, both split at ``/``.
+
+    A topic starting with ``$`` is never matched by a filter whose first level is a
+    wildcard (MQTT-4.7.2-1), so ``#`` does not reach ``$SYS``.
+    """
+    if topic_levels[0][:1] == "$" and filter_levels[0] in ("+", "#"):
+        return False
+    n = len(topic_levels)
+    for i, level in enumerate(filter_levels):
+        if level == "#":
+            return True  # also matches the parent level: 'a/#' matches 'a'
+        if i >= n:
+            return False
+        if level != "+" and level != topic_levels[i]:
+            return False
+    return len(filter_levels) == n
+
+
+def filters_overlap(a: tuple[str, ...] | list[str], b: tuple[str, ...] | list[str]) -> bool:
+    """True when at least one concrete topic matches both filters (split at ``/``)."""
+    a_dollar, b_dollar = a[0][:1] == "$", b[0][:1] == "$"
+    if (a_dollar and b[0] in ("+", "#")) or (b_dollar and a[0] in ("+", "#")):
+        return False  # a wildcard first level cannot reach '$' topics
+    for i in range(max(len(a), len(b))):
+        if i >= len(a):
+            return b[i] == "#"  # 'x' vs 'x/#': the topic 'x' matches both
+        if i >= len(b):
+            return a[i] == "#"
+        x, y = a[i], b[i]
+        if x == "#" or y == "#":
+            return True
+        if x != y and x != "+" and y != "+":
+            return False
+    return True
+
+
+def is_valid_filter(topic_filter: str) -> bool:
+    """MQTT-4.7.1: ``#`` only as the whole last level, ``+`` only as a whole level."""
+    if not topic_filter:
+        return False
+    levels = topic_filter.split("/")
+    for i, level in enumerate(levels):
+        if "#" in level and (level != "#" or i != len(levels) - 1):
+            return False
+        if "+" in level and level != "+":
+            return False
+    return True
+
+
+# -- rules -------------------------------------------------------------------------
+
+
+def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
+    p = fleet.prefix
+    entries = [
+        AclEntry(f"{p}/{robot}/heartbeat", Access.WRITE),
+        AclEntry(f"{p}/{robot}/state/#", Access.WRITE),
+        AclEntry(f"{p}/{robot}/to/+/#", Access.WRITE),
+        AclEntry(f"{p}/{robot}/from/+/#", Access.READ),
+    ]
+    entries += [AclEntry(f"{p}/{OPERATORS}/{user}/#", Access.READ) for user in sorted(fleet.users_of(robot))]
+    return entries
+
+
+def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
+    p = fleet.prefix
+    if fleet.users[user].admin:
+        return [AclEntry("#", Access.READWRITE), AclEntry(SYS_TOPICS, Access.READ)]
+    entries = [AclEntry(f"{p}/{OPERATORS}/{user}/#", Access.WRITE)]
+    for robot, role in sorted(fleet.roles_of(user).items()):
+        entries += [
+            AclEntry(f"{p}/{robot}/heartbeat", Access.READ),
+            AclEntry(f"{p}/{robot}/state/#", Access.READ),
+            AclEntry(f"{p}/{robot}/to/{user}/#", Access.READ),
+        ]
+        if role is Role.OPERATOR:
+            entries.append(AclEntry(f"{p}/{robot}/from/{user}/#", Access.WRITE))
+        else:
+            entries += [AclEntry(f"{p}/{robot}/from/{user}/call/{svc.name}", Access.WRITE)
+                        for svc in fleet.robots[robot].services if svc.read_only]
+    return entries
+
+
+class FleetAcl:
+    """The access rules of one fleet, per login. Immutable: a reload builds a new one."""
+
+    def __init__(self, fleet: Fleet) -> None:
+        self.fleet = fleet
+        table: dict[str, tuple[AclEntry, ...]] = {}
+        for robot in fleet.robots:
+            table[robot] = tuple(robot_entries(fleet, robot))
+        for user in fleet.users:
+            table[user] = tuple(user_entries(fleet, user))
+        self._table = table
+        self._read = {login: tuple(e.levels for e in entries if e.access & Access.READ)
+                      for login, entries in table.items()}
+        self._write = {login: tuple(e.levels for e in entries if e.access & Access.WRITE)
+                       for login, entries in table.items()}
+
+    @property
+    def logins(self) -> list[str]:
+        """Robots first, then users, each in fleet-file order."""
+        return list(self._table)
+
+    def entries(self, login: str | None) -> tuple[AclEntry, ...]:
+        return self._table.get(login or "", ())
+
+    def allows(self, login: str | None, topic: str, action: str) -> bool:
+        """The decision for ``login`` doing ``action`` on ``topic`` (a filter for subscribe)."""
+        if not login or not topic:
+            return False
+        if action == Action.SUBSCRIBE:
+            if not is_valid_filter(topic):
+                return False
+            wanted = topic.split("/")
+            return any(filters_overlap(wanted, pattern) for pattern in self._read.get(login, ()))
+        if "+" in topic or "#" in topic:
+            return False  # a concrete topic never contains wildcards
+        patterns = self._write if action == Action.PUBLISH else self._read if action == Action.RECEIVE else None
+        if patterns is None:
+            return False
+        levels = topic.split("/")
+        return any(topic_matches(pattern, levels) for pattern in patterns.get(login, ()))
+
+
+class DecisionCache:
+    """Verdicts of one session, so the hot path is a dict lookup.
+
+    The cache is tied to the :class:`FleetAcl` and login it was filled from. A reload
+    builds a new FleetAcl, so every session's cache goes stale at once (callers compare
+    with :meth:`valid_for`), and a persistent session resumed under another login
+    cannot reuse verdicts. ``limit`` bounds memory against clients that publish to
+    ever-new topics.
+    """
+
+    __slots__ = ("acl", "login", "limit", "_verdicts")
+
+    def __init__(self, acl: FleetAcl, login: str | None, limit: int = 4096) -> None:
+        self.acl, self.login, self.limit = acl, login, limit
+        self._verdicts: dict[tuple[str, str], bool] = {}
+
+    def valid_for(self, acl: FleetAcl, login: str | None) -> bool:
+        return self.acl is acl and self.login == login
+
+    def lookup(self, topic: str, action: str) -> bool | None:
+        """The cached verdict, or None when it must be computed."""
+        return self._verdicts.get((topic, action))
+
+    def decide(self, topic: str, action: str) -> bool:
+        verdict = self.acl.allows(self.login, topic, action)
+        if len(self._verdicts) >= self.limit:
+            self._verdicts.clear()
+        self._verdicts[(topic, action)] = verdict  # amqtt's Action hashes like its str value
+        return verdict
+
+    def __len__(self) -> int:
+        return len(self._verdicts)
+
+
+@dataclass(frozen=True, slots=True)
+class FleetChange:
+    """What a reload changed, for the log and for dropping sessions of removed logins."""
+
+    removed_logins: tuple[str, ...]
+    added_logins: tuple[str, ...]
+    changed_passwords: tuple[str, ...]
+
+
+class LiveFleet:
+    """The fleet the broker enforces right now; SIGHUP swaps it whole.
+
+    Plugins read :attr:`acl` and :attr:`fleet` on every check. Replacing both with one
+    assignment each (no in-place edits) means a check sees either the old rules or the
+    new ones, never a mix that was never configured.
+    """
+
+    def __init__(self, fleet: Fleet) -> None:
+        self.fleet = fleet
+        self.acl = FleetAcl(fleet)
+
+    def password_hash(self, login: str) -> str | None:
+        return self.fleet.password_hash(login)
+
+    def replace(self, fleet: Fleet) -> FleetChange:
+        old = self.fleet
+        before, after = set(old.robots) | set(old.users), set(fleet.robots) | set(fleet.users)
+        changed = tuple(sorted(login for login in before & after
+                               if old.password_hash(login) != fleet.password_hash(login)))
+        self.acl = FleetAcl(fleet)
+        self.fleet = fleet
+        return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed)
+
+
+def describe(acl: FleetAcl, logins: Iterable[str] | None = None) -> str:
+    """Human-readable rules (for ``--print-acl`` style debugging and docs)."""
+    lines = []
+    for login in logins or acl.logins:
+        lines.append(f"{login}:")
+        lines += [f"  {e.access.mosquitto:<9} {e.pattern}" for e in acl.entries(login)]
+    return "\n".join(lines)

@@ -1,0 +1,132 @@
+"""``roslink-mqtt-broker``: the embedded MQTT broker for a fleet.
+
+    roslink-mqtt-broker --config config/robots.yaml [--host 127.0.0.1] [--port 1883] [--ws-port 8083]
+
+Listens on TCP, WebSocket (browsers, Node-RED dashboards) and, when robots.yaml names a
+certificate and key, TLS. Every connection must log in as a robot or user of the fleet;
+topics are checked per DESIGN §3. SIGHUP re-reads robots, users and grants (connected
+clients stay; a revoked grant stops deliveries at once). SIGINT/SIGTERM stop cleanly.
+Exit codes: 0 after a clean stop, 2 for a bad config or arguments, 1 when the broker
+cannot start (port in use, unreadable certificate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .server import EmbeddedBroker
+
+PROG = "roslink-mqtt-broker"
+log = logging.getLogger("roslink_mqtt.broker")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0].strip())
+    p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    p.add_argument("--host", help="address to listen on (default: broker.host from the config)")
+    p.add_argument("--port", type=_port, help="MQTT/TCP port (default: broker.port)")
+    p.add_argument("--ws-port", type=_port, help="MQTT/WebSocket port, 0 = off (default: broker.ws_port)")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="close connections that send no CONNECT within S seconds (default: %(default)s)")
+    p.add_argument("--sys-interval", type=float, default=10.0, metavar="S",
+                   help="publish $SYS/broker/... every S seconds, 0 = version only (default: %(default)s)")
+    p.add_argument("--session-expiry", type=int, default=3600, metavar="S",
+                   help="forget disconnected persistent sessions after S seconds (default: %(default)s)")
+    p.add_argument("--login-free-failures", type=int, default=5, metavar="N",
+                   help="failed logins per client address before attempts are slowed (default: %(default)s)")
+    p.add_argument("--login-max-delay", type=float, default=8.0, metavar="S",
+                   help="longest spacing between login attempts from a guessing address (default: %(default)s)")
+    p.add_argument("--no-acl", action="store_true", help=argparse.SUPPRESS)  # benchmarks only: no topic checks
+    return p
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be 0..65535, got {value}")
+    return value
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("transitions").setLevel(logging.WARNING)
+    if level != "DEBUG":
+        # amqtt logs every connection (and our refusals a second time) at INFO/WARNING;
+        # our own log has one line per connect, deny and disconnect.
+        amqtt_log = logging.getLogger("amqtt")
+        amqtt_log.setLevel(logging.ERROR)
+        amqtt_log.addFilter(lambda record: "startup failed" not in record.getMessage())  # we explain it ourselves
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        import amqtt  # noqa: F401
+    except ImportError:
+        print(f"{PROG}: the broker needs the [broker] extra: pip install 'roslink-mqtt[broker]'", file=sys.stderr)
+        return 2
+    from ..config import ConfigError, load_fleet
+    from .ratelimit import LoginThrottle
+    from .server import EmbeddedBroker, ServerOptions
+
+    try:
+        fleet = load_fleet(args.config)
+    except ConfigError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return 2
+    try:
+        throttle = LoginThrottle(free_failures=args.login_free_failures,
+                                 base_delay=min(0.5, args.login_max_delay), max_delay=args.login_max_delay)
+    except ValueError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return 2
+    options = ServerOptions.from_fleet(
+        fleet, host=args.host, port=args.port, ws_port=args.ws_port, connect_timeout=args.connect_timeout,
+        sys_interval=args.sys_interval, session_expiry=args.session_expiry, throttle=throttle,
+        acl=not args.no_acl)
+    server = EmbeddedBroker(args.config, fleet, options)
+    try:
+        return asyncio.run(serve(server))
+    except KeyboardInterrupt:  # a second Ctrl-C while stopping
+        return 130
+
+
+async def serve(server: EmbeddedBroker) -> int:
+    from .server import StartError
+
+    try:
+        await server.start()
+    except StartError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return 1
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    reloads: set[asyncio.Task[bool]] = set()
+
+    def on_hup() -> None:
+        log.info("SIGHUP: reloading %s", server.config_path)
+        task = loop.create_task(server.reload())
+        reloads.add(task)
+        task.add_done_callback(reloads.discard)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    loop.add_signal_handler(signal.SIGHUP, on_hup)
+    await stop.wait()
+    log.info("stopping")
+    await asyncio.gather(*reloads, return_exceptions=True)
+    await server.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""amqtt plugins: fleet authentication, the ROSLink topic ACL and a small ``$SYS`` publisher.
+
+They use amqtt's public plugin API (0.12.1): the broker builds each plugin's inner
+``Config`` dataclass from the ``plugins`` section of its config dict with dacite, and
+fields typed ``Any`` pass Python objects through untouched. That is how the plugins
+share one :class:`~roslink_mqtt.broker.acl.LiveFleet` with the runner, which swaps the
+fleet on SIGHUP: no copy, so a reload reaches the plugins at once.
+
+The built-in ``amqtt.plugins.topic_checking.TopicAccessControlListPlugin`` is not used: it
+ignores subscribe/receive rules and an empty publish list allows everything.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from amqtt.broker import BrokerContext
+from amqtt.contexts import Action
+from amqtt.plugins.base import BaseAuthPlugin, BasePlugin, BaseTopicPlugin
+from amqtt.session import Session
+
+from .. import __version__
+from ..config import verify_password
+from .acl import DecisionCache, LiveFleet
+from .hardened import AMQTT_VERSION, ATTR_DENY_REASON, describe_session
+from .ratelimit import REFUSE, LoginThrottle
+
+log = logging.getLogger("roslink_mqtt.broker")
+
+ATTR_ACL_CACHE = "roslink.acl"
+# Verified against when the login is unknown, so a wrong name costs as long as a wrong password.
+_DUMMY_HASH = "$7$1000$AAAAAAAAAAAAAAAA$" + "A" * 86 + "=="
+
+
+def plugin_path(cls: type) -> str:
+    """The dotted path amqtt's ``plugins`` config expects."""
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+class FleetAuthPlugin(BaseAuthPlugin):
+    """Every connection presents a robot or user login from robots.yaml; anonymous is refused.
+
+    Passwords are checked against the Mosquitto ``$7$`` PBKDF2 hashes in a worker thread
+    (a large iteration count must not stall every other client). Failed attempts feed the
+    per-address :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle`.
+    """
+
+    @dataclass
+    class Config:
+        fleet: Any = None  # LiveFleet
+        throttle: Any = None  # LoginThrottle | None
+
+    async def authenticate(self, *, session: Session) -> bool | None:
+        live: LiveFleet = self.config.fleet
+        throttle: LoginThrottle | None = self.config.throttle
+        address = session.remote_address or "?"
+        if throttle is not None:
+            wait = throttle.reserve(address)
+            if wait == REFUSE:
+                session.attributes[ATTR_DENY_REASON] = "too many failed logins from this address; try later"
+                return False
+            if wait > 0:
+                await asyncio.sleep(wait)
+        username, password = session.username, session.password
+        reason = None
+        if not username:
+            reason = "anonymous connections are not allowed"
+        elif password is None:
+            reason = "no password"
+        else:
+            stored = live.password_hash(username)
+            ok = await asyncio.get_running_loop().run_in_executor(
+                None, verify_password, password, stored or _DUMMY_HASH)
+            if stored is None:
+                reason = "unknown login"
+            elif not ok:
+                reason = "wrong password"
+        if reason is not None:
+            session.attributes[ATTR_DENY_REASON] = reason
+            if throttle is not None:
+                throttle.failed(address)
+            return False
+        return True
+
+
+class FleetAclPlugin(BaseTopicPlugin):
+    """DESIGN §3 access rules on PUBLISH, SUBSCRIBE and RECEIVE, cached per session.
+
+    The verdict for (topic, action) is computed once per session from the current
+    :class:`~roslink_mqtt.broker.acl.FleetAcl` and kept in ``session.attributes``; after a
+    reload the cache no longer matches the new FleetAcl and is rebuilt, so a revoked grant
+    denies the very next delivery. Denied PUBLISH/SUBSCRIBE are logged once per session and
+    topic (on the cache miss); denied RECEIVE is normal for wildcard subscribers and only
+    logged at DEBUG.
+    """
+
+    @dataclass
+    class Config:
+        fleet: Any = None  # LiveFleet
+
+    async def topic_filtering(self, *, session: Session | None = None, topic: str | None = None,
+                              action: Action | None = None) -> bool | None:
+        if session is None or topic is None or action is None:
+            return False
+        acl = self.config.fleet.acl
+        cache: DecisionCache | None = session.attributes.get(ATTR_ACL_CACHE)
+        if cache is None or not cache.valid_for(acl, session.username):
+            cache = session.attributes[ATTR_ACL_CACHE] = DecisionCache(acl, session.username)
+        verdict = cache.lookup(topic, action)
+        if verdict is None:
+            verdict = cache.decide(topic, action)
+            if not verdict:
+                level = logging.DEBUG if action == Action.RECEIVE else logging.INFO
+                log.log(level, "deny %s %s topic=%r", action.value, describe_session(session), topic)
+        return verdict
+
+
+class SysInfoPlugin(BasePlugin[BrokerContext]):
+    """A few ``$SYS/broker/...`` topics, retained, readable by admins only.
+
+    amqtt's own ``BrokerSysPlugin`` hooks every packet sent and received (a Task per
+    packet); this one only samples the session table every ``interval`` seconds.
+    """
+
+    @dataclass
+    class Config:
+        interval: float = 10.0  # s; 0 publishes only the version
+
+    _task: asyncio.Task[None] | None = None
+    _started = 0.0
+
+    async def on_broker_post_start(self) -> None:
+        self._started = time.monotonic()
+        await self._set("version", f"roslink-mqtt {__version__} (amqtt {AMQTT_VERSION})")
+        if self.config.interval > 0:
+            self._task = asyncio.create_task(self._run())
+
+    async def on_broker_pre_shutdown(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.gather(self._task, return_exceptions=True)
+
+    async def _set(self, name: str, value: str) -> None:
+        topic, data = f"$SYS/broker/{name}", value.encode()
+        await self.context.retain_message(topic, data, 0)
+        await self.context.broadcast_message(topic, data, 0)
+
+    async def _run(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.interval)
+            sessions = list(self.context.sessions)
+            connected = sum(1 for s in sessions if s.transitions.state == "connected")
+            await self._set("uptime", f"{int(time.monotonic() - self._started)} seconds")
+            await self._set("clients/connected", str(connected))
+            await self._set("clients/total", str(len(sessions)))
+            await self._set("subscriptions/count", str(sum(len(v) for v in self.context.subscriptions.values())))
+            await self._set("retained messages/count", str(len(self.context.retained_messages)))

@@ -1,0 +1,96 @@
+"""Run the embedded broker (``python -m roslink_mqtt.broker``) as a child process on a free loopback port.
+
+:class:`EmbeddedBrokerProcess` has the interface of :class:`tests.support.mosquitto.MosquittoProcess`
+(``.port``, ``start()``, ``signal(sig)``, ``kill()``, ``stop()``; restartable on the same
+port), so fault-injection tests can run against either broker::
+
+    broker = EmbeddedBrokerProcess(tmp_path).start()
+    ...
+    broker.signal(signal.SIGSTOP)   # freeze it
+    broker.stop()                   # SIGCONT + SIGTERM, then SIGKILL after 5 s
+    broker.start()                  # same port again
+
+The broker's output goes to ``workdir/embedded-broker.log`` (appended across restarts);
+:meth:`output` reads it back for assertions and failure reports.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .net import free_port
+from .procs import CONFIG, ROOT
+
+
+class EmbeddedBrokerProcess:
+    def __init__(self, workdir: Path, config: Path = CONFIG, *extra_args: str, ws: bool = False,
+                 log_name: str = "embedded-broker.log") -> None:
+        """``ws=True`` also opens a WebSocket listener on a free port (``.ws_port``); ``extra_args`` go to the CLI."""
+        self.workdir, self.config = Path(workdir), Path(config)
+        self.port = free_port()
+        self.ws_port = free_port() if ws else 0
+        self.extra_args = list(extra_args)
+        self.log = self.workdir / log_name
+        self.proc: subprocess.Popen | None = None
+        self._log_offset = 0
+
+    @property
+    def args(self) -> list[str]:
+        return [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(self.config), "--host", "127.0.0.1",
+                "--port", str(self.port), "--ws-port", str(self.ws_port), *self.extra_args]
+
+    def start(self, timeout: float = 15.0) -> EmbeddedBrokerProcess:
+        self._log_offset = self.log.stat().st_size if self.log.exists() else 0  # a restart appends
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(self.args, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+        self._wait_ready(timeout)
+        return self
+
+    def _wait_ready(self, timeout: float) -> None:
+        """Ready = the 'listening on' line is logged (every listener is bound by then)."""
+        assert self.proc is not None
+        deadline = time.monotonic() + timeout
+        marker = f"listening on mqtt://127.0.0.1:{self.port}".encode()
+        while time.monotonic() < deadline:
+            if marker in self.log.read_bytes()[self._log_offset:]:
+                return
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"embedded broker exited with {self.proc.returncode}:\n{self.output()[-3000:]}")
+            time.sleep(0.05)
+        self.kill()
+        raise TimeoutError(f"embedded broker not ready on port {self.port} after {timeout} s:\n{self.output()[-3000:]}")
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+    def signal(self, sig: int) -> None:
+        assert self.proc is not None
+        self.proc.send_signal(sig)
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def stop(self, timeout: float = 5.0) -> int | None:
+        """SIGCONT (in case it is frozen), SIGTERM; SIGKILL if it does not exit in time. Returns the exit code."""
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        return self.proc.returncode
+
+    def __enter__(self) -> EmbeddedBrokerProcess:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
