@@ -28,6 +28,7 @@ import numpy as np
 import orjson
 from rosidl_parser import definition as d
 
+from ..protocol.validate import describe
 from .ros_types import load_interface
 
 
@@ -65,22 +66,6 @@ def _b64(data: Any) -> str:
     else:  # list of 1-byte bytes objects (byte[]) or ints
         raw = b"".join(x if isinstance(x, bytes) else bytes((x,)) for x in data)
     return base64.b64encode(raw).decode("ascii")
-
-
-def _describe(value: Any) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + (value if len(value) <= 32 else value[:29] + "...") + '"'
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, list):
-        return f"an array of {len(value)}"
-    if isinstance(value, dict):
-        return "an object"
-    return type(value).__name__
 
 
 def _namespaced(t: d.NamespacedType) -> type:
@@ -188,7 +173,7 @@ class _Reader:
 
     def read(self, data: Any, path: str = "") -> Any:
         if not isinstance(data, dict):
-            raise ConversionError(f"{path or 'message'}: expected an object, got {_describe(data)}")
+            raise ConversionError(f"{path or 'message'}: expected an object, got {describe(data)}")
         msg = self.cls()
         fields = self.fields
         for key, value in data.items():
@@ -207,7 +192,7 @@ class _Reader:
 
             def check_string(path: str, v: Any) -> str:
                 if not isinstance(v, str):
-                    raise ConversionError(f"{path}: expected string, got {_describe(v)}")
+                    raise ConversionError(f"{path}: expected string, got {describe(v)}")
                 if "\0" in v:  # ROS strings end at NUL: the rest would vanish silently
                     raise ConversionError(f"{path}: string contains a NUL character")
                 if limit is not None and len(v) > limit:
@@ -251,7 +236,7 @@ class _Reader:
                     item = _scalar_checker("uint8")
                     raw = bytes(item(f"{path}[{i}]", x) for i, x in enumerate(v))
                 else:
-                    raise ConversionError(f"{path}: expected base64 string, got {_describe(v)}")
+                    raise ConversionError(f"{path}: expected base64 string, got {describe(v)}")
                 check_length(path, len(raw))
                 if as_bytes_list:
                     return [bytes((b,)) for b in raw]
@@ -262,7 +247,7 @@ class _Reader:
 
         def check_list(path: str, v: Any) -> Any:
             if not isinstance(v, list):
-                raise ConversionError(f"{path}: expected array, got {_describe(v)}")
+                raise ConversionError(f"{path}: expected array, got {describe(v)}")
             check_length(path, len(v))
             return [item_check(f"{path}[{i}]", x) for i, x in enumerate(v)]
         return check_list
@@ -288,18 +273,18 @@ def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
                 return float(v)
             if isinstance(v, str) and v in NON_FINITE:
                 return NON_FINITE[v]
-            raise ConversionError(f"{path}: expected number, got {_describe(v)}")
+            raise ConversionError(f"{path}: expected number, got {describe(v)}")
         return check_float
     if typename == "boolean":
         def check_bool(path: str, v: Any) -> bool:
             if not isinstance(v, bool):
-                raise ConversionError(f"{path}: expected true or false, got {_describe(v)}")
+                raise ConversionError(f"{path}: expected true or false, got {describe(v)}")
             return v
         return check_bool
     if typename == "octet":
         def check_octet(path: str, v: Any) -> bytes:
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 255:
-                raise ConversionError(f"{path}: expected integer 0..255, got {_describe(v)}")
+                raise ConversionError(f"{path}: expected integer 0..255, got {describe(v)}")
             return bytes((v,))
         return check_octet
     lo, hi = _INT_RANGES[typename]
@@ -308,7 +293,7 @@ def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
         if isinstance(v, float) and v.is_integer():
             v = int(v)
         if isinstance(v, bool) or not isinstance(v, int):
-            raise ConversionError(f"{path}: expected integer, got {_describe(v)}")
+            raise ConversionError(f"{path}: expected integer, got {describe(v)}")
         if not lo <= v <= hi:
             raise ConversionError(f"{path}: expected integer {lo}..{hi}, got {v}")
         return v
