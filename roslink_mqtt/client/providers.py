@@ -128,7 +128,8 @@ class ServiceProviders:
         call_id = body["id"]
         offer = self.get(robot, name)
         if offer is None:
-            self._respond(robot, name, call_id, error=f"'{name}' is no longer provided by {self.user}")
+            # Every client of this user sees the user's requests; another one of them may provide it.
+            log.debug("ignoring request for %s on %s: not provided by this client", name, robot)
             return
         offer.callbacks.put(lambda: self._serve(offer, call_id, args))
 

@@ -232,11 +232,15 @@ class RobotClient:
     def call_future(self, robot: str, service: str, args: dict[str, Any] | None = None,
                     timeout: float = DEFAULT_CALL_TIMEOUT) -> Future[Values]:
         """Start a call; the future holds the reply's values or a ServiceError."""
-        self.watch(robot)
-        info = self.directory.get(robot)
-        if info is not None and not info.online:
+        reason = "the client was closed" if self._closed else None
+        if reason is None:
+            self.watch(robot)
+            info = self.directory.get(robot)
+            if info is not None and not info.online:
+                reason = f"robot {robot} is offline"
+        if reason is not None:
             future: Future[Values] = Future()
-            future.set_exception(ServiceError(robot, service, f"robot {robot} is offline"))
+            future.set_exception(ServiceError(robot, service, reason))
             return future
         return self._calls.start(robot, service, args, timeout)
 
