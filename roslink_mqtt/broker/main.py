@@ -61,9 +61,9 @@ def setup_logging(level: str) -> None:
     if level != "DEBUG":
         # amqtt logs every connection (and our refusals a second time) at INFO/WARNING;
         # our own log has one line per connect, deny and disconnect.
-        amqtt_log = logging.getLogger("amqtt")
-        amqtt_log.setLevel(logging.ERROR)
-        amqtt_log.addFilter(lambda record: "startup failed" not in record.getMessage())  # we explain it ourselves
+        logging.getLogger("amqtt").setLevel(logging.ERROR)
+        # amqtt logs a failed start (port in use) with a traceback; StartError explains it in one line
+        logging.getLogger("amqtt.broker").addFilter(lambda record: "startup failed" not in record.getMessage())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
