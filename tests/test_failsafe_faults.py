@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from .conftest import record_measurement
+from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.fleet_brokers import fleet_password_file
 from .support.mosquitto import MosquittoProcess
 from .support.mqtt_client import TestClient
@@ -41,9 +42,12 @@ def _zero(m) -> bool:
 
 
 class Stack:
-    def __init__(self, tmp: Path, probe: RosProbe, exits: ExitStack) -> None:
+    def __init__(self, tmp: Path, probe: RosProbe, exits: ExitStack, broker: str) -> None:
         self.tmp, self.probe, self.exits = tmp, probe, exits
-        self.broker = MosquittoProcess(tmp, f"allow_anonymous false\npassword_file {fleet_password_file(tmp)}\n")
+        if broker == "embedded":
+            self.broker = EmbeddedBrokerProcess(tmp)
+        else:
+            self.broker = MosquittoProcess(tmp, f"allow_anonymous false\npassword_file {fleet_password_file(tmp)}\n")
         exits.callback(self.broker.stop)
         self.broker.start()
         self.port = self.broker.port
@@ -79,13 +83,17 @@ class Stack:
         assert moving == [], f"non-zero velocity after the failsafe: {moving[:3]}"
 
 
-@pytest.fixture
-def stack(tmp_path, probe):
+@pytest.fixture(params=["embedded", "mosquitto"])
+def stack(request, tmp_path, probe):
+    """Every fault is injected against the embedded amqtt broker and against Mosquitto."""
     with ExitStack() as exits:
-        yield Stack(tmp_path, probe, exits)
+        stack = Stack(tmp_path, probe, exits, request.param)
+        stack.name = request.param
+        yield stack
 
 
-def _check(name: str, measured: float, deadline: float) -> None:
+def _check(stack: Stack, what: str, measured: float, deadline: float) -> None:
+    name = f"[{stack.name}] {what}"
     record_measurement(name, measured, deadline)
     print(f"{name}: {measured * 1000:.0f} ms (deadline {deadline * 1000:.0f} ms)", file=sys.stderr)
     assert measured <= deadline, f"{name}: stopped after {measured:.3f} s, deadline {deadline:.3f} s"
@@ -97,7 +105,7 @@ def test_operator_sigkill_stops_robot(stack: Stack) -> None:
         stack.wait_moving(t0)
         fault = time.monotonic()
         op.signal(signal.SIGKILL)
-        _check("operator SIGKILL → zero twist", stack.time_to_stop(fault, 0.5), 0.5)
+        _check(stack, "operator SIGKILL → zero twist", stack.time_to_stop(fault, 0.5), 0.5)
         time.sleep(1.0)
         stack.assert_no_motion_after(fault + 0.5)
 
@@ -110,7 +118,7 @@ def test_operator_sigstop_stops_robot(stack: Stack) -> None:
         op.signal(signal.SIGSTOP)
         try:
             deadline = OPERATOR_TIMEOUT + 0.5
-            _check("operator SIGSTOP → stop", stack.time_to_stop(fault, deadline), deadline)
+            _check(stack, "operator SIGSTOP → stop", stack.time_to_stop(fault, deadline), deadline)
             stopped = time.monotonic()
             time.sleep(1.0)
             stack.assert_no_motion_after(stopped)
@@ -134,8 +142,9 @@ def test_operator_sigstop_during_goal_stops_after_operator_timeout(stack: Stack)
             ack = stack.viewer.wait_for(lambda m: m.topic.endswith("/state/ack"), timeout=OPERATOR_TIMEOUT + 3)
             measured = ack.at - fault
             assert "operator alice went away" in ack.json()["payload"]["text"]
-            _check("operator SIGSTOP (goal, no stream) → stop", measured, OPERATOR_TIMEOUT + 0.5)
-            assert measured >= OPERATOR_TIMEOUT - 0.6  # the heartbeat timeout, not some other trigger
+            _check(stack, "operator SIGSTOP (goal, no stream) → stop", measured, OPERATOR_TIMEOUT + 0.5)
+            # the heartbeat timeout (last beat up to 1 s before the freeze), not some other trigger
+            assert measured >= OPERATOR_TIMEOUT - 1.1
         finally:
             op.signal(signal.SIGCONT)
 
@@ -149,7 +158,7 @@ def test_dead_man_stops_silent_stream(stack: Stack) -> None:
         last_command = max(at for at, m in seen if m.linear.x > 0)
         stop_at = min(at for at, m in seen if at > last_command and _zero(m))
         measured = stop_at - last_command
-        _check("command stream silent → dead-man stop", measured, COMMAND_TIMEOUT + 0.2)
+        _check(stack, "command stream silent → dead-man stop", measured, COMMAND_TIMEOUT + 0.2)
         assert measured >= COMMAND_TIMEOUT - 0.1  # not earlier than promised either
         stack.assert_no_motion_after(stop_at)
 
@@ -162,7 +171,7 @@ def test_broker_fault_stops_robot(stack: Stack, sig: int) -> None:
         fault = time.monotonic()
         stack.broker.signal(sig)
         try:
-            _check(f"broker {sig.name} → stop", stack.time_to_stop(fault, 2.0), 2.0)
+            _check(stack, f"broker {sig.name} → stop", stack.time_to_stop(fault, 2.0), 2.0)
             stopped = time.monotonic()
             time.sleep(1.0)
             stack.assert_no_motion_after(stopped)
@@ -177,7 +186,7 @@ def test_broker_restart_bridge_recovers(stack: Stack) -> None:
     restart = time.monotonic()
     stack.broker.start()
     viewer = stack.connect_viewer()  # waits for a fresh retained heartbeat (status ACTIVE)
-    _check("broker restart → bridge back online", time.monotonic() - restart, 5.0)
+    _check(stack, "broker restart → bridge back online", time.monotonic() - restart, 5.0)
     assert viewer
     t0 = time.monotonic()
     with stack.operator():
@@ -189,4 +198,4 @@ def test_bridge_sigkill_shows_offline(stack: Stack) -> None:
     stack.bridge.signal(signal.SIGKILL)
     stack.viewer.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 8,
                           timeout=5)
-    _check("bridge SIGKILL → clients see offline", time.monotonic() - fault, 1.0)
+    _check(stack, "bridge SIGKILL → clients see offline", time.monotonic() - fault, 1.0)
