@@ -1,0 +1,39 @@
+"""Connection options shared by the commands that talk to a broker (robots, echo, pub, call, teleop)."""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import os
+import sys
+
+from ..client import ConnectError, RobotClient
+from ..client.robot_client import DEFAULT_URL, ENV_PASSWORD, ENV_URL, ENV_USERNAME
+
+
+def add_connection_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("connection")
+    g.add_argument("--url", default=os.environ.get(ENV_URL, DEFAULT_URL),
+                   help=f"broker URL: mqtt://, mqtts://, ws://, wss:// (env {ENV_URL}; default %(default)s)")
+    g.add_argument("-u", "--username", default=os.environ.get(ENV_USERNAME), help=f"login (env {ENV_USERNAME})")
+    g.add_argument("--password-env", default=ENV_PASSWORD, metavar="VAR",
+                   help="environment variable holding the password (default %(default)s); asked for if unset")
+    g.add_argument("--ca-file", help="CA bundle for mqtts:// and wss://")
+
+
+def open_client(args: argparse.Namespace, *, robots: list[str] = (), presence: bool = True) -> RobotClient:
+    """Connect, or exit with a clear message (no traceback for a refused login or a dead broker)."""
+    if not args.username:
+        raise SystemExit(f"roslink-mqtt: no username: pass -u NAME or set {ENV_USERNAME}")
+    password = os.environ.get(args.password_env)
+    if password is None:
+        if not sys.stdin.isatty():
+            raise SystemExit(f"roslink-mqtt: no password: set {args.password_env}")
+        password = getpass.getpass(f"Password for {args.username}: ")
+    client = RobotClient(args.username, password, url=args.url, robots=robots, presence=presence,
+                         ca_file=args.ca_file)
+    try:
+        return client.connect()
+    except (ConnectError, OSError, TimeoutError) as err:
+        client.close()
+        raise SystemExit(f"roslink-mqtt: cannot connect to {args.url} as {args.username}: {err}") from None

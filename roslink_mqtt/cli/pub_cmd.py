@@ -1,0 +1,60 @@
+"""``roslink-mqtt pub ROBOT COMMAND [JSON]``: send a command, once or as a bounded stream."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import orjson
+
+from ..client import CommandRefused
+from ..protocol import ProtocolError
+from .connect import add_connection_options, open_client
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("pub", help="send a command to a robot (twist, go_to_waypoint, arm, …)",
+                       description="Send COMMAND with the JSON payload, e.g. "
+                                   "`roslink-mqtt pub turtle1 twist '{\"lx\": 0.2}' --rate 10 --duration 2`. "
+                                   "Runs operator presence, as robots require. Velocity streams stop by "
+                                   "themselves: the robot's dead-man halts it when the stream ends.")
+    p.add_argument("robot")
+    p.add_argument("command", help="ROSLink command (twist, go_to_waypoint, takeoff, land, arm, disarm, "
+                                   "set_mode, get_map, emergency_stop) or a generic rule's topic")
+    p.add_argument("payload", nargs="?", default="{}", help="JSON object (default {})")
+    p.add_argument("--rate", type=float, default=0.0, help="repeat at this many Hz (needs --duration)")
+    p.add_argument("--duration", type=float, default=0.0, help="seconds to repeat for (at most 600)")
+    add_connection_options(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        payload = orjson.loads(args.payload)
+    except orjson.JSONDecodeError as err:
+        raise SystemExit(f"roslink-mqtt pub: payload is not JSON: {err}") from None
+    if not isinstance(payload, dict):
+        raise SystemExit("roslink-mqtt pub: payload must be a JSON object")
+    if args.rate and not 0 < args.duration <= 600:
+        raise SystemExit("roslink-mqtt pub: --rate needs --duration between 0 and 600 s")
+    client = open_client(args, robots=[args.robot])
+    try:
+        client.wait_for_robot(args.robot, timeout=5.0)
+        count = max(1, int(args.rate * args.duration)) if args.rate else 1
+        period = 1.0 / args.rate if args.rate else 0.0
+        start = time.monotonic()
+        for i in range(count):
+            last = i == count - 1
+            client.command(args.robot, args.command, dict(payload), check=0.5 if last else None)
+            if not last:
+                time.sleep(max(0.0, start + (i + 1) * period - time.monotonic()))
+        print(f"sent {count} × {args.command} to {args.robot}")
+        return 0
+    except (CommandRefused, ProtocolError) as err:
+        print(f"roslink-mqtt pub: refused: {err}")
+        return 1
+    except TimeoutError as err:
+        print(f"roslink-mqtt pub: {err}")
+        return 1
+    finally:
+        client.close()
