@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -67,3 +69,13 @@ def test_logins_mosquitto_cannot_express_are_refused(tmp_path: Path) -> None:
         passwd_text(dataclasses.replace(fleet, users=users))
     with pytest.raises(ExportError):
         export_mosquitto(dataclasses.replace(fleet, users=users), tmp_path)
+
+
+def test_export_works_without_amqtt(tmp_path: Path) -> None:
+    """A client install has no amqtt: `roslink-mqtt acl export` must not need it."""
+    code = ("import sys; sys.modules['amqtt'] = None\n"  # any 'import amqtt' now raises ImportError
+            "from roslink_mqtt.cli.main import main\n"
+            f"sys.exit(main(['acl', 'export', '--out', {str(tmp_path)!r}, '--config', {str(CONFIG)!r}]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "acl").exists()

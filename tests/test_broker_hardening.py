@@ -37,7 +37,7 @@ def broker(tmp_path_factory) -> Iterator[EmbeddedBrokerProcess]:
     fleet = write_fleet(workdir, edit=lambda t: t.replace("  ws_port: 0\n",
                                                           f"  ws_port: 0\n  max_payload: {MAX_PAYLOAD}\n"))
     with EmbeddedBrokerProcess(workdir, fleet, "--connect-timeout", "1", "--login-free-failures", "100",
-                               ws=True) as b:
+                               "--sys-interval", "0.5", ws=True) as b:
         yield b
 
 
@@ -178,6 +178,23 @@ def test_wrong_password_cannot_hijack_a_client_id(broker, clients) -> None:
     assert not victim.disconnected.is_set()
 
 
+def test_failed_logins_leave_no_sessions_behind(broker, clients) -> None:
+    """Stock amqtt kept a 'connected' zombie session for every failed login; watch $SYS/broker/clients/total."""
+    admin = clients(broker.port, "admin")
+    assert admin.subscribe("$SYS/broker/clients/total") == [1]
+
+    def total_after_next_tick() -> int:
+        admin.drain(0.1)
+        return int(admin.wait_for(lambda m: not m.retain, timeout=5).payload)
+
+    time.sleep(1.2)  # clean sessions of earlier tests are reaped once a second
+    before = total_after_next_tick()
+    for i in range(10):
+        assert clients(broker.port, "turtle1", f"zombie-{i}", password="wrong", connect=False).connect() == REFUSED
+    time.sleep(0.6)
+    assert total_after_next_tick() == before
+
+
 @pytest.mark.parametrize("clean", [True, False])
 def test_client_id_takeover_closes_the_old_connection_without_will(broker, clients, clean: bool) -> None:
     cid = f"takeover-{clean}"
@@ -278,7 +295,7 @@ def test_connection_without_connect_is_closed(broker) -> None:
 
 def test_dollar_and_oversize_publishes_are_dropped_and_the_client_stays(broker, clients) -> None:
     admin = clients(broker.port, "admin")
-    assert admin.subscribe(["$SYS/#", "roslink/turtle1/state/#"]) == [1, 1]
+    assert admin.subscribe(["$SYS/broker/version", "roslink/turtle1/state/#"]) == [1, 1]
     admin.drain(0.3)
     t1 = clients(broker.port, "turtle1")
     t1.publish("$SYS/broker/version", "forged")
@@ -287,6 +304,13 @@ def test_dollar_and_oversize_publishes_are_dropped_and_the_client_stays(broker, 
     got = [(m.topic, len(m.payload)) for m in admin.drain(0.8)]
     assert got == [("roslink/turtle1/state/ok", MAX_PAYLOAD)]
     assert not t1.disconnected.is_set()
+
+
+def test_huge_packet_closes_the_connection_before_it_is_buffered(broker, clients) -> None:
+    t1 = clients(broker.port, "turtle1")
+    t1.client.publish("roslink/turtle1/state/huge", b"x" * (MAX_PAYLOAD + 200_000), qos=0)
+    assert t1.disconnected.wait(5)
+    assert "packet of" in broker.output() and "limit" in broker.output()
 
 
 # -- 12: failed start ------------------------------------------------------------------------------

@@ -37,7 +37,9 @@ behaviour.
 12. **Failed start** (port in use) closes the listeners that did bind (stock leaves them
     open and refuses ``shutdown()``).
 13. **Publishing to ``$`` topics** is dropped like any denied publish, as Mosquitto does
-    (stock closes the connection), and payloads over ``max_payload`` are dropped.
+    (stock closes the connection), and payloads over ``max_payload`` are dropped. A packet
+    larger than ``max_payload`` plus the largest possible topic closes the connection
+    before it is read (stock buffers up to the protocol's 256 MB per packet).
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -52,8 +54,10 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
   ``_retain_broadcast_message``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
 * ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
-  ``handle_read_timeout``, ``handle_connection_closed``; the reader loop reads
-  ``session.keep_alive`` once, when the handler starts, as its read timeout.
+  ``handle_read_timeout``, ``handle_connection_closed``, ``attach``; the reader loop reads
+  ``session.keep_alive`` once, when the handler starts, as its read timeout, ends the
+  connection on an exception other than MQTTError/NoDataError/TimeoutError, and
+  ``PublishPayload.from_stream`` reads a payload with one ``reader.read(length)``.
 * ``StreamWriterAdapter._writer`` (asyncio StreamWriter), ``WebSocketsWriter._protocol``
   (websockets ServerConnection): to abort a transport whose peer is frozen.
 * ``Session.attributes`` (amqtt's documented per-session dict) for our state:
@@ -130,6 +134,34 @@ def _log_once(session: Session, key: str, level: int, message: str, *args: Any) 
     log.log(level, message, *args)
 
 
+MAX_TOPIC_OVERHEAD = 2 + 65535 + 2  # topic length prefix, longest topic, packet id
+
+
+class PacketTooLarge(Exception):
+    """A client announced a packet larger than the broker accepts; its connection is closed."""
+
+
+class BoundedReader(ReaderAdapter):
+    """Refuses any single read larger than ``limit`` bytes.
+
+    amqtt reads a PUBLISH payload with one ``read(announced length)``, so this stops a client
+    from making the broker buffer up to 256 MB (the MQTT maximum) per packet. The exception
+    ends amqtt's reader loop, which closes the connection (an abnormal disconnect).
+    """
+
+    def __init__(self, inner: ReaderAdapter, limit: int, describe: Any) -> None:
+        self.inner, self.limit, self.describe = inner, limit, describe
+
+    async def read(self, n: int = -1) -> bytes:
+        if n > self.limit:
+            log.warning("closing %s: packet of %d bytes announced, limit %d", self.describe(), n, self.limit)
+            raise PacketTooLarge(n)
+        return await self.inner.read(n)
+
+    def feed_eof(self) -> None:
+        self.inner.feed_eof()
+
+
 class HardenedHandler(BrokerProtocolHandler):
     """Broker-side protocol handler that enforces keep-alive (fix 1).
 
@@ -142,6 +174,12 @@ class HardenedHandler(BrokerProtocolHandler):
 
     _expired = False
     _closing: asyncio.Task[None] | None = None
+    read_limit = 0  # bytes per read; 0 = unlimited (set by the broker before attach)
+
+    def attach(self, session: Session, reader: ReaderAdapter, writer: WriterAdapter) -> None:
+        if self.read_limit:
+            reader = BoundedReader(reader, self.read_limit, lambda: describe_session(session))
+        super().attach(session, reader, writer)
 
     def handle_read_timeout(self) -> None:
         if self._expired:
@@ -201,6 +239,8 @@ class HardenedBroker(Broker):
         except (AMQTTError, NoDataError) as exc:
             raise AMQTTError(exc) from exc
         session.attributes[ATTR_LISTENER] = _LISTENER.get()
+        if self.max_payload and isinstance(handler, HardenedHandler):
+            handler.read_limit = self.max_payload + MAX_TOPIC_OVERHEAD
 
         reason = await self._admit(session)
         if reason is not None:

@@ -58,6 +58,7 @@ def _port(text: str) -> int:
 def setup_logging(level: str) -> None:
     logging.basicConfig(level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("transitions").setLevel(logging.WARNING)
+    logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per WebSocket connection otherwise
     if level != "DEBUG":
         # amqtt logs every connection (and our refusals a second time) at INFO/WARNING;
         # our own log has one line per connect, deny and disconnect.

@@ -113,7 +113,8 @@ class FleetAclPlugin(BaseTopicPlugin):
         verdict = cache.lookup(topic, action)
         if verdict is None:
             verdict = cache.decide(topic, action)
-            if not verdict:
+            # during CONNECT (will-topic check) the broker logs the refusal itself, in one line
+            if not verdict and session.transitions.state == "connected":
                 level = logging.DEBUG if action == Action.RECEIVE else logging.INFO
                 log.log(level, "deny %s %s topic=%r", action.value, describe_session(session), topic)
         return verdict
