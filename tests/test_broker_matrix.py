@@ -436,10 +436,9 @@ def test_mosquitto_sub_sees_only_its_robot(runs, embedded, mosquitto, backend: s
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_mosquitto_pub_commands_only_as_allowed(runs, embedded, mosquitto, backend: str) -> None:
     port = _port(backend, embedded, mosquitto)
-    watch = subprocess.Popen([MOSQUITTO_SUB, "-h", "127.0.0.1", "-p", str(port), "-u", "turtle1", "-P",
-                              DEMO_PASSWORDS["turtle1"], "-v", "-W", "2", "-t", "roslink/turtle1/from/+/#"],
-                             stdout=subprocess.PIPE, text=True)
-    time.sleep(0.5)  # mosquitto_sub has subscribed
+    watch = Conn(port, "turtle1", DEMO_PASSWORDS["turtle1"], f"cli-watch-{backend}")  # the robot's view
+    assert watch.connect() == 0
+    watch.subscribe(["roslink/turtle1/from/+/#"])
     for user, topic in (("alice", "roslink/turtle1/from/alice/cmd/twist"),  # operator: allowed
                         ("bob", "roslink/turtle1/from/bob/cmd/twist"),  # viewer: refused
                         ("bob", "roslink/turtle1/from/bob/call/status"),  # viewer, read-only service: allowed
@@ -449,8 +448,9 @@ def test_mosquitto_pub_commands_only_as_allowed(runs, embedded, mosquitto, backe
                                DEMO_PASSWORDS[user], "-q", "1", "-t", topic, "-m", f"cli-{user}"],
                               capture_output=True, text=True, timeout=10)
         assert done.returncode == 0, done.stderr  # MQTT 3.1.1 has no publish NACK: refused = dropped
-    out, _ = watch.communicate(timeout=10)
-    got = sorted(line for line in out.splitlines() if " cli-" in line)
+    settle([watch], minimum=0.3)
+    watch.close()
+    got = sorted(f"{m.topic} {m.payload.decode()}" for m in watch.received() if m.payload.startswith(b"cli-"))
     assert got == ["roslink/turtle1/from/alice/cmd/twist cli-alice", "roslink/turtle1/from/bob/call/status cli-bob"]
 
 

@@ -94,6 +94,17 @@ class Probe:
                 break
         return out
 
+    def collect(self, count: int, timeout: float = 10.0, then: float = 0.3) -> list[Msg]:
+        """The first ``count`` messages (fewer if they do not come in time), plus whatever else
+        arrives within ``then`` s after them: exact-list assertions that tolerate a slow host."""
+        deadline, out = time.monotonic() + timeout, []
+        while len(out) < count and (left := deadline - time.monotonic()) > 0:
+            try:
+                out.append(self.messages.get(timeout=left))
+            except queue.Empty:
+                break
+        return out + self.drain(then)
+
     def wait_for(self, predicate: Callable[[Msg], bool], timeout: float = 10.0) -> Msg:
         deadline = time.monotonic() + timeout
         while (left := deadline - time.monotonic()) > 0:
