@@ -28,7 +28,6 @@ Nothing here imports amqtt: this module is the unit-testable part of the broker.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import IntFlag, StrEnum
 
@@ -244,9 +243,9 @@ class FleetChange:
 class LiveFleet:
     """The fleet the broker enforces right now; SIGHUP swaps it whole.
 
-    Plugins read :attr:`acl` and :attr:`fleet` on every check. Replacing both with one
-    assignment each (no in-place edits) means a check sees either the old rules or the
-    new ones, never a mix that was never configured.
+    Plugins read :attr:`acl` and :attr:`fleet` on every check. Both are replaced whole (never
+    edited in place) with no ``await`` in between, so a check on the broker's event loop sees
+    either the old rules or the new ones, never a mix that was never configured.
     """
 
     def __init__(self, fleet: Fleet) -> None:
@@ -265,11 +264,3 @@ class LiveFleet:
         self.fleet = fleet
         return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed)
 
-
-def describe(acl: FleetAcl, logins: Iterable[str] | None = None) -> str:
-    """Human-readable rules (for ``--print-acl`` style debugging and docs)."""
-    lines = []
-    for login in logins or acl.logins:
-        lines.append(f"{login}:")
-        lines += [f"  {e.access.mosquitto:<9} {e.pattern}" for e in acl.entries(login)]
-    return "\n".join(lines)
