@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import queue
+import shutil
 import signal
 import subprocess
 import sys
@@ -34,7 +35,8 @@ from roslink_mqtt.client import (
 )
 from roslink_mqtt.protocol import Envelope, MessageId, ProtocolError, SystemStatus, encode
 
-from .support.fleet_brokers import mosquitto_with_logins
+from .support.fleet_brokers import fleet_password_file, mosquitto_with_logins
+from .support.mosquitto import run_mosquitto
 from .support.no_ros import no_ros_env
 from .support.procs import ROOT, bridge_args, bridge_env, run
 from .support.ros import RosProbe
@@ -66,6 +68,25 @@ print("sdk ok without", ", ".join(("rclpy", "amqtt")))
                          timeout=30, cwd=ROOT)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "sdk ok without rclpy, amqtt" in out.stdout
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
+def test_tls_connection(tmp_path) -> None:
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=localhost",
+                    "-addext", "subjectAltName=IP:127.0.0.1", "-keyout", str(key), "-out", str(cert)],
+                   check=True, capture_output=True)
+    conf = f"allow_anonymous false\npassword_file {fleet_password_file(tmp_path)}\ncertfile {cert}\nkeyfile {key}\n"
+    with run_mosquitto(tmp_path, conf) as port:
+        url = f"mqtts://127.0.0.1:{port}"
+        with RobotClient("alice", "alice-demo", url=url, ca_file=str(cert)) as client:
+            assert client.connected and client.wildcard_heartbeats
+            with pytest.raises(ServiceTimeout):
+                client.call("turtle1", "reset", timeout=0.2)  # a call went out and nothing broke; no robot here
+        with RobotClient("alice", "alice-demo", url=url, insecure_tls=True) as client:
+            assert client.connected
+        with pytest.raises(sdk.ConnectError, match="certificate verify failed"):
+            RobotClient("alice", "alice-demo", url=url).connect(timeout=5)  # not signed by a CA we trust
 
 
 @pytest.fixture(scope="module")

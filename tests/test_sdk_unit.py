@@ -242,7 +242,13 @@ def test_refused_wildcard_heartbeat_is_handled() -> None:
 def test_unreachable_broker_and_missing_username() -> None:
     from .support.net import free_port
 
-    with pytest.raises(ConnectError, match="cannot reach the broker"):
-        RobotClient("alice", "x", url=f"mqtt://127.0.0.1:{free_port()}").connect(timeout=2)
+    before = threading.active_count()
+    for _ in range(3):  # a failed connect leaves no threads behind (callers may retry in a loop)
+        with pytest.raises(ConnectError, match="cannot reach the broker"):
+            RobotClient("alice", "x", url=f"mqtt://127.0.0.1:{free_port()}").connect(timeout=2)
+    deadline = time.monotonic() + 2
+    while threading.active_count() > before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert threading.active_count() <= before
     with pytest.raises(ValueError, match="no username"):
         RobotClient(None, None)

@@ -88,8 +88,15 @@ class RobotClient:
 
     # -- lifecycle ----------------------------------------------------------------------
     def connect(self, timeout: float = 10.0) -> RobotClient:
-        """Log in (ConnectError if refused), start presence, watch the named robots."""
-        self.connection.connect(timeout)
+        """Log in (ConnectError if refused), start presence, watch the named robots.
+
+        A failed connect closes the client (its threads end); make a new one to retry.
+        """
+        try:
+            self.connection.connect(timeout)
+        except Exception:
+            self.close()
+            raise
         self.wildcard_heartbeats = self.connection.subscribe(self.topics.all_heartbeats(), self._on_heartbeat)
         if not self.wildcard_heartbeats:
             log.info("%s: broker refused %s; watching named robots only", self.client_id,
