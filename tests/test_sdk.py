@@ -89,6 +89,38 @@ def test_tls_connection(tmp_path) -> None:
             RobotClient("alice", "alice-demo", url=url).connect(timeout=5)  # not signed by a CA we trust
 
 
+def test_reconnect_restores_subscriptions_presence_and_offers(tmp_path) -> None:
+    from .support.mqtt_client import TestClient
+    from .support.net import free_port
+
+    port, conf = free_port(), f"allow_anonymous false\npassword_file {fleet_password_file(tmp_path)}\n"
+    got: queue.Queue = queue.Queue()
+    motion = encode(Envelope(MessageId.GLOBAL_MOTION, {k: 0.0 for k in ("x", "y", "z", "vx", "vy", "vz", "wx", "wy",
+                                                                         "wz", "roll", "pitch", "yaw")}, 1, 5))
+    with run_mosquitto(tmp_path, conf, port=port):
+        client = RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}", robots=["turtle1"]).connect()
+        client.subscribe("turtle1", "global_motion", got.put)
+        client.provide("turtle1", "self_test", "std_srvs/srv/Trigger", lambda args: {"success": True})
+    try:
+        # the broker restarted without persistence: every retained message and subscription is gone
+        with run_mosquitto(tmp_path, conf, port=port), TestClient(port, "admin", "admin-demo") as admin:
+            assert client.connection.connected.wait(10), "the SDK did not reconnect"
+            assert admin.connect() == 0
+            admin.subscribe("roslink/turtle1/from/alice/provide/#")
+            admin.subscribe("roslink/operators/alice/+")
+            offer = admin.wait_for(lambda m: "/provide/" in m.topic and m.payload, timeout=5).json()
+            assert offer == {"type": "std_srvs/srv/Trigger", "timeout": 5.0, "client_id": client.client_id}
+            admin.wait_for(lambda m: m.topic == f"roslink/operators/alice/{client.client_id}" and m.payload,
+                           timeout=5)
+            deadline = time.monotonic() + 5
+            while got.empty() and time.monotonic() < deadline:  # re-subscribed: state flows again
+                admin.publish("roslink/turtle1/state/global_motion", motion, qos=0)
+                time.sleep(0.1)
+            assert isinstance(got.get(timeout=1), GlobalMotion)
+    finally:
+        client.close()
+
+
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     from geometry_msgs.msg import Twist
