@@ -170,4 +170,6 @@ def test_commands_without_operator_heartbeat_are_refused(stack) -> None:
         silent.publish("roslink/turtle1/from/admin/cmd/twist", {"lx": 0.3})
         err = silent.wait_for(lambda m: m.topic.endswith("/to/admin/error")).json()
         assert "no live operator heartbeat from 'admin'" in err["error"]
-        assert cmd_vel.since(t0) == [] or all(m.linear.x == 0 for _, m in cmd_vel.since(t0))
+        time.sleep(0.3)
+        # earlier tests' streams may still trail in; admin's 0.3 m/s must never arrive
+        assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.3)]

@@ -304,8 +304,10 @@ class ProvidedServices:
             offer.waiting[call_id] = (event, box)
         try:
             args = converter_for(type(request)).to_dict(request)
-            self.publish(self.topics.request(self.robot.name, offer.user, offer.name),
-                         orjson.dumps({"id": call_id, "args": args}))
+            body = {"id": call_id, "args": args}
+            if offer.client_id is not None:  # several clients of one user may listen; this names the provider
+                body["client_id"] = offer.client_id
+            self.publish(self.topics.request(self.robot.name, offer.user, offer.name), orjson.dumps(body))
             if not event.wait(offer.timeout):
                 return _failed(response, f"provider {offer.user} did not answer within {offer.timeout:g} s")
             status, body = box[0]

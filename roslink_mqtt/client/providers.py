@@ -127,6 +127,9 @@ class ServiceProviders:
             return
         call_id = body["id"]
         offer = self.get(robot, name)
+        target = body.get("client_id")
+        if target is not None and target != self.connection.client_id:
+            return  # the robot names another of this user's clients as the provider
         if offer is None:
             # Every client of this user sees the user's requests; another one of them may provide it.
             log.debug("ignoring request for %s on %s: not provided by this client", name, robot)
