@@ -90,6 +90,8 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path) -> str:
         f"acl_file {acl.resolve()}\n",
         # payload limit with the embedded broker's semantics: the message is dropped, the client stays
         f"message_size_limit {b.max_payload}\n",
+        # small replies (PUBACKs, service replies) must not wait behind Nagle: ~40 ms per call otherwise
+        "set_tcp_nodelay true\n",
     ]
     return "".join(lines)
 
