@@ -58,6 +58,18 @@ def _load(rule: Rule) -> type:
         raise RuleError(f"{rule.label}: {err}") from None
 
 
+def _preset(rule: Rule, presets: dict[str, Any], kind: str) -> Any:
+    """The rule's preset, checked to exist in ``presets`` and to accept the rule's ROS type."""
+    preset = presets.get(rule.preset)
+    if preset is None:
+        raise RuleError(f"{rule.label}: preset '{rule.preset}' is not a {kind} preset "
+                        f"({kind} presets: {', '.join(presets)})")
+    if rule.ros_type not in preset.ros_types:
+        raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
+                        f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+    return preset
+
+
 def _get_path(data: dict[str, Any], path: str) -> Any:
     for part in path.split("."):
         data = data[part]
@@ -88,13 +100,7 @@ def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
     topic = topics.state(robot.name, rule.mqtt_topic.removeprefix("state/"))
     period = 1.0 / rule.max_rate if rule.max_rate else 0.0
     if rule.preset is not None:
-        preset = STATE_PRESETS.get(rule.preset)
-        if preset is None:
-            raise RuleError(f"{rule.label}: preset '{rule.preset}' is not produced from ROS topics "
-                            f"(state presets: {', '.join(STATE_PRESETS)})")
-        if rule.ros_type not in preset.ros_types:
-            raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
-                            f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+        preset = _preset(rule, STATE_PRESETS, "state")
         message_id, system_id, convert = SPECS_BY_NAME[rule.preset].message_id, robot.system_id, preset.convert
         sequence = 0
 
@@ -123,13 +129,7 @@ def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
     limits = rule.limits or robot.bridge.limits
     is_velocity = rule.ros_type in VELOCITY_TYPES
     if rule.preset is not None:
-        preset = COMMAND_PRESETS.get(rule.preset)
-        if preset is None:
-            raise RuleError(f"{rule.label}: preset '{rule.preset}' is not a command preset "
-                            f"(command presets: {', '.join(COMMAND_PRESETS)})")
-        if rule.ros_type not in preset.ros_types:
-            raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
-                            f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+        preset = _preset(rule, COMMAND_PRESETS, "command")
         build = preset.build
         return Inbound(rule, ros_cls, SPECS_BY_NAME[rule.preset], lambda p: build(p, ros_cls), is_velocity, limits)
     from_dict = converter_for(ros_cls).from_dict

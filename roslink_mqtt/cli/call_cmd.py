@@ -7,7 +7,7 @@ import argparse
 import orjson
 
 from ..client import ServiceError
-from .connect import add_connection_options, open_client
+from .connect import add_connection_options, json_object, open_client
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,10 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        request = orjson.loads(args.args)
-    except orjson.JSONDecodeError as err:
-        raise SystemExit(f"roslink-mqtt call: request is not JSON: {err}") from None
+    request = json_object(args.args, "request")
     client = open_client(args, robots=[args.robot], presence=False)
     try:
         values = client.call(args.robot, args.service, request, timeout=args.timeout)

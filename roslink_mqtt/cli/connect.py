@@ -7,6 +7,8 @@ import getpass
 import os
 import sys
 
+import orjson
+
 from ..client import ConnectError, RobotClient
 from ..client.robot_client import DEFAULT_URL, ENV_PASSWORD, ENV_URL, ENV_USERNAME
 
@@ -37,3 +39,14 @@ def open_client(args: argparse.Namespace, *, robots: list[str] = (), presence: b
     except (ConnectError, OSError, TimeoutError) as err:
         client.close()
         raise SystemExit(f"roslink-mqtt: cannot connect to {args.url} as {args.username}: {err}") from None
+
+
+def json_object(text: str, what: str) -> dict:
+    """Parse a JSON object given on the command line, or exit saying what is wrong with it."""
+    try:
+        value = orjson.loads(text)
+    except orjson.JSONDecodeError as err:
+        raise SystemExit(f"roslink-mqtt: {what} is not JSON: {err}") from None
+    if not isinstance(value, dict):
+        raise SystemExit(f"roslink-mqtt: {what} must be a JSON object")
+    return value

@@ -5,11 +5,9 @@ from __future__ import annotations
 import argparse
 import time
 
-import orjson
-
 from ..client import CommandRefused
 from ..protocol import ProtocolError
-from .connect import add_connection_options, open_client
+from .connect import add_connection_options, json_object, open_client
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,12 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        payload = orjson.loads(args.payload)
-    except orjson.JSONDecodeError as err:
-        raise SystemExit(f"roslink-mqtt pub: payload is not JSON: {err}") from None
-    if not isinstance(payload, dict):
-        raise SystemExit("roslink-mqtt pub: payload must be a JSON object")
+    payload = json_object(args.payload, "payload")
     if args.rate and not 0 < args.duration <= 600:
         raise SystemExit("roslink-mqtt pub: --rate needs --duration between 0 and 600 s")
     client = open_client(args, robots=[args.robot])

@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import getpass
-import signal
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 from roslink_mqtt.broker.export import export_mosquitto
 from roslink_mqtt.config import load_fleet
 
+from .managed import ManagedProcess
 from .mosquitto import MOSQUITTO
 from .net import free_port, wait_for_port
 from .procs import CONFIG
@@ -46,7 +46,7 @@ def write_fleet(workdir: Path, *, port: int | None = None, ws_port: int = 0, rea
     return path
 
 
-class ExportedMosquitto:
+class ExportedMosquitto(ManagedProcess):
     """Mosquitto running the exact files ``roslink-mqtt acl export`` writes for ``config``.
 
     ``extra_conf`` is appended to a copy of the exported mosquitto.conf. The copy always gets a
@@ -62,7 +62,6 @@ class ExportedMosquitto:
         self.conf = self.workdir / "mosquitto-run.conf"
         self.conf.write_text(self.files.conf.read_text() + f"user {getpass.getuser()}\n{extra_conf}\n")
         self.log = self.workdir / "mosquitto.log"
-        self.proc: subprocess.Popen | None = None
 
     def start(self) -> ExportedMosquitto:
         with open(self.log, "ab") as log:
@@ -74,29 +73,3 @@ class ExportedMosquitto:
             raise RuntimeError(f"mosquitto did not start:\n{self.output()[-2000:]}") from None
         return self
 
-    def output(self) -> str:
-        return self.log.read_text(errors="replace") if self.log.exists() else ""
-
-    def signal(self, sig: int) -> None:
-        assert self.proc is not None
-        self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.kill()
-
-    def __enter__(self) -> ExportedMosquitto:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()

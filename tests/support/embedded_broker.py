@@ -16,17 +16,17 @@ The broker's output goes to ``workdir/embedded-broker.log`` (appended across res
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from .managed import ManagedProcess
 from .net import free_port
 from .procs import CONFIG, ROOT
 
 
-class EmbeddedBrokerProcess:
+class EmbeddedBrokerProcess(ManagedProcess):
     def __init__(self, workdir: Path, config: Path = CONFIG, *extra_args: str, ws: bool = False,
                  log_name: str = "embedded-broker.log") -> None:
         """``ws=True`` also opens a WebSocket listener on a free port (``.ws_port``); ``extra_args`` go to the CLI."""
@@ -35,7 +35,6 @@ class EmbeddedBrokerProcess:
         self.ws_port = free_port() if ws else 0
         self.extra_args = list(extra_args)
         self.log = self.workdir / log_name
-        self.proc: subprocess.Popen | None = None
         self._log_offset = 0
 
     @property
@@ -63,34 +62,3 @@ class EmbeddedBrokerProcess:
             time.sleep(0.05)
         self.kill()
         raise TimeoutError(f"embedded broker not ready on port {self.port} after {timeout} s:\n{self.output()[-3000:]}")
-
-    def output(self) -> str:
-        return self.log.read_text(errors="replace") if self.log.exists() else ""
-
-    def signal(self, sig: int) -> None:
-        assert self.proc is not None
-        self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-
-    def stop(self, timeout: float = 5.0) -> int | None:
-        """SIGCONT (in case it is frozen), SIGTERM; SIGKILL if it does not exit in time. Returns the exit code."""
-        if self.proc is None:
-            return None
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.kill()
-        return self.proc.returncode
-
-    def __enter__(self) -> EmbeddedBrokerProcess:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()

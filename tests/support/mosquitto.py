@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from .managed import ManagedProcess
 from .net import free_port, wait_for_port
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
@@ -39,37 +40,18 @@ def run_mosquitto(workdir: Path, extra_conf: str = "", port: int | None = None) 
         log.close()
 
 
-class MosquittoProcess:
+class MosquittoProcess(ManagedProcess):
     """A Mosquitto that tests can kill, freeze and restart on the same port."""
 
     def __init__(self, workdir: Path, extra_conf: str = "") -> None:
         self.workdir, self.port = workdir, free_port()
         self.conf = workdir / "mosquitto.conf"
+        self.log = workdir / "mosquitto.log"
         self.conf.write_text(f"user {getpass.getuser()}\nlistener {self.port} 127.0.0.1\npersistence false\n"
                              f"log_dest stderr\nset_tcp_nodelay true\n{extra_conf}\n")
-        self.proc: subprocess.Popen | None = None
 
     def start(self) -> MosquittoProcess:
-        log = open(self.workdir / "mosquitto.log", "ab")  # noqa: SIM115 - owned by the process
-        self.proc = subprocess.Popen([MOSQUITTO, "-c", str(self.conf)], stdout=log, stderr=subprocess.STDOUT)
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen([MOSQUITTO, "-c", str(self.conf)], stdout=log, stderr=subprocess.STDOUT)
         wait_for_port(self.port)
         return self
-
-    def signal(self, sig: int) -> None:
-        assert self.proc is not None
-        self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            import signal as _signal
-            self.proc.send_signal(_signal.SIGCONT)
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.kill()
