@@ -88,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         node = rclpy.create_node("roslink_mqtt_bridge")
         bridge = Bridge(fleet, robot, node, password=password, broker_url=url, ca_file=args.ca_file)
     except RuleError as err:
-        print(f"roslink-mqtt-bridge: {args.config}: robots.{robot.name}.{err}", file=sys.stderr)
+        line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
+        print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
         return 2
     executor = MultiThreadedExecutor(num_threads=4)  # provided services may hold two

@@ -29,8 +29,8 @@ from .convert import ConversionError, converter_for
 from .failsafe import Failsafe
 from .link import MqttLink
 from .presets import CommandRefused
-from .ros_types import load_interface
-from .rules import Inbound, Outbound, compile_rules
+from .ros_types import UnknownTypeError, load_interface
+from .rules import Inbound, Outbound, RuleError, compile_rules
 from .safety import UnsafeCommand, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
 
@@ -92,12 +92,19 @@ class Bridge:
             self.publishers_by_rule[name] = pub
             if rule.is_velocity:
                 self.velocity_publishers.append((rule, pub))
-        self.failsafe_actions = [
-            (node.create_publisher(load_interface(a.ros_type), a.ros_topic, 10),
-             converter_for(load_interface(a.ros_type)).from_dict(a.message))
-            for a in settings.on_failsafe]
+        self.failsafe_actions = []
+        for i, action in enumerate(settings.on_failsafe):
+            try:
+                cls = load_interface(action.ros_type)
+                message = converter_for(cls).from_dict(action.message)
+            except (UnknownTypeError, ConversionError) as err:
+                raise RuleError(f"bridge.on_failsafe[{i}]: {err}") from None
+            self.failsafe_actions.append((node.create_publisher(cls, action.ros_topic, 10), message))
         role_of = self.role_of
-        self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of)
+        try:
+            self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of)
+        except UnknownTypeError as err:
+            raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
                                          self.operators.is_live, self.refuse)
         self.link = MqttLink(

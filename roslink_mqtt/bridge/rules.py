@@ -27,6 +27,10 @@ from .safety import VELOCITY_TYPES
 class RuleError(ValueError):
     """A rule that cannot run (unknown type, preset/type mismatch, …); names the rule."""
 
+    def __init__(self, message: str, rule: Rule | None = None) -> None:
+        super().__init__(message)
+        self.rule = rule
+
 
 @dataclass
 class Outbound:
@@ -55,7 +59,7 @@ def _load(rule: Rule) -> type:
     try:
         return load_interface(rule.ros_type)
     except UnknownTypeError as err:
-        raise RuleError(f"{rule.label}: {err}") from None
+        raise RuleError(f"{rule.label}: {err}", rule) from None
 
 
 def _preset(rule: Rule, presets: dict[str, Any], kind: str) -> Any:
@@ -63,10 +67,10 @@ def _preset(rule: Rule, presets: dict[str, Any], kind: str) -> Any:
     preset = presets.get(rule.preset)
     if preset is None:
         raise RuleError(f"{rule.label}: preset '{rule.preset}' is not a {kind} preset "
-                        f"({kind} presets: {', '.join(presets)})")
+                        f"({kind} presets: {', '.join(presets)})", rule)
     if rule.ros_type not in preset.ros_types:
         raise RuleError(f"{rule.label}: preset '{rule.preset}' needs ros_type "
-                        f"{' or '.join(preset.ros_types)}, not {rule.ros_type}")
+                        f"{' or '.join(preset.ros_types)}, not {rule.ros_type}", rule)
     return preset
 
 
@@ -90,7 +94,8 @@ def _check_field_paths(rule: Rule, ros_cls: type) -> None:
         for part in ros_path.split("."):
             fields = cls.get_fields_and_field_types() if hasattr(cls, "get_fields_and_field_types") else {}
             if part not in fields:
-                raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}")
+                raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}",
+                                rule)
             sub = fields[part]
             cls = load_interface(sub.replace("/", "/msg/", 1)) if sub.count("/") == 1 else None
 

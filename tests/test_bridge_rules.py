@@ -1,0 +1,106 @@
+"""Rule validation at bridge start: each problem is a clear error naming the rule."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from roslink_mqtt.config import parse_fleet
+from roslink_mqtt.config.passwords import hash_password
+from roslink_mqtt.topics import TopicTree
+
+pytest.importorskip("rclpy")
+
+from roslink_mqtt.bridge.rules import RuleError, compile_rules  # noqa: E402
+
+HASH = hash_password("pw", iterations=1)
+
+
+def fleet_with(rule: str):
+    return parse_fleet(f"""
+robots:
+  r1:
+    system_id: 1
+    key: k1
+    password: "{HASH}"
+    rules:
+      - {rule}
+""", "robots.yaml")
+
+
+@pytest.mark.parametrize(("rule", "fragment"), [
+    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometri, mqtt_topic: state/odom}",
+     "rules[0] (odom → state/odom): unknown type 'nav_msgs/msg/Odometri': 'nav_msgs' has no msg 'Odometri'"),
+    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: warp_msgs/msg/Odometry, mqtt_topic: state/odom}",
+     "ROS package 'warp_msgs' is not installed"),
+    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: sensor_msgs/msg/Imu, mqtt_topic: state/gm,"
+     " preset: global_motion}",
+     "rules[0] (odom → state/gm): preset 'global_motion' needs ros_type nav_msgs/msg/Odometry or "
+     "geometry_msgs/msg/PoseStamped or geometry_msgs/msg/PoseWithCovarianceStamped, not sensor_msgs/msg/Imu"),
+    ("{direction: ros_to_mqtt, ros_topic: hb, ros_type: std_msgs/msg/String, mqtt_topic: state/hb, preset: heartbeat}",
+     "preset 'heartbeat' is not a state preset"),
+    ("{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: std_msgs/msg/String, mqtt_topic: cmd/twist,"
+     " preset: twist}",
+     "rules[0] (cmd/twist → cmd_vel): preset 'twist' needs ros_type geometry_msgs/msg/Twist"),
+    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom,"
+     " fields: {x: pose.pose.positon.x}}",
+     "fields.x: 'pose.pose.positon.x' is not a field of nav_msgs/msg/Odometry"),
+])
+def test_bad_rules_are_refused_at_start(rule: str, fragment: str) -> None:
+    fleet = fleet_with(rule)
+    with pytest.raises(RuleError) as info:
+        compile_rules(fleet.robots["r1"], TopicTree())
+    assert fragment in str(info.value)
+
+
+def test_good_generic_rule_with_fields_compiles() -> None:
+    fleet = fleet_with("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry,"
+                       " mqtt_topic: state/pos, fields: {x: pose.pose.position.x, frame: header.frame_id}}")
+    outbound, inbound = compile_rules(fleet.robots["r1"], TopicTree())
+    from nav_msgs.msg import Odometry
+    msg = Odometry()
+    msg.pose.pose.position.x, msg.header.frame_id = 1.5, "odom"
+    assert outbound[0].serialize(msg) == b'{"x":1.5,"frame":"odom"}' and inbound == {}
+
+
+def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
+    config = tmp_path / "robots.yaml"
+    config.write_text(f"""
+robots:
+  r1:
+    system_id: 1
+    key: k1
+    password: "{HASH}"
+    bridge: {{password: pw}}
+    rules:
+      - {{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist,
+          preset: takeoff}}
+""")
+    out = subprocess.run([sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(config), "--robot", "r1"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert f"{config}:9 robots.r1.rules[0] (cmd/twist → cmd_vel): preset 'takeoff' needs ros_type" in out.stderr
+
+
+@pytest.mark.parametrize(("extra", "fragment"), [
+    ("    bridge: {password: pw, on_failsafe: [{ros_topic: stop, ros_type: std_msgs/msg/Bool, message: {dat: true}}]}",
+     "robots.r1.bridge.on_failsafe[0]: dat: unknown field for Bool"),
+    ("    bridge: {password: pw}\n    services: [{ros_service: reset, ros_type: std_srvs/srv/Resett}]",
+     "robots.r1.services: unknown type 'std_srvs/srv/Resett'"),
+])
+def test_bridge_exits_on_bad_failsafe_action_or_service(tmp_path, extra: str, fragment: str) -> None:
+    config = tmp_path / "robots.yaml"
+    config.write_text(f"""
+robots:
+  r1:
+    system_id: 1
+    key: k1
+    password: "{HASH}"
+{extra}
+""")
+    out = subprocess.run([sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(config), "--robot", "r1"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stderr
+    assert fragment in out.stderr
