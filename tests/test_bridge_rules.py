@@ -44,6 +44,9 @@ robots:
     ("{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: std_msgs/msg/String, mqtt_topic: cmd/twist,"
      " preset: twist}",
      "rules[0] (cmd/twist → cmd_vel): preset 'twist' needs ros_type geometry_msgs/msg/Twist"),
+    ("{direction: mqtt_to_ros, ros_topic: arm, ros_type: rcl_interfaces/srv/GetParameters, mqtt_topic: cmd/arm,"
+     " preset: arm}",
+     "preset 'arm' can call std_srvs/srv/Trigger or std_srvs/srv/SetBool or std_srvs/srv/Empty"),
     ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom,"
      " fields: {x: pose.pose.positon.x}}",
      "fields.x: 'pose.pose.positon.x' is not a field of nav_msgs/msg/Odometry"),

@@ -121,6 +121,16 @@ def test_duplicate_and_looping_rules() -> None:
     assert "'call/' is reserved" in _error(reserved)
 
 
+def test_service_targets_only_for_command_presets() -> None:
+    odom = "{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom}"
+    ok = BASE.replace(odom,
+                      "{direction: mqtt_to_ros, ros_topic: arm, ros_type: std_srvs/srv/SetBool, mqtt_topic: cmd/arm,"
+                      " preset: arm}")
+    assert parse_fleet(ok, "robots.yaml").robots["turtle1"].rules[0].ros_type == "std_srvs/srv/SetBool"
+    twist = ok.replace("preset: arm", "preset: twist")
+    assert "rules[0].ros_type: expected a ROS msg type" in _error(twist)
+
+
 def test_missing_and_unreadable_files(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"nope.yaml: cannot read fleet file"):
         load_fleet(tmp_path / "nope.yaml")

@@ -28,6 +28,12 @@ def services_config(tmp: Path) -> Path:
         {"name": "slow", "ros_service": "/slow_service", "ros_type": "std_srvs/srv/Trigger", "timeout": 1.0},
         {"name": "peek", "ros_service": "/peek", "ros_type": "std_srvs/srv/Trigger", "read_only": True},
     ]
+    fleet["robots"]["turtle1"]["rules"] = list(fleet["robots"]["turtle1"]["rules"]) + [
+        {"direction": "mqtt_to_ros", "mqtt_topic": "cmd/takeoff", "ros_topic": "/takeoff_srv",
+         "ros_type": "std_srvs/srv/Trigger", "preset": "takeoff"},
+        {"direction": "mqtt_to_ros", "mqtt_topic": "cmd/land", "ros_topic": "/land_srv",
+         "ros_type": "std_srvs/srv/SetBool", "preset": "land"},
+    ]
     path = tmp / "robots.yaml"
     path.write_text(yaml.safe_dump(fleet))
     return path
@@ -51,6 +57,11 @@ def stack(tmp_path_factory):
         resp.success, resp.message = True, "looked"
         return resp
 
+    def takeoff(_req, resp):
+        resp.success, resp.message = True, "airborne"
+        return resp
+
+    probe.node.create_service(Trigger, "/takeoff_srv", takeoff)
     probe.node.create_service(Trigger, "/slow_service", slow)
     probe.node.create_service(Trigger, "/peek", peek)
     try:
@@ -159,3 +170,22 @@ def _wait(future, timeout: float):
 
 def _call_sync(client, request, timeout: float):
     return _wait(client.call_async(request), timeout)
+
+
+def test_command_preset_carried_out_by_a_ros_service(stack) -> None:
+    alice = stack["alice"]
+    alice.subscribe("roslink/turtle1/state/ack")
+    deadline = time.monotonic() + 15
+    while True:  # the probe's service may take a moment to be discovered by the bridge
+        seq = int(time.monotonic() * 1000)
+        alice.publish("roslink/turtle1/from/alice/cmd/takeoff",
+                      {"message_id": 102, "sequence_number": seq, "payload": {"altitude": 1.5}})
+        got = alice.wait_for(lambda m: m.topic.endswith("/state/ack") or m.topic.endswith("/to/alice/error"), 5)
+        if got.topic.endswith("/state/ack") or time.monotonic() > deadline:
+            break
+        time.sleep(0.3)
+    ack = got.json()["payload"]
+    assert ack["command"] == 102 and ack["result"] == 0 and ack["text"] == "airborne"
+    alice.publish("roslink/turtle1/from/alice/cmd/land", {})
+    err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")).json()
+    assert "service not available: /land_srv (std_srvs/srv/SetBool)" in err["error"]

@@ -38,6 +38,7 @@ log = logging.getLogger("roslink_mqtt.bridge")
 
 SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 GOAL_PRESETS = ("go_to_waypoint", "takeoff")
+COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
 
 
 def ros_qos(q: RosQos, *, latched: bool = False) -> QoSProfile:
@@ -86,7 +87,12 @@ class Bridge:
         self.publishers_by_rule: dict[str, Any] = {}
         for rule in outbound:
             self._subscribe_ros(rule)
+        self.command_services: dict[str, Any] = {}  # preset commands carried out by calling a ROS service
+        self._service_commands: dict[Any, tuple[float, str, int | None, int | None, str]] = {}
         for name, rule in self.inbound.items():
+            if rule.is_service:
+                self.command_services[name] = node.create_client(rule.ros_cls, rule.rule.ros_topic)
+                continue
             latched = rule.spec is not None and rule.spec.name == "emergency_stop"
             pub = node.create_publisher(rule.ros_cls, rule.rule.ros_topic, ros_qos(rule.rule.ros_qos, latched=latched))
             self.publishers_by_rule[name] = pub
@@ -181,6 +187,7 @@ class Bridge:
                 self._stop_repeats_left -= 1
                 self._publish_zero_velocity()
         self.caller.expire(now)
+        self._expire_command_services(now)
         self.provided.refresh()
 
     def _check_link(self, now: float) -> None:
@@ -329,10 +336,51 @@ class Bridge:
                 self.block_motion(f"emergency stop by {user}")
             elif preset == "disarm":
                 self.block_motion(f"disarmed by {user}")
-            elif preset == "arm":
+            elif preset == "arm" and not rule.is_service:
                 self.motion_blocked = None
             self.owner = user
-            self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
+            if rule.is_service:
+                self._call_command_service(user, topic, rule, msg, message_id, sequence)
+            else:
+                self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
+
+    def _call_command_service(self, user: str, topic: str, rule: Inbound, request: Any, message_id: int | None,
+                              sequence: int | None) -> None:
+        """Carry out a preset command through a ROS service; the outcome is acknowledged on state/ack."""
+        client = self.command_services[rule.rule.mqtt_topic]
+        if not client.service_is_ready():
+            self.refuse(user, topic, f"service not available: {rule.rule.ros_topic} ({rule.rule.ros_type})",
+                        message_id, sequence)
+            return
+        future = client.call_async(request)
+        deadline = time.monotonic() + COMMAND_SERVICE_TIMEOUT
+        self._service_commands[future] = (deadline, rule.spec.name, message_id, sequence, rule.rule.ros_topic)
+        future.add_done_callback(self._command_service_done)
+
+    def _command_service_done(self, future: Any) -> None:
+        with self._lock:
+            entry = self._service_commands.pop(future, None)
+        if entry is None:  # already acknowledged as a timeout
+            return
+        _, preset, message_id, sequence, service = entry
+        response = future.result() if not future.cancelled() and future.exception() is None else None
+        ok = response is not None and getattr(response, "success", True)
+        if ok and preset == "arm":
+            with self._lock:
+                self.motion_blocked = None
+        text = getattr(response, "message", "") if response is not None else f"{service} failed"
+        self.publish_ack(message_id or 0, sequence, AckResult.ACCEPTED if ok else AckResult.FAILED,
+                         text or f"{preset} {'done' if ok else 'failed'}")
+
+    def _expire_command_services(self, now: float) -> None:
+        with self._lock:
+            late = [(f, e) for f, e in self._service_commands.items() if now > e[0]]
+            for future, _ in late:
+                del self._service_commands[future]
+        for future, (_, preset, message_id, sequence, service) in late:
+            future.cancel()
+            self.publish_ack(message_id or 0, sequence, AckResult.FAILED,
+                             f"{preset}: {service} did not answer within {COMMAND_SERVICE_TIMEOUT:g} s")
 
     def block_motion(self, reason: str) -> None:
         """Zero every velocity output and refuse motion until an operator arms again."""

@@ -53,6 +53,7 @@ class Inbound:
     build: Callable[[Any], Any]  # validated payload (preset) or parsed JSON (generic) -> ROS message
     is_velocity: bool
     limits: VelocityLimits
+    is_service: bool = False  # the preset calls a ROS service (ros_cls is the srv type) instead of publishing
 
 
 def _load(rule: Rule) -> type:
@@ -129,8 +130,29 @@ def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
     return Outbound(rule, ros_cls, topic, converter.to_json, period)
 
 
+SERVICE_TARGETS = ("std_srvs/srv/Trigger", "std_srvs/srv/SetBool", "std_srvs/srv/Empty")
+
+
+def _service_target(rule: Rule, ros_cls: type, robot: Robot) -> Inbound:
+    """A command preset that calls a std_srvs service; SetBool carries False for disarm, True otherwise."""
+    if rule.ros_type not in SERVICE_TARGETS:
+        raise RuleError(f"{rule.label}: preset '{rule.preset}' can call {' or '.join(SERVICE_TARGETS)}, "
+                        f"not {rule.ros_type}", rule)
+    value = rule.preset != "disarm"
+
+    def build(_payload: Any) -> Any:
+        request = ros_cls.Request()
+        if hasattr(request, "data"):
+            request.data = value
+        return request
+
+    return Inbound(rule, ros_cls, SPECS_BY_NAME[rule.preset], build, False, robot.bridge.limits, is_service=True)
+
+
 def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
     ros_cls = _load(rule)
+    if "/srv/" in rule.ros_type:
+        return _service_target(rule, ros_cls, robot)
     limits = rule.limits or robot.bridge.limits
     is_velocity = rule.ros_type in VELOCITY_TYPES
     if rule.preset is not None:

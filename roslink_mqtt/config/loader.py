@@ -35,6 +35,7 @@ _REQUIRED: Any = object()
 _ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _RESERVED_FROM = ("call", "provide", "response")
+SERVICE_PRESETS = ("takeoff", "land", "arm", "disarm", "get_map", "emergency_stop")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
 
@@ -319,6 +320,11 @@ class _FleetReader:
             if SPECS_BY_NAME[preset].direction is not wanted:
                 raise self.err(path + ("preset",), f"preset '{preset}' is a {SPECS_BY_NAME[preset].direction.value} "
                                                    f"message and cannot be used in a {direction.value} rule")
+        # A command preset may also target a ROS service (e.g. arm → std_srvs/srv/SetBool): the bridge calls it.
+        service_ok = direction is Direction.MQTT_TO_ROS and preset in SERVICE_PRESETS
+        raw_type = self.get(path).get("ros_type")
+        ros_type = self.value(path, "ros_type", self.ros_type(
+            "srv" if service_ok and isinstance(raw_type, str) and "/srv/" in raw_type else "msg"))
         qos = RosQos()
         if self.get(path).get("ros_qos") is not None:
             qp = path + ("ros_qos",)
@@ -338,7 +344,7 @@ class _FleetReader:
             index=index,
             direction=direction,
             ros_topic=self.value(path, "ros_topic", self.ros_name),
-            ros_type=self.value(path, "ros_type", self.ros_type("msg")),
+            ros_type=ros_type,
             mqtt_topic=mqtt_topic,
             preset=preset,
             mqtt_qos=self.value(path, "mqtt_qos", self.integer(0, 2), 0),
