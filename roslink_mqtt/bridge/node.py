@@ -33,6 +33,7 @@ from .ros_types import UnknownTypeError, load_interface
 from .rules import Inbound, Outbound, RuleError, compile_rules
 from .safety import UnsafeCommand, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
+from .systemd import SystemdNotifier
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -119,6 +120,7 @@ class Bridge:
                                                 self._heartbeat(SystemStatus.OFFLINE)),
             subscriptions=self.mqtt_subscriptions, on_message=self.on_mqtt, on_up=self.on_link_up,
             on_down=self.on_link_down, ca_file=ca_file)
+        self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.publish_heartbeat)
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
         log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs", robot.name, len(outbound),
@@ -133,9 +135,11 @@ class Bridge:
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
         self.link.start()
+        self.systemd.ready(f"connecting to {self.link.url}")
 
     def stop(self) -> None:
         """Clean shutdown: stop the robot, tell everyone we are offline (the will covers unclean ones)."""
+        self.systemd.stopping()
         with self._lock:
             self._publish_zero_velocity()
         self.link.stop([(self.topics.heartbeat(self.robot.name), self._heartbeat(SystemStatus.OFFLINE), 1, True)])
@@ -146,12 +150,14 @@ class Bridge:
         return subs
 
     def on_link_up(self) -> None:
+        self.systemd.status(f"connected to {self.link.url}")
         with self._lock:
             self.failsafe.link_up = True
             self._pending_heartbeat = None
         self.publish_heartbeat()
 
     def on_link_down(self, reason: str) -> None:
+        self.systemd.status(f"broker lost ({reason}); reconnecting")
         with self._lock:
             why = self.failsafe.link_lost()
             if why:
@@ -174,6 +180,7 @@ class Bridge:
     # -- supervision (executor, 20 Hz) -------------------------------------------------
     def supervise(self) -> None:
         now = time.monotonic()
+        self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
         with self._lock:
             self._check_link(now)
             for user in self.operators.expire(now):
