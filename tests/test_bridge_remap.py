@@ -43,3 +43,25 @@ def test_ros_args_remap_and_namespace(tmp_path) -> None:
                 assert default.since(t0) == []  # nothing on the un-remapped name
         finally:
             probe.close()
+
+
+def test_retained_commands_are_never_replayed(tmp_path) -> None:
+    """A twist left retained on the broker must not drive the robot when the bridge (re)connects."""
+    from geometry_msgs.msg import Twist
+
+    with mosquitto_with_logins(tmp_path) as port, \
+            TestClient(port, "alice", "alice-demo", operator=True) as alice:
+        assert alice.connect() == 0
+        alice.subscribe("roslink/turtle1/to/alice/#")
+        alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.4}, retain=True)
+        probe = RosProbe()
+        try:
+            cmd_vel = probe.watch(Twist, "/cmd_vel")
+            with run(bridge_args("turtle1", port), tmp_path / "bridge.log", bridge_env("turtle1")):
+                err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error"), timeout=20).json()
+                assert "ignored a retained command" in err["error"]
+                time.sleep(1.0)
+                assert not [m for _, m in cmd_vel.since(0) if m.linear.x != 0]
+        finally:
+            probe.close()
+            alice.publish("roslink/turtle1/from/alice/cmd/twist", b"", retain=True)

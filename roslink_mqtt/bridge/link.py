@@ -22,7 +22,7 @@ log = logging.getLogger("roslink_mqtt.bridge.link")
 class MqttLink:
     def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl,
                  keepalive: int, will: tuple[str, bytes], subscriptions: Callable[[], list[tuple[str, int]]],
-                 on_message: Callable[[str, bytes], None],
+                 on_message: Callable[[str, bytes, bool], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
                  ca_file: str | None = None, max_reconnect_delay: float = 2.0) -> None:
         self.url, self.keepalive = url, keepalive
@@ -90,6 +90,6 @@ class MqttLink:
 
     def _handle_message(self, _client, _userdata, message: mqtt.MQTTMessage) -> None:
         try:
-            self._on_message(message.topic, message.payload)
+            self._on_message(message.topic, message.payload, bool(message.retain))
         except Exception:  # a bug in one handler must not kill the network thread
             log.exception("error handling %s", message.topic)

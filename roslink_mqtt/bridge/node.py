@@ -266,7 +266,7 @@ class Bridge:
         self.link.publish(topic, payload, qos, retain)
 
     # -- MQTT → ROS (paho network thread) ---------------------------------------------
-    def on_mqtt(self, topic: str, payload: bytes) -> None:
+    def on_mqtt(self, topic: str, payload: bytes, retained: bool = False) -> None:
         parsed = self.topics.parse(topic)
         if parsed is None:
             return
@@ -277,6 +277,13 @@ class Bridge:
             return
         user, name = parsed.user, parsed.name
         kind, _, leaf = name.partition("/")
+        if retained and kind != "provide":
+            # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
+            # would drive the robot on a stale order. Only service offers are meant to be retained.
+            if payload:
+                self.refuse(user, topic, "ignored a retained command from the broker: publish commands "
+                                         "without the retain flag (and clear this one with an empty retained message)")
+            return
         if kind == "call" and leaf:
             self.caller.handle(user, leaf, payload)
             return
