@@ -83,6 +83,7 @@ class Bridge:
         self._heartbeat_seq = self._ack_seq = 0
         self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
         self._stop_repeats_left = 0
+        self._roles: dict[str, Role | None] = {}
         outbound, self.inbound = compile_rules(robot, self.topics)
         self.velocity_publishers: list[tuple[Inbound, Any]] = []
         self.publishers_by_rule: dict[str, Any] = {}
@@ -127,7 +128,12 @@ class Bridge:
                  len(self.inbound), len(self.velocity_publishers))
 
     def role_of(self, user: str) -> Role | None:
-        return self.fleet.roles_of(user).get(self.robot.name)
+        """The user's role on this robot; computed once per user (the fleet does not change under a bridge)."""
+        try:
+            return self._roles[user]
+        except KeyError:
+            role = self._roles[user] = self.fleet.roles_of(user).get(self.robot.name)
+            return role
 
     def _publish_reliable(self, topic: str, payload: bytes) -> None:
         self.link.publish(topic, payload, qos=1)
