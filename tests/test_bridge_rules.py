@@ -68,7 +68,8 @@ def test_good_generic_rule_with_fields_compiles() -> None:
     assert outbound[0].serialize(msg) == b'{"x":1.5,"frame":"odom"}' and inbound == {}
 
 
-def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
+def start_bridge(tmp_path, robot_body: str) -> tuple[object, subprocess.CompletedProcess]:
+    """Run the bridge for robot r1 whose settings end with ``robot_body`` (YAML at 4 spaces)."""
     config = tmp_path / "robots.yaml"
     config.write_text(f"""
 robots:
@@ -76,13 +77,18 @@ robots:
     system_id: 1
     key: k1
     password: "{HASH}"
-    bridge: {{password: pw}}
-    rules:
-      - {{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist,
-          preset: takeoff}}
+{robot_body}
 """)
     out = subprocess.run([sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(config), "--robot", "r1"],
                          capture_output=True, text=True, timeout=60)
+    return config, out
+
+
+def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
+    config, out = start_bridge(tmp_path, """    bridge: {password: pw}
+    rules:
+      - {direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist,
+          preset: takeoff}""")
     assert out.returncode == 2
     assert f"{config}:9 robots.r1.rules[0] (cmd/twist → cmd_vel): preset 'takeoff' needs ros_type" in out.stderr
 
@@ -94,16 +100,6 @@ robots:
      "robots.r1.services: unknown type 'std_srvs/srv/Resett'"),
 ])
 def test_bridge_exits_on_bad_failsafe_action_or_service(tmp_path, extra: str, fragment: str) -> None:
-    config = tmp_path / "robots.yaml"
-    config.write_text(f"""
-robots:
-  r1:
-    system_id: 1
-    key: k1
-    password: "{HASH}"
-{extra}
-""")
-    out = subprocess.run([sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(config), "--robot", "r1"],
-                         capture_output=True, text=True, timeout=60)
+    _, out = start_bridge(tmp_path, extra)
     assert out.returncode == 2, out.stderr
     assert fragment in out.stderr

@@ -17,6 +17,8 @@ import paho.mqtt.client as mqtt
 
 from roslink_mqtt.mqtt import set_nodelay
 
+from .queues import drain
+
 REFUSED = 135  # what paho reports for CONNACK 5 (not authorized)
 
 
@@ -86,13 +88,7 @@ class Probe:
             info.wait_for_publish(10)
 
     def drain(self, seconds: float) -> list[Msg]:
-        end, out = time.monotonic() + seconds, []
-        while (left := end - time.monotonic()) > 0:
-            try:
-                out.append(self.messages.get(timeout=left))
-            except queue.Empty:
-                break
-        return out
+        return drain(self.messages, seconds)
 
     def collect(self, count: int, timeout: float = 10.0, then: float = 0.3) -> list[Msg]:
         """The first ``count`` messages (fewer if they do not come in time), plus whatever else

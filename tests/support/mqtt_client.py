@@ -13,6 +13,8 @@ import orjson
 from roslink_mqtt.client.presence import OperatorPresence
 from roslink_mqtt.mqtt import make_client
 
+from .queues import drain
+
 
 @dataclass
 class Received:
@@ -78,13 +80,7 @@ class TestClient:
                 return msg
 
     def drain(self, seconds: float) -> list[Received]:
-        end, out = time.monotonic() + seconds, []
-        while (left := end - time.monotonic()) > 0:
-            try:
-                out.append(self.messages.get(timeout=left))
-            except queue.Empty:
-                break
-        return out
+        return drain(self.messages, seconds)
 
     def close(self) -> None:
         if self.presence is not None:
