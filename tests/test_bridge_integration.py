@@ -161,6 +161,25 @@ def test_emergency_stop_latches_until_arm(stack) -> None:
     cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.25), after=t1)
 
 
+def test_emergency_stop_is_obeyed_whatever_its_sequence_number(stack) -> None:
+    alice, cmd_vel = stack["alice"], stack["cmd_vel"]
+    stop = {"message_id": 108, "sequence_number": 777, "payload": {"reason": "test"}}
+    for attempt in range(2):  # the second one is a duplicate number: still a stop
+        alice.publish("roslink/turtle1/from/alice/cmd/arm", {})
+        t0 = time.monotonic()
+        for _ in range(10):
+            alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.15}, qos=0)
+            time.sleep(0.05)
+        cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.15), after=t0)
+        t1 = time.monotonic()
+        alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", stop)
+        cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=t1)
+        alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.15})
+        err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")).json()
+        assert "emergency stop by alice" in err["error"], f"attempt {attempt}: {err}"
+    alice.publish("roslink/turtle1/from/alice/cmd/arm", {})  # leave the robot usable for the next tests
+
+
 def test_commands_without_operator_heartbeat_are_refused(stack) -> None:
     cmd_vel = stack["cmd_vel"]
     with TestClient(stack["port"], "admin", "admin-demo") as silent:  # an operator without presence

@@ -12,6 +12,8 @@ from concurrent.futures import Future
 
 import orjson
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from roslink_mqtt.client import (
     ConnectError,
@@ -36,6 +38,7 @@ from roslink_mqtt.protocol import (
     Envelope,
     MessageId,
     ProtocolError,
+    SequenceTracker,
     SystemStatus,
     decode,
     encode,
@@ -96,19 +99,53 @@ def test_command_leaves() -> None:
         command_leaf("cmd/+")
 
 
-def test_sequence_numbers_per_stream_from_the_clock() -> None:
-    streams = CommandStreams(TopicTree(), "alice", start=2**32 - 2)
+class FakeClock:
+    def __init__(self, ms: int) -> None:
+        self.ms = ms
+
+    def __call__(self) -> int:
+        return self.ms
+
+
+def test_sequence_numbers_follow_the_clock_per_stream() -> None:
+    clock = FakeClock(2**32 - 2)
+    streams = CommandStreams(TopicTree(), "alice", clock=clock)
     seqs = [streams.build("turtle1", "twist", {"lx": 0.1})[2] for _ in range(3)]
-    assert seqs == [2**32 - 2, 2**32 - 1, 0]  # wraps like the robot's serial arithmetic expects
+    assert seqs == [2**32 - 2, 2**32 - 1, 0]  # clock stood still: +1 each, wrapping like the robot expects
     assert streams.build("turtle1", "arm")[2] == 2**32 - 2  # its own stream
-    assert streams.build("turtle2", "twist")[2] == 2**32 - 2
+    clock.ms = 5000
+    assert streams.build("turtle1", "twist")[2] == 5000  # the clock moved on past the counter
+    clock.ms = 4000  # NTP stepped the clock back: numbers still grow
+    assert streams.build("turtle1", "twist")[2] == 5001
     topic, data, seq = streams.build("turtle1", "go_to_waypoint", {"x": 1, "y": 2})
     env = decode(data, MessageId.GO_TO_WAYPOINT)
     assert topic == "roslink/turtle1/from/alice/cmd/go_to_waypoint" and env.sequence_number == seq
     assert env.payload == {"frame_type": 0, "x": 1, "y": 2, "z": 0.0}
-    later = CommandStreams(TopicTree(), "alice")  # a restarted process starts ahead of an earlier one
-    assert 0 < (later.next_sequence("r", "cmd/twist") - CommandStreams(TopicTree(), "alice", start=int(
-        time.time() * 1000) - 60_000).next_sequence("r", "cmd/twist")) % 2**32 < 2**31
+
+
+@given(st.lists(st.tuples(st.booleans(), st.integers(1, 50)), min_size=1, max_size=200), st.integers(0, 2**32 - 1))
+def test_two_programs_of_one_user_on_one_machine_are_never_dropped(steps, start) -> None:
+    """The robot cannot tell two programs of one user apart: a command sent later must count as newer."""
+    clock = FakeClock(start)
+    programs = {True: CommandStreams(TopicTree(), "alice", clock=clock),
+                False: CommandStreams(TopicTree(), "alice", clock=clock)}
+    robot = SequenceTracker()
+    for use_a, advance_ms in steps:
+        clock.ms = (clock.ms + advance_ms) % 2**32
+        assert robot.check(("alice", "cmd/twist"), programs[use_a].next_sequence("turtle1", "cmd/twist")).accepted
+
+
+def test_a_program_with_a_slow_clock_is_heard_once_it_catches_up() -> None:
+    ahead, behind = FakeClock(10_000), FakeClock(9_700)  # two machines, clocks 300 ms apart
+    a, b = CommandStreams(TopicTree(), "alice", clock=ahead), CommandStreams(TopicTree(), "alice", clock=behind)
+    robot = SequenceTracker()
+    assert robot.check("s", a.next_sequence("r", "cmd/twist")).accepted
+    ahead.ms += 100
+    behind.ms += 100
+    assert not robot.check("s", b.next_sequence("r", "cmd/twist")).accepted  # looks older than a's last order
+    ahead.ms += 301
+    behind.ms += 301
+    assert robot.check("s", b.next_sequence("r", "cmd/twist")).accepted  # a fell silent: b is newest again
 
 
 def test_commands_are_validated_before_sending() -> None:

@@ -323,7 +323,7 @@ class Bridge:
             if rule.spec is not None:
                 envelope = decode(payload, rule.spec.message_id)
                 message_id, sequence = envelope.message_id, envelope.sequence_number
-                if sequence is not None:
+                if sequence is not None and preset != "emergency_stop":  # a stop is never "too old" to obey
                     verdict = self.sequences.check((user, rule.rule.mqtt_topic), sequence)
                     if not verdict.accepted:
                         self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",

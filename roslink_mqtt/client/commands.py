@@ -1,24 +1,36 @@
 """Commands to a robot: topic, validated payload and a sequence number per command stream.
 
 The robot drops stale and duplicate commands per (user, command) using the
-envelope's ``sequence_number``. Counting from 1 in every process would make a
-restarted program look stale (its numbers trail the previous run's), so each
-stream starts from the wall clock in milliseconds: a later process starts
-ahead of an earlier one, and serial-number arithmetic handles the wrap every
-49 days. Payloads of ROSLink commands are validated here with the same rules
-the robot applies, so a typo fails at the call site, not as an error report.
+envelope's ``sequence_number``. It cannot tell two programs of one user apart
+(MQTT does not say which connection published), so counting from 1 in each
+program would make a restarted program look stale, and two programs driving
+the same robot would starve one another. Each number is therefore the wall
+clock in milliseconds, or one more than the previous number when the clock
+has not moved on: a later command is a larger number whichever program sends
+it, and serial-number arithmetic handles the wrap every 49 days.
+
+Payloads of ROSLink commands are validated here with the same rules the robot
+applies, so a typo fails at the call site, not as an error report.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import orjson
 
 from ..protocol import SPECS, Direction, encode_message, spec_for
 from ..topics import TopicTree, check_path
+
+MASK, HALF = 0xFFFFFFFF, 2**31
+
+
+def wall_clock_ms() -> int:
+    return int(time.time() * 1000)
+
 
 COMMAND_NAMES = frozenset(spec.name for spec in SPECS if spec.direction is Direction.COMMAND)
 RESERVED = ("call", "provide", "response")  # leaves with their own API (services)
@@ -43,17 +55,19 @@ def roslink_command(leaf: str) -> str | None:
 class CommandStreams:
     """Builds what to publish for a command; thread-safe (several threads may command)."""
 
-    def __init__(self, topics: TopicTree, user: str, start: int | None = None) -> None:
-        self.topics, self.user = topics, user
-        self._start = (int(time.time() * 1000) if start is None else start) & 0xFFFFFFFF
-        self._next: dict[tuple[str, str], int] = {}
+    def __init__(self, topics: TopicTree, user: str, clock: Callable[[], int] = wall_clock_ms) -> None:
+        self.topics, self.user, self._clock = topics, user, clock
+        self._last: dict[tuple[str, str], int] = {}
         self._lock = threading.Lock()
 
     def next_sequence(self, robot: str, leaf: str) -> int:
         with self._lock:
-            seq = self._next.get((robot, leaf), self._start)
-            self._next[(robot, leaf)] = (seq + 1) & 0xFFFFFFFF
-            return seq
+            now = self._clock() & MASK
+            last = self._last.get((robot, leaf))
+            if last is not None and not 0 < (now - last) & MASK < HALF:  # clock stood still or stepped back
+                now = (last + 1) & MASK
+            self._last[(robot, leaf)] = now
+            return now
 
     def build(self, robot: str, name: str, payload: dict[str, Any] | None = None) -> tuple[str, bytes, int | None]:
         """(topic, bytes, sequence_number or None) for ``name`` with ``payload``.
