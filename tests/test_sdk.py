@@ -33,10 +33,12 @@ from roslink_mqtt.client import (
     ServiceError,
     ServiceTimeout,
 )
+from roslink_mqtt.client.qos import qos_profile_sensor_data
 from roslink_mqtt.protocol import Envelope, MessageId, ProtocolError, SystemStatus, encode
 
 from .support.fleet_brokers import fleet_password_file, mosquitto_with_logins
 from .support.mosquitto import run_mosquitto
+from .support.mqtt_client import TestClient
 from .support.no_ros import no_ros_env
 from .support.procs import ROOT, bridge_args, bridge_env, run
 from .support.ros import RosProbe
@@ -355,6 +357,9 @@ def test_node_topics_and_client(stack) -> None:
     node.create_subscription(GlobalMotion, "global_motion", typed.put, 10)
     node.create_subscription("nav_msgs/msg/Odometry", "state/global_motion", plain.put, 10)
     twist = node.create_publisher("geometry_msgs/msg/Twist", "cmd/twist", 10)
+    waypoints = {"default": node.create_publisher("geometry_msgs/msg/PoseStamped", "go_to_waypoint", 10),
+                 "best_effort": node.create_publisher("geometry_msgs/msg/PoseStamped", "go_to_waypoint",
+                                                      qos_profile_sensor_data)}
     ticks = []
     node.create_timer(0.1, lambda: (ticks.append(1), twist.publish({"linear": {"x": 0.25}, "angular": {"z": -0.4}})))
     reset = node.create_client("std_srvs/srv/Trigger", "reset")
@@ -369,6 +374,14 @@ def test_node_topics_and_client(stack) -> None:
         assert reset.call()["success"] is True
         future = reset.call_async({})
         assert future.result(timeout=10) == {"success": True, "message": "pose reset to the room centre"}
+        with TestClient(stack.port, "admin", "admin-demo") as admin:  # sees the QoS the SDK published at
+            assert admin.connect() == 0
+            admin.subscribe("roslink/turtle1/from/alice/cmd/go_to_waypoint", qos=1)
+            time.sleep(0.3)
+            for kind, publisher in waypoints.items():
+                publisher.publish({"x": 0.0, "y": 0.0, "z": 0.0})
+                got = admin.wait_for(lambda m: True)
+                assert got.qos == (1 if kind == "default" else 0), kind
         deadline = time.monotonic() + 2
         while len(ticks) < 3:  # the timer keeps ticking in spin
             assert time.monotonic() < deadline

@@ -31,6 +31,7 @@ from roslink_mqtt.client.directory import RobotDirectory
 from roslink_mqtt.client.dispatch import CallbackQueue, Scheduler
 from roslink_mqtt.client.messages import MESSAGE_CLASSES, message_class, parse_state
 from roslink_mqtt.client.node import ros_shaped_to_roslink
+from roslink_mqtt.client.qos import QoSProfile, ReliabilityPolicy, mqtt_qos, qos_profile_sensor_data
 from roslink_mqtt.client.subscriptions import parse_state_item
 from roslink_mqtt.presence import operator_heartbeat
 from roslink_mqtt.protocol import (
@@ -289,3 +290,18 @@ def test_unreachable_broker_and_missing_username() -> None:
     assert threading.active_count() <= before
     with pytest.raises(ValueError, match="no username"):
         RobotClient(None, None)
+
+
+def test_qos_profiles_map_to_mqtt_qos() -> None:
+    assert mqtt_qos(10) is None  # a depth alone keeps the per-command default
+    assert mqtt_qos(QoSProfile(depth=1)) == 1 and mqtt_qos(qos_profile_sensor_data) == 0
+    assert mqtt_qos(QoSProfile(reliability=ReliabilityPolicy.SYSTEM_DEFAULT)) is None
+
+    class RclpyLike:  # rclpy.qos.QoSProfile, by duck typing: an enum member with a name
+        reliability = type("Policy", (), {"name": "BEST_EFFORT"})()
+    assert mqtt_qos(RclpyLike()) == 0
+    for bad, error in ((-1, ValueError), ("reliable", TypeError), (None, TypeError), (True, TypeError)):
+        with pytest.raises(error):
+            mqtt_qos(bad)
+    with pytest.raises(ValueError, match="depth"):
+        QoSProfile(depth=-3)

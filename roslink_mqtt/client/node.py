@@ -28,6 +28,7 @@ from .dispatch import CallbackQueue, Scheduler
 from .errors import RobotError
 from .logger import Logger
 from .messages import RoslinkMessage
+from .qos import mqtt_qos
 from .robot_client import DEFAULT_CALL_TIMEOUT, RobotClient
 from .subscriptions import StateItem, StateSubscription
 
@@ -64,6 +65,7 @@ class Publisher:
 
     def __init__(self, node: Node, msg_type: MsgType, topic: str, qos_profile: Any) -> None:
         self._node, self.msg_type, self.qos_profile = node, msg_type, qos_profile
+        self.mqtt_qos = mqtt_qos(qos_profile)  # None: the SDK's per-command default
         self.leaf = command_leaf(topic)
         self.command = roslink_command(self.leaf)  # "twist" etc., None for generic rules
         self.topic = node.client.topics.from_user(node.robot, node.client.username, self.leaf)
@@ -79,7 +81,7 @@ class Publisher:
             raise TypeError(f"publish() takes a dict of message fields, got {type(msg).__name__}")
         if self.command is not None:
             payload = ros_shaped_to_roslink(self.command, payload)
-        self._node.client.command(self._node.robot, self.leaf, payload)
+        self._node.client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
 
     def get_subscription_count(self) -> int:
         """1 while the robot is online (its bridge is the only reader), else 0."""
@@ -102,6 +104,7 @@ class Subscription:
     def __init__(self, node: Node, msg_type: MsgType, topic: str, callback: Callable[[Any], None],
                  qos_profile: Any) -> None:
         self._node, self.msg_type, self.callback, self.qos_profile = node, msg_type, callback, qos_profile
+        mqtt_qos(qos_profile)  # refuse a nonsense profile here too; state arrives at the robot's own MQTT QoS
         self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
         self._sub: StateSubscription = node.client.subscribe(node.robot, topic, self._deliver)
         self.topic_name = f"state/{self._sub.name}"

@@ -22,6 +22,7 @@ class Received:
     payload: bytes
     retain: bool
     at: float
+    qos: int = 0
 
     def json(self):
         return orjson.loads(self.payload)
@@ -41,7 +42,7 @@ class TestClient:
         self.connack: queue.Queue[int] = queue.Queue()
         self.client.on_connect = lambda c, u, f, rc, p: self.connack.put(rc.value)
         self.client.on_message = lambda c, u, m: self.messages.put(
-            Received(m.topic, m.payload, bool(m.retain), time.monotonic()))
+            Received(m.topic, m.payload, bool(m.retain), time.monotonic(), m.qos))
         self.port, self.keepalive = port, keepalive
 
     def connect(self, timeout: float = 5.0) -> int:
