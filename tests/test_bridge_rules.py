@@ -96,6 +96,9 @@ def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
 @pytest.mark.parametrize(("extra", "fragment"), [
     ("    bridge: {password: pw, on_failsafe: [{ros_topic: stop, ros_type: std_msgs/msg/Bool, message: {dat: true}}]}",
      "robots.r1.bridge.on_failsafe[0]: dat: unknown field for Bool"),
+    ("    bridge: {password: pw, on_failsafe: [{ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist,\n"
+     "        message: {linear: {x: 0.3}}}]}",
+     "robots.r1.bridge.on_failsafe[0]: a failsafe action must not move the robot"),
     ("    bridge: {password: pw}\n    services: [{ros_service: reset, ros_type: std_srvs/srv/Resett}]",
      "robots.r1.services: unknown type 'std_srvs/srv/Resett'"),
 ])

@@ -31,7 +31,7 @@ from .link import MqttLink
 from .presets import CommandRefused
 from .ros_types import UnknownTypeError, load_interface
 from .rules import Inbound, Outbound, RuleError, compile_rules
-from .safety import UnsafeCommand, make_safe_twist
+from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
 from .systemd import SystemdNotifier
 
@@ -105,7 +105,9 @@ class Bridge:
             try:
                 cls = load_interface(action.ros_type)
                 message = converter_for(cls).from_dict(action.message)
-            except (UnknownTypeError, ConversionError) as err:
+                if action.ros_type in VELOCITY_TYPES and make_safe_twist(message, STANDSTILL):
+                    raise UnsafeCommand("a failsafe action must not move the robot: every velocity must be 0")
+            except (UnknownTypeError, ConversionError, UnsafeCommand) as err:
                 raise RuleError(f"bridge.on_failsafe[{i}]: {err}") from None
             self.failsafe_actions.append((node.create_publisher(cls, action.ros_topic, 10), message))
         role_of = self.role_of

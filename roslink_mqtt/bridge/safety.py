@@ -13,6 +13,7 @@ from typing import Any
 from ..config import VelocityLimits
 
 VELOCITY_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
+STANDSTILL = VelocityLimits(0.0, 0.0)  # limits under which anything but zero is "cut"
 
 
 class UnsafeCommand(ValueError):
