@@ -179,3 +179,26 @@ def test_every_generated_module_imports() -> None:
     for name in ("std_msgs", "geometry_msgs"):
         mod = importlib.import_module(f"{name}.msg")
         assert list(pkgutil.iter_modules(mod.__path__))
+
+
+@pytest.mark.parametrize(("type_name", "data", "fragment"), [
+    ("nav_msgs/msg/Odometry", {"pose": {"covariance": [0.0] * 35 + ["x"]}}, 'pose.covariance[35]: expected number'),
+    ("sensor_msgs/msg/LaserScan", {"ranges": [1.0, 1e39]}, "ranges[1]: 1e+39 is out of range for float32"),
+    ("std_msgs/msg/Int8MultiArray", {"data": [1, 128]}, "data[1]: expected integer -128..127, got 128"),
+    ("std_msgs/msg/Int8MultiArray", {"data": [1, True]}, "data[1]: expected integer, got true"),
+    ("sensor_msgs/msg/JointState", {"name": ["a", 3]}, "name[1]: expected string, got 3"),
+    ("nav_msgs/msg/Path", {"poses": [{}, {"pose": {"position": {"x": "far"}}}]},
+     'poses[1].pose.position.x: expected number, got "far"'),
+    ("std_msgs/msg/Bool", [True], "message: expected an object"),
+])
+def test_error_paths_through_arrays_and_nesting(type_name: str, data, fragment: str) -> None:
+    with pytest.raises(ConversionError) as err:
+        converter_for(load_interface(type_name)).from_dict(data)
+    assert fragment in str(err.value)
+
+
+def test_plain_arrays_take_the_fast_path_and_keep_their_values() -> None:
+    from sensor_msgs.msg import LaserScan
+    scan = converter_for(LaserScan).from_dict({"ranges": [0.5, 3.4e38], "intensities": [1, 2.5, "NaN"]})
+    assert list(scan.ranges) == pytest.approx([0.5, 3.4e38], rel=1e-6)  # at the float32 edge: accepted
+    assert list(scan.intensities)[:2] == [1.0, 2.5] and math.isnan(scan.intensities[2])  # mixed: the slow path

@@ -3,7 +3,7 @@
 ``to_dict`` is generated Python source per message type (attribute reads,
 ``tolist()`` for arrays, base64 for byte arrays), compiled once and cached, so
 the hot ROS→MQTT path does no per-message introspection. ``from_dict`` walks a
-field table built once per type; it is strict because its input is untrusted:
+table of checkers built once per type; it is strict because its input is untrusted:
 unknown fields, wrong types, out-of-range integers, wrong array lengths and
 bad base64 are :class:`ConversionError` naming the field path.
 
@@ -33,7 +33,17 @@ from .ros_types import load_interface
 
 
 class ConversionError(ValueError):
-    """Untrusted JSON does not fit the ROS type; the message names the field path."""
+    """Untrusted JSON does not fit the ROS type; the message names the field path (``linear.x: …``)."""
+
+    def __init__(self, reason: str, path: str = "") -> None:
+        super().__init__(f"{path}: {reason}" if path else reason)
+        self.reason, self.path = reason, path
+
+    def inside(self, segment: str) -> ConversionError:
+        """The same error seen from the enclosing field (``segment`` is a field name or ``[i]``)."""
+        if not self.path:
+            return ConversionError(self.reason, segment)
+        return ConversionError(self.reason, segment + (self.path if self.path.startswith("[") else "." + self.path))
 
 
 _pack_f = struct.Struct("<f").pack
@@ -98,7 +108,8 @@ def converter_for(cls: type) -> Converter:
     """The converter for ``cls``, built on first use and cached for the process."""
     conv = _CACHE.get(cls)
     if conv is None:
-        conv = Converter(cls, _build_to_dict(cls, numpy=False), _Reader(cls).read, _build_to_dict(cls, numpy=True))
+        conv = Converter(cls, _build_to_dict(cls, numpy=False), _top_level(_Reader(cls)),
+                         _build_to_dict(cls, numpy=True))
         _CACHE[cls] = conv
     return conv
 
@@ -161,96 +172,173 @@ def _build_to_dict(cls: type, numpy: bool) -> Callable[[Any], dict[str, Any]]:
 
 
 # -- dict → ROS: strict reader over a field table built once -------------------------------
+#
+# Checkers take a value and return what to assign, or raise ConversionError with
+# a reason; the field path is added only while an error travels up (err.inside),
+# so valid input — the common case — builds no path strings at all. Arrays of
+# plain numbers take one fast pass over the list before any per-item work.
+
+_FLT_MAX = 3.4028234663852886e38
+Check = Callable[[Any], Any]
+
 
 class _Reader:
     def __init__(self, cls: type) -> None:
         self.cls = cls
-        self.fields: dict[str, Callable[[str, Any], Any]] = {
-            name: self._checker(slot)
-            for name, slot in zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)
+        self.fields: dict[str, Check] = {
+            name: _checker(slot) for name, slot in zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)
         }
         self.names = ", ".join(self.fields) or "none"
 
-    def read(self, data: Any, path: str = "") -> Any:
+    def read(self, data: Any) -> Any:
+        return self.fill(self.cls(), data)
+
+    def fill(self, msg: Any, data: Any) -> Any:
+        """Set ``msg``'s fields from ``data``; nested messages are filled in place, not built twice."""
         if not isinstance(data, dict):
-            raise ConversionError(f"{path or 'message'}: expected an object, got {describe(data)}")
-        msg = self.cls()
+            raise ConversionError(f"expected an object, got {describe(data)}")
         fields = self.fields
         for key, value in data.items():
             check = fields.get(key)
-            field_path = f"{path}.{key}" if path else key
             if check is None:
-                raise ConversionError(f"{field_path}: unknown field for {self.cls.__name__} (fields: {self.names})")
-            setattr(msg, key, check(field_path, value))
+                raise ConversionError(f"unknown field for {self.cls.__name__} (fields: {self.names})", str(key))
+            try:
+                if type(check) is _Nested:
+                    check.reader().fill(getattr(msg, key), value)
+                else:
+                    setattr(msg, key, check(value))
+            except ConversionError as err:
+                raise err.inside(key) from None
         return msg
 
-    def _checker(self, slot: Any) -> Callable[[str, Any], Any]:
-        if isinstance(slot, d.BasicType):
-            return _scalar_checker(slot.typename)
-        if isinstance(slot, d.AbstractGenericString):
-            limit = getattr(slot, "maximum_size", None)
 
-            def check_string(path: str, v: Any) -> str:
-                if not isinstance(v, str):
-                    raise ConversionError(f"{path}: expected string, got {describe(v)}")
-                if "\0" in v:  # ROS strings end at NUL: the rest would vanish silently
-                    raise ConversionError(f"{path}: string contains a NUL character")
-                if limit is not None and len(v) > limit:
-                    raise ConversionError(f"{path}: string longer than {limit}")
-                return v
-            return check_string
-        if isinstance(slot, d.NamespacedType):
-            sub = converter_for(_namespaced(slot))
-            reader_holder: dict[str, Any] = {}
+class _Nested:
+    """Checker for a nested message field: its reader, built on first use (most fields are never sent)."""
 
-            def check_nested(path: str, v: Any) -> Any:
-                reader = reader_holder.get("r")
-                if reader is None:
-                    reader = reader_holder["r"] = _Reader(sub.ros_type)
-                return reader.read(v, path)
-            return check_nested
-        return self._sequence_checker(slot)
+    __slots__ = ("slot", "_reader")
 
-    def _sequence_checker(self, slot: Any) -> Callable[[str, Any], Any]:
-        inner = slot.value_type
-        exact = slot.size if isinstance(slot, d.Array) else None
-        maximum = getattr(slot, "maximum_size", None) if isinstance(slot, d.BoundedSequence) else None
+    def __init__(self, slot: d.NamespacedType) -> None:
+        self.slot, self._reader = slot, None
 
-        def check_length(path: str, n: int) -> None:
-            if exact is not None and n != exact:
-                raise ConversionError(f"{path}: expected exactly {exact} items, got {n}")
-            if maximum is not None and n > maximum:
-                raise ConversionError(f"{path}: expected at most {maximum} items, got {n}")
+    def reader(self) -> _Reader:
+        if self._reader is None:
+            self._reader = _Reader(_namespaced(self.slot))
+        return self._reader
 
-        if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
-            as_bytes_list = inner.typename == "octet"
-            as_ints = isinstance(slot, d.Array)  # fixed uint8[N] is a numpy array: wants ints
+    def __call__(self, v: Any) -> Any:  # as an array item: a new message
+        return self.reader().read(v)
 
-            def check_bytes(path: str, v: Any) -> Any:
-                if isinstance(v, str):
-                    try:
-                        raw = base64.b64decode(v, validate=True)
-                    except (binascii.Error, ValueError) as err:
-                        raise ConversionError(f"{path}: invalid base64 ({err})") from None
-                elif isinstance(v, list):
-                    item = _scalar_checker("uint8")
-                    raw = bytes(item(f"{path}[{i}]", x) for i, x in enumerate(v))
-                else:
-                    raise ConversionError(f"{path}: expected base64 string, got {describe(v)}")
-                check_length(path, len(raw))
-                if as_bytes_list:
-                    return [bytes((b,)) for b in raw]
-                return list(raw) if as_ints else raw
-            return check_bytes
 
-        item_check = self._checker(inner)
+def _top_level(reader: _Reader) -> Callable[[Any], Any]:
+    def from_dict(data: Any) -> Any:
+        try:
+            return reader.read(data)
+        except ConversionError as err:
+            if err.path:
+                raise
+            raise ConversionError(err.reason, "message") from None
+    return from_dict
 
-        def check_list(path: str, v: Any) -> Any:
-            if not isinstance(v, list):
-                raise ConversionError(f"{path}: expected array, got {describe(v)}")
-            check_length(path, len(v))
-            return [item_check(f"{path}[{i}]", x) for i, x in enumerate(v)]
-        return check_list
+
+def _checker(slot: Any) -> Check:
+    if isinstance(slot, d.BasicType):
+        return _scalar_checker(slot.typename)
+    if isinstance(slot, d.AbstractGenericString):
+        limit = getattr(slot, "maximum_size", None)
+
+        def check_string(v: Any) -> str:
+            if not isinstance(v, str):
+                raise ConversionError(f"expected string, got {describe(v)}")
+            if "\0" in v:  # ROS strings end at NUL: the rest would vanish silently
+                raise ConversionError("string contains a NUL character")
+            if limit is not None and len(v) > limit:
+                raise ConversionError(f"string longer than {limit}")
+            return v
+        return check_string
+    if isinstance(slot, d.NamespacedType):
+        return _Nested(slot)
+    return _sequence_checker(slot)
+
+
+def _sequence_checker(slot: Any) -> Check:
+    inner = slot.value_type
+    exact = slot.size if isinstance(slot, d.Array) else None
+    maximum = getattr(slot, "maximum_size", None) if isinstance(slot, d.BoundedSequence) else None
+
+    def check_length(n: int) -> None:
+        if exact is not None and n != exact:
+            raise ConversionError(f"expected exactly {exact} items, got {n}")
+        if maximum is not None and n > maximum:
+            raise ConversionError(f"expected at most {maximum} items, got {n}")
+
+    if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
+        return _bytes_checker(inner.typename == "octet", isinstance(slot, d.Array), check_length)
+
+    item_check = _checker(inner)
+    all_plain = _plain_items_test(inner)
+
+    def check_list(v: Any) -> Any:
+        if not isinstance(v, list):
+            raise ConversionError(f"expected array, got {describe(v)}")
+        check_length(len(v))
+        if all_plain is not None and all_plain(v):
+            return v
+        out = []
+        for i, x in enumerate(v):
+            try:
+                out.append(item_check(x))
+            except ConversionError as err:
+                raise err.inside(f"[{i}]") from None
+        return out
+    return check_list
+
+
+def _plain_items_test(inner: Any) -> Callable[[list[Any]], bool] | None:
+    """A one-pass test that a list needs no per-item conversion (then it is assigned as it is)."""
+    if not isinstance(inner, d.BasicType):
+        return None
+    typename = inner.typename
+    if typename in _FLOATS:
+        single = typename == "float"
+
+        def plain_floats(v: list[Any]) -> bool:
+            if not all(type(x) is float for x in v):  # ints, "NaN" names and junk take the slow path
+                return False
+            return not single or not v or max(map(abs, v)) <= _FLT_MAX
+        return plain_floats
+    if typename == "boolean":
+        return lambda v: all(type(x) is bool for x in v)
+    if typename in _INT_RANGES:
+        lo, hi = _INT_RANGES[typename]
+        return lambda v: all(type(x) is int for x in v) and (not v or (lo <= min(v) and max(v) <= hi))
+    return None
+
+
+def _bytes_checker(as_bytes_list: bool, as_ints: bool, check_length: Callable[[int], None]) -> Check:
+    """``uint8[]``/``byte[]``: base64 (our JSON form) or, leniently, a list of 0..255."""
+    item = _scalar_checker("uint8")
+
+    def check_bytes(v: Any) -> Any:
+        if isinstance(v, str):
+            try:
+                raw = base64.b64decode(v, validate=True)
+            except (binascii.Error, ValueError) as err:
+                raise ConversionError(f"invalid base64 ({err})") from None
+        elif isinstance(v, list):
+            values = []
+            for i, x in enumerate(v):
+                try:
+                    values.append(item(x))
+                except ConversionError as err:
+                    raise err.inside(f"[{i}]") from None
+            raw = bytes(values)
+        else:
+            raise ConversionError(f"expected base64 string, got {describe(v)}")
+        check_length(len(raw))
+        if as_bytes_list:  # byte[] is a list of 1-byte bytes objects in rclpy
+            return [bytes((b,)) for b in raw]
+        return list(raw) if as_ints else raw  # fixed uint8[N] is a numpy array: wants ints
+    return check_bytes
 
 
 def _fits_float32(v: float) -> bool:
@@ -262,39 +350,39 @@ def _fits_float32(v: float) -> bool:
     return True
 
 
-def _scalar_checker(typename: str) -> Callable[[str, Any], Any]:
+def _scalar_checker(typename: str) -> Check:
     if typename in _FLOATS:
         single = typename == "float"
 
-        def check_float(path: str, v: Any) -> float:
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
+        def check_float(v: Any) -> float:
+            if type(v) is float or (isinstance(v, (int, float)) and not isinstance(v, bool)):
                 if single and not _fits_float32(v):
-                    raise ConversionError(f"{path}: {v!r} is out of range for float32")
+                    raise ConversionError(f"{v!r} is out of range for float32")
                 return float(v)
             if isinstance(v, str) and v in NON_FINITE:
                 return NON_FINITE[v]
-            raise ConversionError(f"{path}: expected number, got {describe(v)}")
+            raise ConversionError(f"expected number, got {describe(v)}")
         return check_float
     if typename == "boolean":
-        def check_bool(path: str, v: Any) -> bool:
+        def check_bool(v: Any) -> bool:
             if not isinstance(v, bool):
-                raise ConversionError(f"{path}: expected true or false, got {describe(v)}")
+                raise ConversionError(f"expected true or false, got {describe(v)}")
             return v
         return check_bool
     if typename == "octet":
-        def check_octet(path: str, v: Any) -> bytes:
+        def check_octet(v: Any) -> bytes:
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 255:
-                raise ConversionError(f"{path}: expected integer 0..255, got {describe(v)}")
+                raise ConversionError(f"expected integer 0..255, got {describe(v)}")
             return bytes((v,))
         return check_octet
     lo, hi = _INT_RANGES[typename]
 
-    def check_int(path: str, v: Any) -> int:
+    def check_int(v: Any) -> int:
         if isinstance(v, float) and v.is_integer():
             v = int(v)
         if isinstance(v, bool) or not isinstance(v, int):
-            raise ConversionError(f"{path}: expected integer, got {describe(v)}")
+            raise ConversionError(f"expected integer, got {describe(v)}")
         if not lo <= v <= hi:
-            raise ConversionError(f"{path}: expected integer {lo}..{hi}, got {v}")
+            raise ConversionError(f"expected integer {lo}..{hi}, got {v}")
         return v
     return check_int
