@@ -63,6 +63,15 @@ class MqttLink:
             return self.client.publish(topic, payload, qos=qos, retain=retain)
         return None
 
+    def subscribe(self, topic: str, qos: int = 1) -> None:
+        """Add a subscription now; after a reconnect ``subscriptions()`` must list it too."""
+        if self.connected.is_set():
+            self.client.subscribe(topic, qos)
+
+    def unsubscribe(self, topic: str) -> None:
+        if self.connected.is_set():
+            self.client.unsubscribe(topic)
+
     # -- paho callbacks (network thread) ------------------------------------------
     def _handle_connect(self, client: mqtt.Client, _userdata, _flags, reason, _props) -> None:
         if reason.is_failure:

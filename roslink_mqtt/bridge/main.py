@@ -5,7 +5,8 @@
 
 The robot's password comes from ``ROSLINK_MQTT_PASSWORD``, ``--password-file``,
 the config's ``bridge.password_file`` or (demo only) ``bridge.password`` —
-never from the command line, where ``ps`` would show it.
+never from the command line, where ``ps`` would show it. SIGHUP re-reads the
+fleet file's users and grants (as the broker does); rule changes need a restart.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import Any
 
 PASSWORD_ENV = "ROSLINK_MQTT_PASSWORD"
 
@@ -48,6 +50,18 @@ def resolve_password(args: argparse.Namespace, bridge_password: str | None, brid
         return bridge_password
     raise SystemExit(f"roslink-mqtt-bridge: no password for robot '{args.robot}': set {PASSWORD_ENV}, "
                      "--password-file or bridge.password_file in the config")
+
+
+def reload_grants(bridge: Any, config: str) -> None:
+    """SIGHUP: re-read the fleet file; a broken file keeps the running grants (and says why)."""
+    from ..config import ConfigError, load_fleet
+
+    try:
+        fleet = load_fleet(config)
+    except ConfigError as err:
+        logging.getLogger("roslink_mqtt.bridge").error("reload failed, keeping the current grants: %s", err)
+        return
+    bridge.reload(fleet)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,9 +108,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     executor = MultiThreadedExecutor(num_threads=4)  # provided services may hold two
     executor.add_node(node)
-    stopping = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stopping.set())
-    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
+
+    def on_signal(flag: threading.Event) -> None:
+        flag.set()
+        wake.set()
+
+    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
+    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
+    signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
 
     def spin() -> None:
         try:
@@ -110,8 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     spinner.start()
     bridge.start()
     try:
-        while not stopping.wait(0.5):
-            pass
+        while not stopping.is_set():
+            wake.wait(0.5)
+            wake.clear()
+            if reload_asked.is_set() and not stopping.is_set():
+                reload_asked.clear()
+                reload_grants(bridge, args.config)
     finally:
         bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
         executor.shutdown(timeout_sec=2)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import replace
 from typing import Any
 
 from rclpy.node import Node
@@ -50,6 +51,12 @@ def ros_qos(q: RosQos, *, latched: bool = False) -> QoSProfile:
                     else DurabilityPolicy.VOLATILE))
 
 
+def _static_part(robot: Robot) -> tuple:
+    """What a reload cannot change in a running bridge (rules and settings), ignoring line numbers."""
+    return (robot.system_id, robot.type, robot.bridge, tuple(replace(r, line=None) for r in robot.rules),
+            tuple(replace(s, line=None) for s in robot.services))
+
+
 class _Throttle:
     """max_rate with newest-wins: send at once if allowed, else keep only the latest for the next slot."""
 
@@ -83,7 +90,7 @@ class Bridge:
         self._heartbeat_seq = self._ack_seq = 0
         self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
         self._stop_repeats_left = 0
-        self._roles: dict[str, Role | None] = {}
+        self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
         outbound, self.inbound = compile_rules(robot, self.topics)
         self.velocity_publishers: list[tuple[Inbound, Any]] = []
         self.publishers_by_rule: dict[str, Any] = {}
@@ -130,12 +137,44 @@ class Bridge:
                  len(self.inbound), len(self.velocity_publishers))
 
     def role_of(self, user: str) -> Role | None:
-        """The user's role on this robot; computed once per user (the fleet does not change under a bridge)."""
+        """The user's role on this robot, computed once per user and fleet version (any thread)."""
+        fleet, cache = self._grants  # one read: a reload swaps both at once
         try:
-            return self._roles[user]
+            return cache[user]
         except KeyError:
-            role = self._roles[user] = self.fleet.roles_of(user).get(self.robot.name)
+            role = cache[user] = fleet.roles_of(user).get(self.robot.name)
             return role
+
+    def reload(self, fleet: Fleet) -> None:
+        """Apply a re-read fleet file's users and grants now (SIGHUP); rule changes need a restart.
+
+        The broker applies the same file on its own SIGHUP; the bridge must follow, or a newly granted
+        operator stays refused and a revoked one keeps control until the dead-man stops the robot.
+        Revoking an operator who owns the current motion stops the robot at once.
+        """
+        robot = fleet.robots.get(self.robot.name)
+        if robot is None:
+            log.error("reload: robot %s is no longer in %s; keeping the current grants", self.robot.name, fleet.file)
+            return
+        if _static_part(robot) != _static_part(self.robot):
+            log.warning("reload: the rules or bridge settings of %s changed; restart the bridge to apply them "
+                        "(users and grants apply now)", self.robot.name)
+        before, after = self.fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
+        with self._lock:
+            self.fleet, self._grants = fleet, (fleet, {})
+        for user in sorted(set(before) - set(after)):
+            self.link.unsubscribe(self.topics.operators_of(user))
+        for user in sorted(set(after) - set(before)):
+            self.link.subscribe(self.topics.operators_of(user), 1)
+        demoted = sorted(u for u, role in before.items() if role is Role.OPERATOR and after.get(u) is not Role.OPERATOR)
+        for user in demoted:
+            self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
+            with self._lock:
+                why = self.failsafe.operator_gone(user)
+                if why:
+                    self.trigger_stop(f"{why} (operator grant removed)")
+        log.info("reloaded %s: %d users may see %s (%s)", fleet.file, len(after), self.robot.name,
+                 ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
 
     def _publish_reliable(self, topic: str, payload: bytes) -> None:
         self.link.publish(topic, payload, qos=1)

@@ -240,6 +240,12 @@ class ProvidedServices:
             if offer is not None:
                 self._retire(offer, reason)
 
+    def withdraw_user(self, user: str, reason: str) -> None:
+        """Withdraw every service ``user`` provides (e.g. their operator grant was removed)."""
+        with self._lock:
+            for key in [k for k in self.offers if k[0] == user]:
+                self._retire(self.offers.pop(key), reason)
+
     def _retire(self, offer: _Provided, reason: str) -> None:
         offer.end(reason)
         self._retired.append(offer)
