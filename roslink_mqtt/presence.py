@@ -11,45 +11,70 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from .protocol import Envelope, MessageId, RobotType, SystemStatus, encode
+from .protocol import Envelope, MessageId, ProtocolError, RobotType, SystemStatus, decode, encode
 
 DEFAULT_OPERATOR_PERIOD = 1.0  # s between operator heartbeats
 
 
-def operator_heartbeat(user: str, client_id: str, sequence_number: int = 0) -> bytes:
-    """The payload an operator publishes (a ROSLink heartbeat naming the client)."""
-    payload = {"type": int(RobotType.GENERIC), "name": client_id, "system_status": int(SystemStatus.ACTIVE),
+def operator_heartbeat(user: str, client_id: str, sequence_number: int = 0, *, commanding: bool = True) -> bytes:
+    """The payload an operator publishes (a ROSLink heartbeat naming the client).
+
+    ``system_status`` says what the client does: ACTIVE (4) — it commands robots;
+    STANDBY (3) — it only watches or provides services. Robots stop when a
+    commanding client of the driving user goes away, even if that user has
+    other clients still connected.
+    """
+    status = SystemStatus.ACTIVE if commanding else SystemStatus.STANDBY
+    payload = {"type": int(RobotType.GENERIC), "name": client_id, "system_status": int(status),
                "owner_id": user, "mode": 0}
     return encode(Envelope(MessageId.HEARTBEAT, payload, 0, sequence_number))
 
 
+def is_commanding(payload: bytes) -> bool:
+    """Whether a non-empty operator heartbeat comes from a commanding client.
+
+    Only a ROSLink heartbeat that says STANDBY is a mere watcher; anything
+    else (a Node-RED flow sending ``1``, another status) counts as commanding:
+    when unsure, losing the client stops the robot.
+    """
+    try:
+        envelope = decode(payload, MessageId.HEARTBEAT)
+    except ProtocolError:
+        return True
+    return envelope.payload.get("system_status") != SystemStatus.STANDBY
+
+
 @dataclass
 class OperatorTracker:
-    """Live operator clients, each with the time its last heartbeat arrived."""
+    """Live operator clients: when each was last heard of and whether it commands."""
 
     timeout: float
-    _seen: dict[tuple[str, str], float] = field(default_factory=dict)
+    _seen: dict[tuple[str, str], tuple[float, bool]] = field(default_factory=dict)
 
     def heartbeat(self, user: str, client_id: str, payload: bytes, now: float) -> bool:
-        """Record one message on an operator topic; returns whether ``user`` is live afterwards.
+        """Record one message on an operator topic; False when ``user`` just lost command presence.
 
-        Any non-empty payload counts as a heartbeat (a Node-RED flow may send
-        ``1``); an empty one is the last-will or a clean sign-off.
+        An empty payload is the last-will or a clean sign-off. Command presence
+        is lost when a commanding client leaves, or when the user's last client
+        does; a watcher leaving while others stay changes nothing.
         """
         key = (user, client_id)
         if payload:
-            self._seen[key] = now
-        else:
-            self._seen.pop(key, None)
-        return self.is_live(user)
+            self._seen[key] = (now, is_commanding(payload))
+            return True
+        gone = self._seen.pop(key, None)
+        return not ((gone is not None and gone[1]) or not self.is_live(user))
 
     def expire(self, now: float) -> list[str]:
-        """Forget clients silent for longer than ``timeout``; return users who went away entirely."""
-        stale = [key for key, at in self._seen.items() if now - at > self.timeout]
-        users = {user for user, _ in stale}
+        """Forget clients silent for longer than ``timeout``; return users who lost command presence."""
+        stale = [key for key, (at, _) in self._seen.items() if now - at > self.timeout]
+        lost = set()
         for key in stale:
-            del self._seen[key]
-        return sorted(u for u in users if not self.is_live(u))
+            _, commanding = self._seen.pop(key)
+            if commanding:
+                lost.add(key[0])
+        lost |= {user for user, _ in stale if not self.is_live(user)}
+        return sorted(lost)
 
     def is_live(self, user: str, client_id: str | None = None) -> bool:
         """Any client of ``user`` live, or that one client when ``client_id`` is given."""

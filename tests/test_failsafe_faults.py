@@ -149,6 +149,32 @@ def test_operator_sigstop_during_goal_stops_after_operator_timeout(stack: Stack)
             op.signal(signal.SIGCONT)
 
 
+def test_driving_client_killed_stops_robot_while_its_user_watches_elsewhere(stack: Stack) -> None:
+    """alice watches from an SDK client (STANDBY presence) and drives a goal from another process.
+
+    The user stays live through the watcher, and a goal has no dead-man: only the per-client rule
+    (a *commanding* client of the driver went away) can stop the robot here.
+    """
+    from geometry_msgs.msg import PoseStamped
+
+    from roslink_mqtt.client import RobotClient
+
+    goals = stack.probe.watch(PoseStamped, "/goal_pose")
+    goals.wait_matched()
+    with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{stack.port}", robots=["turtle1"]) as watcher:
+        watcher.wait_for_robot("turtle1", timeout=10)
+        t0 = time.monotonic()
+        with stack.operator("--waypoint") as op:
+            goals.wait_for(lambda m: m.pose.position.x == 2.0, timeout=20, after=t0)
+            time.sleep(0.3)
+            fault = time.monotonic()
+            op.signal(signal.SIGKILL)
+            ack = stack.viewer.wait_for(lambda m: m.topic.endswith("/state/ack") and m.at > fault, timeout=5)
+            assert "operator alice went away" in ack.json()["payload"]["text"]
+            _check(stack, "driving client SIGKILL, user still live → stop", ack.at - fault, 0.5)
+        assert watcher.connected and watcher.robot("turtle1").online
+
+
 def test_dead_man_stops_silent_stream(stack: Stack) -> None:
     t0 = time.monotonic()
     with stack.operator("--stream-seconds", "6"):  # stays alive (presence) but stops commanding at ~6 s

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from roslink_mqtt.bridge.failsafe import Failsafe
-from roslink_mqtt.presence import OperatorTracker, operator_heartbeat
+from roslink_mqtt.presence import OperatorTracker, is_commanding, operator_heartbeat
 
 
 def test_dead_man_only_while_streaming() -> None:
@@ -36,16 +36,35 @@ def test_goal_has_no_dead_man_but_stops_when_operator_leaves() -> None:
 
 def test_operator_tracker() -> None:
     t = OperatorTracker(timeout=1.5)
-    assert t.heartbeat("alice", "laptop", b"x", 0.0)
-    assert t.heartbeat("alice", "phone", b"x", 0.5)
-    assert not t.heartbeat("bob", "pc", b"", 0.5)  # a clear for an unknown client
-    assert t.expire(1.6) == []  # phone still live
-    assert t.is_live("alice")
-    assert t.expire(2.1) == ["alice"]
+    watcher = operator_heartbeat("alice", "phone", commanding=False)
+    assert t.heartbeat("alice", "laptop", b"x", 0.0)  # a plain payload counts as a commanding client
+    assert t.heartbeat("alice", "phone", watcher, 0.5)
+    assert not t.heartbeat("bob", "pc", b"", 0.5)  # a clear for an unknown client: bob has nobody left
+    assert t.expire(1.4) == []
+    assert t.expire(1.6) == ["alice"]  # the commanding laptop went silent: the phone does not cover for it
+    assert t.is_live("alice") and t.is_live("alice", "phone") and not t.is_live("alice", "laptop")
+    assert t.expire(2.1) == ["alice"]  # and now nobody is left
     assert not t.is_live("alice")
     t.heartbeat("carol", "c1", b"x", 3.0)
     assert not t.heartbeat("carol", "c1", b"", 3.1)  # last-will
     assert t.live_users() == set()
+
+
+def test_a_watcher_leaving_does_not_cost_its_user_command_presence() -> None:
+    t = OperatorTracker(timeout=1.5)
+    t.heartbeat("alice", "laptop", operator_heartbeat("alice", "laptop"), 0.0)
+    t.heartbeat("alice", "phone", operator_heartbeat("alice", "phone", commanding=False), 0.0)
+    assert t.heartbeat("alice", "phone", b"", 0.2)  # the watcher's last-will: alice still drives
+    t.heartbeat("alice", "phone", operator_heartbeat("alice", "phone", commanding=False), 0.3)
+    t.heartbeat("alice", "laptop", operator_heartbeat("alice", "laptop"), 1.0)
+    assert t.expire(1.9) == []  # the watcher expired, the driver did not
+    assert not t.heartbeat("alice", "laptop", b"", 2.0)  # the driver's last-will: stop
+
+
+def test_commanding_is_read_from_the_heartbeat() -> None:
+    assert is_commanding(operator_heartbeat("a", "c")) and not is_commanding(operator_heartbeat("a", "c",
+                                                                                                 commanding=False))
+    assert is_commanding(b"1") and is_commanding(b'{"message_id": 0, "payload": {}}')  # unsure: commanding
 
 
 def test_operator_heartbeat_payload_is_a_roslink_heartbeat() -> None:

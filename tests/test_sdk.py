@@ -188,6 +188,20 @@ def test_twist_reaches_ros_cmd_vel(stack) -> None:
     assert msg.linear.x == pytest.approx(0.3) and msg.angular.z == pytest.approx(0.2)
 
 
+def test_presence_says_standby_until_the_first_command(stack) -> None:
+    with TestClient(stack.port, "admin", "admin-demo") as admin:
+        assert admin.connect() == 0
+        admin.subscribe("roslink/operators/alice/sdk-presence-test")
+        with RobotClient("alice", "alice-demo", url=stack.url, client_id="sdk-presence-test") as client:
+            first = admin.wait_for(lambda m: bool(m.payload)).json()["payload"]
+            assert first["system_status"] == SystemStatus.STANDBY and first["name"] == "sdk-presence-test"
+            sent = time.monotonic()
+            client.twist("turtle1", lx=0.0)
+            active = admin.wait_for(lambda m: bool(m.payload) and m.json()["payload"]["system_status"]
+                                    == SystemStatus.ACTIVE, timeout=3)
+            assert active.at - sent < 0.5  # announced with the command, not at the next 1 s beat
+
+
 def test_errors_surface_as_callbacks_and_exceptions(stack) -> None:
     errors: queue.Queue[RobotError] = queue.Queue()
     with RobotClient("alice", "alice-demo", url=stack.url, robots=["turtle1"], on_error=errors.put) as client:

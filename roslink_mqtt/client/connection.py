@@ -51,7 +51,8 @@ class Connection:
         self.client = make_client(client_id, username=username, password=password, url=self.url,
                                   ca_file=ca_file, insecure_tls=insecure_tls)
         # Created before CONNECT: the presence last-will must be part of the CONNECT packet.
-        self.presence = OperatorPresence(self.client, username, client_id, topics=topics) if presence else None
+        self.presence = (OperatorPresence(self.client, username, client_id, topics=topics, commanding=False)
+                         if presence else None)
         self._lock = threading.RLock()
         self._subs: dict[str, _Subscription] = {}
         self._pending_suback: dict[int, tuple[str, threading.Event, list[bool]]] = {}

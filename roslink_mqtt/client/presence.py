@@ -2,6 +2,9 @@
 
 Robots refuse commands from users without a live heartbeat and stop when the
 operator who commanded motion goes away, so every commanding client runs one.
+The heartbeat also says whether this client commands (ACTIVE) or only watches
+(STANDBY): a robot stops when a commanding client of its driver goes away,
+even if the same user is still logged in elsewhere, but not for a watcher.
 """
 
 from __future__ import annotations
@@ -16,8 +19,10 @@ from ..topics import TopicTree
 
 class OperatorPresence:
     def __init__(self, client: mqtt.Client, user: str, client_id: str, *, topics: TopicTree | None = None,
-                 period: float = DEFAULT_OPERATOR_PERIOD) -> None:
+                 period: float = DEFAULT_OPERATOR_PERIOD, commanding: bool = True) -> None:
+        """``commanding=False`` starts as a watcher; :meth:`start_commanding` before the first command."""
         self.client, self.user, self.client_id = client, user, client_id
+        self.commanding = commanding
         self.topic = (topics or TopicTree()).operator(user, client_id)
         self.period = period
         self._stop = threading.Event()
@@ -29,8 +34,15 @@ class OperatorPresence:
     def beat(self) -> None:
         """Publish one heartbeat now (also called on every (re)connect)."""
         self._sequence = (self._sequence + 1) & 0xFFFFFFFF
-        self.client.publish(self.topic, operator_heartbeat(self.user, self.client_id, self._sequence),
-                            qos=1, retain=True)
+        self.client.publish(self.topic, operator_heartbeat(self.user, self.client_id, self._sequence,
+                                                           commanding=self.commanding), qos=1, retain=True)
+
+    def start_commanding(self) -> None:
+        """Say ACTIVE before the first command goes out (same connection: the robot hears it first)."""
+        if not self.commanding:
+            self.commanding = True
+            if self.client.is_connected():
+                self.beat()
 
     def start(self) -> None:
         if self._thread is None:

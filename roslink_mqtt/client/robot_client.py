@@ -195,6 +195,8 @@ class RobotClient:
         """
         self.watch(robot)
         topic, data, seq = self._streams.build(robot, name, payload)
+        if self.connection.presence is not None:
+            self.connection.presence.start_commanding()  # from now on, our going away stops what we drive
         if qos is None:
             qos = 0 if roslink_command(command_leaf(name)) == "twist" else 1  # a velocity stream repeats itself
         if check is None:
