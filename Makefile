@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[broker,bridge,dev]'
+	$(BIN)/pip install --quiet -e '.[broker,bridge,dev,cli]'
 	touch $(STAMP)
 
 demo: install

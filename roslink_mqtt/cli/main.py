@@ -7,10 +7,10 @@ import sys
 from collections.abc import Sequence
 
 from ..config import ConfigError
-from . import acl_cmd, call_cmd, echo_cmd, fleet_cmd, passwd_cmd, pub_cmd, robots_cmd, teleop_cmd
+from . import acl_cmd, call_cmd, echo_cmd, fleet_cmd, monitor_cmd, passwd_cmd, pub_cmd, robots_cmd, teleop_cmd
 
 DEFAULT_CONFIG = "config/robots.yaml"
-SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, passwd_cmd, fleet_cmd, acl_cmd)
+SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:
