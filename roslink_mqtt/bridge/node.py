@@ -35,6 +35,7 @@ from .rules import Inbound, Outbound, RuleError, compile_rules
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
 from .systemd import SystemdNotifier
+from .throttle import Throttle
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -55,15 +56,6 @@ def _static_part(robot: Robot) -> tuple:
     """What a reload cannot change in a running bridge (rules and settings), ignoring line numbers."""
     return (robot.system_id, robot.type, robot.bridge, tuple(replace(r, line=None) for r in robot.rules),
             tuple(replace(s, line=None) for s in robot.services))
-
-
-class _Throttle:
-    """max_rate with newest-wins: send at once if allowed, else keep only the latest for the next slot."""
-
-    __slots__ = ("period", "last", "pending")
-
-    def __init__(self, period: float) -> None:
-        self.period, self.last, self.pending = period, -1e18, None
 
 
 class Bridge:
@@ -291,22 +283,18 @@ class Bridge:
             def forward(msg: Any) -> None:
                 link(topic, serialize(msg), qos, retain)
         else:
-            throttle = _Throttle(out.period)
+            throttle = Throttle(1.0 / out.period)
 
             def forward(msg: Any) -> None:
-                now = time.monotonic()
-                if now - throttle.last >= throttle.period:
-                    throttle.last, throttle.pending = now, None
+                if throttle.offer(msg, time.monotonic()) is not None:
                     link(topic, serialize(msg), qos, retain)
-                else:
-                    throttle.pending = msg
 
             def flush() -> None:
-                if throttle.pending is not None and time.monotonic() - throttle.last >= throttle.period:
-                    msg, throttle.pending, throttle.last = throttle.pending, None, time.monotonic()
+                msg = throttle.flush(time.monotonic())
+                if msg is not None:
                     link(topic, serialize(msg), qos, retain)
 
-            self.node.create_timer(out.period / 2, flush)
+            self.node.create_timer(out.period / 4, flush)
         self.node.create_subscription(out.ros_cls, out.rule.ros_topic, forward, ros_qos(out.rule.ros_qos))
 
     def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
