@@ -44,8 +44,6 @@ import getpass
 import importlib.metadata
 import os
 import shutil
-import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -61,6 +59,7 @@ from typing import Any
 import orjson
 import paho.mqtt.client as mqtt
 import yaml
+from _children import free_port, start_process, tail, wait_port
 
 from roslink_mqtt.broker.export import export_mosquitto
 from roslink_mqtt.client import RobotClient
@@ -85,53 +84,6 @@ Sample = tuple[int, float, float]  # (index, sent, received), time.monotonic() s
 
 
 # -- processes ------------------------------------------------------------------------------------
-def free_port() -> int:
-    """A free TCP port on loopback, so the bench never collides with a broker already running."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def tail(path: Path, lines: int = 15) -> str:
-    """The end of a child's log, for an error message (the logs live in a temporary directory)."""
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
-    except OSError:
-        return "(no log)"
-
-
-def wait_port(port: int, proc: subprocess.Popen, what: str, log: Path, timeout: float = 15.0) -> None:
-    """Block until ``proc`` listens on ``port``; fail fast (with its log) if it exits first."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"latency bench: {what} exited (code {proc.returncode}):\n{tail(log)}")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)
-    raise SystemExit(f"latency bench: {what} did not open port {port}:\n{tail(log)}")
-
-
-def start_process(stack: ExitStack, args: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen:
-    """Start a child whose stop (SIGINT, then kill) is registered on ``stack``: no child outlives the bench."""
-    out = stack.enter_context(open(log, "wb"))
-    proc = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
-
-    def stop() -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-
-    stack.callback(stop)
-    return proc
-
-
 def wait_until(predicate: Callable[[], bool], timeout: float, step: float = 0.02) -> bool:
     """Poll ``predicate`` until it holds or ``timeout`` passes: every wait in the bench is bounded."""
     deadline = time.monotonic() + timeout

@@ -26,10 +26,7 @@ import argparse
 import getpass
 import os
 import shutil
-import signal
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -38,47 +35,13 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
+from _children import free_port, start_process, wait_port
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 
 
 # -- processes ----------------------------------------------------------------------------------
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_port(port: int, proc: subprocess.Popen, what: str, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"services bench: {what} exited (code {proc.returncode})")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)
-    raise SystemExit(f"services bench: {what} did not open port {port}")
-
-
-def _start(stack: ExitStack, args: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen:
-    out = stack.enter_context(open(log, "wb"))
-    proc = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
-
-    def stop() -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-
-    stack.callback(stop)
-    return proc
-
-
 def start_mosquitto(stack: ExitStack, work: Path, env: dict[str, str]) -> int:
     from roslink_mqtt.config import load_fleet
 
@@ -88,13 +51,13 @@ def start_mosquitto(stack: ExitStack, work: Path, env: dict[str, str]) -> int:
     fleet = load_fleet(CONFIG)
     passwd = work / "passwd"
     passwd.write_text("".join(f"{name}:{fleet.password_hash(name)}\n" for name in [*fleet.robots, *fleet.users]))
-    port = _free_port()
+    port = free_port()
     conf = work / "mosquitto.conf"
     # set_tcp_nodelay: without it Mosquitto's reply can wait ~40 ms behind its own PUBACK (Nagle vs delayed ACK)
     conf.write_text(f"user {getpass.getuser()}\nlistener {port} 127.0.0.1\npersistence false\n"
                     f"allow_anonymous false\npassword_file {passwd}\nset_tcp_nodelay true\nlog_dest stderr\n")
-    proc = _start(stack, [mosquitto, "-c", str(conf)], work / "mosquitto.log", env)
-    _wait_port(port, proc, "mosquitto")
+    proc = start_process(stack, [mosquitto, "-c", str(conf)], work / "mosquitto.log", env)
+    wait_port(port, proc, "mosquitto")
     return port
 
 
@@ -154,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(tmp)
         port = start_mosquitto(stack, work, env)
         url = f"mqtt://127.0.0.1:{port}"
-        _start(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
-        _start(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(CONFIG), "--robot",
+        start_process(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
+        start_process(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(CONFIG), "--robot",
                        "turtle1", "--broker", url, "--log-level", "WARNING"], work / "bridge.log",
                {**env, "ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
 
