@@ -10,9 +10,8 @@ import time
 import orjson
 import pytest
 
-from .support.embedded_broker import EmbeddedBrokerProcess
-from .support.mqtt_client import TestClient
-from .support.procs import ROOT, bridge_args, bridge_env, run
+from .support.procs import ROOT
+from .support.robot_stack import turtle1_online
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -20,14 +19,8 @@ pytestmark = pytest.mark.timeout(120)
 @pytest.fixture(scope="module")
 def port(tmp_path_factory):
     work = tmp_path_factory.mktemp("cli")
-    with EmbeddedBrokerProcess(work) as broker, \
-            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "bob", "bob-demo") as bob:
-            assert bob.connect() == 0
-            bob.subscribe("roslink/turtle1/heartbeat")
-            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-        yield broker.port
+    with turtle1_online(work) as broker_port:
+        yield broker_port
 
 
 def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.CompletedProcess:

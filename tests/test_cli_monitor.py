@@ -16,9 +16,8 @@ from roslink_mqtt.cli.monitor_view import HEADERS, FleetView, Row, fit_columns, 
 from roslink_mqtt.client import Ack, GlobalMotion, GpsRawInfo, RobotError, RobotInfo, RobotStatus
 from roslink_mqtt.protocol import AckResult, FlightMode, RobotType, SystemStatus
 
-from .support.embedded_broker import EmbeddedBrokerProcess
-from .support.mqtt_client import TestClient
-from .support.procs import ROOT, bridge_args, bridge_env, run
+from .support.procs import ROOT
+from .support.robot_stack import turtle1_online
 
 
 class FakeClock:
@@ -244,14 +243,8 @@ def test_core_imports_do_not_pull_in_rich() -> None:
 @pytest.fixture(scope="module")
 def port(tmp_path_factory):
     work = tmp_path_factory.mktemp("monitor")
-    with EmbeddedBrokerProcess(work) as broker, \
-            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "bob", "bob-demo") as bob:
-            assert bob.connect() == 0
-            bob.subscribe("roslink/turtle1/heartbeat")
-            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-        yield broker.port
+    with turtle1_online(work) as broker_port:
+        yield broker_port
 
 
 def monitor(port: int, user: str, *args: str) -> subprocess.CompletedProcess:
