@@ -159,6 +159,30 @@ def test_mqtt_provided_service_called_from_ros(stack) -> None:
     assert not client.service_is_ready(), "the provided service outlived its provider"
 
 
+def test_provided_calls_overlap_and_time_out(stack) -> None:
+    """Waiting calls hold no bridge thread: many overlap; a provider that stays silent times out."""
+    from std_srvs.srv import Trigger
+
+    probe, work, port, alice = stack["probe"], stack["work"], stack["port"], stack["alice"]
+    later = probe.node.create_client(Trigger, "/later")
+    mute = probe.node.create_client(Trigger, "/mute")
+    args = ["-m", "tests.support.provider_proc", str(port), "alice", "alice-demo", "turtle1"]
+    with run(args, work / "provider-overlap.log"):
+        assert later.wait_for_service(timeout_sec=15) and mute.wait_for_service(timeout_sec=15)
+        futures = [later.call_async(Trigger.Request()) for _ in range(12)]
+        silent = mute.call_async(Trigger.Request())
+        answers = [_wait(f, 15) for f in futures]
+        assert all(a.success for a in answers), [a.message for a in answers]
+        assert len({a.message for a in answers}) == 12, "each call must get its own answer"
+        response = _wait(silent, 10)
+        assert (response.success, response.message) == (False, "provider alice did not answer within 1 s")
+        # a response naming no waiting call (here: an id that is not even a string) is refused, not fatal
+        alice.publish("roslink/turtle1/from/alice/response/later", {"id": [1], "result": True})
+        error = alice.wait_for(lambda m: m.topic == "roslink/turtle1/to/alice/error", timeout=5).json()
+        assert "no pending request with id [1]" in str(error)
+        assert _wait(later.call_async(Trigger.Request()), 15).success, "the bridge must keep serving"
+
+
 def _wait(future, timeout: float):
     deadline = time.monotonic() + timeout
     while not future.done():

@@ -233,6 +233,7 @@ class Bridge:
                 self._stop_repeats_left -= 1
                 self._publish_zero_velocity()
         self.caller.expire(now)
+        self.provided.expire(now)
         self._expire_command_services(now)
         self.provided.refresh()
 

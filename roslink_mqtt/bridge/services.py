@@ -24,6 +24,7 @@ from typing import Any
 import orjson
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 
 from ..config import Robot, Role, ServiceRule
 from ..protocol import ProtocolError, loads
@@ -146,6 +147,14 @@ class ServiceCaller:
 
 
 @dataclass
+class _Waiting:
+    """A ROS call to a provided service, parked until the provider answers or time runs out."""
+
+    future: Future  # result: ("ok", reply body) or ("error", reason)
+    deadline: float
+
+
+@dataclass
 class _Provided:
     user: str
     name: str
@@ -153,16 +162,8 @@ class _Provided:
     timeout: float
     client_id: str | None = None  # the provider's presence id: the service lives while that client does
     service: Any = None  # the rclpy Service while it exists (created/destroyed by refresh only)
-    waiting: dict[Any, tuple[threading.Event, list]] = field(default_factory=dict)
+    waiting: dict[str, _Waiting] = field(default_factory=dict)
     ending: tuple[float, str] | None = None  # (since, why): failing calls, destroyed once they have answered
-
-    def end(self, reason: str) -> None:
-        """Fail every waiting call now; the service itself goes once those replies are out."""
-        if self.ending is None:
-            self.ending = (time.monotonic(), reason)
-        for event, box in list(self.waiting.values()):
-            box.append(("error", reason))
-            event.set()
 
 
 class ProvidedServices:
@@ -170,19 +171,22 @@ class ProvidedServices:
 
     MQTT messages only edit the table of offers; :meth:`refresh`, run by the
     executor, creates and destroys the rclpy services to match, so ROS
-    entities are never touched from paho's thread. Each waiting ROS call holds
-    an executor thread, so at most ``max_concurrent`` may wait at once: the
-    supervision timer that stops the robot must always find a free thread.
+    entities are never touched from paho's thread. A ROS call is served by a
+    coroutine that parks on a future until the provider's reply (MQTT thread)
+    or its deadline (supervision timer) resolves it: a waiting call holds no
+    thread, so the bridge runs on a single-threaded executor and a slow
+    provider can never starve the failsafe checks. ``max_concurrent`` bounds
+    how many calls may wait at once.
     """
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[[str, str, str], None], max_concurrent: int = 2) -> None:
+                 error: Callable[[str, str, str], None], max_concurrent: int = 64) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.role_of, self.is_live, self.error = role_of, is_live, error
         self.group = ReentrantCallbackGroup()
         self._lock = threading.RLock()
-        self._slots = threading.BoundedSemaphore(max_concurrent)
+        self.max_concurrent = max_concurrent
         self.offers: dict[tuple[str, str], _Provided] = {}  # (user, name) -> offer
         self._retired: list[_Provided] = []  # withdrawn offers whose ROS service still exists
         self._ids = itertools.count(1)
@@ -247,8 +251,33 @@ class ProvidedServices:
                 self._retire(self.offers.pop(key), reason)
 
     def _retire(self, offer: _Provided, reason: str) -> None:
-        offer.end(reason)
+        self._end(offer, reason)
         self._retired.append(offer)
+
+    def _end(self, offer: _Provided, reason: str) -> None:
+        """Fail every waiting call now; the service itself goes once those replies are out."""
+        with self._lock:
+            if offer.ending is None:
+                offer.ending = (time.monotonic(), reason)
+            calls = [offer.waiting.pop(call_id) for call_id in list(offer.waiting)]
+        for call in calls:
+            self._resolve(call, ("error", reason))
+
+    def _resolve(self, call: _Waiting, outcome: tuple[str, Any]) -> None:
+        """Hand a parked call its outcome (any thread; the caller has removed it from ``waiting``)."""
+        call.future.set_result(outcome)
+        executor = self.node.executor
+        if executor is not None:
+            executor.wake()  # the coroutine awaiting it resumes on the executor's next turn
+
+    def expire(self, now: float) -> None:
+        """Fail calls whose provider did not answer in time (called from the supervision timer)."""
+        with self._lock:
+            late = [(offer, call_id) for offer in [*self.offers.values(), *self._retired]
+                    for call_id, call in offer.waiting.items() if now > call.deadline]
+            calls = [(offer, offer.waiting.pop(call_id)) for offer, call_id in late]
+        for offer, call in calls:
+            self._resolve(call, ("error", f"provider {offer.user} did not answer within {offer.timeout:g} s"))
 
     # -- reconcile (executor thread) -------------------------------------------------------
     def refresh(self) -> None:
@@ -259,14 +288,13 @@ class ProvidedServices:
                 live = self.is_live(offer.user, offer.client_id)
                 if live and offer.service is None:
                     offer.ending = None
-                    offer.service = self.node.create_service(
-                        offer.srv, offer.name, lambda req, resp, o=offer: self._serve(o, req, resp),
-                        callback_group=self.group)
+                    offer.service = self.node.create_service(offer.srv, offer.name, self._server_for(offer),
+                                                             callback_group=self.group)
                     log.info("providing ROS service %s for %s", offer.service.srv_name, offer.user)
                 elif live and offer.ending is not None:
                     offer.ending = None  # the provider came back before its service was removed
                 elif not live and offer.service is not None:
-                    offer.end(f"provider {offer.user} went away")
+                    self._end(offer, f"provider {offer.user} went away")
                     self._destroy_when_done(offer)
 
     def _destroy_when_done(self, offer: _Provided, grace: float = 0.3) -> bool:
@@ -290,45 +318,44 @@ class ProvidedServices:
             return
         with self._lock:
             offer = self.offers.get((user, name))
-            waiter = offer.waiting.get(body["id"]) if offer is not None else None
-        if waiter is None:
+            call = offer.waiting.pop(body["id"], None) if offer is not None and isinstance(body["id"], str) else None
+        if call is None:
             self.error(user, topic, f"no pending request with id {body['id']!r} for '{name}'")
             return
-        event, box = waiter
-        box.append(("ok", body))
-        event.set()
+        self._resolve(call, ("ok", body))
 
-    # -- ROS side (executor thread, reentrant group) ---------------------------------------
-    def _serve(self, offer: _Provided, request: Any, response: Any) -> Any:
-        if offer.ending is not None:
-            return _failed(response, offer.ending[1])
-        if not self._slots.acquire(blocking=False):
-            return _failed(response, f"too many concurrent calls to provided services on {self.robot.name}")
-        call_id = f"{self.robot.name}-{next(self._ids)}"
-        event, box = threading.Event(), []
+    # -- ROS side (a coroutine on the executor) --------------------------------------------
+    def _server_for(self, offer: _Provided) -> Callable[[Any, Any], Any]:
+        # rclpy awaits the callback only if it is a coroutine *function* (a lambda returning one is not)
+        async def serve(request: Any, response: Any) -> Any:
+            return await self._serve(offer, request, response)
+        return serve
+
+    async def _serve(self, offer: _Provided, request: Any, response: Any) -> Any:
         with self._lock:
-            offer.waiting[call_id] = (event, box)
+            if offer.ending is not None:
+                return _failed(response, offer.ending[1])
+            if sum(len(o.waiting) for o in self.offers.values()) >= self.max_concurrent:
+                return _failed(response, f"too many concurrent calls to provided services on {self.robot.name}")
+            call_id = f"{self.robot.name}-{next(self._ids)}"
+            call = offer.waiting[call_id] = _Waiting(Future(), time.monotonic() + offer.timeout)
         try:
-            args = converter_for(type(request)).to_dict(request)
-            body = {"id": call_id, "args": args}
+            body: dict[str, Any] = {"id": call_id, "args": converter_for(type(request)).to_dict(request)}
             if offer.client_id is not None:  # several clients of one user may listen; this names the provider
                 body["client_id"] = offer.client_id
             self.publish(self.topics.request(self.robot.name, offer.user, offer.name), orjson.dumps(body))
-            if not event.wait(offer.timeout):
-                return _failed(response, f"provider {offer.user} did not answer within {offer.timeout:g} s")
-            status, body = box[0]
-            if status == "error":
-                return _failed(response, body)
-            if body.get("result") is False:
-                return _failed(response, str(body.get("error", "provider reported failure")))
-            try:
-                return converter_for(type(response)).from_dict(body.get("values") or {})
-            except ConversionError as err:
-                return _failed(response, f"provider sent a bad response: {err}")
+            status, reply = await call.future
         finally:
             with self._lock:
                 offer.waiting.pop(call_id, None)
-            self._slots.release()
+        if status == "error":
+            return _failed(response, reply)
+        if reply.get("result") is False:
+            return _failed(response, str(reply.get("error", "provider reported failure")))
+        try:
+            return converter_for(type(response)).from_dict(reply.get("values") or {})
+        except ConversionError as err:
+            return _failed(response, f"provider sent a bad response: {err}")
 
 
 def _failed(response: Any, reason: str) -> Any:

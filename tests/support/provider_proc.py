@@ -2,13 +2,16 @@
 
     python -m tests.support.provider_proc PORT USER PASSWORD ROBOT
 
-Provides ``self_test`` (std_srvs/srv/Trigger, answers success) and ``hang``
-(std_srvs/srv/Trigger, never answers), so tests can kill it mid-call.
+Provides, all std_srvs/srv/Trigger: ``self_test`` (answers success at once), ``hang``
+(never answers, so tests can kill it mid-call), ``later`` (answers each call 0.5 s
+after it arrived, from a timer thread, so calls overlap) and ``mute`` (never answers,
+offered with a 1 s timeout).
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
 
 import orjson
@@ -28,14 +31,19 @@ def main() -> None:
     def on_message(_c, _u, msg) -> None:
         name = msg.topic.rsplit("/", 1)[1]
         request = orjson.loads(msg.payload)
-        if name == "self_test":
+        def answer(message: str) -> None:
             client.publish(topics.response(robot, user, name), orjson.dumps(
-                {"id": request["id"], "result": True, "values": {"success": True, "message": "all good"}}), qos=1)
+                {"id": request["id"], "result": True, "values": {"success": True, "message": message}}), qos=1)
+
+        if name == "self_test":
+            answer("all good")
+        elif name == "later":
+            threading.Timer(0.5, answer, args=(f"answered {request['id']}",)).start()
 
     def on_connect(c, _u, _f, rc, _p) -> None:
         c.subscribe(f"{topics.prefix}/{robot}/to/{user}/request/+", qos=1)
-        offer = orjson.dumps({"type": "std_srvs/srv/Trigger", "timeout": 20, "client_id": client_id})
-        for name in ("self_test", "hang"):
+        for name, timeout in (("self_test", 20), ("hang", 20), ("later", 20), ("mute", 1)):
+            offer = orjson.dumps({"type": "std_srvs/srv/Trigger", "timeout": timeout, "client_id": client_id})
             c.publish(topics.provide(robot, user, name), offer, qos=1, retain=True)
         presence.beat()
 
