@@ -23,8 +23,6 @@ import argparse
 import getpass
 import os
 import shutil
-import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -35,6 +33,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import orjson
+from _children import free_port, start_process, wait_port
 
 from roslink_mqtt.broker.export import export_mosquitto
 from roslink_mqtt.config import load_fleet
@@ -46,42 +45,22 @@ PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo"}
 TOPIC = "roslink/turtle1/state/robot_status"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for_port(port: int, proc: subprocess.Popen, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"broker exited with {proc.returncode}")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)
-    raise TimeoutError(f"nothing listens on {port}")
-
-
 def fleet_copy(workdir: Path, port: int) -> Path:
     path = workdir / "robots.yaml"
     path.write_text(CONFIG.read_text().replace("  port: 1883\n  ws_port: 8083\n", f"  port: {port}\n  ws_port: 0\n"))
     return path
 
 
-def start_embedded(workdir: Path, acl: bool, log: Path) -> tuple[subprocess.Popen, int]:
+def start_embedded(stack: ExitStack, acl: bool, log: Path) -> tuple[subprocess.Popen, int]:
     port = free_port()
     args = [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(CONFIG), "--host", "127.0.0.1",
             "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"] + ([] if acl else ["--no-acl"])
-    with open(log, "wb") as out:
-        proc = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
-    wait_for_port(port, proc)
+    proc = start_process(stack, args, log, dict(os.environ))
+    wait_port(port, proc, "embedded broker", log)
     return proc, port
 
 
-def start_mosquitto(workdir: Path, log: Path) -> tuple[subprocess.Popen, int] | None:
+def start_mosquitto(stack: ExitStack, workdir: Path, log: Path) -> tuple[subprocess.Popen, int] | None:
     exe = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None)
     if exe is None:
         return None
@@ -92,9 +71,8 @@ def start_mosquitto(workdir: Path, log: Path) -> tuple[subprocess.Popen, int] | 
     # Its default max_queued_messages (1000) drops QoS>0 messages for a subscriber that falls behind;
     # paho in Python always falls behind Mosquitto, and a benchmark must not lose messages.
     conf.write_text(files.conf.read_text() + f"user {getpass.getuser()}\nmax_queued_messages 0\n")
-    with open(log, "wb") as out:
-        proc = subprocess.Popen([exe, "-c", str(conf)], stdout=out, stderr=subprocess.STDOUT)
-    wait_for_port(port, proc)
+    proc = start_process(stack, [exe, "-c", str(conf)], log, dict(os.environ))
+    wait_port(port, proc, "mosquitto", log)
     return proc, port
 
 
@@ -152,22 +130,22 @@ def run_once(port: int, pid: int, messages: int, qos: int, tag: str) -> tuple[fl
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--messages", type=int, default=20000, help="messages per run (default: %(default)s)")
-    ap.add_argument("--repeats", type=int, default=3, help="runs per broker and QoS (default: %(default)s)")
+    ap.add_argument("--repeats", type=int, default=5, help="runs per broker and QoS (default: %(default)s)")
     ap.add_argument("--qos", type=int, nargs="+", default=[0, 1], choices=(0, 1, 2))
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="bench-broker-") as tmp, ExitStack() as stack:
         workdir = Path(tmp)
         brokers: dict[str, tuple[int, int]] = {}
-        for label, starter in (("embedded, no ACL", lambda: start_embedded(workdir, False, workdir / "noacl.log")),
-                               ("embedded + ACL", lambda: start_embedded(workdir, True, workdir / "acl.log")),
-                               ("mosquitto + exported ACL", lambda: start_mosquitto(workdir, workdir / "mosq.log"))):
+        for label, starter in (
+                ("embedded, no ACL", lambda: start_embedded(stack, False, workdir / "noacl.log")),
+                ("embedded + ACL", lambda: start_embedded(stack, True, workdir / "acl.log")),
+                ("mosquitto + exported ACL", lambda: start_mosquitto(stack, workdir, workdir / "mosq.log"))):
             started = starter()
             if started is None:
                 print(f"({label}: mosquitto not installed, skipped)")
                 continue
             proc, port = started
-            stack.callback(_stop, proc)
             brokers[label] = (port, proc.pid)
 
         results: dict[tuple[str, int], list[float]] = {}
@@ -211,16 +189,6 @@ def main() -> int:
     for line in short:
         print(f"warning: {line}")
     return 0 if ok else 1
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 if __name__ == "__main__":

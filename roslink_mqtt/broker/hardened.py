@@ -437,13 +437,19 @@ class HardenedBroker(Broker):
             await asyncio.wait(tasks)
 
     # -- fix 11: inline ACL dispatch ---------------------------------------------------------
+    _topic_checks: list[Any] | None = None  # bound topic_filtering methods, found on first use
+
     async def _topic_filtering(self, session: Session, topic: str, action: Action) -> bool:
         # Same semantics as stock (every topic plugin must return a truthy value; None
-        # denies), without a Task per plugin per check.
-        if not self.plugins_manager.is_topic_filtering_enabled():
-            return True
-        for plugin in self.plugins_manager._topic_plugins:
-            if not await plugin.topic_filtering(session=session, topic=topic, action=action):
+        # denies), without a Task per plugin per check, and without re-reading the
+        # plugin configuration on every message.
+        checks = self._topic_checks
+        if checks is None:
+            manager = self.plugins_manager
+            checks = self._topic_checks = ([plugin.topic_filtering for plugin in manager._topic_plugins]
+                                           if manager.is_topic_filtering_enabled() else [])
+        for check in checks:
+            if not await check(session=session, topic=topic, action=action):
                 return False
         return True
 
