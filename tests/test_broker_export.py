@@ -79,3 +79,17 @@ def test_export_works_without_amqtt(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "acl").exists()
+
+
+def test_committed_example_is_what_export_writes(tmp_path: Path, monkeypatch) -> None:
+    """broker/example-export/ shows users the export of the demo fleet; it must not drift from the code."""
+    example = CONFIG.parents[1] / "broker" / "example-export"
+    out = tmp_path / "roslink"
+    monkeypatch.chdir(CONFIG.parents[1])  # the header names the fleet file as given: config/robots.yaml
+    assert cli(["acl", "export", "--format", "mosquitto", "--out", str(out), "--config", "config/robots.yaml"]) == 0
+    for name in ("passwd", "acl", "mosquitto.conf"):
+        fresh = (out / name).read_text().replace(str(out.resolve()), "/etc/mosquitto/roslink")
+        assert (example / name).read_text() == fresh, (
+            f"broker/example-export/{name} is stale: export the demo fleet again "
+            "(roslink-mqtt acl export --format mosquitto --out DIR --config config/robots.yaml; "
+            "replace DIR with /etc/mosquitto/roslink in mosquitto.conf)")
