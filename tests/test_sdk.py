@@ -447,3 +447,17 @@ def test_call_from_cloud_example(stack) -> None:
     viewer = subprocess.run([sys.executable, "examples/call_from_cloud.py", "--url", stack.url, "--username", "bob",
                              "--password", "bob-demo"], env=env, capture_output=True, text=True, timeout=30, cwd=ROOT)
     assert viewer.returncode == 1 and "may not call 'reset'" in viewer.stderr
+
+
+def test_spiral_example_draws_a_growing_track(stack, tmp_path) -> None:
+    track = tmp_path / "track.csv"
+    out = subprocess.run([sys.executable, "examples/spiral.py", "--url", stack.url, "--seconds", "3", "--csv",
+                          str(track)], env=no_ros_env(stack.work), capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "reset: pose reset to the room centre" in out.stdout
+    line = next(ln for ln in out.stdout.splitlines() if "poses reported" in ln)
+    quarters = [float(d.split()[0]) for d in line.split(": ", 1)[1].split(", ")]
+    assert len(quarters) == 4 and quarters[0] < quarters[3], line  # it moved, and outwards
+    rows = track.read_text().splitlines()
+    assert rows[0] == "t,x,y,yaw" and len(rows) > 10
+    assert "S" in out.stdout and "E" in out.stdout
