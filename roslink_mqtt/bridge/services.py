@@ -23,6 +23,7 @@ from typing import Any
 
 import orjson
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -268,7 +269,10 @@ class ProvidedServices:
         call.future.set_result(outcome)
         executor = self.node.executor
         if executor is not None:
-            executor.wake()  # the coroutine awaiting it resumes on the executor's next turn
+            try:
+                executor.wake()  # the coroutine awaiting it resumes on the executor's next turn
+            except InvalidHandle:  # the executor is shutting down: nobody is left to answer
+                pass
 
     def expire(self, now: float) -> None:
         """Fail calls whose provider did not answer in time (called from the supervision timer)."""
