@@ -92,6 +92,10 @@ class TopicTree:
     def provide(self, robot: str, user: str, service: str) -> str:
         return self.from_user(robot, user, f"provide/{check_path(service, 'service')}")
 
+    def advertise(self, robot: str, user: str, name: str) -> str:
+        """Retained: the user publishes on the generic rule ``name`` (its ROS publisher exists meanwhile)."""
+        return self.from_user(robot, user, f"advertise/{check_path(name, 'topic')}")
+
     def request(self, robot: str, user: str, service: str) -> str:
         return self.to_user(robot, user, f"request/{check_path(service, 'service')}")
 

@@ -50,6 +50,9 @@ robots:
     ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom,"
      " fields: {x: pose.pose.positon.x}}",
      "fields.x: 'pose.pose.positon.x' is not a field of nav_msgs/msg/Odometry"),
+    ("{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: drive,"
+     " on_demand: true}",
+     "rules[0] (drive → cmd_vel): on_demand is not for velocity commands"),
 ])
 def test_bad_rules_are_refused_at_start(rule: str, fragment: str) -> None:
     fleet = fleet_with(rule)

@@ -131,6 +131,19 @@ def test_service_targets_only_for_command_presets() -> None:
     assert "rules[0].ros_type: expected a ROS msg type" in _error(twist)
 
 
+def test_on_demand_only_for_generic_commands() -> None:
+    odom = "{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom}"
+    ok = BASE.replace(odom, "{direction: mqtt_to_ros, ros_topic: lights, ros_type: std_msgs/msg/Bool,"
+                            " mqtt_topic: lights, on_demand: true}")
+    assert parse_fleet(ok, "robots.yaml").robots["turtle1"].rules[0].on_demand is True
+    assert "rules[0].on_demand: on_demand applies to generic mqtt_to_ros rules only" in _error(
+        BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, on_demand: true}"))
+    preset = ok.replace("ros_type: std_msgs/msg/Bool, mqtt_topic: lights", "ros_type: std_msgs/msg/Bool, "
+                        "mqtt_topic: cmd/arm, preset: arm")
+    assert "on_demand applies to generic mqtt_to_ros rules only" in _error(preset)
+    assert "'advertise/' is reserved" in _error(ok.replace("mqtt_topic: lights", "mqtt_topic: advertise/x"))
+
+
 def test_missing_and_unreadable_files(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"nope.yaml: cannot read fleet file"):
         load_fleet(tmp_path / "nope.yaml")

@@ -9,9 +9,8 @@ from dataclasses import replace
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from ..config import Fleet, Robot, Role, RosQos
+from ..config import Fleet, Robot, Role
 from ..presence import OperatorTracker
 from ..protocol import (
     AckResult,
@@ -29,9 +28,10 @@ from ..topics import Kind, TopicTree
 from .convert import ConversionError, converter_for
 from .failsafe import Failsafe
 from .link import MqttLink
+from .on_demand import OnDemandPublishers
 from .presets import CommandRefused
 from .ros_types import UnknownTypeError, load_interface
-from .rules import Inbound, Outbound, RuleError, compile_rules
+from .rules import Inbound, Outbound, RuleError, compile_rules, ros_qos
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
 from .systemd import SystemdNotifier
@@ -42,14 +42,6 @@ log = logging.getLogger("roslink_mqtt.bridge")
 SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 GOAL_PRESETS = ("go_to_waypoint", "takeoff")
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
-
-
-def ros_qos(q: RosQos, *, latched: bool = False) -> QoSProfile:
-    return QoSProfile(
-        depth=q.depth,
-        reliability=ReliabilityPolicy.BEST_EFFORT if q.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
-        durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched or q.durability == "transient_local"
-                    else DurabilityPolicy.VOLATILE))
 
 
 def _static_part(robot: Robot) -> tuple:
@@ -94,6 +86,8 @@ class Bridge:
             if rule.is_service:
                 self.command_services[name] = node.create_client(rule.ros_cls, rule.rule.ros_topic)
                 continue
+            if rule.rule.on_demand:
+                continue  # its ROS publisher comes and goes with its advertisers (OnDemandPublishers)
             latched = rule.spec is not None and rule.spec.name == "emergency_stop"
             pub = node.create_publisher(rule.ros_cls, rule.rule.ros_topic, ros_qos(rule.rule.ros_qos, latched=latched))
             self.publishers_by_rule[name] = pub
@@ -116,6 +110,9 @@ class Bridge:
             raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
                                          self.operators.is_live, self.refuse)
+        self.on_demand = OnDemandPublishers(node, {n: r for n, r in self.inbound.items() if r.rule.on_demand},
+                                            {n for n, r in self.inbound.items() if not r.rule.on_demand},
+                                            role_of, self.operators.is_live, self.refuse)
         self.link = MqttLink(
             client_id=f"roslink-bridge-{robot.name}", username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
@@ -161,6 +158,7 @@ class Bridge:
         demoted = sorted(u for u, role in before.items() if role is Role.OPERATOR and after.get(u) is not Role.OPERATOR)
         for user in demoted:
             self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
+            self.on_demand.withdraw_user(user)
             with self._lock:
                 why = self.failsafe.operator_gone(user)
                 if why:
@@ -236,6 +234,7 @@ class Bridge:
         self.provided.expire(now)
         self._expire_command_services(now)
         self.provided.refresh()
+        self.on_demand.refresh()
 
     def _check_link(self, now: float) -> None:
         """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
@@ -313,9 +312,9 @@ class Bridge:
             return
         user, name = parsed.user, parsed.name
         kind, _, leaf = name.partition("/")
-        if retained and kind != "provide":
+        if retained and kind not in ("provide", "advertise"):
             # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
-            # would drive the robot on a stale order. Only service offers are meant to be retained.
+            # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.
             if payload:
                 self.refuse(user, topic, "ignored a retained command from the broker: publish commands "
                                          "without the retain flag (and clear this one with an empty retained message)")
@@ -328,6 +327,9 @@ class Bridge:
             return
         if kind == "response" and leaf:
             self.provided.response(user, leaf, topic, payload)
+            return
+        if kind == "advertise" and leaf:
+            self.on_demand.advertise(user, leaf, topic, payload)
             return
         rule = self.inbound.get(name)
         if rule is None:
@@ -391,6 +393,8 @@ class Bridge:
             self.owner = user
             if rule.is_service:
                 self._call_command_service(user, topic, rule, msg, message_id, sequence)
+            elif rule.rule.on_demand:
+                self.on_demand.publish(user, rule.rule.mqtt_topic, msg)
             else:
                 self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
 

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import orjson
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from ..config import Robot, Rule, VelocityLimits
+from ..config import Robot, RosQos, Rule, VelocityLimits
 from ..config.model import Direction
 from ..protocol import SPECS_BY_NAME, Envelope, MessageSpec, encode
 from ..topics import TopicTree
@@ -22,6 +23,15 @@ from .convert import ConversionError, converter_for
 from .presets import COMMAND_PRESETS, STATE_PRESETS
 from .ros_types import UnknownTypeError, load_interface
 from .safety import VELOCITY_TYPES
+
+
+def ros_qos(q: RosQos, *, latched: bool = False) -> QoSProfile:
+    """The rclpy QoS profile for a rule's ``ros_qos`` (``latched``: transient local, for e-stop)."""
+    return QoSProfile(
+        depth=q.depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT if q.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched or q.durability == "transient_local"
+                    else DurabilityPolicy.VOLATILE))
 
 
 class RuleError(ValueError):
@@ -155,6 +165,9 @@ def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
         return _service_target(rule, ros_cls, robot)
     limits = rule.limits or robot.bridge.limits
     is_velocity = rule.ros_type in VELOCITY_TYPES
+    if rule.on_demand and is_velocity:
+        raise RuleError(f"{rule.label}: on_demand is not for velocity commands (the failsafe must always be able "
+                        f"to publish zero velocity on {rule.ros_topic})", rule)
     if rule.preset is not None:
         preset = _preset(rule, COMMAND_PRESETS, "command")
         build = preset.build

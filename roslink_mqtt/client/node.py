@@ -69,6 +69,10 @@ class Publisher:
         self.leaf = command_leaf(topic)
         self.command = roslink_command(self.leaf)  # "twist" etc., None for generic rules
         self.topic = node.client.topics.from_user(node.robot, node.client.username, self.leaf)
+        # a generic rule's ROS publisher may exist only while someone advertises it (on_demand rules)
+        self.advertised = bool(self.command is None and isinstance(msg_type, str) and node.client.connection.presence)
+        if self.advertised:
+            node.client.advertise(node.robot, self.leaf, msg_type)
 
     @property
     def topic_name(self) -> str:
@@ -295,7 +299,12 @@ class Node:
         return self._add(Timer(self, timer_period_sec, callback))
 
     def destroy_publisher(self, publisher: Publisher) -> bool:
-        return self._remove(publisher)  # nothing on the robot to remove: its rules are static
+        """Remove it; on an ``on_demand`` rule the robot's ROS publisher goes when its last advertiser does."""
+        if not self._remove(publisher):
+            return False
+        if publisher.advertised:
+            self.client.unadvertise(self.robot, publisher.leaf)
+        return True
 
     def destroy_subscription(self, subscription: Subscription) -> bool:
         if self._remove(subscription):

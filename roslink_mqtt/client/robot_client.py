@@ -24,6 +24,7 @@ from typing import Any
 from ..mqtt import BrokerUrl
 from ..protocol import ProtocolError, loads
 from ..topics import DEFAULT_PREFIX, Kind, TopicTree, check_name
+from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
 from .commands import CommandStreams, command_leaf, roslink_command
 from .connection import Connection
@@ -77,6 +78,7 @@ class RobotClient:
         self._streams = CommandStreams(self.topics, username)
         self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username)
         self._providers = ServiceProviders(self.connection, self.topics, username)
+        self._advertisements = Advertisements(self.connection, self.topics, username)
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
         self._initial_robots = [check_name(r, "robot") for r in robots]
@@ -112,6 +114,7 @@ class RobotClient:
         self._closed = True
         if self.connection.connected.is_set():
             self._providers.withdraw_all()
+            self._advertisements.withdraw_all()
         self._calls.fail_all("the client was closed")
         self.connection.close()
         self._scheduler.close()
@@ -276,6 +279,23 @@ class RobotClient:
         """
         self.watch(robot)
         return self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout)
+
+    def advertise(self, robot: str, topic: str, ros_type: str) -> None:
+        """Announce that we publish ``ros_type`` on the generic rule ``topic`` of ``robot``.
+
+        Rules marked ``on_demand`` in the fleet file have a ROS publisher only while someone
+        advertises them (or publishes on them): this creates it before the first message, and
+        :meth:`unadvertise` (or closing, or dying) removes it. Harmless for other rules.
+        """
+        if self.connection.presence is None:
+            raise ValueError("advertising needs operator presence: the robot keeps the ROS publisher only while "
+                             "our presence heartbeat is live (create the client with presence=True)")
+        self.watch(robot)
+        self._advertisements.advertise(check_name(robot, "robot"), topic, ros_type)
+
+    def unadvertise(self, robot: str, topic: str) -> None:
+        """Undo one :meth:`advertise`; the last one for a topic withdraws it."""
+        self._advertisements.withdraw(robot, topic)
 
     # -- network thread ------------------------------------------------------------------------
     def _on_heartbeat(self, topic: str, payload: bytes, _retained: bool) -> None:

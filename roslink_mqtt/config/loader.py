@@ -34,7 +34,7 @@ from .yamlsource import ConfigError, Path, Source, load_yaml
 _REQUIRED: Any = object()
 _ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
-_RESERVED_FROM = ("call", "provide", "response")
+_RESERVED_FROM = ("call", "provide", "response", "advertise")
 SERVICE_PRESETS = ("takeoff", "land", "arm", "disarm", "get_map", "emergency_stop")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
@@ -304,7 +304,7 @@ class _FleetReader:
 
     def rule(self, path: Path, index: int) -> Rule:
         self.mapping(path, ("direction", "ros_topic", "ros_type", "mqtt_topic", "preset", "mqtt_qos", "retain",
-                            "ros_qos", "max_rate", "fields", "limits"))
+                            "ros_qos", "max_rate", "fields", "limits", "on_demand"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
         first = mqtt_topic.split("/")[0]
@@ -332,6 +332,10 @@ class _FleetReader:
             qos = RosQos(self.value(qp, "depth", self.integer(1, 10000), qos.depth),
                          self.value(qp, "reliability", self.choice(("reliable", "best_effort")), qos.reliability),
                          self.value(qp, "durability", self.choice(("volatile", "transient_local")), qos.durability))
+        on_demand = self.value(path, "on_demand", self.boolean, False)
+        if on_demand and (direction is not Direction.MQTT_TO_ROS or preset is not None):
+            raise self.err(path + ("on_demand",), "on_demand applies to generic mqtt_to_ros rules only (ROSLink "
+                                                  "commands keep their ROS publisher: the failsafe needs it)")
         fields: dict[str, str] = {}
         if self.get(path).get("fields") is not None:
             fp = path + ("fields",)
@@ -353,6 +357,7 @@ class _FleetReader:
             max_rate=self.value(path, "max_rate", self.number(0, 10000, open_low=True), None),
             fields=fields,
             limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else None,
+            on_demand=on_demand,
             line=self.src.line_of(path),
         )
 

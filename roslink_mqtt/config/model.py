@@ -71,6 +71,7 @@ class Rule:
     max_rate: float | None = None  # Hz; newest wins
     fields: dict[str, str] = field(default_factory=dict)  # mqtt field -> ros field path
     limits: VelocityLimits | None = None
+    on_demand: bool = False  # mqtt_to_ros: the ROS publisher exists only while a live operator advertises it
     line: int | None = None
 
     @property

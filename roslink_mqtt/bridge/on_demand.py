@@ -1,0 +1,128 @@
+"""ROS publishers that exist only while someone publishes through them (``on_demand`` rules).
+
+The legacy-ROSLink promise: ROS endpoints come and go with the programs behind
+them. For a generic mqtt_to_ros rule marked ``on_demand``, the bridge's ROS
+publisher exists while at least one live operator *advertises* it:
+
+* explicitly, with a retained ``from/<user>/advertise/<name>``
+  ``{"type": "pkg/msg/T", "client_id": "<presence id>"}`` (the SDK's
+  ``create_publisher``); an empty retained message withdraws it
+  (``destroy_publisher``), and the advertiser's presence ending (last-will,
+  silence) withdraws it too;
+* implicitly, by publishing on the rule: a plain MQTT client needs no extra step,
+  and the publisher then lives while any client of that user is live.
+
+Velocity and ROSLink command rules are never on demand: the failsafe must always
+be able to publish on them. ROS entities are created and destroyed under one
+lock, so a message never meets a half-destroyed publisher.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.node import Node
+
+from ..config import Role
+from ..protocol import ProtocolError, loads
+from .rules import Inbound, ros_qos
+
+log = logging.getLogger("roslink_mqtt.bridge.on_demand")
+
+IMPLICIT = ""  # client_id of an implicit advertisement: any live client of the user keeps it
+
+
+class OnDemandPublishers:
+    """The advertisements per on-demand rule, and the ROS publishers they keep alive."""
+
+    def __init__(self, node: Node, rules: dict[str, Inbound], always_there: set[str],
+                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
+                 error: Callable[[str, str, str], None]) -> None:
+        """``rules``: the on-demand rules by MQTT name; ``always_there``: the other mqtt_to_ros names."""
+        self.node, self.rules, self.always_there = node, rules, always_there
+        self.role_of, self.is_live, self.error = role_of, is_live, error
+        self._lock = threading.RLock()
+        self._adverts: dict[str, dict[str, str]] = {name: {} for name in rules}  # name -> user -> client_id
+        self._publishers: dict[str, Any] = {}
+
+    def advertise(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """A retained ``advertise/<name>`` from ``user`` (MQTT thread); empty = withdrawn."""
+        rule = self.rules.get(name)
+        if rule is None:
+            if name not in self.always_there:  # advertising a rule whose publisher always exists is harmless
+                known = ", ".join(sorted({*self.rules, *self.always_there})) or "none"
+                self.error(user, topic, f"no mapping '{name}' on this robot (mqtt_to_ros rules: {known})")
+            return
+        if not payload:
+            with self._lock:
+                self._adverts[name].pop(user, None)
+            return
+        if self.role_of(user) is not Role.OPERATOR:
+            self.error(user, topic, f"user '{user}' may not publish on '{name}' (operators only)")
+            return
+        try:
+            body = loads(payload)
+            if not isinstance(body, dict) or not isinstance(body.get("type"), str):
+                raise ProtocolError('expected {"type": "pkg/msg/Type", "client_id": "<presence client id>"}')
+            unknown = sorted(set(body) - {"type", "client_id"})
+            if unknown:
+                raise ProtocolError(f"unknown field '{unknown[0]}' (fields: type, client_id)")
+            if body["type"] != rule.rule.ros_type:
+                raise ProtocolError(f"'{name}' carries {rule.rule.ros_type}, not {body['type']}")
+            client_id = body.get("client_id", IMPLICIT)
+            if not isinstance(client_id, str):
+                raise ProtocolError("client_id: expected a string")
+        except ProtocolError as err:
+            self.error(user, topic, str(err))
+            return
+        with self._lock:
+            self._adverts[name][user] = client_id
+
+    def publisher(self, user: str, name: str) -> Any:
+        """The ROS publisher for a message from ``user`` on ``name`` (MQTT thread), created if need be.
+
+        Publishing is an implicit advertisement, so a plain MQTT client needs no extra step.
+        """
+        with self._lock:
+            self._adverts[name].setdefault(user, IMPLICIT)
+            return self._ensure(name)
+
+    def publish(self, user: str, name: str, msg: Any) -> None:
+        with self._lock:  # never on a publisher that refresh() is destroying
+            self.publisher(user, name).publish(msg)
+
+    def _ensure(self, name: str) -> Any:
+        pub = self._publishers.get(name)
+        if pub is None:
+            rule = self.rules[name]
+            pub = self._publishers[name] = self.node.create_publisher(rule.ros_cls, rule.rule.ros_topic,
+                                                                      ros_qos(rule.rule.ros_qos))
+            log.info("created ROS publisher %s for '%s' (advertised by %s)", pub.topic_name, name,
+                     ", ".join(sorted(self._adverts[name])))
+        return pub
+
+    def withdraw_user(self, user: str) -> None:
+        """Forget ``user``'s advertisements (e.g. their operator grant was removed)."""
+        with self._lock:
+            for adverts in self._adverts.values():
+                adverts.pop(user, None)
+
+    def refresh(self) -> None:
+        """Drop advertisements whose client is gone; create and destroy publishers to match (executor)."""
+        with self._lock:
+            for name, adverts in self._adverts.items():
+                for user, client_id in list(adverts.items()):
+                    if not self.is_live(user, client_id or None):
+                        del adverts[user]
+                if adverts and name not in self._publishers:
+                    self._ensure(name)
+                elif not adverts and name in self._publishers:
+                    pub = self._publishers.pop(name)
+                    log.info("removed ROS publisher %s: nobody publishes on '%s' any more", pub.topic_name, name)
+                    self.node.destroy_publisher(pub)
+
+    def exists(self, name: str) -> bool:
+        return name in self._publishers
