@@ -67,9 +67,14 @@ def test_sdk_publisher_creates_and_destroys_the_ros_publisher(stack) -> None:
     try:
         pub = node.create_publisher("std_msgs/msg/Bool", "lights", 10)
         assert publishers_become(lights, 1), "advertising did not create the ROS publisher"
+        # as with any new ROS publisher, subscribers match it a moment later: publish until one arrives (bounded)
         t0 = time.monotonic()
-        pub.publish({"data": True})
-        lights.wait_for(lambda m: m.data is True, after=t0)
+        for _ in range(50):
+            pub.publish({"data": True})
+            if lights.since(t0):
+                break
+            time.sleep(0.2)
+        lights.wait_for(lambda m: m.data is True, after=t0, timeout=1)
         node.destroy_publisher(pub)
         assert publishers_become(lights, 0), "destroy_publisher did not remove the ROS publisher"
     finally:

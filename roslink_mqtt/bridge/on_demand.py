@@ -111,15 +111,19 @@ class OnDemandPublishers:
                 adverts.pop(user, None)
 
     def refresh(self) -> None:
-        """Drop advertisements whose client is gone; create and destroy publishers to match (executor)."""
+        """Create and destroy publishers to match the live advertisements (executor)."""
         with self._lock:
             for name, adverts in self._adverts.items():
+                live = False
                 for user, client_id in list(adverts.items()):
-                    if not self.is_live(user, client_id or None):
-                        del adverts[user]
-                if adverts and name not in self._publishers:
+                    if self.is_live(user, client_id or None):
+                        live = True
+                    elif client_id == IMPLICIT:
+                        del adverts[user]  # renewed by the user's next message
+                    # an explicit advertisement stays until withdrawn: its client may not have said hello yet
+                if live and name not in self._publishers:
                     self._ensure(name)
-                elif not adverts and name in self._publishers:
+                elif not live and name in self._publishers:
                     pub = self._publishers.pop(name)
                     log.info("removed ROS publisher %s: nobody publishes on '%s' any more", pub.topic_name, name)
                     self.node.destroy_publisher(pub)
