@@ -127,6 +127,3 @@ class OnDemandPublishers:
                     pub = self._publishers.pop(name)
                     log.info("removed ROS publisher %s: nobody publishes on '%s' any more", pub.topic_name, name)
                     self.node.destroy_publisher(pub)
-
-    def exists(self, name: str) -> bool:
-        return name in self._publishers
