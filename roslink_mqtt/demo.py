@@ -102,6 +102,21 @@ class Scene:
                 show.discard(name)
         return latest
 
+    def newest(self, name: str, settle: float = 0.5) -> dict:
+        """The newest ``name`` message after ``settle`` seconds: the queue holds older ones from while we drove."""
+        time.sleep(settle)
+        newest: dict = {}
+        while True:
+            try:
+                topic, payload = self.inbox.get_nowait()
+            except queue.Empty:
+                break
+            if topic.rsplit("/", 1)[1] == name:
+                newest = decode(payload).payload
+        if newest:
+            print(f"  bob sees {self.topics.state('turtle1', name)}: {_summary(name, newest)}")
+        return newest
+
     def reply(self, timeout: float = 5.0) -> tuple[str, dict]:
         topic, payload = self.replies.get(timeout=timeout)
         return topic, orjson.loads(payload)
@@ -178,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
             scene.operator.publish(cmd, orjson.dumps({"message_id": int(MessageId.TWIST), "sequence_number": seq,
                                                       "payload": {"lx": 0.4, "az": 0.5}}))
             time.sleep(0.1)
-        motion = scene.watch(0.5, {"global_motion"}).get("global_motion") or {}
+        motion = scene.newest("global_motion")
         print(f"  the robot moved {abs(motion.get('x', start_x) - start_x):.2f} m in x")
         print("5. alice sends a malformed twist {\"lx\": \"fast\"}:")
         scene.beat()
