@@ -103,16 +103,8 @@ class Scene:
         return latest
 
     def newest(self, name: str, settle: float = 0.5) -> dict:
-        """The newest ``name`` message after ``settle`` seconds: the queue holds older ones from while we drove."""
-        time.sleep(settle)
-        newest: dict = {}
-        while True:
-            try:
-                topic, payload = self.inbox.get_nowait()
-            except queue.Empty:
-                break
-            if topic.rsplit("/", 1)[1] == name:
-                newest = decode(payload).payload
+        """Print the newest ``name`` message seen within ``settle`` s: the queue still holds older ones."""
+        newest = self.watch(settle, set()).get(name) or {}
         if newest:
             print(f"  bob sees {self.topics.state('turtle1', name)}: {_summary(name, newest)}")
         return newest
