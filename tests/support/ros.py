@@ -53,6 +53,17 @@ class Watch:
 
 
 class RosProbe:
+    """One rclpy context, node and executor of the test's own.
+
+    The spin thread is stopped and joined before anything is destroyed: rclpy
+    does not support destroying a node (or shutting down its context) while
+    another thread waits on it, and in rclpy 7.1 ``Executor.shutdown`` returns
+    without waiting for the spinning thread. Doing it in that order once left
+    a CI run stuck in C code, where no Python timeout can interrupt it.
+    """
+
+    SPIN_PERIOD = 0.05  # how soon the spin thread notices close()
+
     def __init__(self) -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
@@ -62,14 +73,18 @@ class RosProbe:
         self.node = rclpy.create_node(f"test_probe_{time.monotonic_ns()}", context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self._stopping = threading.Event()
+        self.spin_error: BaseException | None = None
+        self.thread = threading.Thread(target=self._spin, name="ros-probe-spin", daemon=True)
         self.thread.start()
 
     def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # shutdown races end the thread quietly
-            pass
+        while not self._stopping.is_set():
+            try:
+                self.executor.spin_once(timeout_sec=self.SPIN_PERIOD)
+            except Exception as err:  # kept for close() to report; a test must not lose it silently
+                self.spin_error = err
+                return
 
     def watch(self, msg_type: type, topic: str, qos: Any = 10) -> Watch:
         w = Watch()
@@ -79,7 +94,15 @@ class RosProbe:
     def publisher(self, msg_type: type, topic: str, qos: Any = 10) -> Any:
         return self.node.create_publisher(msg_type, topic, qos)
 
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1)
+    def close(self, timeout: float = 10.0) -> None:
+        self._stopping.set()
+        self.executor.wake()
+        self.thread.join(timeout)
+        if self.thread.is_alive():
+            # Destroying what the thread still waits on could hang this process for good; leak it instead.
+            raise RuntimeError(f"ROS probe spin thread still running {timeout} s after close()")
         self.node.destroy_node()
+        self.executor.shutdown(timeout_sec=0)
         self.context.try_shutdown()
+        if self.spin_error is not None:
+            raise RuntimeError("ROS probe spin thread failed") from self.spin_error
