@@ -22,6 +22,7 @@ from pathlib import Path
 import orjson
 
 from .config import load_fleet
+from .fastdds_shm import remove_zombie_segments
 from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, decode
@@ -148,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     logs = Path(args.logs)
     logs.mkdir(parents=True, exist_ok=True)
     port = fleet.broker.port if _port_free(fleet.broker.port) else _free_port()
+    remove_zombie_segments()  # a killed earlier run must not leave this one stale DDS state
     env = local_ros_env()
     print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (DDS on loopback), "
           f"logs in {logs}/")

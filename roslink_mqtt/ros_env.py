@@ -12,6 +12,8 @@ import os
 import random
 from importlib import resources
 
+from .fastdds_shm import remove_zombie_segments
+
 
 def fastdds_profile() -> str:
     """Path of the bundled Fast DDS profile that binds 127.0.0.1 only."""
@@ -35,7 +37,12 @@ def local_ros_env(domain_id: int | None = None, base: dict[str, str] | None = No
 
 
 def apply_local_ros_env(domain_id: int | None = None) -> dict[str, str]:
-    """Set the loopback-only ROS variables in this process (before importing rclpy)."""
+    """Set the loopback-only ROS variables in this process (before importing rclpy).
+
+    Also clears shared-memory files that killed DDS processes left behind, so
+    this run cannot pick up their stale state (see :mod:`roslink_mqtt.fastdds_shm`).
+    """
+    remove_zombie_segments()
     env = local_ros_env(domain_id)
     for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE",
                 "RMW_IMPLEMENTATION", "ROS_DOMAIN_ID"):

@@ -104,5 +104,6 @@ class RosProbe:
         self.node.destroy_node()
         self.executor.shutdown(timeout_sec=0)
         self.context.try_shutdown()
+        self.context.destroy()  # the DDS participant goes now, not whenever the garbage collector runs
         if self.spin_error is not None:
             raise RuntimeError("ROS probe spin thread failed") from self.spin_error

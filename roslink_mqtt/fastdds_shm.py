@@ -1,0 +1,55 @@
+"""Remove Fast DDS shared-memory files left behind by processes that died.
+
+With ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` the Jazzy RMW adds Fast DDS's
+shared-memory transport to every participant, whatever the XML profile says.
+Its segments live in /dev/shm as ``fastrtps_*`` files, each with a ``*_el``
+companion that the owning process holds an exclusive flock on. A process that
+is killed (the fault-injection tests do that on purpose; a stopped session does
+it to everything) leaves both files behind; a later run on the same machine
+would map that stale state again. A companion nobody holds a lock on marks a
+zombie: the same rule as ``fastdds shm clean``.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+from pathlib import Path
+
+SHM_DIR = Path("/dev/shm")
+LOCK_SUFFIX = "_el"
+
+
+def _unlocked(lock_file: Path) -> bool:
+    """True when no living process holds the companion's lock (we can take it ourselves)."""
+    try:
+        fd = os.open(lock_file, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return True
+    finally:
+        os.close(fd)
+
+
+def remove_zombie_segments(shm_dir: Path = SHM_DIR) -> list[str]:
+    """Delete every ``fastrtps_*`` segment whose owner is gone; return the names removed."""
+    removed: list[str] = []
+    if not shm_dir.is_dir():
+        return removed
+    for lock_file in sorted(shm_dir.glob(f"fastrtps_*{LOCK_SUFFIX}")):
+        if not _unlocked(lock_file):
+            continue
+        segment = lock_file.with_name(lock_file.name[: -len(LOCK_SUFFIX)])
+        for path in (segment, lock_file):
+            try:
+                path.unlink()
+                removed.append(path.name)
+            except FileNotFoundError:
+                pass
+    return removed

@@ -1,0 +1,85 @@
+"""Zombie Fast DDS shared-memory files are removed; files of living processes are kept."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from roslink_mqtt.fastdds_shm import SHM_DIR, remove_zombie_segments
+
+
+def _segment(dir_: Path, name: str) -> tuple[Path, Path]:
+    seg, lock = dir_ / name, dir_ / f"{name}_el"
+    seg.write_bytes(b"\0" * 64)
+    lock.write_bytes(b"")
+    return seg, lock
+
+
+def test_only_unlocked_segments_go(tmp_path: Path) -> None:
+    live_seg, live_lock = _segment(tmp_path, "fastrtps_port7000")
+    dead_seg, dead_lock = _segment(tmp_path, "fastrtps_port7001")
+    lonely = tmp_path / "fastrtps_0123456789abcdef"  # no companion: not ours to judge
+    lonely.write_bytes(b"x")
+    other = tmp_path / "someone_else_el"
+    other.write_bytes(b"")
+    holder = os.open(live_lock, os.O_RDWR)  # a separate open file: flock conflicts as with another process
+    try:
+        fcntl.flock(holder, fcntl.LOCK_EX)
+        removed = remove_zombie_segments(tmp_path)
+    finally:
+        os.close(holder)
+    assert sorted(removed) == ["fastrtps_port7001", "fastrtps_port7001_el"]
+    assert live_seg.exists() and live_lock.exists() and lonely.exists() and other.exists()
+    assert not dead_seg.exists() and not dead_lock.exists()
+
+
+def test_missing_directory_is_nothing_to_do(tmp_path: Path) -> None:
+    assert remove_zombie_segments(tmp_path / "absent") == []
+
+
+ROS_SLEEPER = ("import rclpy, time; rclpy.init(); node = rclpy.create_node('shm_probe'); "
+               "print('up', flush=True); time.sleep(60)")
+
+
+def _mapped_fastdds_files(pid: int) -> set[str]:
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return {Path(line.split()[-1]).name for line in maps.splitlines() if f"{SHM_DIR}/fastrtps_" in line}
+
+
+def _start_ros_sleeper(domain_id: int) -> subprocess.Popen:
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id)}
+    proc = subprocess.Popen([sys.executable, "-c", ROS_SLEEPER], stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "up"
+    return proc
+
+
+def test_a_killed_ros_process_leaves_zombies_that_are_removed() -> None:
+    """Real rclpy processes (LOCALHOST range, so Jazzy's RMW adds the SHM transport).
+
+    Different domains: a living peer of the same domain may clean the dead one's
+    files itself, and then this test could not tell whether ours did.
+    """
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    living, killed = _start_ros_sleeper(domain), _start_ros_sleeper(domain % 101 + 1)
+    try:
+        deadline = time.monotonic() + 10
+        while not (_mapped_fastdds_files(living.pid) and _mapped_fastdds_files(killed.pid)):
+            assert time.monotonic() < deadline, "no Fast DDS shared-memory segment mapped"
+            time.sleep(0.1)
+        living_files, killed_files = _mapped_fastdds_files(living.pid), _mapped_fastdds_files(killed.pid)
+        killed.send_signal(signal.SIGKILL)
+        killed.wait(5)
+        assert all((SHM_DIR / name).exists() for name in killed_files)  # SIGKILL leaves them behind
+        removed = set(remove_zombie_segments())
+        assert killed_files <= removed
+        assert not living_files & removed
+        assert all((SHM_DIR / name).exists() for name in living_files)
+    finally:
+        for proc in (living, killed):
+            proc.kill()
+            proc.wait()
