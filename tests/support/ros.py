@@ -58,8 +58,15 @@ class RosProbe:
     The spin thread is stopped and joined before anything is destroyed: rclpy
     does not support destroying a node (or shutting down its context) while
     another thread waits on it, and in rclpy 7.1 ``Executor.shutdown`` returns
-    without waiting for the spinning thread. Doing it in that order once left
-    a CI run stuck in C code, where no Python timeout can interrupt it.
+    without waiting for the spinning thread. The old order (destroy while the
+    thread might still wait) is the likely cause of a CI run that sat stuck in
+    C code between two test modules, where no Python timeout reaches.
+
+    Known residual risk, measured here: deleting a Fast DDS 2.14 participant
+    after peers were SIGKILLed mid-stream sometimes segfaults inside its
+    shared-memory transport (about once per 90 killed peers flooding 2 kB
+    messages). The suite kills a publishing ROS process only twice, at a low
+    rate; ``faulthandler_timeout`` in pyproject.toml ends a run stuck in C.
     """
 
     SPIN_PERIOD = 0.05  # how soon the spin thread notices close()
