@@ -310,7 +310,7 @@ def test_huge_packet_closes_the_connection_before_it_is_buffered(broker, clients
     t1 = clients(broker.port, "turtle1")
     t1.client.publish("roslink/turtle1/state/huge", b"x" * (MAX_PAYLOAD + 200_000), qos=0)
     assert t1.disconnected.wait(5)
-    assert "packet of" in broker.output() and "limit" in broker.output()
+    assert "PUBLISH of" in broker.output() and "limit" in broker.output()
 
 
 # -- 12: failed start ------------------------------------------------------------------------------

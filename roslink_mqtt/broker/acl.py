@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntFlag, StrEnum
+from typing import Any
 
 from ..config import Fleet, Role
 from ..topics import OPERATORS
@@ -203,14 +204,18 @@ class DecisionCache:
     The cache is tied to the :class:`FleetAcl` and login it was filled from. A reload
     builds a new FleetAcl, so every session's cache goes stale at once (callers compare
     with :meth:`valid_for`), and a persistent session resumed under another login
-    cannot reuse verdicts. ``limit`` bounds memory against clients that publish to
-    ever-new topics.
+    cannot reuse verdicts. ``limit`` (entries) and ``limit_bytes`` bound memory against clients
+    that publish to ever-new topics: 1,500 distinct 60 kB topics once held 70 MB in a cache
+    bounded only by entries.
     """
 
-    __slots__ = ("acl", "login", "limit", "_verdicts")
+    __slots__ = ("acl", "login", "limit", "limit_bytes", "_bytes", "_verdicts")
 
-    def __init__(self, acl: FleetAcl, login: str | None, limit: int = 4096) -> None:
-        self.acl, self.login, self.limit = acl, login, limit
+    ENTRY_OVERHEAD = 200  # bytes a dict entry, its tuple key and the key's string header take besides the text
+
+    def __init__(self, acl: FleetAcl, login: str | None, limit: int = 4096, limit_bytes: int = 256 * 1024) -> None:
+        self.acl, self.login, self.limit, self.limit_bytes = acl, login, limit, limit_bytes
+        self._bytes = 0
         self._verdicts: dict[tuple[str, str], bool] = {}
 
     def valid_for(self, acl: FleetAcl, login: str | None) -> bool:
@@ -222,10 +227,19 @@ class DecisionCache:
 
     def decide(self, topic: str, action: str) -> bool:
         verdict = self.acl.allows(self.login, topic, action)
-        if len(self._verdicts) >= self.limit:
+        cost = len(topic) + self.ENTRY_OVERHEAD
+        if len(self._verdicts) >= self.limit or self._bytes + cost > self.limit_bytes:
             self._verdicts.clear()
-        self._verdicts[(topic, action)] = verdict  # amqtt's Action hashes like its str value
+            self._bytes = 0
+        if cost <= self.limit_bytes:  # a topic larger than the whole cache is decided, not kept
+            self._verdicts[(topic, action)] = verdict  # amqtt's Action hashes like its str value
+            self._bytes += cost
         return verdict
+
+    @property
+    def size_bytes(self) -> int:
+        """Approximate memory the cached verdicts hold (topic text plus per-entry overhead)."""
+        return self._bytes
 
     def __len__(self) -> int:
         return len(self._verdicts)
@@ -264,3 +278,57 @@ class LiveFleet:
         self.fleet = fleet
         return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed)
 
+
+
+# Requests a user may leave retained under from/<user>/: offers that stay true while the user is there.
+# Everything else under from/ is a command or a call, executed when it arrives; a retained one would be
+# executed again by every bridge that subscribes later, so the broker refuses it.
+RETAINABLE_VERBS = frozenset({"provide", "advertise"})
+
+
+class TopicPolicy:
+    """Per-topic and per-login rules beyond read/write: payload caps, retain refusals, retained quotas.
+
+    Read on every PUBLISH, so it looks at the live fleet each time (a reload applies at once)
+    and keeps no per-topic state. ``limits`` is a :class:`~roslink_mqtt.broker.limits.BrokerLimits`.
+    """
+
+    def __init__(self, live: LiveFleet, limits: Any) -> None:
+        self.live, self.limits = live, limits
+
+    def _levels(self, topic: str) -> list[str] | None:
+        """The levels after the fleet prefix, or None for a topic outside the tree."""
+        prefix = self.live.fleet.prefix
+        if not topic.startswith(prefix + "/"):
+            return None
+        return topic[len(prefix) + 1:].split("/")
+
+    def payload_limit(self, topic: str) -> int:
+        """Largest payload accepted on ``topic`` (0 = only the broker's max_payload applies)."""
+        levels = self._levels(topic)
+        if levels is not None and levels[0] == OPERATORS:
+            return self.limits.max_presence_bytes  # a presence heartbeat is ~100 bytes
+        return 0
+
+    def retain_refusal(self, topic: str) -> str | None:
+        """Why a retained PUBLISH on ``topic`` is refused, or None."""
+        levels = self._levels(topic)
+        if levels is None or len(levels) < 4 or levels[1] != "from":
+            return None
+        verb = levels[3]
+        if verb in RETAINABLE_VERBS:
+            return None
+        return (f"retained '{verb}' messages are refused: a command or call is executed when it arrives, "
+                "and a retained copy would run again whenever a bridge reconnects")
+
+    def retained_limit(self, login: str | None) -> int | None:
+        """Retained payload bytes ``login`` may keep (None = only the broker-wide total applies)."""
+        fleet = self.live.fleet
+        if login is None:
+            return None  # the broker's own ($SYS)
+        if login in fleet.robots:
+            return self.limits.retained_bytes_robot
+        user = fleet.users.get(login)
+        if user is not None and user.admin:
+            return None
+        return self.limits.retained_bytes_user

@@ -19,11 +19,14 @@ behaviour.
    over the session of a client id before checking the password, so a wrong password
    with a victim's client id wipes the victim's subscriptions; failed logins also
    leave "connected" zombie sessions.
-5. **Client-id take-over** (MQTT-3.1.4-2) closes the old connection first (stock leaves
-   it open, or breaks the new one). No will is published on take-over: the client is
-   alive, it reconnected.
-6. **A persistent session is resumed only by the login that made it** (stock lets
-   another user with the same client id inherit its subscriptions and queued messages).
+5. **Client ids are per login.** The session table is keyed by (login, client id), so a
+   login can take over only its own sessions: a viewer who connects with the bridge's or
+   an operator's client id gets a session of its own and disconnects nobody (stock and
+   MQTT let any login kick any client, e.g. keep a robot offline). A take-over by the
+   same login (MQTT-3.1.4-2) closes the old connection first (stock leaves it open, or
+   breaks the new one); no will is published on take-over: the client reconnected.
+6. **A persistent session is resumed only by the login that made it** (follows from 5;
+   stock lets another user with the same client id inherit its subscriptions and queue).
 7. **Will topic** is checked against the PUBLISH ACL at CONNECT (stock never checks wills).
 8. **Broadcast vs. concurrent SUBSCRIBE**: stock awaits the ACL while iterating the
    subscription dict; a SUBSCRIBE meanwhile raises "dictionary changed size" and the
@@ -37,27 +40,49 @@ behaviour.
 12. **Failed start** (port in use) closes the listeners that did bind (stock leaves them
     open and refuses ``shutdown()``).
 13. **Publishing to ``$`` topics** is dropped like any denied publish, as Mosquitto does
-    (stock closes the connection), and payloads over ``max_payload`` are dropped. A packet
-    larger than ``max_payload`` plus the largest possible topic closes the connection
-    before it is read (stock buffers up to the protocol's 256 MB per packet).
+    (stock closes the connection), and payloads over ``max_payload`` (or the topic's own
+    cap, e.g. 4 kB for presence heartbeats) are dropped. A PUBLISH with wildcards or NUL in
+    its topic ends the connection with a logged reason (stock stops reading the client
+    silently); a will with QoS 3 or such a topic is refused at CONNECT. Retained commands
+    and calls are dropped (``TopicPolicy.retain_refusal``).
+14. **Packet sizes are checked from the fixed header** (:class:`~.guard.PacketGate`):
+    CONNECT, SUBSCRIBE/UNSUBSCRIBE and PUBLISH each have a limit, enforced before the body is
+    read, also before login (stock reads SUBSCRIBE filter by filter, so no read limit ever
+    triggered: one 781 kB SUBSCRIBE held the loop for 2 s).
+15. **WebSocket connections closed mid-packet** end the read (stock spins re-appending the
+    last frame: ~4 s of stalled loop per connection).
+16. **SUBSCRIBE** is bounded per session (``max_subscriptions``), yields to the loop every
+    32 filters, and finds retained messages through :class:`~.limits.RetainedIndex` (a tree)
+    instead of matching every filter against every retained message.
+17. **Slow consumers** (:class:`~.outbox.Outbox`): deliveries waiting for one client are
+    bounded in messages and bytes (socket buffer included); over that, messages to it are
+    dropped, and after ``slow_consumer_timeout`` over the limit it is disconnected (stock:
+    memory grows without bound behind a client that does not read).
+18. **Retained quotas** per login and in total (:class:`~.limits.RetainedQuota`).
+19. **Closed clean sessions are freed at once** (stock keeps them, with their ACL caches,
+    until the same client id connects again).
+20. **Offline queues** of persistent sessions hold at most ``max_offline_messages``.
+21. **Connections per login** are bounded (``max_connections_per_login``).
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
 * ``Broker``: ``_initialize_client_session`` (replaced; the part after authentication
   mirrors stock), ``_authenticate`` (replaced), ``_client_connected`` (wrapped),
   ``_handle_message_delivery`` (wrapped), ``_broadcast_message`` and ``_run_broadcast``
-  (replaced), ``_handle_subscription`` (wrapped),
+  (replaced), ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped),
   ``_publish_retained_messages_for_subscription`` and ``_publish_session_retained_messages``
   (replaced), ``_topic_filtering`` (replaced), ``_handle_disconnect`` (wrapped), ``start``
+  (wrapped), ``ws_connected`` (replaced), ``retain_message`` and ``_retain_broadcast_message``
   (wrapped); read or called: ``_sessions``, ``_subscriptions``, ``_retained_messages``,
   ``_broadcast_queue``, ``_servers``, ``_get_handler``, ``_matches``, ``_delete_session``,
-  ``_retain_broadcast_message``, ``plugins_manager._topic_plugins``.
+  ``add_subscription``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
 * ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
-  ``handle_read_timeout``, ``handle_connection_closed``, ``attach``; the reader loop reads
-  ``session.keep_alive`` once, when the handler starts, as its read timeout, ends the
-  connection on an exception other than MQTTError/NoDataError/TimeoutError, and
-  ``PublishPayload.from_stream`` reads a payload with one ``reader.read(length)``.
+  ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
+  the reader loop reads ``session.keep_alive`` once, when the handler starts, as its read
+  timeout, and ends the connection on an exception other than MQTTError/NoDataError/
+  TimeoutError; packets are read from the reader given to ``_client_connected`` (the
+  gate sees every byte); ``WebSocketsReader._feed_buffer``/``_stream``/``_protocol``.
 * ``StreamWriterAdapter._writer`` (asyncio StreamWriter), ``WebSocketsWriter._protocol``
   (websockets ServerConnection): to abort a transport whose peer is frozen.
 * ``Session.attributes`` (amqtt's documented per-session dict) for our state:
@@ -69,6 +94,7 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
+import time
 from typing import Any
 
 from amqtt.adapters import ReaderAdapter, StreamWriterAdapter, WebSocketsWriter, WriterAdapter
@@ -83,6 +109,10 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.session import Session
 from amqtt.utils import gen_client_id
 
+from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, PacketGate, PacketTooLarge, SafeWebSocketsReader
+from .limits import BrokerLimits, RetainedIndex, RetainedQuota
+from .outbox import Outbox, Verdict
+
 log = logging.getLogger("roslink_mqtt.broker")
 
 AMQTT_VERSION = "0.12.1"  # the version every override above was written against
@@ -95,10 +125,12 @@ ATTR_KEEPALIVE = "roslink.keep_alive"  # the keep-alive the client asked for (se
 ATTR_AUTH_OK = "roslink.auth_ok"  # verdict computed before the session table was touched
 ATTR_DENY_REASON = "roslink.deny_reason"  # set by auth plugins for the refusal log line
 ATTR_LISTENER = "roslink.listener"
+ATTR_CLIENT_ID = "roslink.client_id"  # the client id the client sent (session.client_id is login-scoped)
+ATTR_OUTBOX = "roslink.outbox"  # Outbox: deliveries under way to this client
+ATTR_FILTERS = "roslink.filters"  # set of the filters this session holds (bounded by max_subscriptions)
 _ATTR_LOGGED = "roslink.logged"
 
 _PUB_QOS: contextvars.ContextVar[int | None] = contextvars.ContextVar("roslink_pub_qos", default=None)
-_IN_SUBSCRIBE: contextvars.ContextVar[bool] = contextvars.ContextVar("roslink_in_subscribe", default=False)
 _LISTENER: contextvars.ContextVar[str] = contextvars.ContextVar("roslink_listener", default="?")
 
 
@@ -113,6 +145,38 @@ def abort_transport(writer: WriterAdapter | None) -> None:
         transport.abort()
 
 
+def write_buffer_size(writer: WriterAdapter | None) -> int:
+    """Bytes waiting in a connection's send buffer (what a client that does not read makes us hold)."""
+    transport = None
+    if isinstance(writer, StreamWriterAdapter):
+        transport = writer._writer.transport
+    elif isinstance(writer, WebSocketsWriter):
+        transport = getattr(writer._protocol, "transport", None)
+    if transport is None:
+        return 0
+    try:
+        return transport.get_write_buffer_size()
+    except (AttributeError, RuntimeError):
+        return 0
+
+
+def _drop_connection(handler: BrokerProtocolHandler, reason: str) -> None:
+    if isinstance(handler, HardenedHandler):
+        handler.drop(reason)
+    else:  # not ours (a stock handler): abort, amqtt's reader loop then reports the disconnect
+        log.warning("%s: dropping connection", reason)
+        abort_transport(handler.writer)
+
+
+def topic_defect(topic: str, *, wildcards: bool = False) -> str | None:
+    """What makes ``topic`` invalid in a PUBLISH (or, with ``wildcards``, a SUBSCRIBE filter); None if fine."""
+    if "\0" in topic:
+        return "contains U+0000 (MQTT-1.5.3-2)"
+    if not wildcards and ("+" in topic or "#" in topic):
+        return "wildcards are not allowed in a topic name (MQTT-3.3.2-2)"
+    return None
+
+
 async def _close_quietly(writer: WriterAdapter) -> None:
     try:
         await asyncio.wait_for(writer.close(), 2)
@@ -120,8 +184,18 @@ async def _close_quietly(writer: WriterAdapter) -> None:
         abort_transport(writer)
 
 
+def client_id_of(session: Session) -> str:
+    """The client id as the client sent it (the session table keys it by login, see fix 5)."""
+    return session.attributes.get(ATTR_CLIENT_ID, session.client_id)
+
+
+def scoped_client_id(login: str | None, client_id: str) -> str:
+    """The session-table key: every login has its own client-id namespace (fix 5)."""
+    return f"{login or ''}\x00{client_id}"
+
+
 def describe_session(session: Session) -> str:
-    return (f"client_id={session.client_id!r} user={session.username!r} "
+    return (f"client_id={client_id_of(session)!r} user={session.username!r} "
             f"peer={session.remote_address}:{session.remote_port} via {session.attributes.get(ATTR_LISTENER, '?')}")
 
 
@@ -137,31 +211,6 @@ def _log_once(session: Session, key: str, level: int, message: str, *args: Any) 
 MAX_TOPIC_OVERHEAD = 2 + 65535 + 2  # topic length prefix, longest topic, packet id
 
 
-class PacketTooLarge(Exception):
-    """A client announced a packet larger than the broker accepts; its connection is closed."""
-
-
-class BoundedReader(ReaderAdapter):
-    """Refuses any single read larger than ``limit`` bytes.
-
-    amqtt reads a PUBLISH payload with one ``read(announced length)``, so this stops a client
-    from making the broker buffer up to 256 MB (the MQTT maximum) per packet. The exception
-    ends amqtt's reader loop, which closes the connection (an abnormal disconnect).
-    """
-
-    def __init__(self, inner: ReaderAdapter, limit: int, describe: Any) -> None:
-        self.inner, self.limit, self.describe = inner, limit, describe
-
-    async def read(self, n: int = -1) -> bytes:
-        if n > self.limit:
-            log.warning("closing %s: packet of %d bytes announced, limit %d", self.describe(), n, self.limit)
-            raise PacketTooLarge(n)
-        return await self.inner.read(n)
-
-    def feed_eof(self) -> None:
-        self.inner.feed_eof()
-
-
 class HardenedHandler(BrokerProtocolHandler):
     """Broker-side protocol handler that enforces keep-alive (fix 1).
 
@@ -174,21 +223,19 @@ class HardenedHandler(BrokerProtocolHandler):
 
     _expired = False
     _closing: asyncio.Task[None] | None = None
-    read_limit = 0  # bytes per read; 0 = unlimited (set by the broker before attach)
-
-    def attach(self, session: Session, reader: ReaderAdapter, writer: WriterAdapter) -> None:
-        if self.read_limit:
-            reader = BoundedReader(reader, self.read_limit, lambda: describe_session(session))
-        super().attach(session, reader, writer)
 
     def handle_read_timeout(self) -> None:
+        session = self.session
+        keep_alive = float(session.keep_alive) if session is not None else 0.0
+        self.drop(f"keep-alive expired: no packet for {keep_alive:.1f} s")
+
+    def drop(self, reason: str) -> None:
+        """End this connection now as an abnormal disconnect (the will is published); logged once."""
         if self._expired:
             return
         self._expired = True
-        session = self.session
-        if session is not None:
-            log.warning("keep-alive expired: no packet for %.1f s from %s; dropping it",
-                        float(session.keep_alive), describe_session(session))
+        if self.session is not None:
+            log.warning("%s: dropping %s", reason, describe_session(self.session))
         abort_transport(self.writer)
         self._closing = asyncio.get_running_loop().create_task(self.handle_connection_closed())
 
@@ -197,14 +244,29 @@ class HardenedBroker(Broker):
     """amqtt ``Broker`` with the fixes listed in the module docstring.
 
     ``max_payload`` (bytes, 0 = unlimited) drops larger PUBLISH payloads; ``connect_timeout``
-    bounds the wait for CONNECT.
+    bounds the wait for CONNECT; ``limits`` bounds what one login may cost (fixes 14-20);
+    ``policy`` (a :class:`~roslink_mqtt.broker.acl.TopicPolicy`, or None outside a fleet)
+    adds per-topic payload caps, retain refusals and retained quotas per login.
     """
 
     def __init__(self, config: dict[str, Any], *, connect_timeout: float = CONNECT_TIMEOUT,
-                 max_payload: int = 0) -> None:
+                 max_payload: int = 0, limits: BrokerLimits | None = None, policy: Any = None) -> None:
         super().__init__(config)
         self.connect_timeout = connect_timeout
         self.max_payload = max_payload
+        self.limits = limits or BrokerLimits()
+        self.policy = policy
+        self.retained_index = RetainedIndex()
+        self.retained_quota = RetainedQuota(self.limits)
+
+    def _packet_limit(self, packet_type: int) -> int:
+        if packet_type == PUBLISH:
+            return self.max_payload + MAX_TOPIC_OVERHEAD if self.max_payload else 0
+        if packet_type == CONNECT:
+            return self.limits.max_connect_bytes
+        if packet_type in (SUBSCRIBE, UNSUBSCRIBE):
+            return self.limits.max_subscribe_bytes
+        return 0
 
     # -- fix 12: a failed start leaves nothing listening -------------------------------
     async def start(self) -> None:
@@ -218,7 +280,14 @@ class HardenedBroker(Broker):
 
     async def _client_connected(self, listener_name: str, reader: ReaderAdapter, writer: WriterAdapter) -> None:
         _LISTENER.set(listener_name)  # this task serves one connection: name it in its log lines
-        await super()._client_connected(listener_name, reader, writer)
+        peer = writer.get_peer_info()
+        where = f"{peer[0]}:{peer[1]} via {listener_name}" if peer else f"? via {listener_name}"
+        gate = PacketGate(reader, self._packet_limit, lambda: where)  # fix 14: sizes checked from the first byte
+        await super()._client_connected(listener_name, gate, writer)
+
+    async def ws_connected(self, websocket: Any, listener_name: str) -> None:
+        # fix 15: amqtt's WebSocket reader spins on a connection closed mid-packet
+        await self._client_connected(listener_name, SafeWebSocketsReader(websocket), WebSocketsWriter(websocket))
 
     # -- fixes 1, 4, 5, 6, 7, 10: CONNECT handling ---------------------------------------
     async def _initialize_client_session(self, reader: ReaderAdapter, writer: WriterAdapter,
@@ -233,14 +302,17 @@ class HardenedBroker(Broker):
             log.warning("no CONNECT from %s within %.0f s; closing", peer, self.connect_timeout)
             await _close_quietly(writer)
             raise AMQTTError("connect timeout") from exc
+        except PacketTooLarge as exc:
+            abort_transport(writer)
+            raise AMQTTError(str(exc)) from exc
         except MQTTError as exc:
             await _close_quietly(writer)
             raise MQTTError(exc) from exc
         except (AMQTTError, NoDataError) as exc:
             raise AMQTTError(exc) from exc
         session.attributes[ATTR_LISTENER] = _LISTENER.get()
-        if self.max_payload and isinstance(handler, HardenedHandler):
-            handler.read_limit = self.max_payload + MAX_TOPIC_OVERHEAD
+        if session.client_id:
+            session.attributes[ATTR_CLIENT_ID] = session.client_id
 
         reason = await self._admit(session)
         if reason is not None:
@@ -255,16 +327,16 @@ class HardenedBroker(Broker):
                 await _close_quietly(writer)
             raise MQTTError(f"{peer}: not authorized")
 
-        if session.client_id:
-            await self._take_over(session.client_id)
+        if not session.client_id:
+            session.client_id = gen_client_id()
+            session.attributes[ATTR_CLIENT_ID] = session.client_id
+        session.client_id = scoped_client_id(session.username, session.client_id)
+        await self._take_over(session.client_id)
 
         # From here on: stock 0.12.1 logic, plus fix 6 and the keep-alive factor.
         resumed = False
         if session.clean_session:
-            if session.client_id:
-                await self._delete_session(session.client_id)
-            else:
-                session.client_id = gen_client_id()
+            await self._delete_session(session.client_id)
         elif session.client_id in self._sessions:
             existing, _ = self._sessions[session.client_id]
             if existing.username != session.username:
@@ -294,8 +366,22 @@ class HardenedBroker(Broker):
             return session.attributes.pop(ATTR_DENY_REASON, None) or "authentication failed"
         if session.will_flag and session.will_topic is not None:
             will = session.will_topic
+            if session.will_qos not in (0, 1, 2):
+                return f"will QoS {session.will_qos} is not 0, 1 or 2 (MQTT-3.1.2-14)"
+            if (bad := topic_defect(will)) is not None:
+                return f"will topic {will!r}: {bad}"
             if will.startswith("$") or not await self._topic_filtering(session, will, Action.PUBLISH):
                 return f"will topic {will!r} is not writable for this login"
+            if session.will_retain and self.policy is not None and (why := self.policy.retain_refusal(will)):
+                return f"will topic {will!r}: {why}"
+        limit = self.limits.max_connections_per_login
+        if limit and session.username:
+            scoped = scoped_client_id(session.username, session.client_id or "")
+            live = sum(1 for s, _ in self._sessions.values()
+                       if s.username == session.username and s.transitions.state == "connected"
+                       and s.client_id != scoped)  # a take-over of its own session is not one more
+            if live >= limit:
+                return f"this login already has {live} connections (limit {limit})"
         return None
 
     async def _take_over(self, client_id: str) -> None:
@@ -304,7 +390,8 @@ class HardenedBroker(Broker):
         if entry is None or entry[0].transitions.state != "connected":
             return
         old_session, old_handler = entry
-        log.info("client_id=%r connected again; closing its previous connection (no will)", client_id)
+        log.info("client_id=%r of %r connected again; closing its previous connection (no will)",
+                 client_id_of(old_session), old_session.username)
         old_session.will_flag = False
         abort_transport(old_handler.writer)
         await old_handler.handle_connection_closed()
@@ -329,20 +416,45 @@ class HardenedBroker(Broker):
         await super()._handle_disconnect(client_session, handler, disconnect_waiter)
         log.info("disconnected %s: %s", describe_session(client_session),
                  "DISCONNECT" if clean else "connection lost" + (", will published" if will else ""))
+        # fix 19: a clean session's state goes now, not when its client id happens to come back
+        # (stock keeps every closed session, its subscriptions and caches, until then)
+        if client_session.clean_session:
+            entry = self._sessions.get(client_session.client_id)
+            if entry is not None and entry[0] is client_session:  # not yet taken over by a new connection
+                await self._delete_session(client_session.client_id)
+            for key in list(client_session.attributes):
+                if key not in (ATTR_LISTENER, ATTR_CLIENT_ID):
+                    del client_session.attributes[key]
 
-    # -- fixes 3 and 13: PUBLISH from a client ----------------------------------------------
+    # -- fixes 3, 13, 16, 18: PUBLISH from a client -------------------------------------------
     async def _handle_message_delivery(self, client_session: Session, handler: BrokerProtocolHandler,
                                        wait_deliver: asyncio.Future[Any]) -> bool:
         message = wait_deliver.result()
-        if message is not None and message.topic:
-            if message.topic.startswith("$"):
-                _log_once(client_session, "$" + message.topic, logging.INFO,
-                          "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
-                          message.topic)
+        if message is not None:
+            topic = message.topic
+            if not topic or (defect := topic_defect(topic)) is not None:
+                # MQTT-3.3.2-2 / 1.5.3-2: a protocol violation ends the connection (stock drops the
+                # message silently and stops reading this client's packets, so a QoS 1 sender hung)
+                _drop_connection(handler, f"PUBLISH to {topic!r}: {defect if topic else 'empty topic'}")
                 return True
-            if self.max_payload and message.data is not None and len(message.data) > self.max_payload:
-                _log_once(client_session, "size", logging.WARNING, "dropped publish %s topic=%r: %d bytes > %d",
-                          describe_session(client_session), message.topic, len(message.data), self.max_payload)
+            if topic.startswith("$"):
+                _log_once(client_session, "$" + topic, logging.INFO,
+                          "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
+                          topic)
+                return True
+            size = len(message.data) if message.data is not None else 0
+            limit = self.max_payload
+            if self.policy is not None and (topic_limit := self.policy.payload_limit(topic)):
+                limit = min(limit, topic_limit) if limit else topic_limit
+            if limit and size > limit:
+                _log_once(client_session, "size:" + topic[:200], logging.WARNING,
+                          "dropped publish %s topic=%r: %d bytes > %d", describe_session(client_session), topic,
+                          size, limit)
+                return True
+            retained = message.publish_packet is not None and message.publish_packet.retain_flag
+            if retained and self.policy is not None and (why := self.policy.retain_refusal(topic)):
+                _log_once(client_session, "retain:" + topic[:200], logging.WARNING, "dropped publish %s topic=%r: %s",
+                          describe_session(client_session), topic, why)
                 return True
         token = _PUB_QOS.set(getattr(message, "qos", None))
         try:
@@ -359,7 +471,7 @@ class HardenedBroker(Broker):
             broadcast["pub_qos"] = pub_qos  # a client's PUBLISH (set by _handle_message_delivery)
         await self._broadcast_queue.put(broadcast)
 
-    # -- fixes 3, 8: fan-out ----------------------------------------------------------------
+    # -- fixes 3, 8, 17: fan-out --------------------------------------------------------------
     async def _run_broadcast(self, running_tasks: Any) -> None:
         broadcast = await self._broadcast_queue.get()
         topic: str = broadcast["topic"]
@@ -384,55 +496,141 @@ class HardenedBroker(Broker):
                 if not target.clean_session and qos in (QOS_1, QOS_2) and not target.is_anonymous:
                     await self._retain_broadcast_message(broadcast, qos, target)
                 continue
-            handler = self._get_handler(target)
-            if handler is not None:
-                running_tasks.append(asyncio.ensure_future(
-                    handler.mqtt_publish(topic, broadcast["data"], qos, retain=False)))
+            task = self._deliver(target, topic, broadcast["data"], qos, retain=False)
+            if task is not None:
+                running_tasks.append(task)
+
+    def _deliver(self, target: Session, topic: str, data: bytes | bytearray, qos: int,
+                 *, retain: bool) -> asyncio.Future[Any] | None:
+        """Start one delivery unless the client already has too much waiting (fix 17)."""
+        handler = self._get_handler(target)
+        if handler is None:
+            return None
+        outbox: Outbox | None = target.attributes.get(ATTR_OUTBOX)
+        if outbox is None:
+            outbox = target.attributes[ATTR_OUTBOX] = Outbox()
+        size = len(data) if data is not None else 0
+        verdict = outbox.admit(size, write_buffer_size(handler.writer), time.monotonic(), self.limits)
+        if verdict is Verdict.DROP:
+            _log_once(target, "slow", logging.WARNING, "slow consumer %s: over %d messages / %d bytes waiting; "
+                      "dropping messages to it", describe_session(target), self.limits.max_queued_messages,
+                      self.limits.max_queued_bytes)
+            return None
+        if verdict is Verdict.DISCONNECT:
+            _drop_connection(handler, f"slow consumer: over its queue limit for "
+                                      f"{self.limits.slow_consumer_timeout:.0f} s ({outbox.dropped} messages dropped)")
+            return None
+        task = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))
+        task.add_done_callback(lambda _t: outbox.done(size))
+        return task
+
+    async def _retain_broadcast_message(self, broadcast: dict[str, Any], qos: int, target_session: Session) -> None:
+        # fix 20: what waits for a disconnected persistent session is bounded like Mosquitto's queue
+        limit = self.limits.max_offline_messages
+        if limit and target_session.retained_messages.qsize() >= limit:
+            _log_once(target_session, "offline-full", logging.WARNING,
+                      "offline queue of %s is full (%d messages); dropping further messages",
+                      describe_session(target_session), limit)
+            return
+        await super()._retain_broadcast_message(broadcast, qos, target_session)
 
     # -- fix 9: messages queued while a persistent session was offline ---------------------
     async def _publish_session_retained_messages(self, session: Session) -> None:
-        handler = self._get_handler(session)
-        if handler is None:
-            return
         tasks = []
         while not session.retained_messages.empty():
             queued = session.retained_messages.get_nowait()
             if not await self._topic_filtering(session, topic=queued.topic, action=Action.RECEIVE):
                 continue
-            tasks.append(asyncio.ensure_future(
-                handler.mqtt_publish(queued.topic, queued.data, queued.qos, retain=False)))
+            task = self._deliver(session, queued.topic, queued.data, queued.qos, retain=False)
+            if task is not None:
+                tasks.append(task)
         if tasks:
             await asyncio.wait(tasks)
 
-    # -- fix 2: retained messages -----------------------------------------------------------
+    # -- fixes 2, 18: the retained store ---------------------------------------------------------
+    async def retain_message(self, source_session: Session | None, topic_name: str | None,
+                             data: bytes | bytearray | None, qos: int | None = None) -> None:
+        if topic_name is None:
+            return
+        if data:
+            login = source_session.username if source_session is not None else None
+            limit = self.policy.retained_limit(login) if self.policy is not None else None
+            if (why := self.retained_quota.check(login or "$broker", limit, topic_name, len(data))) is not None:
+                if source_session is not None:
+                    _log_once(source_session, "quota", logging.WARNING, "not retained %s topic=%r: %s",
+                              describe_session(source_session), topic_name, why)
+                return
+            self.retained_quota.stored(login or "$broker", topic_name, len(data))
+            self.retained_index.add(topic_name)
+        else:
+            self.retained_quota.cleared(topic_name)
+            self.retained_index.discard(topic_name)
+        await super().retain_message(source_session, topic_name, data, qos)
+
+    # -- fixes 2, 14: SUBSCRIBE ------------------------------------------------------------------
     async def _handle_subscription(self, client_session: Session, handler: BrokerProtocolHandler,
                                    subscribe_waiter: asyncio.Future[Any]) -> None:
-        token = _IN_SUBSCRIBE.set(True)
-        try:
-            await super()._handle_subscription(client_session, handler, subscribe_waiter)
-        finally:
-            _IN_SUBSCRIBE.reset(token)
+        # Replaces stock: bounded filters per session, the loop yields between filters, and retained
+        # messages are found through the index and sent for this session's own filters only.
+        request = subscribe_waiter.result()
+        limit = self.limits.max_subscriptions
+        held = client_session.attributes.get(ATTR_FILTERS)
+        if held is None:
+            held = client_session.attributes[ATTR_FILTERS] = set()
+        codes: list[int] = []
+        for i, (topic_filter, qos) in enumerate(request.topics):
+            if i and i % 32 == 0:
+                await asyncio.sleep(0)  # a large SUBSCRIBE must not hold the loop other clients need
+            if limit and topic_filter not in held and len(held) >= limit:
+                _log_once(client_session, "subs-limit", logging.WARNING,
+                          "refused filters of %s: it holds %d subscriptions (limit %d)",
+                          describe_session(client_session), len(held), limit)
+                codes.append(0x80)
+                continue
+            if topic_defect(topic_filter, wildcards=True) is not None:
+                codes.append(0x80)
+                continue
+            code = await self.add_subscription((topic_filter, qos), client_session)
+            if code != 0x80:
+                held.add(topic_filter)
+            codes.append(code)
+        await handler.mqtt_acknowledge_subscription(request.packet_id, codes)
+        seen: set[str] = set()
+        for (topic_filter, _qos), code in zip(request.topics, codes, strict=True):
+            if code == 0x80 or topic_filter in seen:
+                continue
+            seen.add(topic_filter)
+            await self._send_retained(topic_filter, code, client_session)
+
+    async def _handle_unsubscription(self, client_session: Session, handler: BrokerProtocolHandler,
+                                     unsubscribe_waiter: asyncio.Future[Any]) -> None:
+        held = client_session.attributes.get(ATTR_FILTERS)
+        if held is not None:
+            for topic_filter in unsubscribe_waiter.result().topics:
+                held.discard(topic_filter)
+        await super()._handle_unsubscription(client_session, handler, unsubscribe_waiter)
 
     async def _publish_retained_messages_for_subscription(self, subscription: tuple[str, int],
                                                           session: Session) -> None:
-        # Stock also calls this right after CONNACK for every filter in the broker's
-        # subscription table (anybody's). Only a SUBSCRIBE of this session may send retained.
-        if not _IN_SUBSCRIBE.get():
-            return
-        topic_filter = subscription[0]
-        granted = next((qos for s, qos in self._subscriptions.get(topic_filter, ())
-                        if s.client_id == session.client_id), None)
+        # Stock calls this right after CONNACK for every filter in the broker's subscription
+        # table (anybody's). Retained messages go out only from _handle_subscription.
+        return
+
+    async def _send_retained(self, topic_filter: str, granted: int, session: Session) -> None:
         handler = self._get_handler(session)
-        if granted is None or handler is None:
+        if handler is None:
             return
         tasks = []
-        for topic, retained in list(self._retained_messages.items()):
-            if not self._matches(topic, topic_filter):
-                continue
-            if not await self._topic_filtering(session, topic=topic, action=Action.RECEIVE):
+        for visited, topic in enumerate(self.retained_index.matches(topic_filter)):
+            if visited and visited % 256 == 0:
+                await asyncio.sleep(0)
+            retained = self._retained_messages.get(topic)
+            if retained is None or not await self._topic_filtering(session, topic=topic, action=Action.RECEIVE):
                 continue
             qos = granted if retained.qos is None else min(granted, retained.qos)
-            tasks.append(asyncio.ensure_future(handler.mqtt_publish(retained.topic, retained.data, qos, retain=True)))
+            task = self._deliver(session, retained.topic, retained.data, qos, retain=True)
+            if task is not None:
+                tasks.append(task)
         if tasks:
             await asyncio.wait(tasks)
 

@@ -101,6 +101,7 @@ class FleetAclPlugin(BaseTopicPlugin):
     @dataclass
     class Config:
         fleet: Any = None  # LiveFleet
+        cache_bytes: int = 256 * 1024  # per session (BrokerLimits.acl_cache_bytes)
 
     async def topic_filtering(self, *, session: Session | None = None, topic: str | None = None,
                               action: Action | None = None) -> bool | None:
@@ -109,7 +110,8 @@ class FleetAclPlugin(BaseTopicPlugin):
         acl = self.config.fleet.acl
         cache: DecisionCache | None = session.attributes.get(ATTR_ACL_CACHE)
         if cache is None or not cache.valid_for(acl, session.username):
-            cache = session.attributes[ATTR_ACL_CACHE] = DecisionCache(acl, session.username)
+            cache = session.attributes[ATTR_ACL_CACHE] = DecisionCache(
+                acl, session.username, limit_bytes=self.config.cache_bytes)
         verdict = cache.lookup(topic, action)
         if verdict is None:
             verdict = cache.decide(topic, action)

@@ -18,8 +18,9 @@ from typing import Any
 from amqtt.errors import BrokerError
 
 from ..config import ConfigError, Fleet, TlsSettings, load_fleet
-from .acl import LiveFleet
+from .acl import LiveFleet, TopicPolicy
 from .hardened import CONNECT_TIMEOUT, HardenedBroker
+from .limits import BrokerLimits
 from .plugins import FleetAclPlugin, FleetAuthPlugin, SysInfoPlugin, plugin_path
 from .ratelimit import LoginThrottle
 
@@ -58,6 +59,7 @@ class ServerOptions:
     session_expiry: int | None = 3600  # s a disconnected persistent session is kept
     acl: bool = True  # False only for benchmarks: authenticate, but no topic checks
     throttle: LoginThrottle | None = field(default_factory=LoginThrottle)
+    limits: BrokerLimits = field(default_factory=BrokerLimits)
 
     @classmethod
     def from_fleet(cls, fleet: Fleet, **overrides: Any) -> ServerOptions:
@@ -95,7 +97,7 @@ def amqtt_config(options: ServerOptions, live: LiveFleet) -> dict[str, Any]:
     # Giving 'plugins' replaces amqtt's defaults (anonymous login, $SYS, packet loggers).
     plugins: dict[str, Any] = {plugin_path(FleetAuthPlugin): {"fleet": live, "throttle": options.throttle}}
     if options.acl:
-        plugins[plugin_path(FleetAclPlugin)] = {"fleet": live}
+        plugins[plugin_path(FleetAclPlugin)] = {"fleet": live, "cache_bytes": options.limits.acl_cache_bytes}
     plugins[plugin_path(SysInfoPlugin)] = {"interval": float(options.sys_interval)}
     return {"listeners": listeners, "plugins": plugins, "timeout_disconnect_delay": 0,
             "session_expiry_interval": options.session_expiry}
@@ -113,7 +115,8 @@ class EmbeddedBroker:
     async def start(self) -> None:
         self._check_tls_files()
         broker = HardenedBroker(amqtt_config(self.options, self.live), connect_timeout=self.options.connect_timeout,
-                                max_payload=self.options.max_payload)
+                                max_payload=self.options.max_payload, limits=self.options.limits,
+                                policy=TopicPolicy(self.live, self.options.limits))
         try:
             await broker.start()
         except BrokerError as err:
