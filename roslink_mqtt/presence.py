@@ -10,10 +10,23 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from enum import Enum
 
 from .protocol import Envelope, MessageId, ProtocolError, RobotType, SystemStatus, decode, encode
 
 DEFAULT_OPERATOR_PERIOD = 1.0  # s between operator heartbeats
+# A heartbeat is ~200 bytes. Anything much larger is not one, and parsing megabytes of JSON on the bridge's
+# MQTT thread (the thread that carries commands) would delay every command queued behind it.
+MAX_PRESENCE_BYTES = 1024
+
+
+class Presence(Enum):
+    """What one message on an operator topic says, decided before any lock is taken."""
+
+    GONE = "gone"  # empty: the last-will or a clean sign-off
+    COMMANDING = "commanding"
+    WATCHING = "watching"
+    OVERSIZED = "oversized"  # larger than MAX_PRESENCE_BYTES: ignored unread, not a heartbeat
 
 
 def operator_heartbeat(user: str, client_id: str, sequence_number: int = 0, *, commanding: bool = True) -> bytes:
@@ -44,6 +57,20 @@ def is_commanding(payload: bytes) -> bool:
     return envelope.payload.get("system_status") != SystemStatus.STANDBY
 
 
+def classify_presence(payload: bytes, max_bytes: int = MAX_PRESENCE_BYTES) -> Presence:
+    """Classify an operator-topic payload; the size is checked before a single byte is parsed.
+
+    An oversized body is not a heartbeat: a client that only sends those
+    expires like a silent one, so a flood of them can neither keep a client
+    alive nor cost the bridge more than a length check.
+    """
+    if not payload:
+        return Presence.GONE
+    if len(payload) > max_bytes:
+        return Presence.OVERSIZED
+    return Presence.COMMANDING if is_commanding(payload) else Presence.WATCHING
+
+
 @dataclass
 class OperatorTracker:
     """Live operator clients: when each was last heard of and whether it commands."""
@@ -52,15 +79,23 @@ class OperatorTracker:
     _seen: dict[tuple[str, str], tuple[float, bool]] = field(default_factory=dict)
 
     def heartbeat(self, user: str, client_id: str, payload: bytes, now: float) -> bool:
-        """Record one message on an operator topic; False when ``user`` just lost command presence.
+        """Classify and record one message on an operator topic (see :meth:`record`)."""
+        return self.record(user, client_id, classify_presence(payload), now)
 
-        An empty payload is the last-will or a clean sign-off. Command presence
-        is lost when a commanding client leaves, or when the user's last client
-        does; a watcher leaving while others stay changes nothing.
+    def record(self, user: str, client_id: str, presence: Presence, now: float) -> bool:
+        """Record an already classified message; False when ``user`` just lost command presence.
+
+        Split from parsing so the bridge can classify outside its command lock.
+        GONE is the last-will or a clean sign-off. Command presence is lost
+        when a commanding client leaves, or when the user's last client does;
+        a watcher leaving while others stay changes nothing. OVERSIZED changes
+        nothing at all.
         """
         key = (user, client_id)
-        if payload:
-            self._seen[key] = (now, is_commanding(payload))
+        if presence is Presence.OVERSIZED:
+            return True
+        if presence is not Presence.GONE:
+            self._seen[key] = (now, presence is Presence.COMMANDING)
             return True
         gone = self._seen.pop(key, None)
         return not ((gone is not None and gone[1]) or not self.is_live(user))
@@ -80,10 +115,11 @@ class OperatorTracker:
         """Any client of ``user`` live, or that one client when ``client_id`` is given."""
         if client_id is not None:
             return (user, client_id) in self._seen
-        return any(u == user for u, _ in self._seen)
+        # tuple(): one atomic copy, as the executor asks while paho's thread may be recording
+        return any(u == user for u, _ in tuple(self._seen))
 
     def live_users(self) -> set[str]:
-        return {u for u, _ in self._seen}
+        return {u for u, _ in tuple(self._seen)}
 
     def clients(self) -> Iterable[tuple[str, str]]:
         return list(self._seen)

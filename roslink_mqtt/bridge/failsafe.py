@@ -10,6 +10,10 @@ once (a last-will, a disconnect) are checked with :meth:`operator_gone` and
 "Motion" is a velocity stream (twist) or an autonomous goal (waypoint,
 takeoff): both stop when their operator or the broker goes away; only the
 stream has a dead-man timeout.
+
+:func:`late_motion` keeps a backlog inside the bridge from replaying old
+motion: a motion command is only worth executing while the dead-man would
+still accept the stream it belongs to.
 """
 
 from __future__ import annotations
@@ -56,3 +60,21 @@ class Failsafe:
     def stopped(self) -> None:
         """A stop was carried out: no motion until a live operator commands again."""
         self.active, self.last_velocity_at = False, None
+
+
+def late_motion(arrived: float | None, now: float, command_timeout: float, *, stop: bool) -> str | None:
+    """Why a motion command must not be executed now, or None.
+
+    ``arrived`` is when the command reached the bridge (paho's callback) and
+    ``now`` is just before it would be published to ROS. A command that waited
+    longer than ``command_timeout`` in between is stale: the operator may have
+    let go, or sent a stop that is still queued behind it. A stop is always
+    executed, however late; ``arrived`` None (not from MQTT) is never late.
+    """
+    if stop or arrived is None:
+        return None
+    waited = now - arrived
+    if waited <= command_timeout:
+        return None
+    return (f"dropped a motion command that waited {waited:.2f} s inside the bridge "
+            f"(more than command_timeout {command_timeout:g} s); send it again")

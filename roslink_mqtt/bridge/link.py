@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 
 import paho.mqtt.client as mqtt
@@ -20,9 +21,15 @@ log = logging.getLogger("roslink_mqtt.bridge.link")
 
 
 class MqttLink:
+    """One paho client with reconnects; ``on_message(topic, payload, retained, arrived)`` runs on paho's thread.
+
+    ``arrived`` is ``time.monotonic()`` when paho handed the message over: the bridge measures from it how long
+    a command waited inside the bridge before reaching ROS.
+    """
+
     def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl,
                  keepalive: int, will: tuple[str, bytes], subscriptions: Callable[[], list[tuple[str, int]]],
-                 on_message: Callable[[str, bytes, bool], None],
+                 on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
                  ca_file: str | None = None, max_reconnect_delay: float = 2.0) -> None:
         self.url, self.keepalive = url, keepalive
@@ -98,7 +105,10 @@ class MqttLink:
         log.debug("broker %s not reachable yet; retrying", self.url)
 
     def _handle_message(self, _client, _userdata, message: mqtt.MQTTMessage) -> None:
+        # Taken first thing: the command path compares it with the time of publication to ROS, so a command
+        # that waited too long inside the bridge (lock, backlog) is never executed late.
+        arrived = time.monotonic()
         try:
-            self._on_message(message.topic, message.payload, bool(message.retain))
+            self._on_message(message.topic, message.payload, bool(message.retain), arrived)
         except Exception:  # a bug in one handler must not kill the network thread
             log.exception("error handling %s", message.topic)

@@ -11,7 +11,7 @@ from typing import Any
 from rclpy.node import Node
 
 from ..config import Fleet, Robot, Role
-from ..presence import OperatorTracker
+from ..presence import MAX_PRESENCE_BYTES, OperatorTracker, Presence, classify_presence
 from ..protocol import (
     AckResult,
     Envelope,
@@ -26,13 +26,13 @@ from ..protocol import (
 )
 from ..topics import Kind, TopicTree
 from .convert import ConversionError, converter_for
-from .failsafe import Failsafe
+from .failsafe import Failsafe, late_motion
 from .link import MqttLink
 from .on_demand import OnDemandPublishers
 from .presets import CommandRefused
 from .ros_types import UnknownTypeError, load_interface
 from .rules import Inbound, Outbound, RuleError, compile_rules, ros_qos
-from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
+from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, is_standstill, make_safe_twist
 from .services import ProvidedServices, ServiceCaller
 from .systemd import SystemdNotifier
 from .throttle import Throttle
@@ -42,6 +42,7 @@ log = logging.getLogger("roslink_mqtt.bridge")
 SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 GOAL_PRESETS = ("go_to_waypoint", "takeoff")
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
+MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
 
 
 def _static_part(robot: Robot) -> tuple:
@@ -74,6 +75,7 @@ class Bridge:
         self._heartbeat_seq = self._ack_seq = 0
         self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
         self._stop_repeats_left = 0
+        self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho thread only)
         self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
         outbound, self.inbound = compile_rules(robot, self.topics)
         self.velocity_publishers: list[tuple[Inbound, Any]] = []
@@ -301,7 +303,8 @@ class Bridge:
         self.link.publish(topic, payload, qos, retain)
 
     # -- MQTT → ROS (paho network thread) ---------------------------------------------
-    def on_mqtt(self, topic: str, payload: bytes, retained: bool = False) -> None:
+    def on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
+        """One MQTT message; ``arrived`` (monotonic, from the link) lets late motion be dropped, not executed."""
         parsed = self.topics.parse(topic)
         if parsed is None:
             return
@@ -339,16 +342,34 @@ class Bridge:
         if self.role_of(user) is not Role.OPERATOR:
             self.refuse(user, topic, f"user '{user}' is not an operator of {self.robot.name}")
             return
-        self.handle_command(user, topic, rule, payload)
+        self.handle_command(user, topic, rule, payload, arrived)
 
     def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
+        """Operator presence. Classified before the lock (bounded work), so presence can never hold up a stop."""
+        presence = classify_presence(payload)
+        if presence is Presence.OVERSIZED:
+            self._ignore_oversized_presence(user, client_id, len(payload))
+            return
         with self._lock:
-            if not self.operators.heartbeat(user, client_id, payload, time.monotonic()):
+            if not self.operators.record(user, client_id, presence, time.monotonic()):
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (last-will)")
 
-    def handle_command(self, user: str, topic: str, rule: Inbound, payload: bytes) -> None:
+    def _ignore_oversized_presence(self, user: str, client_id: str, size: int) -> None:
+        """Say once per client (and for a bounded number of clients) that its presence bodies are ignored."""
+        key = (user, client_id)
+        if key in self._oversized_presence or len(self._oversized_presence) >= MAX_OVERSIZED_LOGGED:
+            return
+        self._oversized_presence.add(key)
+        reason = (f"ignored an oversized presence payload ({size} bytes, limit {MAX_PRESENCE_BYTES}) from "
+                  f"{user}/{client_id}: it does not count as a heartbeat")
+        log.warning("%s", reason)
+        self.refuse(user, self.topics.operator(user, client_id), reason)
+
+    def handle_command(self, user: str, topic: str, rule: Inbound, payload: bytes,
+                       arrived: float | None = None) -> None:
+        """Decode, check and execute one command (paho thread); motion that waited too long here is dropped."""
         message_id = sequence = None
         preset = rule.spec.name if rule.spec is not None else None
         try:
@@ -378,6 +399,11 @@ class Bridge:
             if rule.is_velocity or preset in GOAL_PRESETS:
                 if self.motion_blocked:
                     self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence)
+                    return
+                late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
+                                   stop=rule.is_velocity and is_standstill(msg))
+                if late:
+                    self.refuse(user, topic, late, message_id, sequence)
                     return
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if rule.is_velocity:
