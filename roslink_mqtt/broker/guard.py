@@ -27,12 +27,21 @@ CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE = 1, 3, 8, 10
 PACKET_NAMES = {CONNECT: "CONNECT", PUBLISH: "PUBLISH", SUBSCRIBE: "SUBSCRIBE", UNSUBSCRIBE: "UNSUBSCRIBE"}
 
 
-class PacketTooLarge(Exception):
-    """A client announced a packet larger than the broker accepts; its connection is closed.
+class PacketRefused(Exception):
+    """A packet the broker will not read further; the connection is closed.
 
     Not an ``MQTTError``: amqtt's reader loop treats those as "discard and go on", which
-    would leave the stream in the middle of a packet.
+    leaves the stream in the middle of a packet -- that is how a wildcard PUBLISH topic was
+    silently dropped, its payload then read as further packets, and a QoS 1 sender hung.
     """
+
+
+class PacketTooLarge(PacketRefused):
+    """A client announced a packet larger than the broker accepts."""
+
+
+class BadTopic(PacketRefused):
+    """A PUBLISH topic with a wildcard or U+0000 (MQTT-3.3.2-2, MQTT-1.5.3-2)."""
 
 
 class PacketGate(ReaderAdapter):
@@ -40,16 +49,19 @@ class PacketGate(ReaderAdapter):
 
     ``limit_for(packet_type)`` gives the largest remaining length accepted for a packet
     type (0 = no limit). The framing is MQTT 3.1.1 §2.2: one type byte, then a remaining
-    length of 1-4 bytes (7 bits each, high bit = more), then that many bytes.
+    length of 1-4 bytes (7 bits each, high bit = more), then that many bytes. A PUBLISH
+    topic (the first 2 + n bytes of its body) is checked for wildcards and NUL as it passes.
+    ``describe`` names the connection in the log line; the broker replaces it after login.
     """
 
-    __slots__ = ("inner", "limit_for", "describe", "_state", "_type", "_length", "_shift", "_left")
+    __slots__ = ("inner", "limit_for", "describe", "_state", "_type", "_length", "_shift", "_left", "_topic")
 
     _TYPE, _LENGTH, _BODY = 0, 1, 2
 
     def __init__(self, inner: ReaderAdapter, limit_for: Callable[[int], int], describe: Callable[[], str]) -> None:
         self.inner, self.limit_for, self.describe = inner, limit_for, describe
         self._state, self._type, self._length, self._shift, self._left = self._TYPE, 0, 0, 0, 0
+        self._topic: bytearray | None = None  # a PUBLISH topic being read (length prefix included)
 
     async def read(self, n: int = -1) -> bytes:
         data = await self.inner.read(n)
@@ -65,10 +77,12 @@ class PacketGate(ReaderAdapter):
         while i < size:
             if self._state == self._BODY:
                 take = min(self._left, size - i)
+                if self._topic is not None:
+                    self._collect_topic(data[i:i + take])
                 self._left -= take
                 i += take
                 if self._left == 0:
-                    self._state = self._TYPE
+                    self._state, self._topic = self._TYPE, None
                 continue
             byte = data[i]
             i += 1
@@ -89,6 +103,23 @@ class PacketGate(ReaderAdapter):
             raise PacketTooLarge(f"{name} of {self._length} bytes > {limit}")
         self._left = self._length
         self._state = self._BODY if self._length else self._TYPE
+        self._topic = bytearray() if self._type == PUBLISH and self._length else None
+
+    def _collect_topic(self, chunk: bytes) -> None:
+        topic = self._topic
+        assert topic is not None
+        need = 2 + (int.from_bytes(topic[:2], "big") if len(topic) >= 2 else 65535)
+        topic += chunk[:max(0, need - len(topic))]
+        if len(topic) >= 2:
+            need = 2 + int.from_bytes(topic[:2], "big")
+        if len(topic) < need:
+            return
+        name = bytes(topic[2:need])
+        self._topic = None
+        for bad, why in ((b"+", "a wildcard"), (b"#", "a wildcard"), (b"\0", "U+0000")):
+            if bad in name:
+                log.warning("closing %s: PUBLISH topic %r contains %s", self.describe(), name[:200], why)
+                raise BadTopic(f"PUBLISH topic contains {why}")
 
 
 class SafeWebSocketsReader(WebSocketsReader):

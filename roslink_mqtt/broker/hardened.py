@@ -109,7 +109,7 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.session import Session
 from amqtt.utils import gen_client_id
 
-from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, PacketGate, PacketTooLarge, SafeWebSocketsReader
+from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, PacketGate, PacketRefused, SafeWebSocketsReader
 from .limits import BrokerLimits, RetainedIndex, RetainedQuota
 from .outbox import Outbox, Verdict
 
@@ -302,7 +302,7 @@ class HardenedBroker(Broker):
             log.warning("no CONNECT from %s within %.0f s; closing", peer, self.connect_timeout)
             await _close_quietly(writer)
             raise AMQTTError("connect timeout") from exc
-        except PacketTooLarge as exc:
+        except PacketRefused as exc:
             abort_transport(writer)
             raise AMQTTError(str(exc)) from exc
         except MQTTError as exc:
@@ -311,6 +311,8 @@ class HardenedBroker(Broker):
         except (AMQTTError, NoDataError) as exc:
             raise AMQTTError(exc) from exc
         session.attributes[ATTR_LISTENER] = _LISTENER.get()
+        if isinstance(reader, PacketGate):
+            reader.describe = lambda: describe_session(session)
         if session.client_id:
             session.attributes[ATTR_CLIENT_ID] = session.client_id
 

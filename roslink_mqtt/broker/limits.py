@@ -39,8 +39,12 @@ class BrokerLimits:
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any]) -> BrokerLimits:
-        """Build from robots.yaml's ``broker.limits`` (already validated by the config loader)."""
-        return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
+        """Build from name -> number (``--limit`` options); integer fields get integers."""
+        out: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name in values:
+                out[f.name] = float(values[f.name]) if f.type in ("float", float) else int(values[f.name])
+        return cls(**out)
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

@@ -44,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="failed logins per client address before attempts are slowed (default: %(default)s)")
     p.add_argument("--login-max-delay", type=float, default=8.0, metavar="S",
                    help="longest spacing between login attempts from a guessing address (default: %(default)s)")
+    p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE", type=_limit,
+                   help="override one of the broker's per-login limits (docs/safety.md lists them), "
+                        "e.g. --limit max_queued_bytes=1048576; repeatable")
     p.add_argument("--no-acl", action="store_true", help=argparse.SUPPRESS)  # benchmarks only: no topic checks
     return p
 
@@ -53,6 +56,21 @@ def _port(text: str) -> int:
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"port must be 0..65535, got {value}")
     return value
+
+
+def _limit(text: str) -> tuple[str, float]:
+    from .limits import BrokerLimits
+
+    name, sep, value = text.partition("=")
+    if not sep or name not in BrokerLimits.names():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with NAME one of {', '.join(BrokerLimits.names())}")
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: expected a number, got {value!r}") from None
+    if number < 0:
+        raise argparse.ArgumentTypeError(f"{name}: must be >= 0, got {value}")
+    return name, number
 
 
 def setup_logging(level: str) -> None:
@@ -76,6 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: the broker needs the [broker] extra: pip install 'roslink-mqtt[broker]'", file=sys.stderr)
         return 2
     from ..config import ConfigError, load_fleet
+    from .limits import BrokerLimits
     from .ratelimit import LoginThrottle
     from .server import EmbeddedBroker, ServerOptions
 
@@ -93,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = ServerOptions.from_fleet(
         fleet, host=args.host, port=args.port, ws_port=args.ws_port, connect_timeout=args.connect_timeout,
         sys_interval=args.sys_interval, session_expiry=args.session_expiry, throttle=throttle,
-        acl=not args.no_acl)
+        acl=not args.no_acl, limits=BrokerLimits.from_mapping(dict(args.limit)))
     server = EmbeddedBroker(args.config, fleet, options)
     try:
         return asyncio.run(serve(server))

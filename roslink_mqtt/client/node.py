@@ -244,7 +244,7 @@ class Node:
         self._logger = Logger(node_name)
         username = username or os.environ.get("ROSLINK_USERNAME") or ""
         self.client = RobotClient(username or None, password, url=url, robots=[self.robot],
-                                  client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(3)}",
+                                  client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(8)}",
                                   presence=presence, ca_file=ca_file, insecure_tls=insecure_tls, prefix=prefix,
                                   keepalive=keepalive, on_error=self._on_robot_error, callbacks=self._callbacks)
         self._entities: list[Publisher | Subscription | Service | Client | Timer] = []

@@ -64,7 +64,7 @@ class RobotClient:
         self.username = check_name(username, "username")
         password = password if password is not None else os.environ.get(ENV_PASSWORD)
         self.topics = TopicTree(prefix)
-        self.client_id = check_name(client_id or f"{username}-sdk-{secrets.token_hex(4)}", "client id")
+        self.client_id = check_name(client_id or f"{username}-sdk-{secrets.token_hex(8)}", "client id")
         self.connection = Connection(username=username, password=password, url=url or os.environ.get(ENV_URL)
                                      or DEFAULT_URL, client_id=self.client_id, topics=self.topics, presence=presence,
                                      ca_file=ca_file or os.environ.get(ENV_CA_FILE), insecure_tls=insecure_tls,
