@@ -46,7 +46,7 @@ class FleetAuthPlugin(BaseAuthPlugin):
 
     Passwords are checked against the Mosquitto ``$7$`` PBKDF2 hashes in a worker thread
     (a large iteration count must not stall every other client). Failed attempts feed the
-    per-address :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle`.
+    :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle` (per login, per address, per pair).
     """
 
     @dataclass
@@ -58,14 +58,14 @@ class FleetAuthPlugin(BaseAuthPlugin):
         live: LiveFleet = self.config.fleet
         throttle: LoginThrottle | None = self.config.throttle
         address = session.remote_address or "?"
+        username, password = session.username, session.password
         if throttle is not None:
-            wait = throttle.reserve(address)
+            wait = throttle.reserve(address, username or "")
             if wait == REFUSE:
-                session.attributes[ATTR_DENY_REASON] = "too many failed logins from this address; try later"
+                session.attributes[ATTR_DENY_REASON] = "too many failed logins for this login or address; try later"
                 return False
             if wait > 0:
                 await asyncio.sleep(wait)
-        username, password = session.username, session.password
         reason = None
         if not username:
             reason = "anonymous connections are not allowed"
@@ -81,9 +81,9 @@ class FleetAuthPlugin(BaseAuthPlugin):
                 reason = "wrong password"
         if reason is not None:
             session.attributes[ATTR_DENY_REASON] = reason
-            if throttle is not None:
-                throttle.failed(address)
-            return False
+            return False  # the throttle counted the attempt as failed when it reserved its slot
+        if throttle is not None:
+            throttle.succeeded(address, username)
         return True
 
 

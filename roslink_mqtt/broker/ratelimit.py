@@ -1,18 +1,28 @@
-"""Failed-login throttling per client address: password guessing gets slow, people do not get locked out.
+"""Failed-login throttling by login *and* by address: guessing gets slow, robots are not locked out.
 
-The first ``free_failures`` failures from an address (within ``forget_after`` seconds)
-cost nothing, so a person who mistypes is not delayed. After that, every login attempt
-from that address -- right or wrong, because the verdict must not come back early --
-waits for its own slot: slots are spaced ``delay`` apart, and ``delay`` doubles with each
-further failure up to ``max_delay``. Spacing slots (instead of sleeping a fixed time per
-attempt) bounds the guessing rate even when an attacker opens many connections at
-once. When the queue of waiting attempts from one address grows beyond ``max_wait``,
-new attempts are refused at once without checking the password, so the broker does not
-hold thousands of sockets for one attacker.
+:class:`KeyThrottle` spaces attempts for one key (an address, a login, or the pair): the
+first ``free_failures`` failures of a key (within ``forget_after`` seconds) cost nothing,
+so a person who mistypes is not delayed. After that, every attempt of that key -- right or
+wrong, because the verdict must not come back early -- waits for its own slot: slots are
+spaced ``delay`` apart, and ``delay`` doubles with each further failure up to
+``max_delay``. Spacing slots (instead of sleeping a fixed time per attempt) bounds the
+guessing rate even when an attacker opens many connections at once. When the queue of one
+key grows beyond ``max_wait``, new attempts are refused at once without checking the
+password, so the broker does not hold thousands of sockets for one attacker.
 
-Nothing is ever blocked for good: failures older than ``forget_after`` are forgotten,
-and other addresses are never affected. Behind a reverse proxy every client shares the
-proxy's address; run the broker's listeners directly, or raise the limits.
+:class:`LoginThrottle` combines three of them, because one key alone fails one way or the other:
+
+* by address alone, ten wrong passwords from a NAT that a robot shares locked the robot's
+  bridge out for minutes, while 40 guesses from 40 addresses went through in 0.1 s;
+* so an attempt waits for the slowest of its address, its login and its (login, address)
+  pair -- which bounds the guessing rate per login and per address -- *unless* the pair
+  is known good: that login succeeded from that address within ``remember_good``
+  seconds. A known-good pair waits only for its own failures, so a robot reconnecting from
+  its usual address gets in at once however much others guess, from anywhere.
+
+What cannot be told apart is not: wrong passwords for the robot's own login from the
+robot's own address slow the robot too (bounded by ``max_wait``). Nothing is blocked for
+good: failures older than ``forget_after`` are forgotten.
 
 Pure logic with an injectable clock; the auth plugin awaits the returned delay.
 """
@@ -32,9 +42,11 @@ class _Record:
     next_slot: float = 0.0  # earliest time the next throttled attempt may be checked
 
 
-class LoginThrottle:
+class KeyThrottle:
+    """Slot spacing for the attempts of one kind of key (see the module docstring)."""
+
     def __init__(self, *, free_failures: int = 5, base_delay: float = 0.5, max_delay: float = 8.0,
-                 max_wait: float = 30.0, forget_after: float = 300.0, max_addresses: int = 10_000,
+                 max_wait: float = 10.0, forget_after: float = 300.0, max_addresses: int = 10_000,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if free_failures < 0 or base_delay < 0 or max_delay < base_delay:
             raise ValueError("need free_failures >= 0 and 0 <= base_delay <= max_delay")
@@ -89,8 +101,79 @@ class LoginThrottle:
         record = self._record(address, self.clock())
         return 0 if record is None else len(record.failures)
 
+    def forget(self, address: str) -> None:
+        self._records.pop(address, None)
+
+    def retract(self, address: str) -> None:
+        """Take back the newest failure (an attempt counted as failed before its check, then correct)."""
+        record = self._records.get(address)
+        if record is not None and record.failures:
+            record.failures.pop()
+
     def _prune(self, now: float) -> None:
         for address in list(self._records):
             self._record(address, now)
         while len(self._records) >= self.max_addresses:  # still full: forget the oldest
             del self._records[next(iter(self._records))]
+
+
+class LoginThrottle:
+    """Per address, per login and per (login, address) pair, with known-good pairs exempt from the first two."""
+
+    def __init__(self, *, free_failures: int = 5, base_delay: float = 0.5, max_delay: float = 8.0,
+                 max_wait: float = 10.0, forget_after: float = 300.0, max_addresses: int = 10_000,
+                 remember_good: float = 7 * 24 * 3600.0, clock: Callable[[], float] = time.monotonic) -> None:
+        def make() -> KeyThrottle:
+            return KeyThrottle(free_failures=free_failures, base_delay=base_delay, max_delay=max_delay,
+                               max_wait=max_wait, forget_after=forget_after, max_addresses=max_addresses, clock=clock)
+
+        self.by_address, self.by_login, self.by_pair = make(), make(), make()
+        self.remember_good, self.max_good, self.clock = remember_good, max_addresses, clock
+        self._good: dict[str, float] = {}  # pair -> when it last succeeded (insertion order = age)
+
+    @staticmethod
+    def _pair(address: str, login: str) -> str:
+        return f"{login}\0{address}"
+
+    def is_known_good(self, address: str, login: str) -> bool:
+        when = self._good.get(self._pair(address, login))
+        return when is not None and self.clock() - when <= self.remember_good
+
+    def reserve(self, address: str, login: str) -> float:
+        """Seconds this attempt must wait before its password is checked, or :data:`REFUSE`.
+
+        An attempt that gets a slot counts as a failure at once, until :meth:`succeeded` takes
+        it back: attempts that arrive together (40 connections in the same millisecond) must
+        not all find a clean record and be checked at once.
+        """
+        pair = self._pair(address, login)
+        if self.is_known_good(address, login):
+            wait = self.by_pair.reserve(pair)
+            if wait != REFUSE:
+                self.by_pair.failed(pair)
+            return wait
+        waits = [self.by_pair.reserve(pair), self.by_address.reserve(address), self.by_login.reserve(login)]
+        if REFUSE in waits:
+            return REFUSE
+        self.by_pair.failed(pair)
+        self.by_address.failed(address)
+        self.by_login.failed(login)
+        return max(waits)
+
+    def succeeded(self, address: str, login: str) -> None:
+        """The attempt's password was right: take back its provisional failure, remember the pair as good."""
+        pair = self._pair(address, login)
+        if not self.is_known_good(address, login):
+            self.by_address.retract(address)
+            self.by_login.retract(login)
+        self.by_pair.forget(pair)
+        self._good.pop(pair, None)
+        self._good[pair] = self.clock()
+        while len(self._good) > self.max_good:
+            del self._good[next(iter(self._good))]
+
+    def failures(self, address: str, login: str | None = None) -> int:
+        """Recent failures of ``address`` (or of the pair, when ``login`` is given)."""
+        if login is None:
+            return self.by_address.failures(address)
+        return self.by_pair.failures(self._pair(address, login))

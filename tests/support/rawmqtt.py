@@ -64,8 +64,10 @@ def publish_header(topic: str, announced: int) -> bytes:
 class RawClient:
     """A TCP connection that speaks raw bytes; ``login()`` sends CONNECT and returns the CONNACK code."""
 
-    def __init__(self, port: int, timeout: float = 5.0) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    def __init__(self, port: int, timeout: float = 5.0, source: str = "") -> None:
+        """``source`` picks the client's address within 127.0.0.0/8 (a second "machine" on loopback)."""
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=timeout,
+                                             source_address=(source, 0) if source else None)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def login(self, client_id: str, username: str | None, password: str | None, **kw) -> int:

@@ -1,0 +1,92 @@
+"""Issue 12 item 6: password guessing is throttled per login *and* per address, and never locks a robot out.
+
+Real broker, real sockets from several loopback addresses (127.0.0.0/8 is all loopback): the
+robot's bridge on 127.0.0.2, attackers elsewhere -- and on the robot's own address, as behind a
+shared NAT.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from tests.conftest import record_measurement
+from tests.support.broker_setup import write_fleet
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.procs import DEMO_PASSWORDS as PW
+from tests.support.rawmqtt import RawClient
+
+pytestmark = [pytest.mark.timeout(120), pytest.mark.security]
+
+ROBOT_ADDRESS = "127.0.0.2"
+BACK_IN_BOUND = 10.0  # s: the robot's bridge gets back in within this while others guess
+
+
+def _guess(port: int, source: str, login: str, abandon_after: float) -> int | None:
+    """One wrong password; the attacker abandons the attempt after ``abandon_after`` s (None = no answer)."""
+    client = RawClient(port, timeout=abandon_after, source=source)
+    try:
+        return client.login(f"guess-{time.monotonic_ns()}", login, "wrong-password")
+    except OSError:
+        return None
+    finally:
+        client.close()
+
+
+def _spray(port: int, sources: list[str], login: str, abandon_after: float = 0.5) -> list[int | None]:
+    answers: list[int | None] = []
+    threads = [threading.Thread(target=lambda s=s: answers.append(_guess(port, s, login, abandon_after)))
+               for s in sources]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    return answers
+
+
+def _robot_login(port: int) -> float:
+    started = time.monotonic()
+    while time.monotonic() - started < 30:
+        client = RawClient(port, timeout=15, source=ROBOT_ADDRESS)
+        try:
+            if client.login(f"roslink-bridge-turtle1-{time.monotonic_ns()}", "turtle1", PW["turtle1"]) == 0:
+                return time.monotonic() - started
+        except OSError:
+            pass
+        finally:
+            client.close()
+        time.sleep(0.5)  # the bridge's reconnect backoff
+    return float("inf")
+
+
+def test_the_robot_gets_back_in_while_others_guess(tmp_path) -> None:
+    fleet = write_fleet(tmp_path)
+    with EmbeddedBrokerProcess(tmp_path, fleet, "--sys-interval", "0") as broker:
+        assert _robot_login(broker.port) < 1.0  # the robot was online from here before
+        # 30 wrong passwords for the robot's own login, from another address, abandoned after 0.5 s
+        _spray(broker.port, ["127.0.0.3"] * 30, "turtle1")
+        # 10 wrong passwords for other logins from the robot's own address (a shared NAT)
+        _spray(broker.port, [ROBOT_ADDRESS] * 10, "alice")
+        took = _robot_login(broker.port)
+        record_measurement("attack: robot back in after password spraying", took, BACK_IN_BOUND)
+        print(f"robot back in after 30 + 10 wrong passwords: {took * 1000:.0f} ms")
+        assert took < BACK_IN_BOUND
+
+
+def test_guesses_from_many_addresses_are_bounded_per_login(tmp_path) -> None:
+    """40 guesses at alice from 40 addresses at once: only a few are answered quickly (was: all in 0.1 s)."""
+    fleet = write_fleet(tmp_path)
+    with EmbeddedBrokerProcess(tmp_path, fleet, "--sys-interval", "0") as broker:
+        started = time.monotonic()
+        answers = _spray(broker.port, [f"127.0.1.{i}" for i in range(1, 41)], "alice", abandon_after=1.0)
+        took = time.monotonic() - started
+        time.sleep(0.5)
+        log = broker.output()
+        checked = log.count("user='alice'") - log.count("too many failed logins")
+        refused = log.count("too many failed logins")
+        print(f"40 guesses at alice from 40 addresses within {took:.2f} s: {checked} passwords checked, "
+              f"{refused} refused unchecked, {sum(1 for a in answers if a is None)} still waiting when abandoned")
+        assert len(answers) == 40
+        assert checked <= 5 + 2, f"{checked} guesses at one login were checked within 1 s"
