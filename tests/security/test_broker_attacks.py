@@ -348,3 +348,48 @@ def test_a_will_with_qos_3_is_refused(tmp_path) -> None:
         bob.close()
         assert code == 5
         assert "will QoS 3" in broker.output()
+
+
+# -- the same attacks against the exported Mosquitto configuration ------------------------------
+
+
+def test_mosquitto_takes_a_781_kB_subscribe_without_stalling(tmp_path) -> None:
+    fleet = write_fleet(tmp_path)
+    with ExportedMosquitto(tmp_path, fleet) as mosquitto:
+        with StallMeter(mosquitto.port) as meter:
+            bob = RawClient(mosquitto.port)
+            assert bob.login("bob-big", "bob", PW["bob"]) == 0
+            try:
+                bob.send(subscribe_packet([f"roslink/turtle1/state/{i}" for i in range(200_000)])[:800_000])
+            except OSError:
+                pass
+            time.sleep(2.0)
+            bob.close()
+        print(f"Mosquitto, 781 kB SUBSCRIBE: worst honest round trip {meter.worst * 1000:.1f} ms")
+        assert meter.worst < STALL_BOUND
+
+
+@pytest.mark.parametrize("qos", [0, 1])
+def test_mosquitto_and_a_client_that_never_reads(tmp_path, clients, qos: int) -> None:
+    """Mosquitto 2.0.11 bounds QoS 1/2 queued for a slow client (max_queued_bytes), not QoS 0: documented gap."""
+    fleet = write_fleet(tmp_path)
+    with ExportedMosquitto(tmp_path, fleet) as mosquitto:
+        bob = RawClient(mosquitto.port)
+        bob.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        assert bob.login("bob-slow", "bob", PW["bob"]) == 0
+        bob.send(subscribe_packet(["roslink/turtle1/state/#"], qos=qos))
+        robot = clients(mosquitto.port, "turtle1")
+        time.sleep(0.3)
+        before = peak = rss_bytes(mosquitto.proc.pid)
+        deadline = time.monotonic() + 8.0
+        while time.monotonic() < deadline:
+            robot.client.publish("roslink/turtle1/state/scan", b"s" * 200_000, qos=qos)
+            peak = max(peak, rss_bytes(mosquitto.proc.pid))
+            time.sleep(0.05)
+        bob.close()
+        growth = peak - before
+        print(f"Mosquitto, slow consumer at QoS {qos}: RSS +{growth / 1e6:.1f} MB over 8 s of 4 MB/s")
+        if qos:
+            assert growth < MEMORY_BOUND
+        else:  # docs/safety.md: "Mosquitto 2.0.11 queues QoS 0 for a connected client without bound"
+            assert growth > MEMORY_BOUND, "Mosquitto now bounds QoS 0 to slow clients: update docs/safety.md"
