@@ -111,7 +111,9 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
-                                         self.operators.is_live, self.refuse)
+                                         self.operators.is_live, self.refuse,
+                                         max_concurrent=settings.provided_max_calls,
+                                         queue_depth=settings.provided_queue_depth)
         self.on_demand = OnDemandPublishers(node, {n: r for n, r in self.inbound.items() if r.rule.on_demand},
                                             {n for n, r in self.inbound.items() if not r.rule.on_demand},
                                             role_of, self.operators.is_live, self.refuse)

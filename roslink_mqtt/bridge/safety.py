@@ -3,6 +3,13 @@
 Applied to every Twist the bridge publishes — preset or generic rule — so no
 mapping can bypass it. Pure functions on numbers; the ROS glue is in
 :func:`make_safe_twist`.
+
+Limits bound the *speed*, i.e. the Euclidean norm of the linear and of the
+angular vector (``limits.mode: norm``, the default): clamping each component
+on its own lets ``lx = ly = lz = 0.5`` through as 0.87 m/s under a 0.5 m/s
+limit. A vector over the limit is scaled down whole, so the robot still goes
+where it was told, only slower. ``per_axis`` keeps the old component clamp
+for robots whose axes are limited independently.
 """
 
 from __future__ import annotations
@@ -11,27 +18,64 @@ import math
 from typing import Any
 
 from ..config import VelocityLimits
+from ..config.model import LIMIT_PER_AXIS
 
 VELOCITY_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 STANDSTILL = VelocityLimits(0.0, 0.0)  # limits under which anything but zero is "cut"
 
+Vector = tuple[float, float, float]
+
 
 class UnsafeCommand(ValueError):
-    """A velocity that must not be forwarded (non-finite)."""
+    """A velocity that must not be forwarded (non-finite, or not a number at all)."""
+
+
+def _finite(value: Any) -> float:
+    """``value`` as a finite float; UnsafeCommand for NaN, infinities, bools, non-numbers and huge integers."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise UnsafeCommand(f"velocity {value!r} is not a finite number")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond float range
+        raise UnsafeCommand(f"velocity {value!r} is out of range") from None
+    if not math.isfinite(number):
+        raise UnsafeCommand(f"velocity {value!r} is not a finite number")
+    return number
 
 
 def clamp(value: float, limit: float) -> float:
     """``value`` clamped into ±``limit``; raises UnsafeCommand if not finite."""
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise UnsafeCommand(f"velocity {value!r} is not a finite number")
-    return max(-limit, min(limit, float(value)))
+    return max(-limit, min(limit, _finite(value)))
+
+
+def clamp_norm(vector: tuple[float, float, float], limit: float) -> Vector:
+    """``vector`` scaled down, direction kept, so that its Euclidean norm is at most ``limit``.
+
+    Raises UnsafeCommand if any component is not finite. Computed on the
+    vector divided by its largest component, so huge finite inputs cannot
+    overflow; the result is nudged down by an ulp if rounding left it above.
+    """
+    x, y, z = (_finite(c) for c in vector)
+    if math.hypot(x, y, z) <= limit:
+        return x, y, z
+    big = max(abs(x), abs(y), abs(z))  # > 0: the norm exceeds a limit >= 0
+    unit = (x / big, y / big, z / big)
+    factor = limit / math.hypot(*unit)
+    out = (unit[0] * factor, unit[1] * factor, unit[2] * factor)
+    while math.hypot(*out) > limit:
+        factor = math.nextafter(factor, 0.0)
+        out = (unit[0] * factor, unit[1] * factor, unit[2] * factor)
+    return out
 
 
 def clamp_components(linear: tuple[float, float, float], angular: tuple[float, float, float],
-                     limits: VelocityLimits) -> tuple[tuple[float, ...], tuple[float, ...], bool]:
-    """Clamp each component; the flag says whether anything was cut (worth telling the user)."""
-    lin = tuple(clamp(v, limits.linear) for v in linear)
-    ang = tuple(clamp(v, limits.angular) for v in angular)
+                     limits: VelocityLimits) -> tuple[Vector, Vector, bool]:
+    """Apply ``limits`` (by norm, or per axis); the flag says whether anything was cut (worth telling the user)."""
+    if limits.mode == LIMIT_PER_AXIS:
+        lin = tuple(clamp(v, limits.linear) for v in linear)
+        ang = tuple(clamp(v, limits.angular) for v in angular)
+    else:
+        lin, ang = clamp_norm(linear, limits.linear), clamp_norm(angular, limits.angular)
     return lin, ang, lin != tuple(map(float, linear)) or ang != tuple(map(float, angular))
 
 
@@ -46,3 +90,10 @@ def make_safe_twist(msg: Any, limits: VelocityLimits) -> bool:
     (lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), cut = clamp_components(
         (lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), limits)
     return cut
+
+
+def is_standstill(msg: Any) -> bool:
+    """Whether a Twist (or TwistStamped) commands no motion at all: a stop, which is never dropped as late."""
+    twist = msg.twist if hasattr(msg, "twist") else msg
+    lin, ang = twist.linear, twist.angular
+    return not any((lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))

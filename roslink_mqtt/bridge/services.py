@@ -25,6 +25,7 @@ import orjson
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_services_default
 from rclpy.task import Future
 
 from ..config import Robot, Role, ServiceRule
@@ -176,18 +177,28 @@ class ProvidedServices:
     coroutine that parks on a future until the provider's reply (MQTT thread)
     or its deadline (supervision timer) resolves it: a waiting call holds no
     thread, so the bridge runs on a single-threaded executor and a slow
-    provider can never starve the failsafe checks. ``max_concurrent`` bounds
-    how many calls may wait at once.
+    provider can never starve the failsafe checks.
+
+    Every ROS caller gets an answer: ``max_concurrent`` bounds how many calls
+    may wait at once (all services together), and a call beyond it is
+    answered at once with a failure rather than queued. ``queue_depth`` is
+    the ROS QoS depth of each service: ROS keeps only that many requests the
+    executor has not taken yet and drops older ones *silently* (their callers
+    would wait forever), so it must cover a burst; ROS's default is 10.
     """
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[[str, str, str], None], max_concurrent: int = 64) -> None:
+                 error: Callable[[str, str, str], None], max_concurrent: int = 64, queue_depth: int = 100) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.role_of, self.is_live, self.error = role_of, is_live, error
         self.group = ReentrantCallbackGroup()
         self._lock = threading.RLock()
         self.max_concurrent = max_concurrent
+        self.qos = QoSProfile(history=qos_profile_services_default.history, depth=queue_depth,
+                              reliability=qos_profile_services_default.reliability,
+                              durability=qos_profile_services_default.durability)
+        self._refusing = False  # calls are being refused for overload (logged once per episode, not per call)
         self.offers: dict[tuple[str, str], _Provided] = {}  # (user, name) -> offer
         self._retired: list[_Provided] = []  # withdrawn offers whose ROS service still exists
         self._ids = itertools.count(1)
@@ -293,7 +304,7 @@ class ProvidedServices:
                 if live and offer.service is None:
                     offer.ending = None
                     offer.service = self.node.create_service(offer.srv, offer.name, self._server_for(offer),
-                                                             callback_group=self.group)
+                                                             qos_profile=self.qos, callback_group=self.group)
                     log.info("providing ROS service %s for %s", offer.service.srv_name, offer.user)
                 elif live and offer.ending is not None:
                     offer.ending = None  # the provider came back before its service was removed
@@ -340,7 +351,13 @@ class ProvidedServices:
             if offer.ending is not None:
                 return _failed(response, offer.ending[1])
             if sum(len(o.waiting) for o in self.offers.values()) >= self.max_concurrent:
-                return _failed(response, f"too many concurrent calls to provided services on {self.robot.name}")
+                if not self._refusing:
+                    self._refusing = True
+                    log.warning("refusing calls to provided services on %s: %d already wait for their providers "
+                                "(bridge.provided_max_calls)", self.robot.name, self.max_concurrent)
+                return _failed(response, f"too many concurrent calls to provided services on {self.robot.name} "
+                                         f"(limit {self.max_concurrent})", quiet=True)
+            self._refusing = False
             call_id = f"{self.robot.name}-{next(self._ids)}"
             call = offer.waiting[call_id] = _Waiting(Future(), time.monotonic() + offer.timeout)
         try:
@@ -362,12 +379,17 @@ class ProvidedServices:
             return _failed(response, f"provider sent a bad response: {err}")
 
 
-def _failed(response: Any, reason: str) -> Any:
-    """A response that says it failed, where the type can say so (success/message fields)."""
+def _failed(response: Any, reason: str, *, quiet: bool = False) -> Any:
+    """A response that says it failed, where the type can say so (success/message fields).
+
+    A type without such fields still gets its default response: the caller is answered, never left waiting.
+    ``quiet`` skips the per-call log line where the caller logs once for a whole episode (overload).
+    """
     fields = response.get_fields_and_field_types()
     if "success" in fields:
         response.success = False
     if "message" in fields and fields["message"] == "string":
         response.message = reason
-    log.warning("provided service call failed: %s", reason)
+    if not quiet:
+        log.warning("provided service call failed: %s", reason)
     return response

@@ -13,6 +13,7 @@ from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
 from ..topics import OPERATORS, TopicError, check_name, check_path
 from .model import (
+    LIMIT_MODES,
     BridgeSettings,
     BrokerSettings,
     Direction,
@@ -237,15 +238,16 @@ class _FleetReader:
         )
 
     def limits(self, path: Path) -> VelocityLimits:
-        self.mapping(path, ("linear", "angular"))
+        self.mapping(path, ("linear", "angular", "mode"))
         d = VelocityLimits()
         return VelocityLimits(self.value(path, "linear", self.number(0), d.linear),
-                              self.value(path, "angular", self.number(0), d.angular))
+                              self.value(path, "angular", self.number(0), d.angular),
+                              self.value(path, "mode", self.choice(LIMIT_MODES), d.mode))
 
     def bridge(self, path: Path) -> BridgeSettings:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
-                            "on_failsafe"))
+                            "on_failsafe", "provided_queue_depth", "provided_max_calls"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -266,6 +268,9 @@ class _FleetReader:
             stop_hold=self.value(path, "stop_hold", self.number(0, 60), d.stop_hold),
             limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else d.limits,
             on_failsafe=self.failsafe_actions(path + ("on_failsafe",)) if "on_failsafe" in self.get(path) else (),
+            provided_queue_depth=self.value(path, "provided_queue_depth", self.integer(1, 10000),
+                                            d.provided_queue_depth),
+            provided_max_calls=self.value(path, "provided_max_calls", self.integer(1, 10000), d.provided_max_calls),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:

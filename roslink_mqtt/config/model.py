@@ -40,12 +40,23 @@ class BrokerSettings:
     max_payload: int = 4 * 1024 * 1024
 
 
+LIMIT_NORM, LIMIT_PER_AXIS = "norm", "per_axis"
+LIMIT_MODES = (LIMIT_NORM, LIMIT_PER_AXIS)
+
+
 @dataclass(frozen=True, slots=True)
 class VelocityLimits:
-    """Absolute limits; every commanded component is clamped into ±limit."""
+    """Absolute speed limits.
+
+    ``norm`` (default) bounds the length of the linear and of the angular
+    vector, scaling an over-limit vector down whole; ``per_axis`` clamps each
+    component into ±limit on its own (then the combined speed may reach
+    √3 × limit).
+    """
 
     linear: float = 0.5  # m/s
     angular: float = 1.5  # rad/s
+    mode: str = LIMIT_NORM  # LIMIT_MODES
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,6 +127,10 @@ class BridgeSettings:
     stop_hold: float = 0.5  # s: zero velocity is repeated at 20 Hz this long after a stop
     limits: VelocityLimits = field(default_factory=VelocityLimits)
     on_failsafe: tuple[FailsafeAction, ...] = ()
+    # Services MQTT clients provide to ROS: the ROS request/response queue depth of each, and how many calls
+    # may wait for their providers at once (all services together); calls beyond that fail at once.
+    provided_queue_depth: int = 100
+    provided_max_calls: int = 64
 
 
 @dataclass(frozen=True, slots=True)
