@@ -169,15 +169,20 @@ def test_many_subscribe_packets_within_the_size_limit_do_not_stall(tmp_path) -> 
 
 
 def _ws_half_publish(port: int, *, login: bool) -> None:
-    """A packet that announces far more than it sends, then the WebSocket closes (amqtt spun on this)."""
+    """A packet whose body is one big field, then one byte of it in a second frame, then the WebSocket closes.
+
+    amqtt's reader then re-appended that last frame until the field was "complete" without yielding.
+    """
     try:
         with ws_connect(f"ws://127.0.0.1:{port}/", subprotocols=["mqtt"], open_timeout=5) as ws:
             if login:
                 ws.send(connect_packet(f"bob-ws-{time.monotonic_ns()}", "bob", PW["bob"]))
                 ws.recv(timeout=5)
-                ws.send(publish_header("roslink/operators/bob/x", 1_000_000)[:3])  # PUBLISH of 1 MB
-            else:
-                ws.send(bytes([0x10, 0xE0, 0xD4, 0x03, 0x00]))  # a CONNECT of 60,000 bytes (under the limit)
+                ws.send(publish_header("roslink/operators/bob/x", 1_000_000))  # the payload: 1 MB to come
+            else:  # a CONNECT of 60,000 bytes (under the limit) whose client id is 59,980 bytes
+                body_head = b"\x00\x04MQTT\x04\x02\x00\x1e" + (59_980).to_bytes(2, "big")
+                ws.send(bytes([0x10, 0xE0, 0xD4, 0x03]) + body_head)
+            ws.send(b"x")
     except OSError:
         pass  # the broker may close first: that is fine
 
