@@ -9,6 +9,10 @@ Writes three files into one directory:
 * ``mosquitto.conf`` -- listeners at the fleet's host and ports, anonymous off, the two
   files above by absolute path.
 
+All three are mode 600; exported as root on a host with a ``mosquitto`` user they belong to
+that user, because Mosquitto started as root reads them after dropping to it (at start and on
+every SIGHUP), so the documented export + reload works as written.
+
 Mosquitto 2.0 checks ``read`` on every delivery (live and retained) and accepts every
 subscription filter; the embedded broker refuses filters that cannot match anything
 readable. Either way, a subscriber only ever receives what it may read.
@@ -18,7 +22,11 @@ No amqtt import: this runs on a client install.
 
 from __future__ import annotations
 
+import grp
+import ipaddress
 import os
+import pwd
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +80,14 @@ def acl_text(fleet: Fleet, acl: FleetAcl | None = None) -> str:
     return "".join(out)
 
 
+def _socket_domain(host: str) -> str | None:
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        return None  # a host name: Mosquitto resolves it (documented: prefer an address)
+    return "ipv4" if address.version == 4 else "ipv6"
+
+
 def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLimits | None = None) -> str:
     b = fleet.broker
     limits = limits or BrokerLimits()
@@ -82,6 +98,11 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
              f"listener {b.port} {b.host}\n"]
     if b.ws_port:
         lines += [f"listener {b.ws_port} {b.host}\n", "protocol websockets\n"]
+        # Mosquitto 2.0.11 (libwebsockets) ignores the listener's address and binds every interface
+        # unless the socket domain is given: with it, the WebSocket listener binds the address above.
+        domain = _socket_domain(b.host)
+        if domain is not None:
+            lines.append(f"socket_domain {domain}\n")
     if b.tls is not None:
         base = Path(fleet.file).resolve().parent
         lines += [f"listener {b.tls.port} {b.host}\n", f"certfile {base / b.tls.certfile}\n",
@@ -106,22 +127,70 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
     return "".join(lines)
 
 
-def export_mosquitto(fleet: Fleet, out_dir: str | Path) -> ExportedFiles:
-    """Write ``passwd``, ``acl`` and ``mosquitto.conf`` into ``out_dir`` (created if needed)."""
+MOSQUITTO_USER = "mosquitto"  # the account Debian's Mosquitto drops to when started as root
+
+
+def default_owner() -> str | None:
+    """Who must read the files: ``mosquitto`` when exporting as root on a host that has that user, else nobody else.
+
+    Mosquitto started as root drops to the user ``mosquitto`` before it reads the password and ACL
+    files -- at start and again on SIGHUP -- so files only root can read lock every login out.
+    """
+    if os.geteuid() != 0:
+        return None
+    try:
+        pwd.getpwnam(MOSQUITTO_USER)
+    except KeyError:
+        return None
+    return MOSQUITTO_USER
+
+
+def export_mosquitto(fleet: Fleet, out_dir: str | Path, owner: str | None = None) -> ExportedFiles:
+    """Write ``passwd``, ``acl`` and ``mosquitto.conf`` into ``out_dir`` (created if needed).
+
+    The files are mode 600, owned by ``owner`` (a user name; None = the exporting user). Each is
+    replaced atomically, so a Mosquitto reloading meanwhile never reads a half-written file.
+    """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True, mode=0o755)
+    ids = None
+    if owner is not None:
+        try:
+            entry = pwd.getpwnam(owner)
+        except KeyError:
+            raise ExportError(f"--owner {owner!r}: no such user on this host") from None
+        ids = (entry.pw_uid, entry.pw_gid)
     files = ExportedFiles(out / "passwd", out / "acl", out / "mosquitto.conf")
     texts = {files.passwd: passwd_text(fleet), files.acl: acl_text(fleet)}
     texts[files.conf] = mosquitto_conf_text(fleet, files.passwd, files.acl)
     for path, text in texts.items():
-        _write_private(path, text)
+        _write_private(path, text, ids)
     return files
 
 
-def _write_private(path: Path, text: str) -> None:
+def unreadable_parent(path: Path, owner: str) -> Path | None:
+    """The first directory above ``path`` that ``owner`` cannot enter (by its mode bits), or None."""
+    entry = pwd.getpwnam(owner)
+    groups = {entry.pw_gid, *(g.gr_gid for g in grp.getgrall() if owner in g.gr_mem)}
+    for directory in [*reversed(path.resolve().parents)]:
+        st = directory.stat()
+        if st.st_uid == entry.pw_uid:
+            ok = st.st_mode & stat.S_IXUSR
+        elif st.st_gid in groups:
+            ok = st.st_mode & stat.S_IXGRP
+        else:
+            ok = st.st_mode & stat.S_IXOTH
+        if not ok:
+            return directory
+    return None
+
+
+def _write_private(path: Path, text: str, ids: tuple[int, int] | None) -> None:
     """Write owner-readable only: the password file holds hashes, the ACL names every login."""
     tmp = path.with_name(path.name + ".tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
+    if ids is not None:
+        os.chown(tmp, *ids)
     os.replace(tmp, path)  # a running Mosquitto reloading on SIGHUP never reads a half-written file

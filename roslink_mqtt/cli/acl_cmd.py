@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..broker.export import ExportError, export_mosquitto
+from ..broker.export import ExportError, default_owner, export_mosquitto, unreadable_parent
 from ..config import load_fleet
 
 FORMATS = ("mosquitto",)
@@ -21,17 +21,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--format", choices=FORMATS, default="mosquitto", help="target broker (default: %(default)s)")
     e.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     e.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    e.add_argument("--owner", metavar="USER", default=None,
+                   help="user who owns the files and must read them (default: 'mosquitto' when run as root "
+                        "and that user exists, which is who Mosquitto started as root runs as; else you)")
     e.set_defaults(run=run_export)
 
 
 def run_export(args: argparse.Namespace) -> int:
     fleet = load_fleet(args.config)
+    owner = args.owner if args.owner is not None else default_owner()
     try:
-        files = export_mosquitto(fleet, args.out)
+        files = export_mosquitto(fleet, args.out, owner=owner)
     except (ExportError, OSError) as err:
         print(f"roslink-mqtt acl export: {err}", file=sys.stderr)
         return 2
     logins = len(fleet.robots) + len(fleet.users)
-    print(f"wrote {files.passwd} ({logins} logins), {files.acl}, {files.conf}")
-    print(f"run: mosquitto -c {files.conf}")
+    print(f"wrote {files.passwd} ({logins} logins), {files.acl}, {files.conf}"
+          + (f" (owner {owner}, mode 600)" if owner else " (mode 600)"))
+    if owner is not None and (blocked := unreadable_parent(files.conf, owner)) is not None:
+        print(f"roslink-mqtt acl export: warning: user {owner!r} cannot enter {blocked}, so Mosquitto cannot read "
+              f"these files; export to a directory it can reach (e.g. /etc/mosquitto/roslink)", file=sys.stderr)
+    print(f"run: mosquitto -c {files.conf}     reload after exporting again: kill -HUP <mosquitto pid>")
     return 0
