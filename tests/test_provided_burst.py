@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from rclpy.qos import QoSProfile
 
 from .conftest import record_measurement
 from .support.fleet_brokers import mosquitto_with_logins
@@ -40,7 +41,9 @@ def _burst(tmp: Path, **bridge: int) -> tuple[list, list[float], float]:
 
     probe = RosProbe()
     try:
-        later = probe.node.create_client(Trigger, "/later")  # an ordinary caller: ROS's default service QoS
+        # The caller's own queues (request writer, response reader) keep 10 by ROS default and drop the rest
+        # silently, whatever the bridge does; a caller that fires bursts needs them as deep as its burst.
+        later = probe.node.create_client(Trigger, "/later", qos_profile=QoSProfile(depth=BURST * 2))
         with mosquitto_with_logins(tmp) as port, \
                 run(bridge_args("turtle1", port, config=_config(tmp, **bridge)), tmp / "bridge.log",
                     bridge_env("turtle1")) as bridge_proc, \
