@@ -27,7 +27,7 @@ from ..protocol import (
 from ..topics import Kind, TopicTree
 from .convert import ConversionError, converter_for
 from .failsafe import Failsafe, late_motion
-from .link import MqttLink
+from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
 from .presets import CommandRefused
 from .ros_types import UnknownTypeError, load_interface
@@ -118,7 +118,7 @@ class Bridge:
                                             {n for n, r in self.inbound.items() if not r.rule.on_demand},
                                             role_of, self.operators.is_live, self.refuse)
         self.link = MqttLink(
-            client_id=f"roslink-bridge-{robot.name}", username=robot.name, password=password, url=broker_url,
+            client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
                                                 self._heartbeat(SystemStatus.OFFLINE)),
             subscriptions=self.mqtt_subscriptions, on_message=self.on_mqtt, on_up=self.on_link_up,

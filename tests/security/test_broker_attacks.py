@@ -107,7 +107,7 @@ def test_our_programs_use_unguessable_client_ids() -> None:
     client = RobotClient("alice", "alice-demo", presence=False)
     suffix = client.client_id.rsplit("-", 1)[1]
     assert len(suffix) >= 16 and int(suffix, 16) >= 0, client.client_id  # 64 random bits
-    from roslink_mqtt.bridge.node import bridge_client_id
+    from roslink_mqtt.bridge.link import bridge_client_id
 
     ids = {bridge_client_id("turtle1") for _ in range(3)}
     assert len(ids) == 3 and all(len(i.rsplit("-", 1)[1]) >= 16 for i in ids), ids
