@@ -13,6 +13,22 @@ ROS_ENV = apply_local_ros_env()
 
 MEASUREMENTS: list[tuple[str, float, float]] = []
 
+# Pure logic: no processes, no sockets, no ROS. `pytest -m unit` runs these in seconds.
+UNIT_MODULES = frozenset({
+    "test_bridge_settings_config", "test_broker_acl", "test_broker_ratelimit", "test_config", "test_docs",
+    "test_failsafe_logic", "test_late_commands", "test_protocol_malformed", "test_protocol_roundtrip",
+    "test_safety", "test_sdk_docs", "test_sdk_unit", "test_sequence", "test_sim_world", "test_throttle",
+    "test_topics", "test_limits_logic",
+})
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    import pytest
+
+    for item in items:
+        if item.path.stem in UNIT_MODULES:
+            item.add_marker(pytest.mark.unit)
+
 
 def record_measurement(name: str, seconds: float, deadline: float) -> None:
     """Keep a timing for the closing summary (tests print what they measured)."""
