@@ -561,10 +561,11 @@ class HardenedBroker(Broker):
                 if source_session is not None:
                     _log_once(source_session, "quota", logging.WARNING, "not retained %s topic=%r: %s",
                               describe_session(source_session), topic_name, why)
-                return
-            self.retained_quota.stored(login or "$broker", topic_name, len(data))
-            self.retained_index.add(topic_name)
-        else:
+                data = b""  # the older retained message on this topic is stale now: clear it, never serve it
+            else:
+                self.retained_quota.stored(login or "$broker", topic_name, len(data))
+                self.retained_index.add(topic_name)
+        if not data:
             self.retained_quota.cleared(topic_name)
             self.retained_index.discard(topic_name)
         await super().retain_message(source_session, topic_name, data, qos)
