@@ -23,7 +23,8 @@ MAX_PRESENCE_BYTES = 1024
 class Presence(Enum):
     """What one message on an operator topic says, decided before any lock is taken."""
 
-    GONE = "gone"  # empty: the last-will or a clean sign-off
+    GONE = "gone"  # empty: the last-will, or the clear that follows a sign-off
+    SIGNED_OFF = "signed_off"  # a heartbeat saying POWEROFF: the client is leaving on purpose (before its clear)
     COMMANDING = "commanding"
     WATCHING = "watching"
     OVERSIZED = "oversized"  # larger than MAX_PRESENCE_BYTES: ignored unread, not a heartbeat
@@ -43,6 +44,26 @@ def operator_heartbeat(user: str, client_id: str, sequence_number: int = 0, *, c
     return encode(Envelope(MessageId.HEARTBEAT, payload, 0, sequence_number))
 
 
+def operator_signoff(user: str, client_id: str, sequence_number: int = 0) -> bytes:
+    """What a client publishes (not retained) just before clearing its heartbeat on a clean exit.
+
+    The clear (an empty retained message) is byte for byte what the last-will of a crashed client
+    publishes, so without this the bridge cannot tell a program that finished from one that died:
+    every clean exit after a command read as a failure in its log. The robot still stops when the
+    client drove it (the presence rule does not change); only the report does.
+    """
+    payload = {"type": int(RobotType.GENERIC), "name": client_id, "system_status": int(SystemStatus.POWEROFF),
+               "owner_id": user, "mode": 0}
+    return encode(Envelope(MessageId.HEARTBEAT, payload, 0, sequence_number))
+
+
+def _status(payload: bytes) -> int | None:
+    try:
+        return decode(payload, MessageId.HEARTBEAT).payload.get("system_status")
+    except ProtocolError:
+        return None
+
+
 def is_commanding(payload: bytes) -> bool:
     """Whether a non-empty operator heartbeat comes from a commanding client.
 
@@ -50,11 +71,7 @@ def is_commanding(payload: bytes) -> bool:
     else (a Node-RED flow sending ``1``, another status) counts as commanding:
     when unsure, losing the client stops the robot.
     """
-    try:
-        envelope = decode(payload, MessageId.HEARTBEAT)
-    except ProtocolError:
-        return True
-    return envelope.payload.get("system_status") != SystemStatus.STANDBY
+    return _status(payload) != SystemStatus.STANDBY
 
 
 def classify_presence(payload: bytes, max_bytes: int = MAX_PRESENCE_BYTES) -> Presence:
@@ -68,7 +85,10 @@ def classify_presence(payload: bytes, max_bytes: int = MAX_PRESENCE_BYTES) -> Pr
         return Presence.GONE
     if len(payload) > max_bytes:
         return Presence.OVERSIZED
-    return Presence.COMMANDING if is_commanding(payload) else Presence.WATCHING
+    status = _status(payload)
+    if status == SystemStatus.POWEROFF:
+        return Presence.SIGNED_OFF
+    return Presence.WATCHING if status == SystemStatus.STANDBY else Presence.COMMANDING
 
 
 @dataclass
@@ -86,7 +106,8 @@ class OperatorTracker:
         """Record an already classified message; False when ``user`` just lost command presence.
 
         Split from parsing so the bridge can classify outside its command lock.
-        GONE is the last-will or a clean sign-off. Command presence is lost
+        GONE is the last-will or a clean sign-off's clear; SIGNED_OFF counts as
+        GONE here (the caller tells the two apart). Command presence is lost
         when a commanding client leaves, or when the user's last client does;
         a watcher leaving while others stay changes nothing. OVERSIZED changes
         nothing at all.
@@ -94,7 +115,7 @@ class OperatorTracker:
         key = (user, client_id)
         if presence is Presence.OVERSIZED:
             return True
-        if presence is not Presence.GONE:
+        if presence is not Presence.GONE and presence is not Presence.SIGNED_OFF:
             self._seen[key] = (now, presence is Presence.COMMANDING)
             return True
         gone = self._seen.pop(key, None)

@@ -56,6 +56,7 @@ class MqttLink:
         self.client.on_message = self._handle_message
         self.client.on_connect_fail = self._handle_connect_fail
         self._refused_logged = False
+        self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
 
     # -- lifecycle ------------------------------------------------------------
     def start(self) -> None:
@@ -64,7 +65,12 @@ class MqttLink:
         self.client.loop_start()
 
     def stop(self, last_words: list[tuple[str, bytes, int, bool]] = ()) -> None:
-        """Publish ``last_words`` (e.g. the offline heartbeat), then disconnect cleanly."""
+        """Publish ``last_words`` (e.g. the offline heartbeat), then disconnect cleanly.
+
+        Sets :attr:`closing` first, so the disconnect that follows is logged (and reported to ``on_down``) as
+        the shutdown it is: a clean Ctrl-C must not read like a network failure in the log.
+        """
+        self.closing = True
         if self.connected.is_set():
             infos = [self.client.publish(t, p, qos=q, retain=r) for t, p, q, r in last_words]
             for info in infos:
@@ -110,7 +116,10 @@ class MqttLink:
         was_up = self.connected.is_set()
         self.connected.clear()
         if was_up:
-            log.warning("lost the broker %s (%s); reconnecting", self.url, reason)
+            if self.closing:
+                log.info("disconnected from %s (shutting down)", self.url)
+            else:
+                log.warning("lost the broker %s (%s); reconnecting", self.url, reason)
             self._on_down(str(reason))
 
     def _handle_connect_fail(self, _client, _userdata) -> None:

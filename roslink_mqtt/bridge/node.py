@@ -198,11 +198,15 @@ class Bridge:
         self.publish_heartbeat()
 
     def on_link_down(self, reason: str) -> None:
-        self.systemd.status(f"broker lost ({reason}); reconnecting")
+        closing = self.link.closing  # our own stop() disconnected: a shutdown, not a failure
+        self.systemd.status("disconnected (stopping)" if closing else f"broker lost ({reason}); reconnecting")
         with self._lock:
             why = self.failsafe.link_lost()
             if why:
-                self.trigger_stop(f"{why} ({reason})")
+                if closing:
+                    self.trigger_stop("the bridge is shutting down", level=logging.INFO)
+                else:
+                    self.trigger_stop(f"{why} ({reason})")
 
     # -- presence ------------------------------------------------------------------
     def _heartbeat(self, status: SystemStatus) -> bytes:
@@ -257,15 +261,20 @@ class Bridge:
             if why:
                 self.trigger_stop(f"{why} (no answer for {self.robot.bridge.link_timeout:g} s)")
 
-    def trigger_stop(self, reason: str) -> None:
-        """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why."""
+    def trigger_stop(self, reason: str, level: int = logging.WARNING) -> None:
+        """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why.
+
+        ``level`` INFO is for stops that are the expected end of something (a client that signed off, a
+        requested shutdown): the robot stops exactly the same way, but the log does not cry failure.
+        """
         with self._lock:
             self.failsafe.stopped()
             self._publish_zero_velocity()
             self._stop_repeats_left = round(self.robot.bridge.stop_hold * SUPERVISION_RATE)
             for pub, msg in self.failsafe_actions:
                 pub.publish(msg)
-        log.warning("failsafe stop of %s: %s", self.robot.name, reason)
+        log.log(level, "%s of %s: %s", "failsafe stop" if level >= logging.WARNING else "stop", self.robot.name,
+                reason)
         self.publish_ack(0, None, AckResult.FAILSAFE, reason)
 
     def _publish_zero_velocity(self) -> None:
@@ -355,7 +364,10 @@ class Bridge:
         with self._lock:
             if not self.operators.record(user, client_id, presence, time.monotonic()):
                 why = self.failsafe.operator_gone(user)
-                if why:
+                if why and presence is Presence.SIGNED_OFF:
+                    # a program that finished: the robot stops all the same, but nothing failed
+                    self.trigger_stop(f"{why} (signed off)", level=logging.INFO)
+                elif why:
                     self.trigger_stop(f"{why} (last-will)")
 
     def _ignore_oversized_presence(self, user: str, client_id: str, size: int) -> None:

@@ -1,48 +1,199 @@
-"""``roslink-mqtt echo ROBOT NAME``: print a robot's state messages as JSON lines."""
+"""``roslink-mqtt echo ROBOT NAME``: print a robot's state messages as JSON lines.
+
+``NAME`` is a state name (``global_motion``, ``robot_status``, ``ack``, a generic rule's name), ``heartbeat``
+(the robot's presence, which lives outside ``state/``), or an MQTT pattern under ``state/`` such as ``'#'``
+(every state stream; each line then says which). When nothing comes, echo says why instead of exiting
+silently, with an exit status a script can tell apart (see ``EXIT_*``).
+"""
 
 from __future__ import annotations
 
 import argparse
+import queue
+import sys
 import time
+from typing import Any
 
 import orjson
 
-from ..client import RoslinkMessage
+from ..client import RobotClient, RoslinkMessage
+from ..client.subscriptions import parse_state_item
+from ..protocol import SPECS_BY_NAME, ProtocolError, loads
+from ..protocol.messages import Direction
+from ..topics import TopicError, check_name
 from .connect import add_connection_options, open_client
+
+EXIT_OK = 0
+EXIT_TIMEOUT = 1  # some messages came, but fewer than --count before --timeout
+EXIT_USAGE = 2  # a name that cannot be a state (argparse uses 2 as well)
+EXIT_NOTHING = 3  # the robot is online but nothing came on this name: it probably publishes no such state
+EXIT_OFFLINE = 4  # the robot was not seen online (offline, or not granted to you): nothing could come
+EXIT_INTERRUPTED = 130  # Ctrl-C before --count messages
+
+HEARTBEAT = "heartbeat"
+HINT_AFTER = 5.0  # s without a message before a run without --timeout says what the robot does publish
+CENSUS_TIME = 1.2  # s to collect the robot's state names (1 Hz streams show up once)
+
+EPILOG = (f"exit status: {EXIT_OK} done (or Ctrl-C without --count); {EXIT_TIMEOUT} fewer than COUNT messages "
+          f"before --timeout; {EXIT_USAGE} bad arguments; {EXIT_NOTHING} nothing at all on NAME while the robot "
+          f"was online (it probably has no such state); {EXIT_OFFLINE} robot not online or not yours to see; "
+          f"{EXIT_INTERRUPTED} Ctrl-C before COUNT messages.")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("echo", help="print a robot's state messages (like ros2 topic echo)",
-                       description="Print each message on roslink/ROBOT/state/NAME as one JSON line.")
+                       description="Print each message on roslink/ROBOT/state/NAME as one JSON line. NAME may be "
+                                   "'heartbeat' (the robot's presence) or a pattern such as '#' (every state; "
+                                   'each line is then {"state": NAME, "message": …}).', epilog=EPILOG)
     p.add_argument("robot")
-    p.add_argument("name", help="state name, e.g. global_motion, robot_status, ack")
+    p.add_argument("name", help="state name, e.g. global_motion, robot_status, ack; heartbeat; or '#'")
     p.add_argument("-n", "--count", type=int, default=0, help="stop after COUNT messages (0 = until Ctrl-C)")
     p.add_argument("--timeout", type=float, default=0.0, help="give up after this many seconds (0 = never)")
     add_connection_options(p)
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    client = open_client(args, robots=[args.robot], presence=False)
-    seen = 0
-    deadline = time.monotonic() + args.timeout if args.timeout else None
-    try:
-        sub = client.subscribe(args.robot, args.name)
-        while not args.count or seen < args.count:
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
-                break
+def _fail(code: int, message: str) -> int:
+    print(f"roslink-mqtt echo: {message}", file=sys.stderr)
+    return code
+
+
+def check_state_name(name: str) -> tuple[str, bool]:
+    """``(name, is_pattern)`` with ``state/`` removed; TopicError for a name no topic can have.
+
+    ``+`` and ``#`` are allowed as whole levels (MQTT wildcards), ``#`` only last, as the broker requires.
+    """
+    name = name.strip("/").removeprefix("state/")
+    if not name:
+        raise TopicError("the state name is empty")
+    levels = name.split("/")
+    for i, level in enumerate(levels):
+        if level == "#" and i == len(levels) - 1 or level == "+":
+            continue
+        if "#" in level or "+" in level:
+            raise TopicError(f"'{name}': '+' and '#' must be whole levels, and '#' the last one (e.g. '#', "
+                             f"'nav/+')")
+        check_name(level, f"state name level in '{name}'")
+    return name, "#" in levels or "+" in levels
+
+
+class _Stream:
+    """Messages of one subscription, parsed on the network thread and handed to the main thread by a queue."""
+
+    def __init__(self, robot: str, prefix: str, *, heartbeat: bool, pattern: bool) -> None:
+        self.robot, self.prefix, self.heartbeat, self.pattern = robot, prefix, heartbeat, pattern
+        self.queue: queue.Queue[Any] = queue.Queue(1000)
+
+    def handle(self, topic: str, payload: bytes, _retained: bool) -> None:
+        if not payload:  # a cleared retained message (e.g. a deleted heartbeat): nothing to show
+            return
+        if self.heartbeat:
             try:
-                item = sub.get(timeout=min(left, 1.0) if left is not None else 1.0)
-            except TimeoutError:
-                continue
+                body = loads(payload)
+            except ProtocolError:
+                return
+            line = body.get("payload", body) if isinstance(body, dict) else body
+        else:
+            leaf = topic[len(self.prefix):]
+            item = parse_state_item(payload, self.robot, leaf)
             if item is None:
+                return
+            line = item.payload() if isinstance(item, RoslinkMessage) else item
+            if self.pattern:
+                line = {"state": leaf, "message": line}
+        try:
+            self.queue.put_nowait(line)
+        except queue.Full:  # the printer is stuck (a paused terminal): drop rather than grow
+            pass
+
+
+def census(client: RobotClient, robot: str, seconds: float = CENSUS_TIME) -> list[str]:
+    """The state names ``robot`` publishes, collected for ``seconds`` (retained ones at once)."""
+    prefix = f"{client.topics.robot_root(robot)}/state/"
+    names: set[str] = set()
+
+    def seen(topic: str, payload: bytes, _retained: bool) -> None:
+        if payload:
+            names.add(topic[len(prefix):])
+
+    if not client.connection.subscribe(prefix + "#", seen):
+        return []
+    time.sleep(seconds)
+    client.connection.unsubscribe(prefix + "#", seen)
+    return sorted(names)
+
+
+def _what(robot: str, name: str) -> str:
+    return f"{robot} {HEARTBEAT}" if name == HEARTBEAT else f"{robot} state/{name}"
+
+
+def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, str]:
+    """Why nothing came on ``name``: the robot is not online, or it publishes other states only."""
+    info = client.robot(robot)
+    if info is None or not info.online:
+        state = "never seen" if info is None else "offline"
+        return EXIT_OFFLINE, (f"robot {robot} is {state}: no heartbeat from it (is its bridge running, and is it "
+                              f"granted to you?)")
+    names = census(client, robot)
+    spec = SPECS_BY_NAME.get(name)
+    if "#" in name or "+" in name:
+        kind = ""
+    elif spec is not None and spec.direction is Direction.STATE:
+        kind = " (a ROSLink state this robot has no rule for, or one it sends only on events, like ack)"
+    else:
+        kind = " (not a ROSLink state name: only a generic rule of the robot could publish it)"
+    published = ", ".join(names) if names else "no state at all"
+    return EXIT_NOTHING, f"{robot} is online but sent nothing on state/{name}{kind}; it publishes: {published}"
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        name, pattern = (HEARTBEAT, False) if args.name.strip("/") == HEARTBEAT else check_state_name(args.name)
+        check_name(args.robot, "robot")
+    except TopicError as err:
+        return _fail(EXIT_USAGE, str(err))
+    if args.count < 0 or args.timeout < 0:
+        return _fail(EXIT_USAGE, "--count and --timeout must not be negative")
+    client = open_client(args, robots=[args.robot], presence=False)
+    topics = client.topics
+    if name == HEARTBEAT:
+        topic, prefix = topics.heartbeat(args.robot), ""
+    else:
+        prefix = f"{topics.robot_root(args.robot)}/state/"
+        topic = prefix + name
+    stream = _Stream(args.robot, prefix, heartbeat=name == HEARTBEAT, pattern=pattern)
+    seen = 0
+    start = time.monotonic()
+    deadline = start + args.timeout if args.timeout else None
+    hinted = False
+    try:
+        if not client.connection.subscribe(topic, stream.handle):
+            return _fail(EXIT_OFFLINE, f"the broker refused a subscription to {topic} (is {args.robot} granted to "
+                                      f"{client.username}?)")
+        while not args.count or seen < args.count:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                break
+            if not hinted and deadline is None and not seen and now - start >= HINT_AFTER:
+                hinted = True  # say once why nothing shows, then keep waiting as asked
+                print(f"roslink-mqtt echo: nothing yet: {_nothing_reason(client, args.robot, name)[1]}; "
+                      f"still waiting (Ctrl-C to stop)", file=sys.stderr)
                 continue
-            body = item.payload() if isinstance(item, RoslinkMessage) else item
-            print(orjson.dumps(body).decode(), flush=True)
+            try:
+                line = stream.queue.get(timeout=min(1.0, deadline - now) if deadline is not None else 1.0)
+            except queue.Empty:
+                continue
+            sys.stdout.write(orjson.dumps(line).decode() + "\n")
+            sys.stdout.flush()
             seen += 1
+        if seen and (not args.count or seen >= args.count):
+            return EXIT_OK  # COUNT messages, or "print what comes for --timeout seconds" and some came
+        if seen:
+            return _fail(EXIT_TIMEOUT, f"timeout: {seen} of {args.count} messages on {_what(args.robot, name)} "
+                                       f"within {args.timeout:g} s")
+        code, reason = _nothing_reason(client, args.robot, name)
+        return _fail(code, f"nothing on {_what(args.robot, name)} within {args.timeout:g} s: {reason}")
     except KeyboardInterrupt:
-        pass
+        return EXIT_INTERRUPTED if args.count and seen < args.count else EXIT_OK
     finally:
         client.close()
-    return 0 if seen or not args.count else 1

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
 from ..config import ConfigError
+from ..topics import TopicError
 from . import acl_cmd, call_cmd, echo_cmd, fleet_cmd, monitor_cmd, passwd_cmd, pub_cmd, robots_cmd, teleop_cmd
 
 DEFAULT_CONFIG = "config/robots.yaml"
 SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd)
+EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,12 +26,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _stdout_gone() -> int:
+    """The reader of our stdout went away (``roslink-mqtt fleet | head``): end quietly, as a Unix tool does.
+
+    Everything already unwound through the commands' ``finally`` blocks (clients closed, presence cleared,
+    a teleop's last zero sent), which is why this is an exception handler and not SIG_DFL for SIGPIPE: that
+    would kill the process mid-command. stdout is pointed at /dev/null so that the interpreter's final flush
+    of the still-buffered text cannot raise (and print "Exception ignored …") a second time.
+    """
     try:
-        return int(args.run(args) or 0)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+    return EXIT_BROKEN_PIPE
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one subcommand; expected failures end with a one-line reason and a non-zero status, never a traceback."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        code = int(args.run(args) or 0)
+        sys.stdout.flush()  # here, where a closed pipe can still be handled, not in the interpreter's exit
+        return code
+    except BrokenPipeError:
+        return _stdout_gone()
     except ConfigError as err:
+        print(f"roslink-mqtt: {err}", file=sys.stderr)
+        return 2
+    except TopicError as err:
         print(f"roslink-mqtt: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,7 +1,9 @@
 """``roslink-mqtt teleop ROBOT``: drive with the keyboard, like teleop_twist_keyboard.
 
-Streams the current velocity at 10 Hz while it runs; let go (space), quit
-(q, Ctrl-C) or lose the connection and the robot's dead-man stops it.
+Keys step the velocity: each w/s adds or takes one linear step, each a/d one
+angular step, so w then a drives an arc and a second w goes faster. Streams the
+current velocity at 10 Hz while it runs; let go (space), quit (q, Ctrl-C) or lose
+the connection and the robot's dead-man stops it.
 """
 
 from __future__ import annotations
@@ -9,21 +11,77 @@ from __future__ import annotations
 import argparse
 import select
 import sys
-import termios
 import time
-import tty
+from dataclasses import dataclass
 
 from .connect import add_connection_options, open_client
 
-KEYS = {"w": (1, 0), "s": (-1, 0), "a": (0, 1), "d": (0, -1), "x": (0, 0), " ": (0, 0)}
-HELP = "w/s forward/back, a/d turn, space or x stop, e emergency stop, r arm, q quit"
+# key -> (linear steps, angular steps) added to the current velocity
+STEPS = {"w": (1, 0), "s": (-1, 0), "a": (0, 1), "d": (0, -1)}
+STOP_KEYS = (" ", "x")
+HELP = "w/s faster/slower, a/d turn left/right (each press adds a step), space or x stop, e emergency stop, " \
+       "r arm, q quit"
+QUIT, ESTOP, ARM = "quit", "estop", "arm"
+
+
+@dataclass
+class Drive:
+    """The commanded velocity and what each key does to it (no terminal, no MQTT: testable as is)."""
+
+    linear_step: float
+    angular_step: float
+    max_linear: float
+    max_angular: float
+    lx: float = 0.0
+    az: float = 0.0
+    estopped: bool = False
+
+    def key(self, key: str) -> str | None:
+        """Apply one key; returns QUIT, ESTOP or ARM when the caller must act, else None."""
+        key = key.lower()
+        if key == "q":
+            return QUIT
+        if key == "e":
+            self.lx = self.az = 0.0
+            self.estopped = True
+            return ESTOP
+        if key == "r":
+            self.lx = self.az = 0.0
+            self.estopped = False
+            return ARM
+        if key in STOP_KEYS:
+            self.lx = self.az = 0.0
+        elif key in STEPS and not self.estopped:  # the robot refuses motion until armed: do not build any up
+            dv, dw = STEPS[key]
+            self.lx = _clamp(round(self.lx + dv * self.linear_step, 6), self.max_linear)
+            self.az = _clamp(round(self.az + dw * self.angular_step, 6), self.max_angular)
+        return None
+
+    @property
+    def streaming(self) -> bool:
+        """Whether twists go out: not while e-stopped (the robot would refuse each one)."""
+        return not self.estopped
+
+    def status(self) -> str:
+        if self.estopped:
+            return "EMERGENCY STOP — r to arm, q to quit"
+        return f"lx={self.lx:+.2f} m/s az={self.az:+.2f} rad/s"
+
+
+def _clamp(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("teleop", help="drive a robot with the keyboard", description=__doc__.split("\n\n")[0])
+    p = sub.add_parser("teleop", help="drive a robot with the keyboard",
+                       description=" ".join(__doc__.split("\n\n")[:2]))
     p.add_argument("robot")
-    p.add_argument("--linear", type=float, default=0.3, help="m/s per key press (default %(default)s)")
-    p.add_argument("--angular", type=float, default=0.8, help="rad/s per key press (default %(default)s)")
+    p.add_argument("--linear", type=float, default=0.1, help="m/s added per w/s press (default %(default)s)")
+    p.add_argument("--angular", type=float, default=0.3, help="rad/s added per a/d press (default %(default)s)")
+    p.add_argument("--max-linear", type=float, default=0.5,
+                   help="largest |lx| the keys build up, m/s (default %(default)s; the robot clamps to its limits)")
+    p.add_argument("--max-angular", type=float, default=1.5,
+                   help="largest |az| the keys build up, rad/s (default %(default)s)")
     add_connection_options(p)
     p.set_defaults(run=run)
 
@@ -31,34 +89,35 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not sys.stdin.isatty():
         raise SystemExit("roslink-mqtt teleop: needs a terminal")
+    import termios
+    import tty
+
+    drive = Drive(abs(args.linear), abs(args.angular), abs(args.max_linear), abs(args.max_angular))
     client = open_client(args, robots=[args.robot])
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
-    lx = az = 0.0
     print(f"teleop {args.robot}: {HELP}\r")
     try:
         tty.setcbreak(fd)
         while True:
             if select.select([sys.stdin], [], [], 0.1)[0]:
-                key = sys.stdin.read(1).lower()
-                if key == "q":
+                action = drive.key(sys.stdin.read(1))
+                if action == QUIT:
                     break
-                if key == "e":
+                if action == ESTOP:
                     client.emergency_stop(args.robot, "teleop")
-                    lx = az = 0.0
-                elif key == "r":
+                elif action == ARM:
                     client.arm(args.robot)
-                elif key in KEYS:
-                    dv, dw = KEYS[key]
-                    lx, az = (0.0, 0.0) if (dv, dw) == (0, 0) else (dv * args.linear, dw * args.angular)
-                print(f"\rlx={lx:+.2f} m/s az={az:+.2f} rad/s   ", end="", flush=True)
-            client.twist(args.robot, lx=lx, az=az)
+                print(f"\r{drive.status():<48}", end="", flush=True)
+            if drive.streaming:
+                client.twist(args.robot, lx=drive.lx, az=drive.az)
     except KeyboardInterrupt:
         pass
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
-        client.twist(args.robot)  # an explicit zero before leaving
-        time.sleep(0.1)
+        if drive.streaming:
+            client.twist(args.robot)  # an explicit zero before leaving
+            time.sleep(0.1)
         client.close()
         print()
     return 0

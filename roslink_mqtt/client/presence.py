@@ -13,7 +13,7 @@ import threading
 
 import paho.mqtt.client as mqtt
 
-from ..presence import DEFAULT_OPERATOR_PERIOD, operator_heartbeat
+from ..presence import DEFAULT_OPERATOR_PERIOD, operator_heartbeat, operator_signoff
 from ..topics import TopicTree
 
 
@@ -57,10 +57,13 @@ class OperatorPresence:
             self._stop.wait(self.period)
 
     def stop(self) -> None:
-        """Sign off cleanly: stop beating and clear the retained heartbeat."""
+        """Sign off cleanly: stop beating, say so (SIGNED_OFF), and clear the retained heartbeat."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2)
             self._thread = None
         if self.client.is_connected():
+            # Say "leaving on purpose" first: the clear alone is what a crash's last-will looks like.
+            self._sequence = (self._sequence + 1) & 0xFFFFFFFF
+            self.client.publish(self.topic, operator_signoff(self.user, self.client_id, self._sequence), qos=1)
             self.client.publish(self.topic, b"", qos=1, retain=True).wait_for_publish(timeout=2)

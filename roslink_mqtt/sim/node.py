@@ -1,115 +1,79 @@
-"""``roslink-mqtt-sim``: the simulated robot as a ROS 2 node.
+"""``roslink-mqtt-sim``: a simulated ground robot (ROS 2 node) for demos and tests.
 
-Subscribes ``cmd_vel`` (geometry_msgs/Twist); publishes ``odom``
-(nav_msgs/Odometry), ``battery_state`` (sensor_msgs/BatteryState), ``scan``
-(sensor_msgs/LaserScan) and ``gps/fix`` (sensor_msgs/NavSatFix); offers
-``reset`` (std_srvs/Trigger). Like a real base it simply obeys the last
-command it got: stopping it when the operator vanishes is the bridge's job.
+    roslink-mqtt-sim [--ros-args -r __ns:=/robot1 -p odom_rate:=50.0]
+
+Arguments are parsed before rclpy is imported, so ``--help`` (or a typo) never
+starts a ROS node. The sim is a demo and test robot, so it always runs with the
+loopback-only DDS settings (:mod:`roslink_mqtt.ros_env`): whatever the shell
+says, it is never visible beyond this machine. ``ROS_DOMAIN_ID`` is kept when
+set (so a bridge started in another terminal with the same id finds it), else 0.
 """
 
 from __future__ import annotations
 
-import math
+import argparse
+import os
 import sys
 
-import rclpy
-from geometry_msgs.msg import Twist
-from nav_msgs.msg import Odometry
-from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import BatteryState, LaserScan, NavSatFix, NavSatStatus
-from std_srvs.srv import Trigger
-
-from .world import World
-
-PHYSICS_RATE = 50.0  # Hz
+PARAMETERS = ("odom_rate (20.0 Hz), scan_rate (5.0), gps_rate (1.0), battery_rate (1.0), scan_beams (360), "
+              "origin_lat (24.7136), origin_lon (46.6753), room_half_size (5.0 m)")
 
 
-class SimRobot(Node):
-    def __init__(self) -> None:
-        super().__init__("sim_robot")
-        rate = {name: self.declare_parameter(f"{name}_rate", default).value
-                for name, default in (("odom", 20.0), ("scan", 5.0), ("gps", 1.0), ("battery", 1.0))}
-        self.beams = int(self.declare_parameter("scan_beams", 360).value)
-        self.lat0 = float(self.declare_parameter("origin_lat", 24.7136).value)
-        self.lon0 = float(self.declare_parameter("origin_lon", 46.6753).value)
-        self.world = World(half_size=float(self.declare_parameter("room_half_size", 5.0).value))
-        self.battery = 100.0
-        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
-        self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
-        self.gps_pub = self.create_publisher(NavSatFix, "gps/fix", 10)
-        self.battery_pub = self.create_publisher(BatteryState, "battery_state", 10)
-        self.create_subscription(Twist, "cmd_vel", self.on_cmd_vel, 10)
-        self.create_service(Trigger, "reset", self.on_reset)
-        self.create_timer(1.0 / PHYSICS_RATE, self.on_physics)
-        self.create_timer(1.0 / rate["odom"], self.publish_odom)
-        self.create_timer(1.0 / rate["scan"], self.publish_scan)
-        self.create_timer(1.0 / rate["gps"], self.publish_gps)
-        self.create_timer(1.0 / rate["battery"], self.publish_battery)
-        self.get_logger().info(f"simulated robot ready in a {2 * self.world.half_size:g} m room")
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(ours, ros)``: every ``--ros-args …`` section (up to ``--`` or the end) goes to ROS, as rcl reads it."""
+    ours: list[str] = []
+    ros: list[str] = []
+    in_ros = False
+    for arg in argv:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--" and in_ros:
+            in_ros = False
+            ros.append(arg)
+            continue
+        (ros if in_ros else ours).append(arg)
+    return ours, ros
 
-    def on_cmd_vel(self, msg: Twist) -> None:
-        self.world.command(msg.linear.x, msg.angular.z)
 
-    def on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self.world.reset()
-        response.success, response.message = True, "pose reset to the room centre"
-        return response
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="roslink-mqtt-sim", description="A simulated ground robot as a ROS 2 node: subscribes cmd_vel, "
+        "publishes odom, scan, gps/fix and battery_state, offers reset; also takes mode, takeoff, lights, armed, "
+        "disarmed, emergency_stop, goal_pose and offers land and get_map, as the demo fleet maps them.",
+        epilog=f"ROS arguments go after --ros-args (remapping, namespace, parameters: {PARAMETERS}). DDS stays on "
+               "this machine: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and the bundled loopback Fast DDS profile "
+               "are always applied; ROS_DOMAIN_ID is kept (default 0).")
+    return p.parse_args(argv)
 
-    def on_physics(self) -> None:
-        self.world.step(1.0 / PHYSICS_RATE)
-        moving = abs(self.world.v) + abs(self.world.w)
-        self.battery = max(0.0, self.battery - (0.0005 + 0.002 * moving) / PHYSICS_RATE)
 
-    def publish_odom(self) -> None:
-        p, msg = self.world.pose, Odometry()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
-        msg.pose.pose.position.x, msg.pose.pose.position.y = p.x, p.y
-        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(p.yaw / 2), math.cos(p.yaw / 2)
-        msg.twist.twist.linear.x, msg.twist.twist.angular.z = self.world.v, self.world.w
-        self.odom_pub.publish(msg)
+def local_dds_env() -> None:
+    """Loopback-only DDS for this process, keeping the caller's domain id (set before rclpy is imported)."""
+    from ..ros_env import apply_local_ros_env
 
-    def publish_scan(self) -> None:
-        msg = LaserScan()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = "base_link"
-        msg.angle_min = -math.pi
-        msg.angle_increment = 2 * math.pi / self.beams
-        msg.angle_max = msg.angle_min + (self.beams - 1) * msg.angle_increment
-        msg.range_min, msg.range_max = 0.1, 8.0
-        msg.scan_time = 1.0 / 5.0
-        msg.ranges = [r if r <= msg.range_max else math.inf
-                      for r in self.world.scan(self.beams, msg.angle_min, msg.angle_max)]
-        self.scan_pub.publish(msg)
-
-    def publish_gps(self) -> None:
-        msg = NavSatFix()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = "gps"
-        msg.status.status, msg.status.service = NavSatStatus.STATUS_FIX, NavSatStatus.SERVICE_GPS
-        msg.latitude, msg.longitude = self.world.geodetic(self.lat0, self.lon0)
-        msg.altitude = 612.0
-        msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_APPROXIMATED
-        self.gps_pub.publish(msg)
-
-    def publish_battery(self) -> None:
-        msg = BatteryState()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.voltage = 11.1 + 1.5 * self.battery / 100.0
-        msg.current = -0.8 - 2.0 * (abs(self.world.v) + abs(self.world.w))
-        msg.percentage = self.battery / 100.0
-        msg.present = True
-        msg.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
-        self.battery_pub.publish(msg)
+    raw = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    try:
+        domain = int(raw) if raw else 0
+    except ValueError:
+        raise SystemExit(f"roslink-mqtt-sim: ROS_DOMAIN_ID must be a number, got {raw!r}") from None
+    apply_local_ros_env(domain)
 
 
 def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=sys.argv if argv is None else argv)
+    """Parse arguments, make DDS local, then (only then) start ROS and spin until Ctrl-C."""
+    argv = sys.argv if argv is None else argv
+    ours, ros = split_ros_args(list(argv[1:]))
+    parse_args(ours)  # --help and usage errors exit here, before anything of ROS is loaded
+    local_dds_env()
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from .robot import SimRobot
+
+    rclpy.init(args=[argv[0] if argv else "roslink-mqtt-sim", *ros])
     node = SimRobot()
     try:
         rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()
