@@ -39,6 +39,7 @@ from pathlib import Path
 import pytest
 
 from .support.fleet_brokers import mosquitto_with_logins
+from .support.mqtt_client import TestClient
 from .support.net import free_port, wait_for_port
 from .support.procs import CONFIG, DEMO_PASSWORDS, ROOT
 
@@ -392,11 +393,24 @@ def stop(proc: subprocess.Popen, timeout: float = 5.0) -> int:
     return proc.returncode
 
 
+def robot_node(fake: Path, keep: Path | None, log: Path, *, same_user: bool) -> subprocess.Popen:
+    """The robot's own ROS node (the simulated turtle, in /robot1): as the bridge's user, or as root."""
+    argv = ["-m", "roslink_mqtt.sim", "--ros-args", "-r", "__ns:=/robot1"]
+    env = {"PATH": "/usr/bin:/bin", "HOME": "/nonexistent", "ROS_LOG_DIR": "/tmp/ros-log",
+           **{key: os.environ[key] for key in LOCAL_DDS}}
+    with open(log, "wb") as out:  # in the same sandbox: the user is the only difference
+        return subprocess.Popen(sandboxed(fake, keep, [f"{PREFIX}/.venv/bin/python", *argv],
+                                          uid=RUN_AS if same_user else 0), env=env,
+                                stdout=out, stderr=subprocess.STDOUT)
+
+
 def test_bridge_unit_starts_in_its_sandbox_and_the_old_one_did_not(tmp_path) -> None:
     fake, keep = fake_root(tmp_path, free_port())
     notify = Notifications()
     try:
-        with mosquitto_with_logins(tmp_path) as port:
+        with mosquitto_with_logins(tmp_path) as port, TestClient(port, "admin", DEMO_PASSWORDS["admin"]) as admin:
+            assert admin.connect() == 0
+            admin.subscribe("roslink/turtle1/#")
             # Before the fix: rcl cannot create ~/.ros/log (HOME=/home/robot is hidden, / is read-only).
             t0 = time.monotonic()
             old, old_log = run_bridge_unit(OLD_BRIDGE_UNIT, tmp_path, "old", port, notify, fake, keep)
@@ -411,7 +425,9 @@ def test_bridge_unit_starts_in_its_sandbox_and_the_old_one_did_not(tmp_path) -> 
             assert not any(m.startswith("READY=1") for m in notify.seen), notify.seen
             print(f"old unit: exit {old.returncode} after {time.monotonic() - t0:.1f} s: failed to initialize logging")
 
-            # The shipped unit: READY, then connected to the broker; SIGTERM stops it cleanly.
+            # The shipped unit, next to the robot's ROS node running as the same user: READY, connected, its
+            # heartbeat and the robot's odometry reach the broker; SIGTERM stops it cleanly.
+            sim = robot_node(fake, keep, tmp_path / "sim.log", same_user=True)
             t0 = time.monotonic()
             new, new_log = run_bridge_unit(BRIDGE_UNIT.read_text(), tmp_path, "new", port, notify, fake, keep)
             try:
@@ -419,15 +435,32 @@ def test_bridge_unit_starts_in_its_sandbox_and_the_old_one_did_not(tmp_path) -> 
                 up = time.monotonic() - t0
                 assert connected, f"{notify.seen}\n{new_log.read_text(errors='replace')}"
                 assert any(m.startswith("READY=1") for m in notify.seen), notify.seen
+                admin.wait_for(lambda m: m.topic == "roslink/turtle1/heartbeat", timeout=10)
+                try:
+                    admin.wait_for(lambda m: m.topic == "roslink/turtle1/state/global_motion", timeout=15)
+                except TimeoutError:
+                    pytest.fail(f"no odometry from the robot's node\n{new_log.read_text(errors='replace')}\n"
+                                f"{(tmp_path / 'sim.log').read_text(errors='replace')}")
+                flowing = time.monotonic() - t0
+                stop(sim)
+                # The robot's node as another user (root): Fast DDS's shared memory connects nothing, and the
+                # bridge, though online, hears no odometry. Hence install.sh --bridge-user.
+                sim = robot_node(fake, keep, tmp_path / "sim-root.log", same_user=False)
+                admin.drain(1.0)
+                moved = [m for m in admin.drain(5.0) if m.topic == "roslink/turtle1/state/global_motion"]
+                root_log = (tmp_path / "sim-root.log").read_text(errors="replace")
+                assert "simulated robot ready" in root_log and sim.poll() is None, root_log
+                assert not moved, "odometry crossed users: bridge/README.md's --bridge-user advice is out of date"
                 assert new.poll() is None, new_log.read_text(errors="replace")
             finally:
                 code = stop(new)
+                stop(sim)
             notify.wait_for("STOPPING=1", 2, new)
             output = new_log.read_text(errors="replace")
             assert code == 0, output
             assert "STOPPING=1" in notify.seen, notify.seen
             assert "Traceback" not in output, output
-            print(f"shipped unit: connected {up:.1f} s after start, exit {code} on SIGTERM")
+            print(f"shipped unit: connected {up:.1f} s, odometry {flowing:.1f} s after start, exit {code} on SIGTERM")
     finally:
         notify.close()
     # rcl's log went where ROS_LOG_DIR points, into the unit's LogsDirectory.
