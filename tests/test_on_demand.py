@@ -25,7 +25,8 @@ LIGHTS = {"direction": "mqtt_to_ros", "mqtt_topic": "lights", "ros_topic": "/lig
 
 def lights_config(tmp: Path) -> Path:
     fleet = yaml.safe_load(CONFIG.read_text())
-    fleet["robots"]["turtle1"]["rules"] = list(fleet["robots"]["turtle1"]["rules"]) + [LIGHTS]
+    fleet["robots"]["turtle1"]["rules"] = [r for r in fleet["robots"]["turtle1"]["rules"]
+                                           if r["mqtt_topic"] != LIGHTS["mqtt_topic"]] + [LIGHTS]
     path = tmp / "robots.yaml"
     path.write_text(yaml.safe_dump(fleet))
     return path

@@ -209,9 +209,9 @@ def test_errors_surface_as_callbacks_and_exceptions(stack) -> None:
         error = errors.get(timeout=5)
         assert error.robot == "turtle1" and error.topic == "roslink/turtle1/from/alice/fly"
         assert "no mapping for 'fly'" in error.error
-        with pytest.raises(CommandRefused, match="no mapping for 'cmd/takeoff'") as refused:
-            client.command("turtle1", "takeoff", {"altitude": 1.0}, check=3.0)
-        assert refused.value.error.message_id is None or refused.value.error.message_id == MessageId.TAKEOFF
+        with pytest.raises(CommandRefused, match="frame_type 1 is not supported") as refused:
+            client.command("turtle1", "go_to_waypoint", {"frame_type": 1, "x": 1.0, "y": 2.0}, check=3.0)
+        assert refused.value.error.message_id == MessageId.GO_TO_WAYPOINT
         assert client.twist("turtle1", lx=0.0, check=0.3) is not None  # accepted: no report within the window
         with pytest.raises(ProtocolError, match="unknown field 'lxx'"):
             client.command("turtle1", "twist", {"lxx": 0.2})  # caught before it is sent

@@ -28,7 +28,9 @@ def services_config(tmp: Path) -> Path:
         {"name": "slow", "ros_service": "/slow_service", "ros_type": "std_srvs/srv/Trigger", "timeout": 1.0},
         {"name": "peek", "ros_service": "/peek", "ros_type": "std_srvs/srv/Trigger", "read_only": True},
     ]
-    fleet["robots"]["turtle1"]["rules"] = list(fleet["robots"]["turtle1"]["rules"]) + [
+    mine = ("cmd/takeoff", "cmd/land")  # the demo maps these too (to the sim); here they call the test's services
+    fleet["robots"]["turtle1"]["rules"] = [r for r in fleet["robots"]["turtle1"]["rules"]
+                                           if r["mqtt_topic"] not in mine] + [
         {"direction": "mqtt_to_ros", "mqtt_topic": "cmd/takeoff", "ros_topic": "/takeoff_srv",
          "ros_type": "std_srvs/srv/Trigger", "preset": "takeoff"},
         {"direction": "mqtt_to_ros", "mqtt_topic": "cmd/land", "ros_topic": "/land_srv",
