@@ -72,16 +72,16 @@ run() {
 }
 note() { echo "# $*"; }
 
-# A rendered copy of a unit: the prefix and the bridge's user substituted.
-render() {
-    sed -e "s|/opt/roslink-mqtt|$PREFIX|g" -e "s|^User=roslink\$|User=$BRIDGE_USER|" "$1"
+# A rendered copy of a unit or env file: the prefix substituted, and the bridge's user in the bridge's unit.
+render() {  # render SOURCE
+    local user_rule=""
+    [ "$(basename "$1")" = roslink-mqtt-bridge.service ] && user_rule="s|^User=roslink\$|User=$BRIDGE_USER|"
+    sed -e "s|/opt/roslink-mqtt|$PREFIX|g" ${user_rule:+-e "$user_rule"} "$1"
 }
 install_rendered() {  # install_rendered SOURCE MODE OWNER GROUP DEST
-    local tmp changes=""
-    [ "$PREFIX" = /opt/roslink-mqtt ] || changes=" /opt/roslink-mqtt->$PREFIX"
-    if [ "$BRIDGE_USER" != roslink ] && grep -q '^User=roslink$' "$1"; then changes+=" User=$BRIDGE_USER"; fi
-    printf '+ install -m %s -o %s -g %s <(render %q) %q%s\n' "$2" "$3" "$4" "${1#"$SRC/"}" "$5" \
-        "${changes:+"   #$changes"}"
+    local tmp
+    printf '+ install -m %s -o %s -g %s <(render %q) %q\n' "$2" "$3" "$4" "${1#"$SRC/"}" "$5"
+    render "$1" | diff "$1" - | sed -n 's/^> /#   rendered: /p' || true
     if [ "$DRY_RUN" = 0 ]; then
         tmp=$(mktemp)
         render "$1" >"$tmp"

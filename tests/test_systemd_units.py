@@ -521,10 +521,19 @@ def test_install_dry_run_creates_what_the_units_name() -> None:
         or f"keeping {env_file}" in out, out
     assert re.search(r"pip install --upgrade \S+\\\[bridge\\,broker\\\]$", text, re.M), out
 
-    other = dry_run("--prefix", "/srv/roslink", "--bridge-user", "turtlebot", "bridge")
+    other = dry_run("--prefix", "/srv/roslink", "--bridge-user", "turtlebot", "bridge", "broker")
     assert "/srv/roslink/.venv/bin/pip install" in other, other
-    assert "roslink-mqtt-bridge.service   # /opt/roslink-mqtt->/srv/roslink User=turtlebot" in other, other
-    assert "roslink-mqtt-broker" not in other, other
+    rendered = {}  # unit -> the lines install.sh changes in it
+    for block in re.split(r"(?m)^\+ ", other):
+        unit = re.search(r"/etc/systemd/system/(\S+)", block.splitlines()[0]) if block else None
+        if unit:
+            rendered[unit.group(1)] = re.findall(r"(?m)^#   rendered: (.*)$", block)
+    assert rendered["roslink-mqtt-bridge.service"][:2] == [
+        "User=turtlebot", "ExecStart=/srv/roslink/.venv/bin/roslink-mqtt-bridge --config /etc/roslink-mqtt/robots.yaml "
+        "--robot ${ROSLINK_ROBOT} $ROSLINK_BRIDGE_ARGS"], other
+    broker_lines = rendered["roslink-mqtt-broker.service"]
+    assert "ExecStart=/srv/roslink/.venv/bin/roslink-mqtt-broker --config /etc/roslink-mqtt/robots.yaml" \
+        in broker_lines and not any(line.startswith("User=") for line in broker_lines), other
     broker = dry_run("broker")  # as broker/README.md shows it
     assert "/etc/systemd/system/roslink-mqtt-broker.service" in broker and "bridge.env" not in broker, broker
     assert re.search(r"pip install --upgrade \S+\\\[broker\\\]$", broker, re.M), broker
