@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 
@@ -30,34 +31,38 @@ robots:
 """, "robots.yaml")
 
 
-@pytest.mark.parametrize(("rule", "fragment"), [
-    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometri, mqtt_topic: state/odom}",
+OUT = "{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom}"
+IN = "{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist}"
+
+
+def robot_with(base: str, **changes):
+    """A robot whose one rule is ``base`` changed past the loader (which refuses most of these itself, without
+    ROS: tests/test_fleet_types.py): the bridge must still refuse each on its own."""
+    robot = fleet_with(base).robots["r1"]
+    return replace(robot, rules=(replace(robot.rules[0], **changes),))
+
+
+@pytest.mark.parametrize(("base", "changes", "fragment"), [
+    (OUT, {"ros_type": "nav_msgs/msg/Odometri"},
      "rules[0] (odom → state/odom): unknown type 'nav_msgs/msg/Odometri': 'nav_msgs' has no msg 'Odometri'"),
-    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: warp_msgs/msg/Odometry, mqtt_topic: state/odom}",
-     "ROS package 'warp_msgs' is not installed"),
-    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: sensor_msgs/msg/Imu, mqtt_topic: state/gm,"
-     " preset: global_motion}",
+    (OUT, {"ros_type": "warp_msgs/msg/Odometry"}, "ROS package 'warp_msgs' is not installed"),
+    (OUT, {"ros_type": "sensor_msgs/msg/Imu", "mqtt_topic": "state/gm", "preset": "global_motion"},
      "rules[0] (odom → state/gm): preset 'global_motion' needs ros_type nav_msgs/msg/Odometry or "
      "geometry_msgs/msg/PoseStamped or geometry_msgs/msg/PoseWithCovarianceStamped, not sensor_msgs/msg/Imu"),
-    ("{direction: ros_to_mqtt, ros_topic: hb, ros_type: std_msgs/msg/String, mqtt_topic: state/hb, preset: heartbeat}",
+    (OUT, {"ros_topic": "hb", "ros_type": "std_msgs/msg/String", "mqtt_topic": "state/hb", "preset": "heartbeat"},
      "preset 'heartbeat' is not a state preset"),
-    ("{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: std_msgs/msg/String, mqtt_topic: cmd/twist,"
-     " preset: twist}",
+    (IN, {"ros_type": "std_msgs/msg/String", "preset": "twist"},
      "rules[0] (cmd/twist → cmd_vel): preset 'twist' needs ros_type geometry_msgs/msg/Twist"),
-    ("{direction: mqtt_to_ros, ros_topic: arm, ros_type: rcl_interfaces/srv/GetParameters, mqtt_topic: cmd/arm,"
-     " preset: arm}",
+    (IN, {"ros_topic": "arm", "ros_type": "rcl_interfaces/srv/GetParameters", "mqtt_topic": "cmd/arm", "preset": "arm"},
      "preset 'arm' can call std_srvs/srv/Trigger or std_srvs/srv/SetBool or std_srvs/srv/Empty"),
-    ("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom,"
-     " fields: {x: pose.pose.positon.x}}",
+    (OUT, {"fields": {"x": "pose.pose.positon.x"}},
      "fields.x: 'pose.pose.positon.x' is not a field of nav_msgs/msg/Odometry"),
-    ("{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: drive,"
-     " on_demand: true}",
+    (IN, {"mqtt_topic": "drive", "on_demand": True},
      "rules[0] (drive → cmd_vel): on_demand is not for velocity commands"),
 ])
-def test_bad_rules_are_refused_at_start(rule: str, fragment: str) -> None:
-    fleet = fleet_with(rule)
+def test_bad_rules_are_refused_at_start(base: str, changes: dict, fragment: str) -> None:
     with pytest.raises(RuleError) as info:
-        compile_rules(fleet.robots["r1"], TopicTree())
+        compile_rules(robot_with(base, **changes), TopicTree())
     assert fragment in str(info.value)
 
 
@@ -88,12 +93,13 @@ robots:
 
 
 def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
+    """A type outside common_interfaces passes the loader (it cannot check it) and stops the bridge at start."""
     config, out = start_bridge(tmp_path, """    bridge: {password: pw}
     rules:
-      - {direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist,
-          preset: takeoff}""")
+      - {direction: mqtt_to_ros, ros_topic: drive, ros_type: warp_msgs/msg/Drive, mqtt_topic: cmd/drive}""")
     assert out.returncode == 2
-    assert f"{config}:9 robots.r1.rules[0] (cmd/twist → cmd_vel): preset 'takeoff' needs ros_type" in out.stderr
+    assert f"{config}:9 robots.r1.rules[0] (cmd/drive → drive): unknown type 'warp_msgs/msg/Drive': ROS package " \
+           "'warp_msgs' is not installed" in out.stderr
 
 
 @pytest.mark.parametrize(("extra", "fragment"), [
@@ -102,8 +108,8 @@ def test_bridge_exits_with_the_rule_error(tmp_path) -> None:
     ("    bridge: {password: pw, on_failsafe: [{ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist,\n"
      "        message: {linear: {x: 0.3}}}]}",
      "robots.r1.bridge.on_failsafe[0]: a failsafe action must not move the robot"),
-    ("    bridge: {password: pw}\n    services: [{ros_service: reset, ros_type: std_srvs/srv/Resett}]",
-     "robots.r1.services: unknown type 'std_srvs/srv/Resett'"),
+    ("    bridge: {password: pw}\n    services: [{ros_service: reset, ros_type: warp_srvs/srv/Reset}]",
+     "robots.r1.services: unknown type 'warp_srvs/srv/Reset'"),
 ])
 def test_bridge_exits_on_bad_failsafe_action_or_service(tmp_path, extra: str, fragment: str) -> None:
     _, out = start_bridge(tmp_path, extra)

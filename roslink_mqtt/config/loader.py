@@ -12,6 +12,7 @@ from ..protocol.enums import RobotType
 from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
 from ..topics import OPERATORS, TopicError, check_name, check_path
+from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
     LIMIT_MODES,
     BridgeSettings,
@@ -36,7 +37,6 @@ _REQUIRED: Any = object()
 _ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _RESERVED_FROM = ("call", "provide", "response", "advertise")
-SERVICE_PRESETS = ("takeoff", "land", "arm", "disarm", "get_map", "emergency_stop")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
 
@@ -57,6 +57,8 @@ def parse_fleet(text: str, file: str = "<string>") -> Fleet:
 class _FleetReader:
     def __init__(self, source: Source) -> None:
         self.src = source
+        self.types = interface_table()
+        self.notes: list[str] = []  # what could not be checked here (types outside the table)
 
     # -- primitive readers --------------------------------------------------
     def err(self, path: Path, message: str) -> ConfigError:
@@ -157,6 +159,14 @@ class _FleetReader:
             return v
         return check
 
+    def interface(self, path: Path, name: str) -> None:
+        """A type the table covers must exist there; any other is noted as unchecked (the bridge checks it)."""
+        problem = self.types.type_problem(name)
+        if problem:
+            raise self.err(path, problem)
+        if not self.types.covers(name):
+            self.notes.append(str(self.err(path, f"{name} is not a common_interfaces type: it {UNCHECKED}")))
+
     def ros_name(self, path: Path, v: Any) -> str:
         if not isinstance(v, str) or not _ROS_NAME.match(v):
             raise self.err(path, f"expected a ROS name like 'cmd_vel' or '/robot/odom', got {_show(v)}")
@@ -179,7 +189,7 @@ class _FleetReader:
         broker = self.broker(("broker",)) if "broker" in self.get(root) else BrokerSettings()
         robots = self.robots(("robots",))
         users = self.users(("users",), robots)
-        return Fleet(self.src.file, prefix, broker, robots, users)
+        return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes))
 
     def broker(self, path: Path) -> BrokerSettings:
         self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload"))
@@ -281,8 +291,9 @@ class _FleetReader:
             message = self.get(ap).get("message") or {}
             if not isinstance(message, dict):
                 raise self.err(ap + ("message",), f"expected a mapping (the ROS message as JSON), got {_show(message)}")
-            out.append(FailsafeAction(self.value(ap, "ros_topic", self.ros_name),
-                                      self.value(ap, "ros_type", self.ros_type("msg")), message))
+            ros_type = self.value(ap, "ros_type", self.ros_type("msg"))
+            self.interface(ap + ("ros_type",), ros_type)
+            out.append(FailsafeAction(self.value(ap, "ros_topic", self.ros_name), ros_type, message))
         return tuple(out)
 
     def rules(self, path: Path) -> tuple[Rule, ...]:
@@ -330,6 +341,9 @@ class _FleetReader:
         raw_type = self.get(path).get("ros_type")
         ros_type = self.value(path, "ros_type", self.ros_type(
             "srv" if service_ok and isinstance(raw_type, str) and "/srv/" in raw_type else "msg"))
+        self.interface(path + ("ros_type",), ros_type)
+        if preset is not None and (problem := preset_type_problem(preset, ros_type)):
+            raise self.err(path + ("preset",), problem)
         qos = RosQos()
         if self.get(path).get("ros_qos") is not None:
             qp = path + ("ros_qos",)
@@ -341,6 +355,9 @@ class _FleetReader:
         if on_demand and (direction is not Direction.MQTT_TO_ROS or preset is not None):
             raise self.err(path + ("on_demand",), "on_demand applies to generic mqtt_to_ros rules only (ROSLink "
                                                   "commands keep their ROS publisher: the failsafe needs it)")
+        if on_demand and ros_type in VELOCITY_TYPES:
+            raise self.err(path + ("on_demand",), f"on_demand is not for velocity commands (the failsafe must "
+                                                  f"always be able to publish zero velocity on {ros_type})")
         fields: dict[str, str] = {}
         if self.get(path).get("fields") is not None:
             fp = path + ("fields",)
@@ -349,6 +366,8 @@ class _FleetReader:
                 raise self.err(fp, f"expected a mapping of MQTT field to ROS field path, got {_show(raw)}")
             for k, v in raw.items():
                 fields[k] = self.string(fp + (k,), v)
+                if problem := self.types.field_path_problem(ros_type, fields[k]):
+                    raise self.err(fp + (k,), problem)
         return Rule(
             index=index,
             direction=direction,
@@ -377,7 +396,9 @@ class _FleetReader:
             if name in names:
                 raise self.err(sp + ("name",), f"service name '{name}' is used twice")
             names.add(name)
-            out.append(ServiceRule(name, ros_service, self.value(sp, "ros_type", self.ros_type("srv")),
+            ros_type = self.value(sp, "ros_type", self.ros_type("srv"))
+            self.interface(sp + ("ros_type",), ros_type)
+            out.append(ServiceRule(name, ros_service, ros_type,
                                    self.value(sp, "read_only", self.boolean, False),
                                    self.value(sp, "timeout", self.number(0, 3600, open_low=True), 5.0),
                                    self.src.line_of(sp)))

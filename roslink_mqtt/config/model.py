@@ -169,6 +169,9 @@ class Fleet:
     broker: BrokerSettings
     robots: dict[str, Robot]
     users: dict[str, User]
+    # "file:line key: …" for what loading could not check without ROS (types outside common_interfaces);
+    # not errors: the bridge checks those when it starts.
+    notes: tuple[str, ...] = ()
 
     @property
     def topics(self) -> TopicTree:
