@@ -106,8 +106,10 @@ def test_bob_viewer_twist_is_refused(stack, tmp_path: Path) -> None:
         if stack["broker"] == "mosquitto":  # no ACL there: the bridge refuses and says why
             err = bob.wait_for(lambda m: m.topic == "roslink/turtle1/to/bob/error").json()
             assert "not an operator" in err["error"] and err["topic"].endswith("/from/bob/cmd/twist")
-        else:  # the broker's ACL drops it before it reaches the robot
-            assert bob.drain(1.0) == []
+        else:  # the broker's ACL drops it before it reaches the robot; only bob's retained access report comes
+            got = bob.drain(1.0)
+            assert [m.topic for m in got] == ["roslink/turtle1/to/bob/access"], got
+            assert got[0].retain and got[0].json()["role"] == "viewer"
         time.sleep(0.5)
         assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.3)]
 

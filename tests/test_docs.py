@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from roslink_mqtt.protocol import SPECS
-from roslink_mqtt.protocol.reference import BEGIN, END, render
+from roslink_mqtt.protocol.control import CONTROL_BODIES
+from roslink_mqtt.protocol.reference import BEGIN, BEGIN_CONTROL, END, END_CONTROL, render, render_control
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -16,3 +17,14 @@ def test_protocol_reference_is_current() -> None:
     assert generated == render(), "regenerate: python -m roslink_mqtt.protocol.reference"
     for spec in SPECS:
         assert f"### {int(spec.message_id)} {spec.name}" in text
+
+
+def test_control_body_reference_is_current() -> None:
+    """The error and access reports (and the client_id every request may carry) are documented as coded."""
+    text = (DOCS / "protocol.md").read_text()
+    generated = text[text.index(BEGIN_CONTROL): text.index(END_CONTROL) + len(END_CONTROL)]
+    assert generated == render_control(), "regenerate: python -m roslink_mqtt.protocol.reference --write docs/…"
+    for _title, _topic, cls in CONTROL_BODIES:
+        for field in cls.FIELDS:
+            assert f"| `{field.name}` |" in generated
+    assert "| `client_id` | string, 1..128 characters |" in text  # the envelope header table

@@ -23,8 +23,11 @@ from ..protocol import (
     encode,
     error_reply,
     loads,
+    sender_id,
 )
+from ..protocol.control import pop_generic_sender
 from ..topics import Kind, TopicTree
+from .access import access_reports, cleared_reports
 from .convert import ConversionError, converter_for
 from .failsafe import Failsafe, late_motion
 from .link import MqttLink, bridge_client_id
@@ -154,7 +157,8 @@ class Bridge:
                         "(users and grants apply now)", self.robot.name)
         before, after = self.fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
         with self._lock:
-            self.fleet, self._grants = fleet, (fleet, {})
+            old_fleet, self.fleet, self._grants = self.fleet, fleet, (fleet, {})
+        self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
         for user in sorted(set(before) - set(after)):
             self.link.unsubscribe(self.topics.operators_of(user))
         for user in sorted(set(after) - set(before)):
@@ -196,6 +200,14 @@ class Bridge:
             self.failsafe.link_up = True
             self._pending_heartbeat = None
         self.publish_heartbeat()
+        self.publish_access()
+
+    def publish_access(self, cleared: list[str] = ()) -> None:
+        """Retained ``to/<user>/access`` for every granted user (bridge/access.py says why); clear ``cleared``."""
+        for topic in cleared:
+            self.link.publish(topic, b"", qos=1, retain=True)
+        for topic, body in access_reports(self.fleet, self.robot.name, self.topics).items():
+            self.link.publish(topic, body, qos=1, retain=True)
 
     def on_link_down(self, reason: str) -> None:
         closing = self.link.closing  # our own stop() disconnected: a shutdown, not a failure
@@ -331,7 +343,8 @@ class Bridge:
             # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.
             if payload:
                 self.refuse(user, topic, "ignored a retained command from the broker: publish commands "
-                                         "without the retain flag (and clear this one with an empty retained message)")
+                                         "without the retain flag (and clear this one with an empty retained message)",
+                            payload=payload)
             return
         if kind == "call" and leaf:
             self.caller.handle(user, leaf, payload)
@@ -348,10 +361,10 @@ class Bridge:
         rule = self.inbound.get(name)
         if rule is None:
             self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
-                                     f"(commands: {', '.join(sorted(self.inbound)) or 'none'})")
+                                     f"(commands: {', '.join(sorted(self.inbound)) or 'none'})", payload=payload)
             return
         if self.role_of(user) is not Role.OPERATOR:
-            self.refuse(user, topic, f"user '{user}' is not an operator of {self.robot.name}")
+            self.refuse(user, topic, f"user '{user}' is not an operator of {self.robot.name}", payload=payload)
             return
         self.handle_command(user, topic, rule, payload, arrived)
 
@@ -379,45 +392,48 @@ class Bridge:
         reason = (f"ignored an oversized presence payload ({size} bytes, limit {MAX_PRESENCE_BYTES}) from "
                   f"{user}/{client_id}: it does not count as a heartbeat")
         log.warning("%s", reason)
-        self.refuse(user, self.topics.operator(user, client_id), reason)
+        self.refuse(user, self.topics.operator(user, client_id), reason, client_id=client_id)
 
     def handle_command(self, user: str, topic: str, rule: Inbound, payload: bytes,
                        arrived: float | None = None) -> None:
         """Decode, check and execute one command (paho thread); motion that waited too long here is dropped."""
-        message_id = sequence = None
+        message_id = sequence = sender = None  # sender: the client id the request names, for error reports
         preset = rule.spec.name if rule.spec is not None else None
         try:
             if rule.spec is not None:
                 envelope = decode(payload, rule.spec.message_id)
-                message_id, sequence = envelope.message_id, envelope.sequence_number
+                message_id, sequence, sender = envelope.message_id, envelope.sequence_number, envelope.client_id
                 if sequence is not None and preset != "emergency_stop":  # a stop is never "too old" to obey
                     verdict = self.sequences.check((user, rule.rule.mqtt_topic), sequence)
                     if not verdict.accepted:
                         self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
-                                    message_id, sequence)
+                                    message_id, sequence, client_id=sender)
                         return
                 msg = rule.build(envelope.payload)
             else:
-                msg = rule.build(loads(payload))
+                body = loads(payload)
+                sender = pop_generic_sender(body)  # '$client_id' is not a field of the ROS message
+                msg = rule.build(body)
             if rule.is_velocity:
                 make_safe_twist(msg, rule.limits)
         except (ProtocolError, ConversionError, CommandRefused, UnsafeCommand) as err:
-            self.refuse(user, topic, str(err), message_id, sequence)
+            self.refuse(user, topic, str(err), message_id, sequence, payload=payload)
             return
         with self._lock:
             if preset != "emergency_stop" and not self.operators.is_live(user):
                 self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
                                          f"on {self.topics.prefix}/operators/{user}/<client_id> every second",
-                            message_id, sequence)
+                            message_id, sequence, client_id=sender)
                 return
             if rule.is_velocity or preset in GOAL_PRESETS:
                 if self.motion_blocked:
-                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence)
+                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
+                                client_id=sender)
                     return
                 late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
                                    stop=rule.is_velocity and is_standstill(msg))
                 if late:
-                    self.refuse(user, topic, late, message_id, sequence)
+                    self.refuse(user, topic, late, message_id, sequence, client_id=sender)
                     return
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if rule.is_velocity:
@@ -432,19 +448,19 @@ class Bridge:
                 self.motion_blocked = None
             self.owner = user
             if rule.is_service:
-                self._call_command_service(user, topic, rule, msg, message_id, sequence)
+                self._call_command_service(user, topic, rule, msg, message_id, sequence, sender)
             elif rule.rule.on_demand:
                 self.on_demand.publish(user, rule.rule.mqtt_topic, msg)
             else:
                 self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
 
     def _call_command_service(self, user: str, topic: str, rule: Inbound, request: Any, message_id: int | None,
-                              sequence: int | None) -> None:
+                              sequence: int | None, sender: str | None = None) -> None:
         """Carry out a preset command through a ROS service; the outcome is acknowledged on state/ack."""
         client = self.command_services[rule.rule.mqtt_topic]
         if not client.service_is_ready():
             self.refuse(user, topic, f"service not available: {rule.rule.ros_topic} ({rule.rule.ros_type})",
-                        message_id, sequence)
+                        message_id, sequence, client_id=sender)
             return
         future = client.call_async(request)
         deadline = time.monotonic() + COMMAND_SERVICE_TIMEOUT
@@ -485,7 +501,16 @@ class Bridge:
         log.warning("motion blocked on %s: %s", self.robot.name, reason)
 
     def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
-               sequence: int | None = None) -> None:
+               sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None) -> None:
+        """Report a refused input on ``to/<user>/error``, addressed to the program that sent it.
+
+        Every program of ``user`` reads that topic, so the report repeats the sender's client id: given
+        (``client_id``), or read from the refused ``payload`` here, on the rare refusal path rather than for
+        every accepted command. A request that names no sender gets a report without one (any program may show it).
+        """
+        if client_id is None and payload is not None:
+            client_id = sender_id(payload)
         log.debug("refused %s: %s", topic, reason)
         self.link.publish(self.topics.error(self.robot.name, user),
-                          error_reply(topic, reason, message_id=message_id, sequence_number=sequence), qos=1)
+                          error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
+                                      client_id=client_id), qos=1)

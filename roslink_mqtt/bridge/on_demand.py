@@ -40,7 +40,7 @@ class OnDemandPublishers:
 
     def __init__(self, node: Node, rules: dict[str, Inbound], always_there: set[str],
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[[str, str, str], None]) -> None:
+                 error: Callable[..., None]) -> None:
         """``rules``: the on-demand rules by MQTT name; ``always_there``: the other mqtt_to_ros names."""
         self.node, self.rules, self.always_there = node, rules, always_there
         self.role_of, self.is_live, self.error = role_of, is_live, error
@@ -54,14 +54,15 @@ class OnDemandPublishers:
         if rule is None:
             if name not in self.always_there:  # advertising a rule whose publisher always exists is harmless
                 known = ", ".join(sorted({*self.rules, *self.always_there})) or "none"
-                self.error(user, topic, f"no mapping '{name}' on this robot (mqtt_to_ros rules: {known})")
+                self.error(user, topic, f"no mapping '{name}' on this robot (mqtt_to_ros rules: {known})",
+                           payload=payload)
             return
         if not payload:
             with self._lock:
                 self._adverts[name].pop(user, None)
             return
         if self.role_of(user) is not Role.OPERATOR:
-            self.error(user, topic, f"user '{user}' may not publish on '{name}' (operators only)")
+            self.error(user, topic, f"user '{user}' may not publish on '{name}' (operators only)", payload=payload)
             return
         try:
             body = loads(payload)
@@ -76,7 +77,7 @@ class OnDemandPublishers:
             if not isinstance(client_id, str):
                 raise ProtocolError("client_id: expected a string")
         except ProtocolError as err:
-            self.error(user, topic, str(err))
+            self.error(user, topic, str(err), payload=payload)
             return
         with self._lock:
             self._adverts[name][user] = client_id

@@ -29,7 +29,8 @@ from rclpy.qos import QoSProfile, qos_profile_services_default
 from rclpy.task import Future
 
 from ..config import Robot, Role, ServiceRule
-from ..protocol import ProtocolError, loads
+from ..protocol import ProtocolError, loads, sender_id
+from ..protocol.control import check_client_id
 from ..topics import TopicTree
 from .convert import ConversionError, converter_for
 from .ros_types import UnknownTypeError, load_interface
@@ -40,20 +41,25 @@ Publish = Callable[[str, bytes], None]
 MAX_ID_LENGTH = 128
 
 
-def _reply(call_id: Any, *, values: dict | None = None, error: str | None = None) -> bytes:
-    if error is not None:
-        return orjson.dumps({"id": call_id, "result": False, "error": error})
-    return orjson.dumps({"id": call_id, "result": True, "values": values or {}})
+def _reply(call_id: Any, *, values: dict | None = None, error: str | None = None,
+           client_id: str | None = None) -> bytes:
+    """A reply body; ``client_id`` repeats the caller's (every program of the user reads the reply topic)."""
+    body: dict[str, Any] = ({"id": call_id, "result": False, "error": error} if error is not None
+                            else {"id": call_id, "result": True, "values": values or {}})
+    if client_id is not None:
+        body["client_id"] = client_id
+    return orjson.dumps(body)
 
 
-def parse_request(payload: bytes) -> tuple[Any, dict]:
-    """``{"id": …, "args": {…}}`` → (id, args); ProtocolError on anything else."""
+def parse_request(payload: bytes) -> tuple[Any, dict, str | None]:
+    """``{"id": …, "args": {…}, "client_id": …}`` → (id, args, client_id or None); ProtocolError on anything else."""
     body = loads(payload)
     if not isinstance(body, dict):
         raise ProtocolError("expected a JSON object {\"id\": …, \"args\": {…}}")
-    unknown = sorted(set(body) - {"id", "args"})
+    unknown = sorted(set(body) - {"id", "args", "client_id"})
     if unknown:
-        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: id, args)")
+        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: id, args, client_id)")
+    client_id = check_client_id(body["client_id"]) if "client_id" in body else None
     call_id = body.get("id")
     if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
         raise ProtocolError("id: expected a string or integer")
@@ -62,7 +68,7 @@ def parse_request(payload: bytes) -> tuple[Any, dict]:
     args = body.get("args", {})
     if not isinstance(args, dict):
         raise ProtocolError("args: expected an object")
-    return call_id, args
+    return call_id, args, client_id
 
 
 @dataclass
@@ -74,6 +80,7 @@ class _Pending:
     timeout: float
     future: Any
     client: Any
+    client_id: str | None = None  # the caller's, repeated in the reply
 
 
 class ServiceCaller:
@@ -95,35 +102,36 @@ class ServiceCaller:
         """A call from ``user`` to service ``name`` (MQTT thread: never blocks)."""
         reply_topic = self.topics.reply(self.robot.name, user, name)
         try:
-            call_id, args = parse_request(payload)
+            call_id, args, sender = parse_request(payload)
         except ProtocolError as err:
-            self.publish(reply_topic, _reply(None, error=str(err)))
+            self.publish(reply_topic, _reply(None, error=str(err), client_id=sender_id(payload)))
             return
         entry = self.clients.get(name)
         if entry is None:
             known = ", ".join(sorted(self.clients)) or "none"
-            self.publish(reply_topic, _reply(call_id, error=f"unknown service '{name}' (services: {known})"))
+            self.publish(reply_topic, _reply(call_id, error=f"unknown service '{name}' (services: {known})",
+                                             client_id=sender))
             return
         rule, srv, client = entry
         role = self.role_of(user)
         if role is None or (role is Role.VIEWER and not rule.read_only):
             self.publish(reply_topic, _reply(call_id, error=f"user '{user}' may not call '{name}' "
-                                                            f"(operators only; it is not read-only)"))
+                                                            f"(operators only; it is not read-only)", client_id=sender))
             return
         try:
             request = converter_for(srv.Request).from_dict(args)
         except ConversionError as err:
-            self.publish(reply_topic, _reply(call_id, error=f"bad arguments: args.{err}"))
+            self.publish(reply_topic, _reply(call_id, error=f"bad arguments: args.{err}", client_id=sender))
             return
         if not client.service_is_ready():
             self.publish(reply_topic, _reply(call_id, error=f"service not available: {rule.ros_service} "
-                                                            f"({rule.ros_type}) has no server"))
+                                                            f"({rule.ros_type}) has no server", client_id=sender))
             return
         future = client.call_async(request)
         key = next(self._ids)
         with self._lock:
             self._pending[key] = _Pending(user, call_id, reply_topic, time.monotonic() + rule.timeout, rule.timeout,
-                                          future, client)
+                                          future, client, sender)
         future.add_done_callback(lambda f, key=key, srv=srv: self._done(key, srv, f))
 
     def _done(self, key: int, srv: Any, future: Any) -> None:
@@ -132,10 +140,11 @@ class ServiceCaller:
         if pending is None:  # already answered as a timeout
             return
         if future.cancelled() or future.exception() is not None:
-            self.publish(pending.reply_topic, _reply(pending.call_id, error=f"service failed: {future.exception()}"))
+            self.publish(pending.reply_topic, _reply(pending.call_id, error=f"service failed: {future.exception()}",
+                                                     client_id=pending.client_id))
             return
         values = converter_for(srv.Response).to_dict(future.result())
-        self.publish(pending.reply_topic, _reply(pending.call_id, values=values))
+        self.publish(pending.reply_topic, _reply(pending.call_id, values=values, client_id=pending.client_id))
 
     def expire(self, now: float) -> None:
         """Answer calls past their timeout (called from the bridge's supervision timer)."""
@@ -145,7 +154,8 @@ class ServiceCaller:
                 del self._pending[k]
         for _, p in late:
             p.client.remove_pending_request(p.future)
-            self.publish(p.reply_topic, _reply(p.call_id, error=f"timeout: no answer within {p.timeout:g} s"))
+            self.publish(p.reply_topic, _reply(p.call_id, error=f"timeout: no answer within {p.timeout:g} s",
+                                               client_id=p.client_id))
 
 
 @dataclass
@@ -189,7 +199,7 @@ class ProvidedServices:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[[str, str, str], None], max_concurrent: int = 64, queue_depth: int = 100) -> None:
+                 error: Callable[..., None], max_concurrent: int = 64, queue_depth: int = 100) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.role_of, self.is_live, self.error = role_of, is_live, error
         self.group = ReentrantCallbackGroup()
@@ -216,7 +226,8 @@ class ProvidedServices:
             self.withdraw(user, name, "withdrawn by the provider")
             return
         if self.role_of(user) is not Role.OPERATOR:
-            self.error(user, topic, f"user '{user}' may not provide services on {self.robot.name} (operators only)")
+            self.error(user, topic, f"user '{user}' may not provide services on {self.robot.name} (operators only)",
+                       payload=payload)
             return
         try:
             body = loads(payload)
@@ -235,12 +246,12 @@ class ProvidedServices:
                 raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
             srv = load_interface(body["type"])
         except (ProtocolError, UnknownTypeError) as err:
-            self.error(user, topic, str(err))
+            self.error(user, topic, str(err), payload=payload)
             return
         with self._lock:
             taken = [u for (u, n), o in self.offers.items() if n == name and u != user]
             if taken:
-                self.error(user, topic, f"service '{name}' is already provided by {taken[0]}")
+                self.error(user, topic, f"service '{name}' is already provided by {taken[0]}", client_id=client_id)
                 return
             old = self.offers.get((user, name))
             if old is not None and old.srv is srv:
@@ -329,13 +340,13 @@ class ProvidedServices:
             if not isinstance(body, dict) or "id" not in body:
                 raise ProtocolError('expected {"id": …, "result": true, "values": {…}}')
         except ProtocolError as err:
-            self.error(user, topic, str(err))
+            self.error(user, topic, str(err), payload=payload)
             return
         with self._lock:
             offer = self.offers.get((user, name))
             call = offer.waiting.pop(body["id"], None) if offer is not None and isinstance(body["id"], str) else None
         if call is None:
-            self.error(user, topic, f"no pending request with id {body['id']!r} for '{name}'")
+            self.error(user, topic, f"no pending request with id {body['id']!r} for '{name}'", payload=payload)
             return
         self._resolve(call, ("ok", body))
 

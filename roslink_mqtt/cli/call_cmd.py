@@ -6,7 +6,7 @@ import argparse
 
 import orjson
 
-from ..client import ServiceError
+from ..client import RoslinkError
 from .connect import add_connection_options, json_object, open_client
 
 
@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     client = open_client(args, robots=[args.robot], presence=False)
     try:
         values = client.call(args.robot, args.service, request, timeout=args.timeout)
-    except ServiceError as err:
+    except RoslinkError as err:  # the robot's reason, a refusal from our access report, or no connection
         print(f"roslink-mqtt call: {err}")
         return 1
     finally:

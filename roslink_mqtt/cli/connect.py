@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import getpass
 import os
+import signal
 import sys
+import threading
 
 import orjson
 
-from ..client import ConnectError, RobotClient
+from ..client import ConnectError, LoginRefused, RobotClient
 from ..client.robot_client import DEFAULT_URL, ENV_PASSWORD, ENV_URL, ENV_USERNAME
 
 
@@ -35,10 +37,37 @@ def open_client(args: argparse.Namespace, *, robots: list[str] = (), presence: b
     client = RobotClient(args.username, password, url=args.url, robots=robots, presence=presence,
                          ca_file=args.ca_file)
     try:
-        return client.connect()
+        client.connect()
     except (ConnectError, OSError, TimeoutError) as err:
         client.close()
         raise SystemExit(f"roslink-mqtt: cannot connect to {args.url} as {args.username}: {err}") from None
+    _exit_when_login_refused(client)
+    return client
+
+
+def _exit_when_login_refused(client: RobotClient) -> None:
+    """End the command with status 1 and the reason when the broker refuses our login on a reconnect.
+
+    The SDK stops retrying then (a changed password must not become an endless loop that also
+    throttles the user's other clients), but long-running commands (echo, monitor, teleop, a pub
+    stream) wait in loops of their own and would sit there forever. The network thread cannot
+    raise into them, so it signals the main thread, whose handler raises SystemExit there: every
+    ``finally`` still runs (terminal restored, client closed) and the process exits 1 with the reason.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers belong to the main thread (commands always run there)
+    reasons: list[LoginRefused] = []
+
+    def raise_in_main(_signum: int, _frame: object) -> None:
+        raise SystemExit(f"roslink-mqtt: {reasons[0] if reasons else 'the broker refused our login'}")
+
+    signal.signal(signal.SIGUSR1, raise_in_main)
+
+    def on_failure(failure: LoginRefused) -> None:
+        reasons.append(failure)
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGUSR1)
+
+    client.connection.on_failure.append(on_failure)
 
 
 def json_object(text: str, what: str) -> dict:

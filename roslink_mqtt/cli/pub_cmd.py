@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
-from ..client import CommandRefused
+from ..client import CommandRefused, RoslinkError
 from ..protocol import ProtocolError
 from .connect import add_connection_options, json_object, open_client
 
@@ -46,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
     except (CommandRefused, ProtocolError) as err:
         print(f"roslink-mqtt pub: refused: {err}")
         return 1
-    except TimeoutError as err:
-        print(f"roslink-mqtt pub: {err}")
+    except (TimeoutError, RoslinkError) as err:  # robot offline, connection lost, stop not acknowledged
+        print(f"roslink-mqtt pub: {err}", file=sys.stderr)
         return 1
     finally:
         client.close()

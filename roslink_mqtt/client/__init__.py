@@ -14,7 +14,17 @@ See docs/sdk.md.
 
 from .context import create_node, init, ok, shutdown, spin, spin_once, spin_until_future_complete, try_shutdown
 from .directory import RobotInfo
-from .errors import CommandRefused, ConnectError, RobotError, RoslinkError, ServiceError, ServiceTimeout
+from .errors import (
+    CommandNotConfirmed,
+    CommandRefused,
+    ConnectError,
+    LoginRefused,
+    NotConnectedError,
+    RobotError,
+    RoslinkError,
+    ServiceError,
+    ServiceTimeout,
+)
 from .messages import (
     Ack,
     Arm,
@@ -43,8 +53,9 @@ from .robot_client import RobotClient
 from .subscriptions import StateSubscription
 
 __all__ = [
-    "Ack", "Arm", "Client", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop", "GeoTaggedImage", "GetMap",
-    "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land", "Map", "Node", "OperatorPresence",
+    "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
+    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land",
+    "LoginRefused", "Map", "Node", "NotConnectedError", "OperatorPresence",
     "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
     "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",
     "Subscription", "Takeoff", "Timer", "Twist", "create_node", "init", "ok", "shutdown", "spin", "spin_once",

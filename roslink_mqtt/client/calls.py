@@ -39,8 +39,11 @@ class _Pending:
 class ServiceCalls:
     """Outstanding calls of one connection, resolved from the network thread."""
 
-    def __init__(self, connection: Connection, scheduler: Scheduler, topics: TopicTree, user: str) -> None:
+    def __init__(self, connection: Connection, scheduler: Scheduler, topics: TopicTree, user: str, *,
+                 client_id: str | None = None) -> None:
+        """``client_id`` goes into every call, so that the robot's reply names this program."""
         self.connection, self.scheduler, self.topics, self.user = connection, scheduler, topics, user
+        self.client_id = client_id
         self._prefix = uuid.uuid4().hex[:10]  # ids from another process (or an earlier run) never match ours
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
@@ -52,7 +55,10 @@ class ServiceCalls:
         if args is not None and not isinstance(args, dict):
             raise TypeError(f"service arguments must be a dict, got {type(args).__name__}")
         call_id = f"{self._prefix}-{next(self._ids)}"
-        payload = orjson.dumps({"id": call_id, "args": args or {}})  # fails here, before anything is pending
+        body: dict[str, Any] = {"id": call_id, "args": args or {}}
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        payload = orjson.dumps(body)  # fails here, before anything is pending
         future: Future[Values] = Future()
         timer = self.scheduler.call_later(timeout, lambda: self._expire(call_id, timeout))
         with self._lock:

@@ -11,6 +11,10 @@ it, and serial-number arithmetic handles the wrap every 49 days.
 
 Payloads of ROSLink commands are validated here with the same rules the robot
 applies, so a typo fails at the call site, not as an error report.
+
+Every command names its sender (``client_id`` in the envelope, ``$client_id`` in a
+generic rule's JSON) so that the robot's error report about it reaches this
+program's error handling only, not every program the user runs.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from typing import Any
 import orjson
 
 from ..protocol import SPECS, Direction, encode_message, spec_for
+from ..protocol.control import GENERIC_SENDER_KEY
 from ..topics import TopicTree, check_path
 
 MASK, HALF = 0xFFFFFFFF, 2**31
@@ -55,8 +60,10 @@ def roslink_command(leaf: str) -> str | None:
 class CommandStreams:
     """Builds what to publish for a command; thread-safe (several threads may command)."""
 
-    def __init__(self, topics: TopicTree, user: str, clock: Callable[[], int] = wall_clock_ms) -> None:
-        self.topics, self.user, self._clock = topics, user, clock
+    def __init__(self, topics: TopicTree, user: str, clock: Callable[[], int] = wall_clock_ms, *,
+                 client_id: str | None = None) -> None:
+        """``client_id`` is put into every command, so that error reports name this program."""
+        self.topics, self.user, self._clock, self.client_id = topics, user, clock, client_id
         self._last: dict[tuple[str, str], int] = {}
         self._lock = threading.Lock()
 
@@ -80,7 +87,11 @@ class CommandStreams:
         topic = self.topics.from_user(robot, self.user, leaf)
         message = roslink_command(leaf)
         if message is None:
-            return topic, orjson.dumps(payload if payload is not None else {}), None
+            body = dict(payload) if payload is not None else {}
+            if self.client_id is not None:
+                body[GENERIC_SENDER_KEY] = self.client_id
+            return topic, orjson.dumps(body), None
         seq = self.next_sequence(robot, leaf)
-        data = encode_message(spec_for(message).message_id, dict(payload or {}), sequence_number=seq)
+        data = encode_message(spec_for(message).message_id, dict(payload or {}), sequence_number=seq,
+                              client_id=self.client_id)
         return topic, data, seq

@@ -7,12 +7,20 @@ arrive milliseconds after a call is published, and a call made before the
 broker has accepted the reply subscription would lose it. A refused
 subscription (SUBACK 0x80, e.g. a wildcard a broker's ACL does not allow) is
 reported to the caller and forgotten, not retried on every reconnect.
+
+Reconnects retry transient failures (broker down, connection refused, CONNACK
+3 "server unavailable") with a capped backoff, but not a refused login: a
+changed password would otherwise become an endless loop that also feeds the
+broker's per-address login throttle, slowing down every other client on the
+machine. Such a refusal ends the connection for good (:attr:`Connection.failure`)
+and is reported once through :attr:`Connection.on_failure`.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,12 +29,16 @@ import paho.mqtt.client as mqtt
 
 from ..mqtt import BrokerUrl, make_client, parse_broker_url
 from ..topics import TopicTree
-from .errors import ConnectError
+from .errors import ConnectError, LoginRefused, NotConnectedError
 from .presence import OperatorPresence
 
 log = logging.getLogger("roslink_mqtt.client")
 
 Handler = Callable[[str, bytes, bool], None]  # (topic, payload, retained); runs on the network thread
+
+# CONNACK refusals that a retry cannot fix (paho's reason codes for MQTT 3.1.1 return codes 2, 4 and 5).
+# 1 (protocol version) is left to paho, which retries with MQTT 3.1; 3 (server unavailable) is transient.
+PERMANENT_REFUSALS = {133: "client identifier rejected", 134: "bad user name or password", 135: "not authorised"}
 
 
 @dataclass
@@ -58,10 +70,15 @@ class Connection:
         self._pending_suback: dict[int, tuple[str, threading.Event, list[bool]]] = {}
         self._connack = threading.Event()
         self._connack_failure: str | None = None
+        self._connack_permanent = False
         self._network_thread: int | None = None
         self.connected = threading.Event()
         self._closing = False
+        self.ever_connected = False  # connect() succeeded once: from then on paho reconnects by itself
+        self.down_since: float | None = None  # monotonic time the connection was lost (None while up)
+        self.failure: LoginRefused | None = None  # a reconnect was refused for good; nothing will be sent again
         self.on_connected: list[Callable[[], None]] = []  # run on the network thread after every CONNACK
+        self.on_failure: list[Callable[[LoginRefused], None]] = []  # run once, on the network thread
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
@@ -79,7 +96,9 @@ class Connection:
             reason = self._connack_failure or f"no answer within {timeout:g} s"
             self.client.disconnect()
             self.client.loop_stop()
-            raise ConnectError(f"broker {self.url} refused {self.username}: {reason}")
+            error = LoginRefused if self._connack_permanent else ConnectError
+            raise error(f"broker {self.url} refused {self.username}: {reason}")
+        self.ever_connected = True
         if self.presence is not None:
             self.presence.start()
 
@@ -95,12 +114,34 @@ class Connection:
     def on_network_thread(self) -> bool:
         return threading.get_ident() == self._network_thread
 
+    def require(self, what: str, *, now: bool = True) -> None:
+        """Raise unless ``what`` can go out: NotConnectedError or LoginRefused, saying why nothing was sent.
+
+        ``now=False`` accepts a connection that is down but reconnecting (subscriptions and
+        service offers are restored on reconnect; commands and calls are not queued).
+        """
+        if self.failure is not None:
+            raise LoginRefused(f"{what} not sent: {self.failure}")
+        if self._closing:
+            raise NotConnectedError(f"{what} not sent: the client was closed")
+        if not self.ever_connected:
+            raise NotConnectedError(f"{what} not sent: the client is not connected (call connect() first, or use "
+                                    "`with RobotClient(...) as client:`)")
+        if now and not self.connected.is_set():
+            since = "" if self.down_since is None else f" {time.monotonic() - self.down_since:.1f} s ago"
+            raise NotConnectedError(f"{what} not sent: the connection to {self.url} was lost{since}; "
+                                    "reconnecting")
+
     # -- paho callbacks (network thread) -------------------------------------------------
     def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         self._network_thread = threading.get_ident()
         if reason.is_failure:
-            self._connack_failure = str(reason)
-            self._connack.set()
+            if not self.ever_connected:  # connect() is waiting: it raises
+                self._connack_failure = str(reason)
+                self._connack_permanent = reason.value in PERMANENT_REFUSALS
+                self._connack.set()
+            elif reason.value in PERMANENT_REFUSALS and self.failure is None:
+                self._give_up(client, reason)
             return
         with self._lock:
             for topic, sub in self._subs.items():
@@ -114,12 +155,30 @@ class Connection:
                 hook()
             except Exception:
                 log.exception("on_connected hook failed")
+        self.down_since = None
         self.connected.set()
         self._connack.set()
+
+    def _give_up(self, client: mqtt.Client, reason: Any) -> None:
+        """A reconnect was refused for good: stop paho's retry loop and tell whoever listens, once."""
+        text = PERMANENT_REFUSALS.get(reason.value, str(reason))
+        self.failure = LoginRefused(
+            f"broker {self.url} refused the login of {self.username} ({text}) when reconnecting; not retrying: "
+            "a changed password or a revoked grant will not fix itself, and each attempt counts against the "
+            "broker's login throttle for this address")
+        log.error("%s: %s", self.client_id, self.failure)
+        client.disconnect()  # from a callback: loop_forever returns instead of reconnecting
+        for hook in list(self.on_failure):
+            try:
+                hook(self.failure)
+            except Exception:
+                log.exception("on_failure hook failed")
 
     def _on_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         if self.connected.is_set() and not self._closing:
             log.warning("%s: disconnected from %s (%s); reconnecting", self.client_id, self.url, reason)
+        if self.connected.is_set():
+            self.down_since = time.monotonic()
         self.connected.clear()
 
     def _on_subscribe(self, _client: mqtt.Client, _userdata: Any, mid: int, reasons: list[Any], _props: Any) -> None:
@@ -174,6 +233,11 @@ class Connection:
             log.warning("%s: no SUBACK for %s within %g s", self.client_id, topic, timeout)
             return False
         return box[0]
+
+    def subscribed(self) -> set[str]:
+        """The filters we hold (granted, or waiting for a (re)connect); a refused one is not among them."""
+        with self._lock:
+            return set(self._subs)
 
     def unsubscribe(self, topic: str, handler: Handler) -> None:
         with self._lock:

@@ -77,14 +77,27 @@ def create_node(node_name: str, *, robot: str | None = None, url: str | None = N
     return Node(node_name, robot=robot, url=url, username=username, password=password, **options)
 
 
+def _check_login(node: Node) -> None:
+    """A node whose login the broker refused on a reconnect will never hear anything again: say so."""
+    failure = node.client.login_refused
+    if failure is not None:
+        raise failure
+
+
 def spin_once(node: Node, *, executor: Any = None, timeout_sec: float | None = None) -> None:
-    """Run at most one callback, waiting up to ``timeout_sec`` (None: until one comes)."""
+    """Run at most one callback, waiting up to ``timeout_sec`` (None: until one comes); LoginRefused if refused."""
+    _check_login(node)
     node._callbacks.run_once(timeout_sec)
 
 
 def spin(node: Node, executor: Any = None) -> None:
-    """Run the node's callbacks until it is destroyed or ``shutdown()`` (Ctrl-C raises KeyboardInterrupt)."""
+    """Run the node's callbacks until it is destroyed or ``shutdown()`` (Ctrl-C raises KeyboardInterrupt).
+
+    Raises LoginRefused when the broker refused the node's login on a reconnect (a changed
+    password): the connection is over, and spinning on would wait forever.
+    """
     while not node.destroyed and ok():
+        _check_login(node)
         node._callbacks.run_once(0.5)
 
 
@@ -94,6 +107,7 @@ def spin_until_future_complete(node: Node, future: Future[Any], executor: Any = 
     future.add_done_callback(lambda _f: node._callbacks.wake())  # no polling delay when it completes
     deadline = None if timeout_sec is None else time.monotonic() + timeout_sec
     while not future.done() and not node.destroyed:
+        _check_login(node)
         left = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
         if left <= 0:
             return

@@ -20,6 +20,33 @@ class ConnectError(RoslinkError):
     """The broker could not be reached or refused the login."""
 
 
+class LoginRefused(ConnectError):
+    """The broker refused the login itself (CONNACK 1, 2, 4 or 5: bad credentials, not authorised, …).
+
+    Retrying cannot fix that, and every failed attempt counts against the broker's
+    login throttle for this address, slowing down the user's other programs. So the
+    client stops reconnecting, and every later command, call or subscription raises this.
+    """
+
+
+class NotConnectedError(ConnectError):
+    """A command, call or subscription on a client that is not connected; nothing was sent.
+
+    Raised at once instead of queueing: a client never connected (no ``with`` and no
+    ``connect()``), closed, or between a lost connection and the next reconnect. A
+    command queued until a reconnect would reach the robot late or never; the caller
+    must know.
+    """
+
+
+class CommandNotConfirmed(RoslinkError, TimeoutError):
+    """The broker did not acknowledge a command (QoS 1 PUBACK) in time: it may not have reached the robot.
+
+    Emergency stops wait for that acknowledgement, so a stop is never lost without
+    the caller hearing of it.
+    """
+
+
 class ServiceError(RoslinkError):
     """A service call failed; ``reason`` is the robot's (or the provider's) explanation."""
 
@@ -34,21 +61,29 @@ class ServiceTimeout(ServiceError, TimeoutError):
 
 @dataclass(frozen=True, slots=True)
 class RobotError:
-    """One message from ``to/<user>/error``: the robot refused something we sent."""
+    """One message from ``to/<user>/error``: the robot refused something we sent.
+
+    ``client_id`` is the sender the report names: a client shows only reports with
+    its own id or with none (a sender that did not say could be any program). A
+    report the client itself makes up — the broker refused our login, so nothing
+    will reach any robot — has ``robot`` and ``topic`` empty.
+    """
 
     robot: str
     topic: str  # what we published to
     error: str  # why it was refused (field path included)
     message_id: int | None = None
     sequence_number: int | None = None
+    client_id: str | None = None
 
     @classmethod
     def from_json(cls, robot: str, body: Any) -> RobotError:
         if not isinstance(body, dict):
             return cls(robot, "", f"malformed error report: {body!r}")
-        mid, seq = body.get("message_id"), body.get("sequence_number")
+        mid, seq, cid = body.get("message_id"), body.get("sequence_number"), body.get("client_id")
         return cls(robot, str(body.get("topic", "")), str(body.get("error", "")),
-                   mid if isinstance(mid, int) else None, seq if isinstance(seq, int) else None)
+                   mid if isinstance(mid, int) else None, seq if isinstance(seq, int) else None,
+                   cid if isinstance(cid, str) and cid else None)
 
 
 class CommandRefused(RoslinkError):

@@ -25,7 +25,7 @@ from ..topics import DEFAULT_PREFIX, check_name
 from .calls import Values
 from .commands import command_leaf, roslink_command
 from .dispatch import CallbackQueue, Scheduler
-from .errors import RobotError
+from .errors import NotConnectedError, RobotError
 from .logger import Logger
 from .messages import RoslinkMessage
 from .qos import mqtt_qos
@@ -79,13 +79,24 @@ class Publisher:
         return self.leaf
 
     def publish(self, msg: dict[str, Any] | RoslinkMessage) -> None:
-        """Send one message (validated locally for ROSLink commands: ProtocolError on a bad field)."""
+        """Send one message (validated locally for ROSLink commands: ProtocolError on a bad field).
+
+        While the connection is down (between a lost broker and the reconnect) the message is
+        not sent and a warning says so (at most every 5 s), as rclpy's ``publish`` does not raise
+        for the network; an emergency stop raises instead, as it must never be lost unnoticed.
+        A viewer's publisher raises CommandRefused; a refused login raises LoginRefused.
+        """
         payload = msg.payload() if isinstance(msg, RoslinkMessage) else msg
         if not isinstance(payload, dict):
             raise TypeError(f"publish() takes a dict of message fields, got {type(msg).__name__}")
         if self.command is not None:
             payload = ros_shaped_to_roslink(self.command, payload)
-        self._node.client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
+        try:
+            self._node.client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
+        except NotConnectedError as err:
+            if self.command == "emergency_stop":
+                raise
+            self._node.get_logger().warning(str(err), throttle_duration_sec=5.0)
 
     def get_subscription_count(self) -> int:
         """1 while the robot is online (its bridge is the only reader), else 0."""
@@ -359,6 +370,9 @@ class Node:
             return False
 
     def _on_robot_error(self, error: RobotError) -> None:
+        if not error.robot:  # the connection itself: the broker refused our login (spin raises it too)
+            self._logger.error(error.error)
+            return
         for entity in self._entities:
             if isinstance(entity, Service) and entity.refused == error.error:
                 self._logger.error(f"{self.robot} refused service '{entity.srv_name}': {error.error}")

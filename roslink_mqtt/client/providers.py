@@ -62,8 +62,12 @@ class ServiceProviders:
         connection.on_connected.append(self._republish)
 
     def provide(self, robot: str, name: str, srv_type: str, handler: Handler, callbacks: CallbackQueue,
-                timeout: float = 5.0) -> ProvidedService:
-        """Offer ``name`` (type ``pkg/srv/Type``) on ``robot``; requests run ``handler`` via ``callbacks``."""
+                timeout: float = 5.0, *, refused: str | None = None) -> ProvidedService:
+        """Offer ``name`` (type ``pkg/srv/Type``) on ``robot``; requests run ``handler`` via ``callbacks``.
+
+        ``refused``: we already know the robot will not have it (the broker would drop the offer):
+        the returned offer says why and nothing is published.
+        """
         check_path(name, "service")
         if not isinstance(srv_type, str) or srv_type.count("/") != 2 or "/srv/" not in srv_type:
             raise ValueError(f"service type must look like 'std_srvs/srv/Trigger', got {srv_type!r}")
@@ -73,6 +77,9 @@ class ServiceProviders:
             raise ValueError("providing a service needs operator presence: the robot keeps the ROS service only "
                              "while our presence heartbeat is live (create the client with presence=True)")
         offer = ProvidedService(self, robot, name, srv_type, float(timeout), handler, callbacks)
+        if refused is not None:
+            offer.refused = refused
+            return offer
         with self._lock:
             if (robot, name) in self._offers:
                 raise ValueError(f"already providing '{name}' on {robot}")
@@ -145,13 +152,22 @@ class ServiceProviders:
                     return True
         return False
 
+    def refuse_robot(self, robot: str, reason: str) -> list[ProvidedService]:
+        """Mark every offer on ``robot`` refused (we are no operator there: the broker drops our offers)."""
+        with self._lock:
+            offers = [o for o in self._offers.values() if o.robot == robot and o.refused is None]
+            for offer in offers:
+                offer.refused = reason
+        return offers
+
     # -- the handler (dispatcher thread) ---------------------------------------------------
     def _serve(self, offer: ProvidedService, call_id: Any, args: dict[str, Any]) -> None:
         try:
             values = offer.handler(args)
             if not isinstance(values, dict):
                 raise TypeError(f"the handler returned {type(values).__name__}, expected a dict of response fields")
-            payload = orjson.dumps({"id": call_id, "result": True, "values": values})
+            payload = orjson.dumps({"id": call_id, "result": True, "values": values,
+                                    "client_id": self.connection.client_id})
         except Exception as err:  # the ROS caller gets the reason instead of waiting for the timeout
             log.exception("service %s on %s failed", offer.name, offer.robot)
             self._respond(offer.robot, offer.name, call_id, error=f"{type(err).__name__}: {err}")
@@ -161,4 +177,5 @@ class ServiceProviders:
 
     def _respond(self, robot: str, name: str, call_id: Any, *, error: str) -> None:
         self.connection.publish(self.topics.response(robot, self.user, name),
-                                orjson.dumps({"id": call_id, "result": False, "error": error}), qos=1)
+                                orjson.dumps({"id": call_id, "result": False, "error": error,
+                                              "client_id": self.connection.client_id}), qos=1)

@@ -3,9 +3,18 @@
 One object per login. It owns one MQTT connection with operator presence
 (robots refuse commands without it), learns robots from their retained
 heartbeats, and subscribes ``<prefix>/<robot>/to/<user>/#`` once per robot it
-talks to, which carries service replies, requests to services we provide and
-the robot's error reports. User callbacks run in the client's dispatcher
-thread, never on the network thread, so they may call services synchronously.
+talks to, which carries service replies, requests to services we provide,
+the robot's error reports and our access report. User callbacks run in the
+client's dispatcher thread, never on the network thread, so they may call
+services synchronously.
+
+Nothing is dropped silently: a command or call on a client that is not
+connected raises :class:`NotConnectedError` (it is not queued for later); an
+emergency stop also waits for the broker's acknowledgement; what the broker's
+ACL would drop without a word (a viewer's command, a call to a service the
+user may not call) is refused at the call site from the robot's access report;
+a login the broker refuses on reconnect ends the retries and raises
+:class:`LoginRefused` from then on.
 """
 
 from __future__ import annotations
@@ -21,8 +30,11 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 from typing import Any
 
+import paho.mqtt.client as mqtt
+
 from ..mqtt import BrokerUrl
 from ..protocol import ProtocolError, loads
+from ..protocol.control import ACCESS, AccessReport
 from ..topics import DEFAULT_PREFIX, Kind, TopicTree, check_name
 from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
@@ -30,7 +42,15 @@ from .commands import CommandStreams, command_leaf, roslink_command
 from .connection import Connection
 from .directory import DEFAULT_STALE_AFTER, RobotDirectory, RobotInfo
 from .dispatch import CallbackQueue, DispatchThread, Scheduler
-from .errors import CommandRefused, RobotError, ServiceError
+from .errors import (
+    CommandNotConfirmed,
+    CommandRefused,
+    LoginRefused,
+    NotConnectedError,
+    RobotError,
+    RoslinkError,
+    ServiceError,
+)
 from .providers import Handler, ProvidedService, ServiceProviders
 from .subscriptions import StateItem, StateSubscription
 
@@ -40,6 +60,8 @@ DEFAULT_URL = "mqtt://127.0.0.1:1883"
 DEFAULT_CALL_TIMEOUT = 10.0  # s; longer than the robot's own per-service timeout (5 s in the demo), so its reason wins
 ENV_URL, ENV_USERNAME, ENV_PASSWORD = "ROSLINK_URL", "ROSLINK_USERNAME", "ROSLINK_PASSWORD"
 ENV_CA_FILE = "ROSLINK_CA_FILE"
+DEFAULT_STOP_CONFIRM = 2.0  # s an emergency stop waits for the broker's PUBACK before raising CommandNotConfirmed
+ACCESS_WAIT = 0.5  # s after subscribing to a robot's to/<user>/# that a first command waits for the access report
 
 
 class RobotClient:
@@ -75,8 +97,8 @@ class RobotClient:
         self.callbacks = callbacks or CallbackQueue()
         self._dispatcher = None if callbacks is not None else DispatchThread(self.callbacks, f"{self.client_id}-cb")
         self._scheduler = Scheduler(f"{self.client_id}-timers")
-        self._streams = CommandStreams(self.topics, username)
-        self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username)
+        self._streams = CommandStreams(self.topics, username, client_id=self.client_id)
+        self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username, client_id=self.client_id)
         self._providers = ServiceProviders(self.connection, self.topics, username)
         self._advertisements = Advertisements(self.connection, self.topics, username)
         self._watched: set[str] = set()
@@ -87,6 +109,13 @@ class RobotClient:
         self._logged_errors: dict[tuple[str, str], float] = {}
         self.wildcard_heartbeats: bool | None = None  # did the broker grant <prefix>/+/heartbeat?
         self._closed = False
+        # What the broker lets us do per robot (retained access reports), and when we subscribed to them.
+        self._access: dict[str, AccessReport] = {}
+        self._access_asked: dict[str, float] = {}
+        self._no_grant: set[str] = set()  # robots whose to/<user>/# the broker refused to let us read
+        self._access_changed = threading.Condition()
+        self._subscriptions: list[StateSubscription] = []
+        self.connection.on_failure.append(self._on_login_refused)
 
     # -- lifecycle ----------------------------------------------------------------------
     def connect(self, timeout: float = 10.0) -> RobotClient:
@@ -138,17 +167,36 @@ class RobotClient:
     def connected(self) -> bool:
         return self.connection.connected.is_set()
 
+    @property
+    def login_refused(self) -> LoginRefused | None:
+        """Why the broker refused our login on a reconnect (the client then stopped retrying), else None."""
+        return self.connection.failure
+
+    def access(self, robot: str) -> AccessReport | None:
+        """What the broker lets us do on ``robot`` (``.role``, ``.services``), from its bridge; None if unknown."""
+        with self._access_changed:
+            return self._access.get(robot)
+
     # -- robots ---------------------------------------------------------------------------
-    def watch(self, robot: str) -> None:
-        """Follow ``robot``: its heartbeat, and our replies/requests/errors from it (idempotent)."""
+    def watch(self, robot: str, *, timeout: float = 5.0) -> None:
+        """Follow ``robot``: its heartbeat, and our replies/requests/errors from it (idempotent).
+
+        Waits up to ``timeout`` s for each SUBACK (a reply must not beat its subscription).
+        """
         check_name(robot, "robot")
         with self._watch_lock:
             if robot in self._watched:
                 return
             self._watched.add(robot)
-        self.connection.subscribe(self.topics.heartbeat(robot), self._on_heartbeat)
-        # one filter for replies, requests and error reports (TopicTree builds concrete topics only)
-        self.connection.subscribe(f"{self.topics.robot_root(robot)}/to/{self.username}/#", self._on_to_user)
+        self.connection.subscribe(self.topics.heartbeat(robot), self._on_heartbeat, timeout=timeout)
+        # one filter for replies, requests, error and access reports (TopicTree builds concrete topics only)
+        mine = f"{self.topics.robot_root(robot)}/to/{self.username}/#"
+        granted = self.connection.subscribe(mine, self._on_to_user, timeout=timeout)
+        with self._access_changed:
+            if granted:
+                self._access_asked[robot] = time.monotonic()  # its retained access report follows the SUBACK
+            elif self.connection.connected.is_set() and mine not in self.connection.subscribed():
+                self._no_grant.add(robot)  # refused (0x80): the embedded broker says we have no grant
 
     def robots(self) -> dict[str, RobotInfo]:
         """Every robot whose heartbeat we have seen, by name (check ``.online``)."""
@@ -158,7 +206,8 @@ class RobotClient:
         return self.directory.get(robot)
 
     def wait_for_robot(self, robot: str, timeout: float = 10.0) -> RobotInfo:
-        """Block until ``robot`` is online; TimeoutError otherwise."""
+        """Block until ``robot`` is online; TimeoutError otherwise (NotConnectedError if we cannot be told)."""
+        self.connection.require(f"waiting for {robot}", now=False)
         self.watch(robot)
         if not self.directory.wait(lambda robots: robot in robots and robots[robot].online, timeout):
             info = self.directory.get(robot)
@@ -181,42 +230,98 @@ class RobotClient:
         name = name.strip("/").removeprefix("state/")
         topic = self.topics.state(robot, name)
         sub = StateSubscription(robot, name, topic, callback, self.callbacks, maxsize,
-                                on_close=lambda s: self.connection.unsubscribe(s.topic, s.deliver))
+                                on_close=self._unsubscribe_state)
+        with self._watch_lock:
+            self._subscriptions.append(sub)
+        if self.connection.failure is not None:
+            sub.fail(self.connection.failure)
         self.connection.subscribe(topic, sub.deliver)
         return sub
 
+    def _unsubscribe_state(self, sub: StateSubscription) -> None:
+        with self._watch_lock:
+            if sub in self._subscriptions:
+                self._subscriptions.remove(sub)
+        self.connection.unsubscribe(sub.topic, sub.deliver)
+
     # -- commands -------------------------------------------------------------------------
     def command(self, robot: str, name: str, payload: dict[str, Any] | None = None, *, qos: int | None = None,
-                check: float | None = None) -> int | None:
+                check: float | None = None, confirm: float | None = None) -> int | None:
         """Send a command; returns its sequence number (None for generic rules).
 
         ``name`` is a ROSLink command (``"twist"``, ``"cmd/arm"``) or a generic
         rule's topic under ``from/<user>/``. ROSLink payloads are validated here
-        (ProtocolError). With ``check=seconds`` the call waits that long for an
-        error report about this command and raises CommandRefused if one comes;
-        silence means accepted (robots do not acknowledge every command).
+        (ProtocolError). Nothing is sent, and an exception says why, when the
+        client is not connected (NotConnectedError, LoginRefused) or the robot's
+        access report says the broker would drop it (CommandRefused: we are a
+        viewer). With ``check=seconds`` the call waits that long for an error
+        report about this command and raises CommandRefused if one comes;
+        silence means accepted (robots do not acknowledge every command). With
+        ``confirm=seconds`` (QoS 1) it waits for the broker's acknowledgement and
+        raises CommandNotConfirmed without one.
+
+        An emergency stop goes out before anything else, even before the client
+        subscribes to the robot's reports (a broker that does not answer would
+        hold it for the SUBACK timeouts); what would have refused it is checked
+        right after, and raises then.
         """
-        self.watch(robot)
         topic, data, seq = self._streams.build(robot, name, payload)
+        leaf = command_leaf(name)
+        self.connection.require(leaf)
+        urgent = roslink_command(leaf) == "emergency_stop"
+        if qos is None:
+            qos = 0 if roslink_command(leaf) == "twist" else 1  # a velocity stream repeats itself
+        deadline = None if confirm is None else time.monotonic() + confirm
+        waiter = None
+        if check is not None:
+            waiter = (topic, seq, threading.Event(), [])
+            with self._waiters_lock:
+                self._error_waiters.append(waiter)
+        try:
+            if urgent:
+                info = self._send(topic, data, qos, leaf)
+                self.watch(robot, timeout=ACCESS_WAIT)
+                self._raise_if_refused(robot, topic)  # the broker dropped it: say so
+            else:
+                self.watch(robot)
+                self._raise_if_refused(robot, topic)
+                info = self._send(topic, data, qos, leaf)
+            if deadline is not None and qos > 0:
+                self._confirm(info, deadline, f"{leaf} to {robot}", confirm)
+            if waiter is not None and waiter[2].wait(check):
+                raise CommandRefused(waiter[3][0])
+        finally:
+            if waiter is not None:
+                with self._waiters_lock:
+                    self._error_waiters.remove(waiter)
+        return seq
+
+    def _raise_if_refused(self, robot: str, topic: str) -> None:
+        refusal = self._refusal(robot, "command")
+        if refusal is not None:
+            raise CommandRefused(RobotError(robot, topic, refusal, client_id=self.client_id))
+
+    def _send(self, topic: str, data: bytes, qos: int, what: str) -> mqtt.MQTTMessageInfo:
+        """Publish (presence says "commanding" first); a message paho could not even queue raises."""
         if self.connection.presence is not None:
             self.connection.presence.start_commanding()  # from now on, our going away stops what we drive
-        if qos is None:
-            qos = 0 if roslink_command(command_leaf(name)) == "twist" else 1  # a velocity stream repeats itself
-        if check is None:
-            self.connection.publish(topic, data, qos=qos)
-            return seq
-        event, box = threading.Event(), []
-        waiter = (topic, seq, event, box)
-        with self._waiters_lock:
-            self._error_waiters.append(waiter)
+        info = self.connection.publish(topic, data, qos=qos)
+        if info.rc == mqtt.MQTT_ERR_NO_CONN and qos == 0:  # the connection dropped just now: paho discarded it
+            self.connection.require(what)
+            raise NotConnectedError(f"{what} not sent: the connection to {self.connection.url} was lost")
+        return info
+
+    def _confirm(self, info: mqtt.MQTTMessageInfo, deadline: float, what: str, confirm: float | None) -> None:
+        """Wait for the broker's PUBACK until ``deadline``; CommandNotConfirmed without one."""
+        if self.connection.on_network_thread():
+            return  # the network thread cannot wait for itself
         try:
-            self.connection.publish(topic, data, qos=qos)
-            if event.wait(check):
-                raise CommandRefused(box[0])
-        finally:
-            with self._waiters_lock:
-                self._error_waiters.remove(waiter)
-        return seq
+            info.wait_for_publish(max(0.0, deadline - time.monotonic()))
+        except (RuntimeError, ValueError):
+            pass
+        if not info.is_published():
+            raise CommandNotConfirmed(f"{what}: the broker did not acknowledge it within {confirm:g} s; it may not "
+                                      "have reached the robot (paho sends it again if the connection comes back)")
 
     def twist(self, robot: str, lx: float = 0.0, ly: float = 0.0, lz: float = 0.0, ax: float = 0.0,
               ay: float = 0.0, az: float = 0.0, *, check: float | None = None) -> int | None:
@@ -230,9 +335,15 @@ class RobotClient:
         return self.command(robot, "go_to_waypoint", {"frame_type": frame_type, "x": x, "y": y, "z": z},
                             check=check)
 
-    def emergency_stop(self, robot: str, reason: str = "", *, check: float | None = None) -> int | None:
-        """Stop now and refuse motion until an operator sends :meth:`arm`."""
-        return self.command(robot, "emergency_stop", {"reason": reason}, check=check)
+    def emergency_stop(self, robot: str, reason: str = "", *, check: float | None = None,
+                       confirm: float = DEFAULT_STOP_CONFIRM) -> int | None:
+        """Stop now and refuse motion until an operator sends :meth:`arm`.
+
+        A stop is never lost silently: it raises NotConnectedError when the client is
+        not connected, and CommandNotConfirmed when the broker does not acknowledge it
+        within ``confirm`` seconds (QoS 1) — then stop the robot another way.
+        """
+        return self.command(robot, "emergency_stop", {"reason": reason}, check=check, confirm=confirm)
 
     def arm(self, robot: str, *, check: float | None = None) -> int | None:
         return self.command(robot, "arm", {}, check=check)
@@ -243,15 +354,27 @@ class RobotClient:
     # -- services ----------------------------------------------------------------------------
     def call_future(self, robot: str, service: str, args: dict[str, Any] | None = None,
                     timeout: float = DEFAULT_CALL_TIMEOUT) -> Future[Values]:
-        """Start a call; the future holds the reply's values or a ServiceError."""
+        """Start a call; the future holds the reply's values or a ServiceError.
+
+        A call that cannot go out fails at once: NotConnectedError/LoginRefused when
+        the client is not connected, ServiceError when the robot is offline or its
+        access report says the broker would drop the call (not ours to call).
+        """
+        future: Future[Values] = Future()
         reason = "the client was closed" if self._closed else None
         if reason is None:
+            try:
+                self.connection.require(f"call to {service}")
+            except RoslinkError as err:
+                future.set_exception(err)
+                return future
             self.watch(robot)
             info = self.directory.get(robot)
             if info is not None and not info.online:
                 reason = f"robot {robot} is offline"
+            else:
+                reason = self._refusal(robot, "call", service)
         if reason is not None:
-            future: Future[Values] = Future()
             future.set_exception(ServiceError(robot, service, reason))
             return future
         return self._calls.start(robot, service, args, timeout)
@@ -275,10 +398,18 @@ class RobotClient:
         The robot creates ROS service ``service`` of type ``srv_type`` (e.g.
         ``"std_srvs/srv/SetBool"``) while this client is alive; each ROS call
         runs ``handler`` in the dispatcher thread. Raising in the handler fails
-        the ROS call with the exception text. Operators only.
+        the ROS call with the exception text. Operators only: when the robot's
+        access report says we are not one, the offer's ``refused`` says so at once
+        (and it is reported like a robot's refusal); a later report sets it then.
         """
+        self.connection.require(f"offer of {service}", now=False)
         self.watch(robot)
-        return self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout)
+        refusal = self._refusal(robot, "provide")
+        offer = self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout, refused=refusal)
+        if refusal is not None:
+            self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, service), refusal,
+                                             client_id=self.client_id))
+        return offer
 
     def advertise(self, robot: str, topic: str, ros_type: str) -> None:
         """Announce that we publish ``ros_type`` on the generic rule ``topic`` of ``robot``.
@@ -313,13 +444,80 @@ class RobotClient:
         elif kind == "request" and leaf:
             self._providers.on_request(robot, leaf, payload)
         elif kind == "error" and not leaf:
-            self._on_error(robot, payload)
+            try:
+                error = RobotError.from_json(robot, loads(payload))
+            except ProtocolError:
+                error = RobotError(robot, "", f"unreadable error report: {payload[:200]!r}")
+            if error.client_id is not None and error.client_id != self.client_id:
+                log.debug("%s: ignoring an error report for %s: %s", self.client_id, error.client_id, error.error)
+                return  # another program of the same user sent what was refused
+            self._on_error(robot, error)
+        elif kind == ACCESS and not leaf:
+            self._on_access(robot, payload)
 
-    def _on_error(self, robot: str, payload: bytes) -> None:
+    # -- what the broker lets us do ---------------------------------------------------------------
+    def _on_access(self, robot: str, payload: bytes) -> None:
+        """The robot's retained access report for us (empty: withdrawn, we lost the grant)."""
         try:
-            error = RobotError.from_json(robot, loads(payload))
-        except ProtocolError:
-            error = RobotError(robot, "", f"unreadable error report: {payload[:200]!r}")
+            report = AccessReport.from_json(payload) if payload else None
+        except ProtocolError as err:
+            log.warning("%s: unreadable access report from %s: %s", self.client_id, robot, err)
+            return
+        with self._access_changed:
+            if report is None:
+                self._access.pop(robot, None)
+            else:
+                self._access[robot] = report
+                self._no_grant.discard(robot)
+            self._access_changed.notify_all()
+        if report is not None and not report.operator:
+            reason = self._refusal(robot, "provide", wait=False)
+            for offer in self._providers.refuse_robot(robot, reason or ""):
+                self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, offer.name),
+                                                 offer.refused or "", client_id=self.client_id))
+
+    def _refusal(self, robot: str, action: str, service: str = "", *, wait: bool = True) -> str | None:
+        """Why the broker would drop ``action`` on ``robot`` (from its access report), None if it would not.
+
+        The report is retained and arrives right after our subscription's SUBACK, so a
+        command made at once waits up to ACCESS_WAIT for it; a robot whose bridge does not
+        publish one (an older bridge) is never refused here.
+        """
+        with self._access_changed:
+            if robot in self._no_grant:
+                return (f"user '{self.username}' has no grant on {robot}: the broker refused to let us read "
+                        f"{self.topics.robot_root(robot)}/to/{self.username}/#")
+            if wait and not self.connection.on_network_thread():
+                deadline = self._access_asked.get(robot, 0.0) + ACCESS_WAIT
+                while robot not in self._access and time.monotonic() < deadline:
+                    self._access_changed.wait(deadline - time.monotonic())
+            report = self._access.get(robot)
+        if report is None:
+            return None
+        user = self.username
+        if action == "call":
+            if report.may_call(service):
+                return None
+            allowed = ", ".join(report.services) or "none"
+            return (f"user '{user}' may not call '{service}' (operators only; it is not read-only); as a viewer of "
+                    f"{robot} you may call: {allowed}")
+        if report.operator:
+            return None
+        if action == "provide":
+            return f"user '{user}' may not provide services on {robot} (operators only; you are a viewer)"
+        return f"user '{user}' is not an operator of {robot} (a viewer): the broker drops your commands"
+
+    def _on_login_refused(self, failure: LoginRefused) -> None:
+        """The broker refused our login on reconnect (network thread): fail what waits, tell the caller."""
+        self._calls.fail_all(str(failure))
+        with self._watch_lock:
+            subscriptions = list(self._subscriptions)
+        for sub in subscriptions:
+            sub.fail(failure)
+        self._on_error("", RobotError("", "", str(failure), client_id=self.client_id))
+
+    def _on_error(self, robot: str, error: RobotError) -> None:
+        """A refusal meant for us: wake a ``check=`` waiter, mark an offer, hand it to ``on_error`` or log it."""
         self.recent_errors.append(error)
         awaited = False
         with self._waiters_lock:
@@ -328,11 +526,11 @@ class RobotClient:
                     box.append(error)
                     event.set()
                     awaited = True
-        provider_error = self._providers.on_error(error)
+        self._providers.on_error(error)
         callback = self.on_error
         if callback is not None:
             self.callbacks.put(lambda: callback(error))
-        elif not (provider_error or awaited):  # a check= caller raises it instead
+        elif robot and not awaited:  # a check= caller raises it instead; a refused login was logged already
             now = time.monotonic()
             key = (error.topic, error.error)
             if now - self._logged_errors.get(key, -1e9) > 5.0:  # a refused 10 Hz stream must not flood the log

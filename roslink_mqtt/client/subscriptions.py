@@ -5,6 +5,10 @@ generic rules (``state/<anything>`` carrying a plain ROS message as JSON)
 arrive as dicts. Without a callback, messages wait in a bounded queue that
 drops the *oldest* when full: for robot state the newest value matters, and a
 slow consumer must not grow memory without bound.
+
+When the connection fails for good (the broker refused our login on a
+reconnect), :meth:`StateSubscription.fail` makes a waiting ``get`` or loop
+raise that error instead of waiting forever for messages that cannot come.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from .messages import RoslinkMessage, parse_state
 log = logging.getLogger("roslink_mqtt.client")
 
 StateItem = RoslinkMessage | dict[str, Any]
+_FAILED: Any = object()  # queued by fail(): wakes a blocked get() or loop
 
 
 def parse_state_item(payload: bytes, robot: str, name: str) -> StateItem | None:
@@ -55,6 +60,7 @@ class StateSubscription:
         self._queue: queue.Queue[StateItem] = queue.Queue(maxsize)
         self._async: tuple[asyncio.AbstractEventLoop, asyncio.Queue[StateItem]] | None = None
         self._lock = threading.Lock()
+        self.failure: BaseException | None = None  # set by fail(): nothing more will arrive
 
     # network thread
     def deliver(self, topic: str, payload: bytes, _retained: bool) -> None:
@@ -73,25 +79,50 @@ class StateSubscription:
             _put_latest(self._queue, item)
 
     def get(self, timeout: float | None = None) -> StateItem:
-        """The next message; raises TimeoutError when none arrives within ``timeout`` s."""
+        """The next message; raises TimeoutError when none arrives within ``timeout`` s (or the failure)."""
+        if self.failure is not None and self._queue.empty():
+            raise self.failure
         try:
-            return self._queue.get(timeout=timeout)
+            item = self._queue.get(timeout=timeout)
         except queue.Empty:
             raise TimeoutError(f"no {self.name} from {self.robot} within {timeout} s") from None
+        if item is _FAILED:
+            raise self.failure or ConnectionError("subscription failed")
+        return item
 
     def __iter__(self) -> Iterator[StateItem]:
         while not self.closed:
             try:
-                yield self._queue.get(timeout=0.5)
+                item = self._queue.get(timeout=0.5)
             except queue.Empty:
+                if self.failure is not None:
+                    raise self.failure from None
                 continue
+            if item is _FAILED:
+                raise self.failure or ConnectionError("subscription failed")
+            yield item
 
     async def __aiter__(self) -> AsyncIterator[StateItem]:
         aqueue: asyncio.Queue[StateItem] = asyncio.Queue(self._queue.maxsize)
         with self._lock:
             self._async = (asyncio.get_running_loop(), aqueue)
         while not self.closed:
-            yield await aqueue.get()
+            if self.failure is not None and aqueue.empty():
+                raise self.failure
+            item = await aqueue.get()
+            if item is _FAILED:
+                raise self.failure or ConnectionError("subscription failed")
+            yield item
+
+    def fail(self, error: BaseException) -> None:
+        """Nothing more will arrive (any thread): waiting readers raise ``error`` instead of waiting on."""
+        self.failure = error
+        _put_latest(self._queue, _FAILED)
+        with self._lock:
+            target = self._async
+        if target is not None:
+            loop, aqueue = target
+            loop.call_soon_threadsafe(_put_latest, aqueue, _FAILED)
 
     def close(self) -> None:
         if not self.closed:

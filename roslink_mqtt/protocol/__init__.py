@@ -15,6 +15,7 @@ from .codec import (
     error_reply,
     loads,
 )
+from .control import AccessReport, ErrorReport, sender_id
 from .enums import AckResult, FlightMode, RobotType, SystemStatus
 from .errors import ProtocolError
 from .messages import SPECS, SPECS_BY_ID, SPECS_BY_NAME, Direction, Field, Kind, MessageId, MessageSpec, spec_for
@@ -23,7 +24,9 @@ from .validate import validate_payload
 
 __all__ = [
     "DEFAULT_MAX_BYTES", "ROSLINK_VERSION", "ROS_VERSION", "SPECS", "SPECS_BY_ID", "SPECS_BY_NAME",
-    "AckResult", "Direction", "Envelope", "Field", "FlightMode", "Kind", "MessageId", "MessageSpec",
+    "AccessReport", "AckResult", "Direction", "Envelope", "ErrorReport", "Field", "FlightMode", "Kind", "MessageId",
+    "MessageSpec",
     "ProtocolError", "RobotType", "SequenceTracker", "SystemStatus", "Verdict",
-    "decode", "decode_object", "encode", "encode_message", "error_reply", "loads", "spec_for", "validate_payload",
+    "decode", "decode_object", "encode", "encode_message", "error_reply", "loads", "sender_id", "spec_for",
+    "validate_payload",
 ]

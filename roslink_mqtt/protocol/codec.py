@@ -26,7 +26,9 @@ _HEADER_BOUNDS: dict[str, tuple[int, int]] = {
     "message_id": (0, 255),
     "sequence_number": (0, 2**32 - 1),
 }
-_ENVELOPE_KEYS = frozenset(_HEADER_BOUNDS) | {"payload"}
+CLIENT_ID_KEY = "client_id"  # optional header: the sender's id, repeated in error reports (docs/protocol.md)
+MAX_CLIENT_ID = 128
+_ENVELOPE_KEYS = frozenset(_HEADER_BOUNDS) | {"payload", CLIENT_ID_KEY}
 
 
 @dataclass(slots=True)
@@ -34,7 +36,9 @@ class Envelope:
     """One ROSLink message: header plus payload.
 
     ``sequence_number`` is None when a client sent a bare payload (no header):
-    such commands are not checked for staleness.
+    such commands are not checked for staleness. ``client_id`` names the
+    sending program (optional): every program of a user reads the user's error
+    topic, and a report that repeats the id lets each show only its own.
     """
 
     message_id: int
@@ -43,13 +47,14 @@ class Envelope:
     sequence_number: int | None = None
     roslink_version: int = ROSLINK_VERSION
     ros_version: int = ROS_VERSION
+    client_id: str | None = None
 
     @property
     def spec(self) -> MessageSpec:
         return SPECS_BY_ID[self.message_id]
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "roslink_version": self.roslink_version,
             "ros_version": self.ros_version,
             "system_id": self.system_id,
@@ -57,6 +62,9 @@ class Envelope:
             "sequence_number": 0 if self.sequence_number is None else self.sequence_number,
             "payload": self.payload,
         }
+        if self.client_id is not None:
+            out[CLIENT_ID_KEY] = self.client_id
+        return out
 
 
 def encode(envelope: Envelope, *, validate: bool = False) -> bytes:
@@ -74,9 +82,10 @@ def encode(envelope: Envelope, *, validate: bool = False) -> bytes:
 
 
 def encode_message(message_id: int, payload: dict[str, Any], *, system_id: int = 0,
-                   sequence_number: int | None = None) -> bytes:
+                   sequence_number: int | None = None, client_id: str | None = None) -> bytes:
     """Convenience for ``encode(Envelope(...), validate=True)``."""
-    return encode(Envelope(int(message_id), payload, system_id, sequence_number), validate=True)
+    return encode(Envelope(int(message_id), payload, system_id, sequence_number, client_id=client_id),
+                  validate=True)
 
 
 def loads(data: bytes | bytearray | memoryview | str, max_bytes: int = DEFAULT_MAX_BYTES) -> Any:
@@ -132,6 +141,7 @@ def decode_object(obj: Any, expected: int | None = None) -> Envelope:
         sequence_number=header.get("sequence_number"),
         roslink_version=header.get("roslink_version", ROSLINK_VERSION),
         ros_version=header.get("ros_version", ROS_VERSION),
+        client_id=obj.get(CLIENT_ID_KEY),
     )
 
 
@@ -146,6 +156,11 @@ def _check_header(obj: dict[str, Any]) -> dict[str, int]:
     header: dict[str, int] = {}
     for key, value in obj.items():
         if key == "payload":
+            continue
+        if key == CLIENT_ID_KEY:
+            if not isinstance(value, str) or not 0 < len(value) <= MAX_CLIENT_ID:
+                raise ProtocolError(f"{key}: expected a string of 1..{MAX_CLIENT_ID} characters, "
+                                    f"got {describe(value)}")
             continue
         bounds = _HEADER_BOUNDS.get(key)
         if bounds is None:
@@ -166,11 +181,17 @@ __all__ = ["Envelope", "MessageId", "ROSLINK_VERSION", "ROS_VERSION", "decode", 
 
 
 def error_reply(topic: str, reason: str, *, message_id: int | None = None,
-                sequence_number: int | None = None) -> bytes:
-    """The JSON object published on ``to/<user>/error`` (docs/protocol.md, *Errors*)."""
+                sequence_number: int | None = None, client_id: str | None = None) -> bytes:
+    """The JSON object published on ``to/<user>/error`` (docs/protocol.md, *Errors*).
+
+    ``client_id`` repeats the sender's id from the refused request, so that only
+    the program that sent it shows the report (see ``protocol.control``).
+    """
     body: dict[str, Any] = {"topic": topic, "error": reason}
     if message_id is not None:
         body["message_id"] = int(message_id)
     if sequence_number is not None:
         body["sequence_number"] = sequence_number
+    if client_id is not None:
+        body["client_id"] = client_id
     return orjson.dumps(body)

@@ -1,7 +1,8 @@
 """Markdown reference of every ROSLink message, generated from the schema table.
 
-docs/protocol.md embeds this output between markers, and a test checks they
-agree, so the document client writers read cannot drift from the code.
+docs/protocol.md embeds this output between markers (the messages, and the
+control bodies of ``protocol.control``), and a test checks they agree, so the
+document client writers read cannot drift from the code.
 Run ``python -m roslink_mqtt.protocol.reference --write docs/protocol.md`` to regenerate in place.
 """
 
@@ -12,10 +13,19 @@ import base64
 import orjson
 
 from .codec import Envelope, encode
+from .control import CONTROL_BODIES, AccessReport, ErrorReport
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
 END = "<!-- END GENERATED: message reference -->"
+BEGIN_CONTROL = "<!-- BEGIN GENERATED: control bodies (python -m roslink_mqtt.protocol.reference) -->"
+END_CONTROL = "<!-- END GENERATED: control bodies -->"
+
+_CONTROL_EXAMPLES: dict[type, object] = {
+    ErrorReport: ErrorReport("roslink/turtle1/from/alice/cmd/twist", 'payload.lx: expected number, got "fast"',
+                             100, 18, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    AccessReport: AccessReport("viewer", ("status",)),
+}
 
 _EXAMPLES: dict[str, dict] = {
     "heartbeat": {"type": 1, "name": "turtle1", "system_status": 4, "owner_id": "alice", "mode": 0, "session": 3},
@@ -76,14 +86,28 @@ def render() -> str:
     return "\n".join(out)
 
 
+def render_control() -> str:
+    """The field tables of the control bodies (``protocol.control``), with one example each."""
+    out = [BEGIN_CONTROL, ""]
+    for title, topic, cls in CONTROL_BODIES:
+        out += [f"#### {title}", "", f"Topic: {topic}.", "", "| field | type | | meaning |", "|---|---|---|---|"]
+        out += [f"| `{f.name}` | {f.type} | {'required' if f.required else 'optional'} | {f.doc} |"
+                for f in cls.FIELDS]
+        out += ["", "```json", _CONTROL_EXAMPLES[cls].to_json().decode(), "```", ""]
+    out.append(END_CONTROL)
+    return "\n".join(out)
+
+
 def write(path: str) -> None:
-    """Replace the generated section of ``path`` (between the markers) with a fresh render."""
+    """Replace the generated sections of ``path`` (between their markers) with a fresh render."""
     from pathlib import Path
 
     doc = Path(path)
     text = doc.read_text()
-    start, end = text.index(BEGIN), text.index(END) + len(END)
-    doc.write_text(text[:start] + render() + text[end:])
+    for begin, end_marker, fresh in ((BEGIN, END, render()), (BEGIN_CONTROL, END_CONTROL, render_control())):
+        start, end = text.index(begin), text.index(end_marker) + len(end_marker)
+        text = text[:start] + fresh + text[end:]
+    doc.write_text(text)
 
 
 if __name__ == "__main__":
@@ -93,3 +117,5 @@ if __name__ == "__main__":
         write(sys.argv[2])
     else:
         print(render())
+        print()
+        print(render_control())

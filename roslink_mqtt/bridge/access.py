@@ -1,0 +1,35 @@
+"""What each granted user may do on this robot, published so that clients can refuse what the broker would drop.
+
+A broker drops a PUBLISH its ACL denies without a word (MQTT 3.1.1 has no
+negative PUBACK; Mosquitto even acknowledges it), so a viewer's command or a
+call to a service it may not call would simply vanish and the bridge would never
+hear of it. The broker's ACL and this bridge read the same fleet file, so the
+bridge can tell each user what the broker allows them: a retained
+:class:`~roslink_mqtt.protocol.control.AccessReport` on ``to/<user>/access``,
+readable by that user alone (the ACL every broker already applies to ``to/<user>/#``).
+"""
+
+from __future__ import annotations
+
+from ..config import Fleet, Role
+from ..protocol.control import ACCESS, AccessReport
+from ..topics import TopicTree
+
+
+def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, bytes]:
+    """``{topic: retained body}`` for every user granted ``robot`` (admins count as operators)."""
+    services = fleet.robots[robot].services
+    out: dict[str, bytes] = {}
+    for user, role in sorted(fleet.users_of(robot).items()):
+        if role is Role.OPERATOR:
+            report = AccessReport("operator", tuple(s.name for s in services))
+        else:
+            report = AccessReport("viewer", tuple(s.name for s in services if s.read_only))
+        out[topics.to_user(robot, user, ACCESS)] = report.to_json()
+    return out
+
+
+def cleared_reports(before: Fleet, after: Fleet, robot: str, topics: TopicTree) -> list[str]:
+    """Access topics of users who lost ``robot`` in a reload: their retained report must be cleared."""
+    gone = set(before.users_of(robot)) - set(after.users_of(robot))
+    return [topics.to_user(robot, user, ACCESS) for user in sorted(gone)]
