@@ -14,8 +14,9 @@ Any ROS node calls them like local services, e.g. ``examples/ros_caller.py`` or
 this program (Ctrl-C) and the services disappear from ROS; kill it and they
 disappear too, when its presence last-will fires.
 
-The code is written against the rclpy-shaped API: replace the import with
-``import rclpy`` (and drop the connection arguments) and it is a ROS node.
+The code is written against the rclpy-shaped API; docs/sdk.md (*Porting to
+rclpy*) lists the steps that make it a ROS node (the import, message classes
+instead of type names and dicts, ROS names instead of MQTT ones).
 """
 
 from __future__ import annotations

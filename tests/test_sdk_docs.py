@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _snippets(path: Path) -> list[str]:
-    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
+    return re.findall(r"```python[^\n]*\n(.*?)```", path.read_text(), flags=re.S)  # info strings: run, norun …
 
 
 def test_snippets_compile_and_use_real_names() -> None:

@@ -6,8 +6,9 @@ Two ways in:
   presence, typed ROSLink state, commands, service calls (sync and asyncio),
   services provided to ROS.
 * the rclpy-shaped API — ``create_node``, ``spin``, publishers,
-  subscriptions, services and clients — so code written here moves to real ROS
-  by changing ``import roslink_mqtt.client as rclpy`` to ``import rclpy``.
+  subscriptions, services and clients — with rclpy's names and structure, so
+  porting code written here to a ROS node is mechanical; but messages are dicts
+  and types are names here, which rclpy refuses (docs/sdk.md, *Porting to rclpy*).
 
 See docs/sdk.md.
 """

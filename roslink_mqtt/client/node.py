@@ -1,10 +1,12 @@
 """A ROS-like ``Node`` for programs without ROS: the rclpy names, carried over MQTT.
 
-Code written against this API moves to real ROS by changing the import (and
-dropping the connection arguments): publishers, subscriptions, services,
-clients, timers, a logger and ``spin``. Messages are dicts typed by the ROS
-type name (``"geometry_msgs/msg/Twist"``, ``"std_srvs/srv/SetBool"``); the
-robot's bridge converts them to and from real ROS messages.
+Code written against this API has rclpy's structure — publishers,
+subscriptions, services, clients, timers, a logger and ``spin`` — so porting
+it to a ROS node is mechanical, but not just a changed import: messages here
+are dicts typed by the ROS type name (``"geometry_msgs/msg/Twist"``,
+``"std_srvs/srv/SetBool"``), which real rclpy refuses, and topics are MQTT
+names (docs/sdk.md, *Porting to rclpy*, lists the steps). The robot's bridge
+converts the dicts to and from real ROS messages.
 
 One node is bound to one robot and is one MQTT connection (with operator
 presence). Callbacks — subscriptions, services, timers — run only inside
