@@ -162,3 +162,20 @@ def test_cli_pub_does_not_print_another_programs_errors(stack) -> None:
             pub.kill()
     assert pub.returncode == 0 and "sent 30 × twist" in out, out + err
     assert "fly" not in out + err, err
+
+
+def test_cli_teleop_as_a_viewer_ends_with_the_reason(stack) -> None:
+    """teleop streams twists in a loop of its own: the SDK's refusal must end it cleanly, not as a traceback."""
+    import pty
+
+    primary, secondary = pty.openpty()  # teleop needs a terminal
+    env = {**os.environ, "ROSLINK_PASSWORD": "bob-demo"}
+    try:
+        done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "teleop", "turtle1", "--url", stack.url,
+                               "-u", "bob"], stdin=secondary, capture_output=True, text=True, env=env, cwd=ROOT,
+                              timeout=30)
+    finally:
+        os.close(primary)
+        os.close(secondary)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "not an operator of turtle1" in done.stderr and "Traceback" not in done.stderr, done.stderr

@@ -7,6 +7,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from ..client import RoslinkError
 from ..config import ConfigError
 from ..topics import TopicError
 from . import acl_cmd, call_cmd, echo_cmd, fleet_cmd, monitor_cmd, passwd_cmd, pub_cmd, robots_cmd, teleop_cmd
@@ -59,6 +60,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TopicError as err:
         print(f"roslink-mqtt: {err}", file=sys.stderr)
         return 2
+    except RoslinkError as err:  # the SDK could not send or would not: not connected, a viewer, a refused login
+        print(f"roslink-mqtt: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 
