@@ -106,6 +106,31 @@ def test_commands_while_the_broker_is_away_raise(tmp_path) -> None:
         broker.stop()
 
 
+def test_node_publishers_while_the_broker_is_away(tmp_path, caplog) -> None:
+    """rclpy's publish does not raise for the network: a warning (throttled) says what was not sent; a stop raises."""
+    import roslink_mqtt.client as rclpy
+
+    broker, _ = _broker(tmp_path)
+    broker.start()
+    node = rclpy.create_node("not_silent", robot="turtle1", url=f"mqtt://127.0.0.1:{broker.port}",
+                             username="alice", password="alice-demo")
+    try:
+        twist = node.create_publisher("geometry_msgs/msg/Twist", "cmd/twist", 10)
+        stop = node.create_publisher("std_msgs/msg/Bool", "cmd/emergency_stop", 10)
+        broker.stop()
+        _wait(lambda: not node.client.connected, 15, "the node did not notice the broker leave")
+        with caplog.at_level("WARNING"):
+            for _ in range(20):
+                twist.publish({"linear": {"x": 0.1}})
+        warnings = [r.getMessage() for r in caplog.records if "not sent" in r.getMessage()]
+        assert warnings == ["cmd/twist on turtle1 not sent: the connection to the broker is down"], warnings
+        with pytest.raises(ConnectError, match="was lost"):
+            stop.publish({"reason": "broker away"})
+    finally:
+        node.destroy_node()
+        broker.stop()
+
+
 def test_an_emergency_stop_the_broker_does_not_acknowledge_raises(tmp_path) -> None:
     broker, _ = _broker(tmp_path)
     broker.start()
@@ -135,6 +160,9 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
     url = f"mqtt://127.0.0.1:{broker.port}"
     errors: queue.Queue[RobotError] = queue.Queue()
     client = RobotClient("alice", "alice-demo", url=url, robots=["turtle1"], on_error=errors.put).connect()
+    import roslink_mqtt.client as rclpy
+
+    node = rclpy.create_node("refused", robot="turtle1", url=url, username="alice", password="alice-demo")
     try:
         motion = client.subscribe("turtle1", "global_motion")
         _change_password(pwfile, "alice", like="bob")  # the admin changes alice's password; the broker restarts
@@ -142,9 +170,9 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
         _wait(lambda: not client.connected, 15, "the client did not notice the broker leave")
         since = len(broker.output())
         broker.start()
-        _wait(lambda: _refusals(broker, since) >= 1, 15, "the client never tried to log in again")
+        _wait(lambda: _refusals(broker, since) >= 2, 15, "the clients never tried to log in again")
         time.sleep(5)  # more than the reconnect backoff cap (3 s): a retrying client would have tried again
-        assert _refusals(broker, since) == 1, f"retried: {broker.output()[since:]}"
+        assert _refusals(broker, since) == 2, f"retried: {broker.output()[since:]}"  # the client and the node
         error = errors.get(timeout=5)
         assert error.robot == "" and "refused the login of alice" in error.error and "not retrying" in error.error
         assert client.login_refused is not None and not client.connected
@@ -153,7 +181,11 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
         assert type(refused.value).__name__ == "LoginRefused"
         with pytest.raises(ConnectError, match="refused the login"):
             motion.get(timeout=5)  # a waiting reader is told, not left waiting forever
+        assert node.client.login_refused is not None
+        with pytest.raises(ConnectError, match="refused the login"):
+            rclpy.spin(node)  # would otherwise spin forever on a connection that is over
     finally:
+        node.destroy_node()
         client.close()
         broker.stop()
 

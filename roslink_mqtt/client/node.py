@@ -27,7 +27,7 @@ from ..topics import DEFAULT_PREFIX, check_name
 from .calls import Values
 from .commands import command_leaf, roslink_command
 from .dispatch import CallbackQueue, Scheduler
-from .errors import NotConnectedError, RobotError
+from .errors import CommandRefused, NotConnectedError, RobotError
 from .logger import Logger
 from .messages import RoslinkMessage
 from .qos import mqtt_qos
@@ -83,10 +83,11 @@ class Publisher:
     def publish(self, msg: dict[str, Any] | RoslinkMessage) -> None:
         """Send one message (validated locally for ROSLink commands: ProtocolError on a bad field).
 
-        While the connection is down (between a lost broker and the reconnect) the message is
-        not sent and a warning says so (at most every 5 s), as rclpy's ``publish`` does not raise
-        for the network; an emergency stop raises instead, as it must never be lost unnoticed.
-        A viewer's publisher raises CommandRefused; a refused login raises LoginRefused.
+        While the connection is down (between a lost broker and the reconnect), or when the
+        robot's access report says the broker would drop it (we are a viewer), the message is not
+        sent and a warning says so (at most every 5 s): rclpy's ``publish`` does not raise for the
+        network, and a timer publishing at 10 Hz must not turn into a traceback per tick. An
+        emergency stop raises instead, as it must never be lost unnoticed; so does a refused login.
         """
         payload = msg.payload() if isinstance(msg, RoslinkMessage) else msg
         if not isinstance(payload, dict):
@@ -95,10 +96,13 @@ class Publisher:
             payload = ros_shaped_to_roslink(self.command, payload)
         try:
             self._node.client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
-        except NotConnectedError as err:
+        except (NotConnectedError, CommandRefused) as err:
             if self.command == "emergency_stop":
                 raise
-            self._node.get_logger().warning(str(err), throttle_duration_sec=5.0)
+            why = "the connection to the broker is down" if isinstance(err, NotConnectedError) else err.error.error
+            # a fixed text per cause: the logger throttles by text
+            self._node.get_logger().warning(f"{self.leaf} on {self._node.robot} not sent: {why}",
+                                            throttle_duration_sec=5.0)
 
     def get_subscription_count(self) -> int:
         """1 while the robot is online (its bridge is the only reader), else 0."""
