@@ -105,5 +105,8 @@ def test_a_client_shows_its_own_reports_and_those_without_a_sender() -> None:
         seen = sorted(errors.get(timeout=2).error for _ in range(2))
         assert seen == ["for None", "for alice-me"]
         assert errors.empty() and [e.error for e in client.recent_errors] == ["for alice-me", "for None"]
+        client.all_errors = True  # a dashboard (roslink-mqtt monitor) shows the user's reports from every program
+        client._on_to_user(topic, orjson.dumps({"topic": "t", "error": "theirs", "client_id": "alice-other"}), False)
+        assert errors.get(timeout=2).error == "theirs"
     finally:
         client.close()

@@ -57,7 +57,9 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 0
     # Error reports to this user (from its other programs' commands) go to the footer instead of the log,
-    # which would tear the live table apart.
+    # which would tear the live table apart. A monitor shows all of them: it sends nothing itself, and
+    # watching what the user's programs get refused is its job (other programs see only their own).
+    client.all_errors = True
     for error in list(client.recent_errors):
         view.record_error(error)
     client.on_error = view.record_error

@@ -92,6 +92,8 @@ class RobotClient:
                                      ca_file=ca_file or os.environ.get(ENV_CA_FILE), insecure_tls=insecure_tls,
                                      keepalive=keepalive)
         self.on_error = on_error
+        # Reports about other programs of this user are ignored, unless a dashboard asks for every one of them.
+        self.all_errors = False
         self.recent_errors: collections.deque[RobotError] = collections.deque(maxlen=100)
         self.directory = RobotDirectory(stale_after)
         self.callbacks = callbacks or CallbackQueue()
@@ -448,7 +450,7 @@ class RobotClient:
                 error = RobotError.from_json(robot, loads(payload))
             except ProtocolError:
                 error = RobotError(robot, "", f"unreadable error report: {payload[:200]!r}")
-            if error.client_id is not None and error.client_id != self.client_id:
+            if error.client_id is not None and error.client_id != self.client_id and not self.all_errors:
                 log.debug("%s: ignoring an error report for %s: %s", self.client_id, error.client_id, error.error)
                 return  # another program of the same user sent what was refused
             self._on_error(robot, error)
