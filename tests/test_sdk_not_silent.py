@@ -215,3 +215,32 @@ def test_cli_exits_when_its_login_is_refused_on_reconnect(tmp_path) -> None:
             echo.kill()
             echo.communicate()
         broker.stop()
+
+
+def test_the_embedded_broker_refusing_a_changed_password_is_not_retried(tmp_path) -> None:
+    """The same against the embedded broker, which answers CONNACK 5 (and counts each try in its throttle)."""
+    from roslink_mqtt.config import load_fleet
+
+    from .support.broker_setup import write_fleet
+    from .support.embedded_broker import EmbeddedBrokerProcess
+
+    fleet = write_fleet(tmp_path, read_only_service=False)
+    broker = EmbeddedBrokerProcess(tmp_path, fleet).start()
+    errors: queue.Queue[RobotError] = queue.Queue()
+    client = RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{broker.port}", on_error=errors.put)
+    try:
+        client.connect()
+        hashes = load_fleet(fleet)
+        fleet.write_text(fleet.read_text().replace(hashes.password_hash("alice"), hashes.password_hash("bob")))
+        broker.stop()
+        _wait(lambda: not client.connected, 15, "the client did not notice the broker leave")
+        since = len(broker.output())
+        broker.start()
+        error = errors.get(timeout=15)
+        assert "refused the login of alice" in error.error
+        time.sleep(5)
+        refused = [line for line in broker.output()[since:].splitlines() if "refused" in line and "alice" in line]
+        assert len(refused) == 1, refused
+    finally:
+        client.close()
+        broker.stop()
