@@ -91,14 +91,19 @@ def spin_once(node: Node, *, executor: Any = None, timeout_sec: float | None = N
 
 
 def spin(node: Node, executor: Any = None) -> None:
-    """Run the node's callbacks until it is destroyed or ``shutdown()`` (Ctrl-C raises KeyboardInterrupt).
+    """Run the node's callbacks until it is destroyed, ``shutdown()``, or Ctrl-C.
 
-    Raises LoginRefused when the broker refused the node's login on a reconnect (a changed
-    password): the connection is over, and spinning on would wait forever.
+    Ctrl-C ends the spin quietly (rclpy raises KeyboardInterrupt or ExternalShutdownException
+    there, and every ROS program wraps ``spin`` in a try for it; code that does keeps working
+    here). Raises LoginRefused when the broker refused the node's login on a reconnect (a
+    changed password): the connection is over, and spinning on would wait forever.
     """
-    while not node.destroyed and ok():
-        _check_login(node)
-        node._callbacks.run_once(0.5)
+    try:
+        while not node.destroyed and ok():
+            _check_login(node)
+            node._callbacks.run_once(0.5)
+    except KeyboardInterrupt:
+        node.get_logger().info("interrupted (Ctrl-C)")
 
 
 def spin_until_future_complete(node: Node, future: Future[Any], executor: Any = None,
