@@ -179,3 +179,30 @@ def test_cli_teleop_as_a_viewer_ends_with_the_reason(stack) -> None:
         os.close(secondary)
     assert done.returncode == 1, done.stdout + done.stderr
     assert "not an operator of turtle1" in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_access_reports_follow_a_reload(tmp_path) -> None:
+    """SIGHUP: the bridge republishes every report (bob promoted) and clears the report of a user who lost the robot."""
+    import signal
+
+    from .support.net import free_port
+
+    viewer = "      - {key: demo-key-turtle1, role: viewer}\n"
+    fleet = write_fleet(tmp_path, port=free_port())
+    assert viewer in fleet.read_text()
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker, \
+            run(bridge_args("turtle1", broker.port, config=fleet), tmp_path / "bridge.log", bridge_env("turtle1")) \
+            as bridge, TestClient(broker.port, "admin", "admin-demo") as admin:
+        assert admin.connect() == 0
+        admin.subscribe("roslink/turtle1/to/+/access")
+        bob = "roslink/turtle1/to/bob/access"
+        assert admin.wait_for(lambda m: m.topic == bob, timeout=30).json() == {"role": "viewer",
+                                                                               "services": ["status"]}
+        fleet.write_text(fleet.read_text().replace(viewer, viewer.replace("viewer", "operator")))
+        bridge.signal(signal.SIGHUP)
+        promoted = admin.wait_for(lambda m: m.topic == bob, timeout=10).json()
+        assert promoted == {"role": "operator", "services": ["reset", "status"]}
+        fleet.write_text(fleet.read_text().replace(viewer.replace("viewer", "operator"), ""))
+        bridge.signal(signal.SIGHUP)
+        cleared = admin.wait_for(lambda m: m.topic == bob, timeout=10)
+        assert cleared.payload == b"" and cleared.retain is False  # a live delivery of the clearing message
