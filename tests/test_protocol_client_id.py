@@ -59,6 +59,8 @@ def test_sender_id_is_read_from_every_kind_of_request() -> None:
     assert sender_id(orjson.dumps({"client_id": "field", "$client_id": "c"})) == "c"  # a ROS field never wins
     for payload in (b"", b"not json", b"[1]", orjson.dumps({"data": True}), orjson.dumps({"client_id": 5})):
         assert sender_id(payload) is None
+    big = orjson.dumps({"client_id": "a", "data": "x" * 70_000})  # not parsed twice on the refusal path
+    assert sender_id(big) is None
     body = {"data": True, "$client_id": "c"}
     assert pop_generic_sender(body) == "c" and body == {"data": True}
     with pytest.raises(ProtocolError):

@@ -37,6 +37,7 @@ ACCESS = "access"  # the leaf under to/<user>/ of the AccessReport
 ERROR = "error"  # the leaf under to/<user>/ of ErrorReports
 GENERIC_SENDER_KEY = "$client_id"  # in generic ROS JSON bodies (never a ROS field name)
 ROLES = ("operator", "viewer")
+MAX_SENDER_PARSE = 64 * 1024  # bytes: a larger refused input is not parsed again for its sender (see sender_id)
 
 
 def check_client_id(value: Any, where: str = "client_id") -> str:
@@ -51,10 +52,13 @@ def sender_id(payload: bytes | bytearray | memoryview | str | None) -> str | Non
 
     Used on the refusal path only: a refused input is parsed once more to find
     out whom to address the report to, and a malformed one simply has no sender.
+    Inputs over MAX_SENDER_PARSE bytes are not parsed again (their report names
+    nobody): a flood of large refused messages, e.g. from a viewer on a broker
+    without ACLs, must not cost the bridge's MQTT thread a second parse each.
     ``$client_id`` wins over ``client_id``: in a generic body the latter may be a
     field of the ROS message itself.
     """
-    if not payload:
+    if not payload or len(payload) > MAX_SENDER_PARSE:
         return None
     try:
         body = loads(payload)
