@@ -138,8 +138,10 @@ def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, st
     spec = SPECS_BY_NAME.get(name)
     if "#" in name or "+" in name:
         kind = ""
+    elif name == "ack":
+        kind = " (acks come only when something happens: a failsafe stop, a command a ROS service carried out)"
     elif spec is not None and spec.direction is Direction.STATE:
-        kind = " (a ROSLink state this robot has no rule for, or one it sends only on events, like ack)"
+        kind = " (a ROSLink state, but this robot has no rule that publishes it)"
     else:
         kind = " (not a ROSLink state name: only a generic rule of the robot could publish it)"
     published = ", ".join(names) if names else "no state at all"
