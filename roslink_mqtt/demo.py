@@ -76,7 +76,9 @@ class Scene:
         self.operator.on_message = lambda c, u, m: self.replies.put((m.topic, m.payload))
         self.operator.connect("127.0.0.1", port)
         self.operator.loop_start()
-        self.operator.subscribe(f"{topics.prefix}/turtle1/to/alice/#", 1)
+        # errors and service replies only (to/alice/ also carries the retained access report)
+        self.operator.subscribe([(topics.error("turtle1", "alice"), 1),
+                                 (topics.to_user("turtle1", "alice", "reply") + "/#", 1)])
 
     @staticmethod
     def _client(user: str, client_id: str, port: int):
