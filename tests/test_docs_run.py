@@ -12,7 +12,9 @@ language):
   ``serve=N``: the first N commands are servers (one terminal each in the docs); they are started in
   the background, the rest runs once they are up, then the servers get SIGINT.
 * ```` ```python run ```` -- ``.venv/bin/python`` with the snippet on stdin, against the live fleet;
-  ``serve``: a program that runs until stopped must still be running after 5 s.
+  ``serve``: a program that runs until stopped must still be running after 5 s; ``fragment``: a
+  fragment of docs/sdk.md that uses the ``client`` of its *Connecting* example (and a ``driver`` of
+  the reader's own): :data:`FRAGMENT_PRELUDE` makes them, and the client is closed after it.
 * ```` ```sh norun <reason> ```` -- not run; the reason is required (an interactive terminal, a
   placeholder such as ``<pid>``, root on a real host...).
 
@@ -48,6 +50,14 @@ SHELLS = {"sh", "bash", "shell", "console"}
 LANGUAGES = SHELLS | {"python"}
 STEP_TIMEOUT = 90.0
 DEMO_PORTS = (1883, 8083)
+FRAGMENT_PRELUDE = """\
+from roslink_mqtt.client import RobotClient
+class driver:  # the reader's own hardware driver
+    enable = staticmethod(lambda on: print("driver: enable", on))
+client = RobotClient("alice", "alice-demo", url="mqtt://127.0.0.1:1883", robots=["turtle1"]).connect()
+client.wait_for_robot("turtle1", timeout=10)
+"""
+FRAGMENT_POSTLUDE = "\nclient.close()\n"
 
 
 @dataclass(frozen=True)
@@ -249,9 +259,12 @@ def test_with_demo_fleet(snippet: Snippet, demo_fleet, tmp_path: Path) -> None:
             assert alive, f"the program ended early:\n{log[-3000:]}"
             assert "Traceback (most recent call last)" not in log, log[-3000:]
             return
-        done = subprocess.run([str(ROOT / ".venv" / "bin" / "python"), "-"], input=snippet.code, cwd=ROOT,
+        code = FRAGMENT_PRELUDE + snippet.code + FRAGMENT_POSTLUDE if "fragment" in snippet.words else snippet.code
+        done = subprocess.run([str(ROOT / ".venv" / "bin" / "python"), "-"], input=code, cwd=ROOT,
                               env=_env(), capture_output=True, text=True, timeout=STEP_TIMEOUT)
-        assert done.returncode == 0, (done.stdout + done.stderr)[-3000:]
+        out = done.stdout + done.stderr
+        assert done.returncode == 0, out[-3000:]
+        assert "Traceback (most recent call last)" not in out, out[-3000:]
         return
     _run_shell(_localize(snippet.code), expect_failure="fails" in snippet.words)
 
