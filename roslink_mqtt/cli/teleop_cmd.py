@@ -115,9 +115,11 @@ def run(args: argparse.Namespace) -> int:
         pass
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
-        if drive.streaming:
-            client.twist(args.robot)  # an explicit zero before leaving
-            time.sleep(0.1)
-        client.close()
-        print()
+        try:
+            if drive.streaming:
+                client.twist(args.robot)  # an explicit zero before leaving
+                time.sleep(0.1)
+        finally:
+            client.close()  # even when that zero cannot go out (a viewer, the broker gone): presence must end
+            print()
     return 0
