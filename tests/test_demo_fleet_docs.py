@@ -97,7 +97,8 @@ def test_sdk_examples_reach_the_sim(stack) -> None:
         client.wait_for_robot("turtle1", timeout=10)
         acks = client.subscribe("turtle1", "ack")
         client.command("turtle1", "set_mode", {"mode": "GUIDED"}, check=1.0)  # docs/sdk.md, verbatim
-        _wait_log(sim_log, "mode: GUIDED")
+        # the bridge's ROS publisher may not have matched the sim's subscriber yet (DDS discovery): send again
+        _wait_log(sim_log, "mode: GUIDED", again=lambda: client.command("turtle1", "set_mode", {"mode": "GUIDED"}))
         client.advertise("turtle1", "lights", "std_msgs/msg/Bool")  # docs/sdk.md: ahead of the messages
         time.sleep(1.0)  # a new ROS publisher takes a moment to match (the docs say so)
         client.command("turtle1", "lights", {"data": True}, check=1.0)
