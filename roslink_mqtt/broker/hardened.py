@@ -134,24 +134,25 @@ _PUB_QOS: contextvars.ContextVar[int | None] = contextvars.ContextVar("roslink_p
 _LISTENER: contextvars.ContextVar[str] = contextvars.ContextVar("roslink_listener", default="?")
 
 
+def _transport(writer: WriterAdapter | None) -> Any:
+    """The asyncio transport under amqtt's writer adapter (TCP or WebSocket), or None."""
+    if isinstance(writer, StreamWriterAdapter):
+        return writer._writer.transport
+    if isinstance(writer, WebSocketsWriter):
+        return getattr(writer._protocol, "transport", None)
+    return None
+
+
 def abort_transport(writer: WriterAdapter | None) -> None:
     """Close a connection at once, without flushing: a frozen peer cannot block it."""
-    transport = None
-    if isinstance(writer, StreamWriterAdapter):
-        transport = writer._writer.transport
-    elif isinstance(writer, WebSocketsWriter):
-        transport = getattr(writer._protocol, "transport", None)
+    transport = _transport(writer)
     if transport is not None:
         transport.abort()
 
 
 def write_buffer_size(writer: WriterAdapter | None) -> int:
     """Bytes waiting in a connection's send buffer (what a client that does not read makes us hold)."""
-    transport = None
-    if isinstance(writer, StreamWriterAdapter):
-        transport = writer._writer.transport
-    elif isinstance(writer, WebSocketsWriter):
-        transport = getattr(writer._protocol, "transport", None)
+    transport = _transport(writer)
     if transport is None:
         return 0
     try:
