@@ -88,15 +88,23 @@ ProtectHome=true
 PrivateTmp=true
 """
 
+STASH = "/opt/.roslink-test-checkout"  # inside the /opt overlay: outside every tree the sandbox hides
+
 # Runs as root inside `unshare -m`: approximates the unit's sandbox, then becomes the unit's user.
 SANDBOX = r"""
 set -euo pipefail
-fake=$1 uid=$2 workdir=$3 writable=$4 keep=$5
-shift 5
+fake=$1 uid=$2 workdir=$3 writable=$4 keep=$5 repo=$6
+shift 6
 # What install.sh creates, overlaid read-only onto the real tree.
 for top in etc opt var/lib var/log; do
     if [ -d "$fake/$top" ]; then mount -t overlay overlay -o "lowerdir=$fake/$top:/$top" "/$top"; fi
 done
+# The checkout under test (the stand-in venv's packages live in it) may sit where the sandbox hides things
+# (a CI clone under /tmp, say): set it aside now, show it again read-only at its own path below.
+case $repo in
+    /tmp/*|/var/tmp/*|/root/*|/home/*|/run/user/*) mount --bind "$repo" "$STASH" ;;
+    *) repo="" ;;
+esac
 # An interpreter that lives under /root (fallback only, see fake_venv) stays reachable, read-only.
 if [ -n "$keep" ]; then mount --bind "$keep" "$fake/keep"; fi
 # ProtectSystem=strict: everything read-only but the API file systems.
@@ -123,6 +131,17 @@ fi
 # PrivateTmp=true
 mount -t tmpfs -o mode=1777 tmpfs /tmp
 mount -t tmpfs -o mode=1777 tmpfs /var/tmp
+if [ -n "$repo" ]; then
+    top=/$(echo "$repo" | cut -d/ -f2)
+    [ "$top" = /var ] && top=/var/tmp
+    [ "$top" = /run ] && top=/run/user
+    if ! mkdir -p "$repo" 2>/dev/null; then  # a closed home: an empty, unlistable one in its place
+        mount -t tmpfs -o mode=0711 tmpfs "$top"
+        mkdir -p "$repo"
+    fi
+    mount --bind "$STASH" "$repo"
+    mount -o remount,bind,ro "$repo"
+fi
 if touch /usr/.sandbox-probe 2>/dev/null; then echo "sandbox: /usr is writable" >&2; exit 97; fi
 cd "$workdir"
 if [ "$uid" = 0 ]; then exec "$@"; fi
@@ -266,6 +285,7 @@ def fake_root(tmp_path: Path, broker_port: int) -> tuple[Path, Path | None]:
     shutil.copy(BRIDGE_ENV, etc / "bridge.env")
     (etc / "bridge.env").chmod(0o600)
     (fake / "opt" / "roslink-mqtt").mkdir(parents=True)
+    (fake / STASH.lstrip("/")).mkdir(parents=True)  # where the sandbox sets the checkout aside
     keep = fake_venv(fake / "opt" / "roslink-mqtt" / ".venv")
     (fake / "keep").mkdir()
     for unit_dir in ("var/lib/roslink-mqtt-bridge", "var/log/roslink-mqtt-bridge"):
@@ -282,8 +302,9 @@ def writable_dir(path: Path) -> Path:
 def sandboxed(fake: Path, keep: Path | None, argv: list[str], *, uid: int = RUN_AS, workdir: str = "/",
               writable: dict[Path, str] | None = None) -> list[str]:
     pairs = " ".join(f"{src}:{dst}" for src, dst in (writable or {}).items())
-    return ["unshare", "-m", "--propagation", "private", "bash", "-c", SANDBOX, "sandbox",
-            str(fake), str(uid), workdir, pairs, str(keep or ""), *argv]
+    script = SANDBOX.replace("$STASH", STASH)
+    return ["unshare", "-m", "--propagation", "private", "bash", "-c", script, "sandbox",
+            str(fake), str(uid), workdir, pairs, str(keep or ""), str(ROOT), *argv]
 
 
 # -- the tests ------------------------------------------------------------------------------------------------------
