@@ -6,6 +6,7 @@ import subprocess
 import sys
 from dataclasses import replace
 
+import orjson
 import pytest
 
 from roslink_mqtt.config import parse_fleet
@@ -115,3 +116,38 @@ def test_bridge_exits_on_bad_failsafe_action_or_service(tmp_path, extra: str, fr
     _, out = start_bridge(tmp_path, extra)
     assert out.returncode == 2, out.stderr
     assert fragment in out.stderr
+
+
+PATH_OUT = "{direction: ros_to_mqtt, ros_topic: plan, ros_type: nav_msgs/msg/Path, mqtt_topic: state/plan}"
+
+
+def test_fields_path_through_a_sequence_is_a_rule_error() -> None:
+    """A sequence has no one element to follow; the walk used to load 'sequence<…>' as a type and raise
+    UnknownTypeError, which nothing caught."""
+    with pytest.raises(RuleError) as info:
+        compile_rules(robot_with(PATH_OUT, fields={"x": "poses.pose.position.x"}), TopicTree())
+    assert str(info.value) == ("rules[0] (plan → state/plan): fields.x: 'poses.pose.position.x' goes through 'poses', "
+                               "a sequence<geometry_msgs/PoseStamped> of nav_msgs/msg/Path (a fields path ends at a "
+                               "sequence or array; it cannot reach inside one)")
+
+
+def test_fields_path_ending_at_a_sequence_of_messages_compiles() -> None:
+    """The loader accepts a path that ends at a sequence (config/interfaces.py); the bridge carries it as a list."""
+    outbound, _ = compile_rules(robot_with(PATH_OUT, fields={"plan": "poses"}), TopicTree())
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    msg = Path(poses=[PoseStamped()])
+    msg.poses[0].pose.position.x = 2.5
+    assert orjson.loads(outbound[0].serialize(msg))["plan"][0]["pose"]["position"]["x"] == 2.5
+
+
+def test_bridge_exits_with_the_rule_named_for_a_path_through_a_sequence(tmp_path) -> None:
+    """rcl_interfaces is outside the loader's table, so only the bridge can refuse this path: exit 2, no traceback."""
+    config, out = start_bridge(tmp_path, """    bridge: {password: pw}
+    rules:
+      - {direction: ros_to_mqtt, ros_topic: /parameter_events, ros_type: rcl_interfaces/msg/ParameterEvent,
+         mqtt_topic: state/params, fields: {name: new_parameters.name}}""")
+    assert out.returncode == 2, out.stderr
+    assert "Traceback" not in out.stderr
+    assert f"{config}:9 robots.r1.rules[0] (/parameter_events → state/params): fields.name: 'new_parameters.name' " \
+           "goes through 'new_parameters', a sequence<rcl_interfaces/Parameter>" in out.stderr

@@ -98,17 +98,40 @@ def _set_path(data: dict[str, Any], path: str, value: Any) -> None:
     data[parts[-1]] = value
 
 
+def _is_nested_message(field_type: str) -> bool:
+    """``pkg/Type`` is one nested message; ``sequence<pkg/Type>``, ``pkg/Type[3]`` and primitives are not."""
+    return field_type.count("/") == 1 and not field_type.startswith("sequence<") and not field_type.endswith("]")
+
+
 def _check_field_paths(rule: Rule, ros_cls: type) -> None:
-    """Every ``fields`` target must exist in the ROS type, or the rule fails at start."""
+    """Every ``fields`` target must exist in the ROS type, or the rule fails at start.
+
+    A path may end at a sequence or array (it is carried as a list) but not go through one: there is no single
+    element to follow. Every problem is a :class:`RuleError` naming the rule, never an ``UnknownTypeError`` from
+    loading a field type, which ``main`` would not catch.
+    """
     for mqtt_field, ros_path in rule.fields.items():
         cls: Any = ros_cls
-        for part in ros_path.split("."):
+        parts = ros_path.split(".")
+        for i, part in enumerate(parts):
             fields = cls.get_fields_and_field_types() if hasattr(cls, "get_fields_and_field_types") else {}
             if part not in fields:
                 raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}",
                                 rule)
+            if i == len(parts) - 1:
+                break
             sub = fields[part]
-            cls = load_interface(sub.replace("/", "/msg/", 1)) if sub.count("/") == 1 else None
+            if not _is_nested_message(sub):
+                if sub.startswith("sequence<") or sub.endswith("]"):
+                    raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' goes through '{part}', a {sub} "
+                                    f"of {rule.ros_type} (a fields path ends at a sequence or array; it cannot reach "
+                                    "inside one)", rule)
+                raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}",
+                                rule)
+            try:
+                cls = load_interface(sub.replace("/", "/msg/", 1))
+            except UnknownTypeError as err:
+                raise RuleError(f"{rule.label}: fields.{mqtt_field}: {err}", rule) from None
 
 
 def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
