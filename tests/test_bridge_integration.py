@@ -182,6 +182,24 @@ def test_emergency_stop_is_obeyed_whatever_its_sequence_number(stack) -> None:
     alice.publish("roslink/turtle1/from/alice/cmd/arm", {})  # leave the robot usable for the next tests
 
 
+def test_a_refused_command_does_not_use_up_its_sequence_number(stack) -> None:
+    """The motion gate refuses sequence N; the same N once armed is a new command, not a duplicate."""
+    alice, cmd_vel = stack["alice"], stack["cmd_vel"]
+    twist = {"message_id": 100, "sequence_number": 9000, "payload": {"lx": 0.35}}
+    alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {})
+    alice.publish("roslink/turtle1/from/alice/cmd/twist", twist)
+    err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error") and m.json().get("sequence_number") == 9000)
+    assert "emergency stop by alice: send cmd/arm to resume" in err.json()["error"]
+    alice.publish("roslink/turtle1/from/alice/cmd/arm", {})
+    t0 = time.monotonic()
+    for _ in range(30):  # arm may complete through a ROS service: resend N until the gate is open
+        alice.publish("roslink/turtle1/from/alice/cmd/twist", twist, qos=0)
+        time.sleep(0.1)
+        if [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.35)]:
+            break
+    cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.35), after=t0, timeout=2)
+
+
 def test_commands_without_operator_heartbeat_are_refused(stack) -> None:
     cmd_vel = stack["cmd_vel"]
     with TestClient(stack["port"], "admin", "admin-demo") as silent:  # an operator without presence

@@ -403,12 +403,6 @@ class Bridge:
             if rule.spec is not None:
                 envelope = decode(payload, rule.spec.message_id)
                 message_id, sequence, sender = envelope.message_id, envelope.sequence_number, envelope.client_id
-                if sequence is not None and preset != "emergency_stop":  # a stop is never "too old" to obey
-                    verdict = self.sequences.check((user, rule.rule.mqtt_topic), sequence)
-                    if not verdict.accepted:
-                        self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
-                                    message_id, sequence, client_id=sender)
-                        return
                 msg = rule.build(envelope.payload)
             else:
                 body = loads(payload)
@@ -435,6 +429,16 @@ class Bridge:
                 if late:
                     self.refuse(user, topic, late, message_id, sequence, client_id=sender)
                     return
+            # The number is recorded only once every other check has passed: a command refused for its body,
+            # for missing presence or for blocked motion must not use it up, or the same command resent once
+            # the gate opens would be dropped as a duplicate. A stop is never "too old" to obey.
+            if sequence is not None and preset != "emergency_stop":
+                verdict = self.sequences.check((user, rule.rule.mqtt_topic), sequence)
+                if not verdict.accepted:
+                    self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
+                                message_id, sequence, client_id=sender)
+                    return
+            if rule.is_velocity or preset in GOAL_PRESETS:
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if rule.is_velocity:
                     self.failsafe.velocity_command(user, time.monotonic())
