@@ -28,6 +28,7 @@ log = logging.getLogger("roslink_mqtt.client")
 
 StateItem = RoslinkMessage | dict[str, Any]
 _FAILED: Any = object()  # queued by fail(): wakes a blocked get() or loop
+_CLOSED: Any = object()  # queued by close(): ends an ``async for`` blocked on an empty queue
 
 
 def parse_state_item(payload: bytes, robot: str, name: str) -> StateItem | None:
@@ -110,6 +111,8 @@ class StateSubscription:
             if self.failure is not None and aqueue.empty():
                 raise self.failure
             item = await aqueue.get()
+            if item is _CLOSED:
+                return
             if item is _FAILED:
                 raise self.failure or ConnectionError("subscription failed")
             yield item
@@ -125,8 +128,22 @@ class StateSubscription:
             loop.call_soon_threadsafe(_put_latest, aqueue, _FAILED)
 
     def close(self) -> None:
+        """Stop delivery (any thread); an ``async for`` waiting on this subscription ends.
+
+        The async loop awaits its queue, so setting ``closed`` alone is never seen
+        while no message arrives: a sentinel wakes it. (Blocking iteration polls
+        ``closed`` on its own.)
+        """
         if not self.closed:
             self.closed = True
+            with self._lock:
+                target = self._async
+            if target is not None:
+                loop, aqueue = target
+                try:
+                    loop.call_soon_threadsafe(_put_latest, aqueue, _CLOSED)
+                except RuntimeError:  # that loop is closed already: nobody is waiting on it
+                    pass
             if self._on_close is not None:
                 self._on_close(self)
 
