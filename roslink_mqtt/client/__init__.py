@@ -11,7 +11,14 @@ Two ways in:
   and types are names here, which rclpy refuses (docs/sdk.md, *Porting to rclpy*).
 
 See docs/sdk.md.
+
+The rclpy-shaped classes (``Node``, ``Publisher`` …) load on first use
+(:func:`__getattr__` below), so importing the package, or its context module,
+does not load ``node.py``: a RobotClient-only program skips it, and the
+context stays free of an import cycle with the node.
 """
+
+from typing import TYPE_CHECKING, Any
 
 from .context import create_node, init, ok, shutdown, spin, spin_once, spin_until_future_complete, try_shutdown
 from .directory import RobotInfo
@@ -47,11 +54,15 @@ from .messages import (
     Takeoff,
     Twist,
 )
-from .node import Client, Node, Publisher, Service, Subscription, Timer
 from .presence import OperatorPresence
 from .providers import ProvidedService
 from .robot_client import RobotClient
 from .subscriptions import StateSubscription
+
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ loads them
+    from .node import Client, Node, Publisher, Service, Subscription, Timer
+
+_FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription", "Timer"})
 
 __all__ = [
     "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
@@ -62,3 +73,14 @@ __all__ = [
     "Subscription", "Takeoff", "Timer", "Twist", "create_node", "init", "ok", "shutdown", "spin", "spin_once",
     "spin_until_future_complete", "try_shutdown",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Load the rclpy-shaped classes from ``node.py`` on first access (PEP 562)."""
+    if name in _FROM_NODE:
+        from . import node
+
+        value = getattr(node, name)
+        globals()[name] = value  # later lookups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,6 +4,12 @@ There is no ROS graph to join, so ``init`` only marks the context live and
 ``shutdown`` destroys the nodes still alive (withdrawing their services and
 clearing their presence). ``create_node`` works without ``init``: a program
 without ROS should not fail for a missing ceremony.
+
+As in rclpy, the context does not import ``Node`` at run time: ``node.py``
+imports this module (a node registers with its context), so this module sees
+``Node`` only for type checkers and ``create_node`` imports it when called
+(rclpy's ``create_node`` does the same). Importing the context alone never
+loads the node module.
 """
 
 from __future__ import annotations
@@ -11,9 +17,10 @@ from __future__ import annotations
 import threading
 import time
 from concurrent.futures import Future
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .node import Node
+if TYPE_CHECKING:
+    from .node import Node
 
 
 class Context:
@@ -74,6 +81,8 @@ def try_shutdown(*, context: Context | None = None) -> None:
 def create_node(node_name: str, *, robot: str | None = None, url: str | None = None, username: str | None = None,
                 password: str | None = None, **options: Any) -> Node:
     """Connect a :class:`Node` for ``robot`` (see Node for the options and their environment defaults)."""
+    from .node import Node  # here, not at the top: node.py imports this module
+
     return Node(node_name, robot=robot, url=url, username=username, password=password, **options)
 
 

@@ -26,6 +26,7 @@ from typing import Any
 from ..topics import DEFAULT_PREFIX, check_name
 from .calls import Values
 from .commands import command_leaf, roslink_command
+from .context import default_context
 from .dispatch import CallbackQueue, Scheduler
 from .errors import CommandRefused, NotConnectedError, RobotError
 from .logger import Logger
@@ -271,8 +272,6 @@ class Node:
         except Exception:
             self._scheduler.close()
             raise
-        from .context import default_context
-
         default_context().add(self)
 
     # -- identity ---------------------------------------------------------------------
@@ -357,8 +356,6 @@ class Node:
         self._scheduler.close()
         self._entities.clear()
         self._callbacks.wake()
-        from .context import default_context
-
         default_context().remove(self)
 
     # -- internals ------------------------------------------------------------------------

@@ -1,0 +1,34 @@
+"""Importing the SDK's context does not import its node module (issue 14, SDK surface).
+
+rclpy's shape: ``node.py`` imports the context, never the other way round at
+run time. A fresh interpreter is the only honest check: in this process the
+node module is loaded already by other tests.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+_CHECK = """
+import sys
+import roslink_mqtt.client.context
+loaded = sorted(m for m in sys.modules if m.startswith("roslink_mqtt.client.node"))
+assert not loaded, loaded
+from roslink_mqtt.client import Node, create_node
+from roslink_mqtt.client.node import Node as NodeFromModule
+assert Node is NodeFromModule
+assert "roslink_mqtt.client.node" in sys.modules
+"""
+
+
+def test_context_does_not_import_node() -> None:
+    result = subprocess.run([sys.executable, "-c", _CHECK], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+
+
+def test_package_exports_still_resolve() -> None:
+    import roslink_mqtt.client as sdk
+
+    for name in sdk.__all__:
+        assert getattr(sdk, name) is not None, name
