@@ -26,12 +26,17 @@ from .errors import (
     CommandNotConfirmed,
     CommandRefused,
     ConnectError,
+    InvalidArgument,
+    InvalidType,
     LoginRefused,
+    NodeDestroyed,
     NotConnectedError,
     RobotError,
     RoslinkError,
     ServiceError,
     ServiceTimeout,
+    SubscriptionFailed,
+    WaitTimeout,
 )
 from .messages import (
     Ack,
@@ -66,12 +71,12 @@ _FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription"
 
 __all__ = [
     "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
-    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land",
-    "LoginRefused", "Map", "Node", "NotConnectedError", "OperatorPresence",
+    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "InvalidArgument",
+    "InvalidType", "Land", "LoginRefused", "Map", "Node", "NodeDestroyed", "NotConnectedError", "OperatorPresence",
     "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
     "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",
-    "Subscription", "Takeoff", "Timer", "Twist", "create_node", "init", "ok", "shutdown", "spin", "spin_once",
-    "spin_until_future_complete", "try_shutdown",
+    "Subscription", "SubscriptionFailed", "Takeoff", "Timer", "Twist", "WaitTimeout", "create_node", "init", "ok",
+    "shutdown", "spin", "spin_once", "spin_until_future_complete", "try_shutdown",
 ]
 
 

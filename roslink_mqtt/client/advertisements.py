@@ -17,6 +17,7 @@ import orjson
 
 from ..topics import TopicTree, check_path
 from .connection import Connection
+from .errors import InvalidArgument
 
 
 class Advertisements:
@@ -32,12 +33,12 @@ class Advertisements:
     def advertise(self, robot: str, name: str, ros_type: str) -> None:
         check_path(name, "topic")
         if not isinstance(ros_type, str) or ros_type.count("/") != 2 or "/msg/" not in ros_type:
-            raise ValueError(f"message type must look like 'std_msgs/msg/String', got {ros_type!r}")
+            raise InvalidArgument(f"message type must look like 'std_msgs/msg/String', got {ros_type!r}")
         key = (robot, name)
         with self._lock:
             known = self._types.get(key)
             if known is not None and known != ros_type:
-                raise ValueError(f"'{name}' on {robot} is already advertised as {known}, not {ros_type}")
+                raise InvalidArgument(f"'{name}' on {robot} is already advertised as {known}, not {ros_type}")
             self._types[key] = ros_type
             self._counts[key] = self._counts.get(key, 0) + 1
             first = self._counts[key] == 1

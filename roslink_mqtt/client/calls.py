@@ -23,7 +23,7 @@ from ..protocol import ProtocolError, loads
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import Scheduler
-from .errors import ServiceError, ServiceTimeout
+from .errors import InvalidType, ServiceError, ServiceTimeout
 
 Values = dict[str, Any]
 
@@ -53,7 +53,7 @@ class ServiceCalls:
         """Publish a call; the future gets the reply's ``values`` or a :class:`ServiceError`."""
         check_path(service, "service")
         if args is not None and not isinstance(args, dict):
-            raise TypeError(f"service arguments must be a dict, got {type(args).__name__}")
+            raise InvalidType(f"service arguments must be a dict, got {type(args).__name__}")
         call_id = f"{self._prefix}-{next(self._ids)}"
         body: dict[str, Any] = {"id": call_id, "args": args or {}}
         if self.client_id is not None:

@@ -29,6 +29,7 @@ import orjson
 from ..protocol import SPECS, Direction, encode_message, spec_for
 from ..protocol.control import GENERIC_SENDER_KEY
 from ..topics import TopicTree, check_path
+from .errors import InvalidArgument
 
 MASK, HALF = 0xFFFFFFFF, 2**31
 
@@ -47,7 +48,7 @@ def command_leaf(name: str) -> str:
     leaf = f"cmd/{name}" if name in COMMAND_NAMES else name
     check_path(leaf, "command")
     if leaf.split("/", 1)[0] in RESERVED:
-        raise ValueError(f"'{leaf}' is a service topic: use call()/provide() (or create_client/create_service)")
+        raise InvalidArgument(f"'{leaf}' is a service topic: use call()/provide() (or create_client/create_service)")
     return leaf
 
 

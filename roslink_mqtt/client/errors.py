@@ -13,7 +13,34 @@ from typing import Any
 
 
 class RoslinkError(Exception):
-    """Base of every exception the SDK raises on purpose."""
+    """Base of every exception the SDK raises on purpose: ``except RoslinkError`` catches them all.
+
+    Where an error used to be a builtin (``ValueError`` for a bad argument …), its class
+    derives from that builtin too, so code written against the older SDK keeps catching it.
+    """
+
+
+class InvalidArgument(RoslinkError, ValueError):
+    """An argument the SDK cannot use (a malformed type name, a timeout out of range, no robot named …).
+
+    Raised before anything is sent: the call is a programming or configuration error, not a network one.
+    """
+
+
+class InvalidType(RoslinkError, TypeError):
+    """A value of the wrong Python type (service arguments or a publish() that are not a dict …)."""
+
+
+class WaitTimeout(RoslinkError, TimeoutError):
+    """Nothing came within the caller's timeout (a state message, a robot coming online)."""
+
+
+class NodeDestroyed(RoslinkError, RuntimeError):
+    """An entity was created on a node after ``destroy_node()``; its connection is closed."""
+
+
+class SubscriptionFailed(RoslinkError, ConnectionError):
+    """A subscription ended without a recorded cause; nothing more will arrive on it."""
 
 
 class ConnectError(RoslinkError):

@@ -28,7 +28,7 @@ from .calls import Values
 from .commands import command_leaf, roslink_command
 from .context import default_context
 from .dispatch import CallbackQueue, Scheduler
-from .errors import CommandRefused, NotConnectedError, RobotError
+from .errors import CommandRefused, InvalidArgument, InvalidType, NodeDestroyed, NotConnectedError, RobotError
 from .logger import Logger
 from .messages import RoslinkMessage
 from .qos import mqtt_qos
@@ -58,7 +58,7 @@ def ros_shaped_to_roslink(command: str, msg: dict[str, Any]) -> dict[str, Any]:
         return {"x": point.get("x", 0.0), "y": point.get("y", 0.0), "z": point.get("z", 0.0)}
     if command in ("arm", "disarm", "land", "get_map") and set(msg) == {"data"}:
         if msg["data"] is not True:
-            raise ValueError(f"{command}: {{'data': {msg['data']!r}}} would do nothing; send {{'data': True}}")
+            raise InvalidArgument(f"{command}: {{'data': {msg['data']!r}}} would do nothing; send {{'data': True}}")
         return {}
     return msg
 
@@ -92,7 +92,7 @@ class Publisher:
         """
         payload = msg.payload() if isinstance(msg, RoslinkMessage) else msg
         if not isinstance(payload, dict):
-            raise TypeError(f"publish() takes a dict of message fields, got {type(msg).__name__}")
+            raise InvalidType(f"publish() takes a dict of message fields, got {type(msg).__name__}")
         if self.command is not None:
             payload = ros_shaped_to_roslink(self.command, payload)
         try:
@@ -209,7 +209,7 @@ class Timer:
 
     def __init__(self, node: Node, period: float, callback: Callable[[], None]) -> None:
         if period <= 0:
-            raise ValueError("timer period must be positive")
+            raise InvalidArgument("timer period must be positive")
         self._node, self.timer_period_ns, self.callback = node, int(period * 1e9), callback
         self._period, self._queued, self.cancelled = period, threading.Event(), False
         self._handle = node._scheduler.call_later(period, self._tick)
@@ -254,7 +254,7 @@ class Node:
         self._name = check_name(node_name, "node name")
         robot = robot or os.environ.get(ENV_ROBOT)
         if not robot:
-            raise ValueError(f"no robot: pass robot= or set {ENV_ROBOT}")
+            raise InvalidArgument(f"no robot: pass robot= or set {ENV_ROBOT}")
         self.robot = check_name(robot, "robot")
         self.call_timeout = call_timeout
         self._callbacks = CallbackQueue()
@@ -361,7 +361,7 @@ class Node:
     # -- internals ------------------------------------------------------------------------
     def _add(self, entity: Any) -> Any:
         if self._destroyed:
-            raise RuntimeError(f"node {self._name} was destroyed")
+            raise NodeDestroyed(f"node {self._name} was destroyed")
         self._entities.append(entity)
         return entity
 

@@ -23,7 +23,7 @@ from ..protocol import ProtocolError, loads
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import CallbackQueue
-from .errors import RobotError
+from .errors import InvalidArgument, InvalidType, RobotError
 
 log = logging.getLogger("roslink_mqtt.client")
 
@@ -70,11 +70,11 @@ class ServiceProviders:
         """
         check_path(name, "service")
         if not isinstance(srv_type, str) or srv_type.count("/") != 2 or "/srv/" not in srv_type:
-            raise ValueError(f"service type must look like 'std_srvs/srv/Trigger', got {srv_type!r}")
+            raise InvalidArgument(f"service type must look like 'std_srvs/srv/Trigger', got {srv_type!r}")
         if not 0 < timeout <= 3600:
-            raise ValueError("timeout must be in (0, 3600] seconds")
+            raise InvalidArgument("timeout must be in (0, 3600] seconds")
         if self.connection.presence is None:
-            raise ValueError("providing a service needs operator presence: the robot keeps the ROS service only "
+            raise InvalidArgument("providing a service needs operator presence: the robot keeps the ROS service only "
                              "while our presence heartbeat is live (create the client with presence=True)")
         offer = ProvidedService(self, robot, name, srv_type, float(timeout), handler, callbacks)
         if refused is not None:
@@ -82,7 +82,7 @@ class ServiceProviders:
             return offer
         with self._lock:
             if (robot, name) in self._offers:
-                raise ValueError(f"already providing '{name}' on {robot}")
+                raise InvalidArgument(f"already providing '{name}' on {robot}")
             self._offers[(robot, name)] = offer
         self._publish_offer(offer)
         return offer
@@ -165,7 +165,7 @@ class ServiceProviders:
         try:
             values = offer.handler(args)
             if not isinstance(values, dict):
-                raise TypeError(f"the handler returned {type(values).__name__}, expected a dict of response fields")
+                raise InvalidType(f"the handler returned {type(values).__name__}, expected a dict of response fields")
             payload = orjson.dumps({"id": call_id, "result": True, "values": values,
                                     "client_id": self.connection.client_id})
         except Exception as err:  # the ROS caller gets the reason instead of waiting for the timeout

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any
 
+from .errors import InvalidArgument, InvalidType
+
 
 class ReliabilityPolicy(IntEnum):
     """Same names and values as ``rclpy.qos.ReliabilityPolicy``."""
@@ -40,7 +42,7 @@ class QoSProfile:
 
     def __post_init__(self) -> None:
         if isinstance(self.depth, bool) or not isinstance(self.depth, int) or self.depth < 0:
-            raise ValueError(f"QoSProfile depth must be an integer >= 0, got {self.depth!r}")
+            raise InvalidArgument(f"QoSProfile depth must be an integer >= 0, got {self.depth!r}")
 
 
 qos_profile_sensor_data = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -57,14 +59,14 @@ def mqtt_qos(profile: Any) -> int | None:
     """
     if isinstance(profile, int) and not isinstance(profile, bool):
         if profile < 0:
-            raise ValueError(f"QoS depth must be >= 0, got {profile}")
+            raise InvalidArgument(f"QoS depth must be >= 0, got {profile}")
         return None
     reliability = getattr(profile, "reliability", None)
     if reliability is None:
-        raise TypeError(f"expected a QoS depth (int) or a QoSProfile, got {type(profile).__name__}")
+        raise InvalidType(f"expected a QoS depth (int) or a QoSProfile, got {type(profile).__name__}")
     name = getattr(reliability, "name", str(reliability)).upper()
     if name in ("SYSTEM_DEFAULT", "UNKNOWN"):
         return None
     if name not in _MQTT_QOS:
-        raise ValueError(f"unknown reliability {reliability!r}: use RELIABLE or BEST_EFFORT")
+        raise InvalidArgument(f"unknown reliability {reliability!r}: use RELIABLE or BEST_EFFORT")
     return _MQTT_QOS[name]

@@ -45,11 +45,13 @@ from .dispatch import CallbackQueue, DispatchThread, Scheduler
 from .errors import (
     CommandNotConfirmed,
     CommandRefused,
+    InvalidArgument,
     LoginRefused,
     NotConnectedError,
     RobotError,
     RoslinkError,
     ServiceError,
+    WaitTimeout,
 )
 from .providers import Handler, ProvidedService, ServiceProviders
 from .subscriptions import StateItem, StateSubscription
@@ -82,7 +84,7 @@ class RobotClient:
                  callbacks: CallbackQueue | None = None) -> None:
         username = username or os.environ.get(ENV_USERNAME)
         if not username:
-            raise ValueError(f"no username: pass username= or set {ENV_USERNAME}")
+            raise InvalidArgument(f"no username: pass username= or set {ENV_USERNAME}")
         self.username = check_name(username, "username")
         password = password if password is not None else os.environ.get(ENV_PASSWORD)
         self.topics = TopicTree(prefix)
@@ -214,7 +216,7 @@ class RobotClient:
         if not self.directory.wait(lambda robots: robot in robots and robots[robot].online, timeout):
             info = self.directory.get(robot)
             state = "never seen" if info is None else f"status {info.system_status!r}"
-            raise TimeoutError(f"robot {robot} not online after {timeout:g} s ({state})")
+            raise WaitTimeout(f"robot {robot} not online after {timeout:g} s ({state})")
         info = self.directory.get(robot)
         assert info is not None
         return info
@@ -421,7 +423,7 @@ class RobotClient:
         :meth:`unadvertise` (or closing, or dying) removes it. Harmless for other rules.
         """
         if self.connection.presence is None:
-            raise ValueError("advertising needs operator presence: the robot keeps the ROS publisher only while "
+            raise InvalidArgument("advertising needs operator presence: the robot keeps the ROS publisher only while "
                              "our presence heartbeat is live (create the client with presence=True)")
         self.watch(robot)
         self._advertisements.advertise(check_name(robot, "robot"), topic, ros_type)

@@ -22,6 +22,7 @@ from typing import Any
 
 from ..protocol import ProtocolError, loads
 from .dispatch import CallbackQueue
+from .errors import SubscriptionFailed, WaitTimeout
 from .messages import RoslinkMessage, parse_state
 
 log = logging.getLogger("roslink_mqtt.client")
@@ -86,9 +87,9 @@ class StateSubscription:
         try:
             item = self._queue.get(timeout=timeout)
         except queue.Empty:
-            raise TimeoutError(f"no {self.name} from {self.robot} within {timeout} s") from None
+            raise WaitTimeout(f"no {self.name} from {self.robot} within {timeout} s") from None
         if item is _FAILED:
-            raise self.failure or ConnectionError("subscription failed")
+            raise self.failure or SubscriptionFailed("subscription failed")
         return item
 
     def __iter__(self) -> Iterator[StateItem]:
@@ -100,7 +101,7 @@ class StateSubscription:
                     raise self.failure from None
                 continue
             if item is _FAILED:
-                raise self.failure or ConnectionError("subscription failed")
+                raise self.failure or SubscriptionFailed("subscription failed")
             yield item
 
     async def __aiter__(self) -> AsyncIterator[StateItem]:
@@ -114,7 +115,7 @@ class StateSubscription:
             if item is _CLOSED:
                 return
             if item is _FAILED:
-                raise self.failure or ConnectionError("subscription failed")
+                raise self.failure or SubscriptionFailed("subscription failed")
             yield item
 
     def fail(self, error: BaseException) -> None:
