@@ -121,5 +121,6 @@ def test_advertisements_are_checked(stack) -> None:
         bob.subscribe("roslink/turtle1/to/bob/error")
         bob.publish("roslink/turtle1/from/bob/advertise/lights", {"type": "std_msgs/msg/Bool"})
         refused = bob.wait_for(lambda m: True, timeout=5).json()
-        assert "user 'bob' may not publish on 'lights' (operators only)" in str(refused)
+        assert refused["error"] == ("user 'bob' may not publish on 'lights' (operators only): not an operator of "
+                                    "turtle1 (a viewer)")
     assert publishers_become(stack["lights"], 0, timeout=2), "a refused advertisement must not create a publisher"

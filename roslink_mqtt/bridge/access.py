@@ -14,6 +14,7 @@ from __future__ import annotations
 from ..config import Fleet, Role
 from ..protocol.control import ACCESS, AccessReport
 from ..topics import TopicTree
+from .authorize import Verb, allowed
 
 
 def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, bytes]:
@@ -21,10 +22,8 @@ def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, byt
     services = fleet.robots[robot].services
     out: dict[str, bytes] = {}
     for user, role in sorted(fleet.users_of(robot).items()):
-        if role is Role.OPERATOR:
-            report = AccessReport("operator", tuple(s.name for s in services))
-        else:
-            report = AccessReport("viewer", tuple(s.name for s in services if s.read_only))
+        callable_ = tuple(s.name for s in services if allowed(role, Verb.CALL, read_only=s.read_only))
+        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_)
         out[topics.to_user(robot, user, ACCESS)] = report.to_json()
     return out
 

@@ -28,6 +28,7 @@ from ..protocol import (
 from ..protocol.control import pop_generic_sender
 from ..topics import Kind, TopicTree
 from .access import access_reports, cleared_reports
+from .authorize import Verb, refusal
 from .convert import ConversionError, converter_for
 from .failsafe import Failsafe, late_motion
 from .link import MqttLink, bridge_client_id
@@ -119,7 +120,7 @@ class Bridge:
                                          queue_depth=settings.provided_queue_depth)
         self.on_demand = OnDemandPublishers(node, {n: r for n, r in self.inbound.items() if r.rule.on_demand},
                                             {n for n, r in self.inbound.items() if not r.rule.on_demand},
-                                            role_of, self.operators.is_live, self.refuse)
+                                            role_of, self.operators.is_live, self.refuse, robot=robot.name)
         self.link = MqttLink(
             client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
@@ -363,8 +364,9 @@ class Bridge:
             self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
                                      f"(commands: {', '.join(sorted(self.inbound)) or 'none'})", payload=payload)
             return
-        if self.role_of(user) is not Role.OPERATOR:
-            self.refuse(user, topic, f"user '{user}' is not an operator of {self.robot.name}", payload=payload)
+        why = refusal(user, self.role_of(user), Verb.COMMAND, name, robot=self.robot.name)
+        if why:
+            self.refuse(user, topic, why, payload=payload)
             return
         self.handle_command(user, topic, rule, payload, arrived)
 

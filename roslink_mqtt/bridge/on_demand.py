@@ -28,6 +28,7 @@ from rclpy.node import Node
 
 from ..config import Role
 from ..protocol import ProtocolError, loads
+from .authorize import Verb, refusal
 from .rules import Inbound, ros_qos
 
 log = logging.getLogger("roslink_mqtt.bridge.on_demand")
@@ -40,9 +41,10 @@ class OnDemandPublishers:
 
     def __init__(self, node: Node, rules: dict[str, Inbound], always_there: set[str],
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[..., None]) -> None:
-        """``rules``: the on-demand rules by MQTT name; ``always_there``: the other mqtt_to_ros names."""
-        self.node, self.rules, self.always_there = node, rules, always_there
+                 error: Callable[..., None], *, robot: str) -> None:
+        """``rules``: the on-demand rules by MQTT name; ``always_there``: the other mqtt_to_ros names;
+        ``robot``: this robot's name, for refusals."""
+        self.node, self.rules, self.always_there, self.robot = node, rules, always_there, robot
         self.role_of, self.is_live, self.error = role_of, is_live, error
         self._lock = threading.RLock()
         self._adverts: dict[str, dict[str, str]] = {name: {} for name in rules}  # name -> user -> client_id
@@ -61,8 +63,9 @@ class OnDemandPublishers:
             with self._lock:
                 self._adverts[name].pop(user, None)
             return
-        if self.role_of(user) is not Role.OPERATOR:
-            self.error(user, topic, f"user '{user}' may not publish on '{name}' (operators only)", payload=payload)
+        why = refusal(user, self.role_of(user), Verb.ADVERTISE, name, robot=self.robot)
+        if why:
+            self.error(user, topic, why, payload=payload)
             return
         try:
             body = loads(payload)

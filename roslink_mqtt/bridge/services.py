@@ -32,6 +32,7 @@ from ..config import Robot, Role, ServiceRule
 from ..protocol import ProtocolError, loads, sender_id
 from ..protocol.control import check_client_id
 from ..topics import TopicTree
+from .authorize import Verb, refusal
 from .convert import ConversionError, converter_for
 from .ros_types import UnknownTypeError, load_interface
 
@@ -113,10 +114,9 @@ class ServiceCaller:
                                              client_id=sender))
             return
         rule, srv, client = entry
-        role = self.role_of(user)
-        if role is None or (role is Role.VIEWER and not rule.read_only):
-            self.publish(reply_topic, _reply(call_id, error=f"user '{user}' may not call '{name}' "
-                                                            f"(operators only; it is not read-only)", client_id=sender))
+        why = refusal(user, self.role_of(user), Verb.CALL, name, robot=self.robot.name, read_only=rule.read_only)
+        if why:
+            self.publish(reply_topic, _reply(call_id, error=why, client_id=sender))
             return
         try:
             request = converter_for(srv.Request).from_dict(args)
@@ -225,9 +225,9 @@ class ProvidedServices:
         if not payload:
             self.withdraw(user, name, "withdrawn by the provider")
             return
-        if self.role_of(user) is not Role.OPERATOR:
-            self.error(user, topic, f"user '{user}' may not provide services on {self.robot.name} (operators only)",
-                       payload=payload)
+        why = refusal(user, self.role_of(user), Verb.PROVIDE, name, robot=self.robot.name)
+        if why:
+            self.error(user, topic, why, payload=payload)
             return
         try:
             body = loads(payload)

@@ -1,0 +1,59 @@
+"""The one authorization rule of the bridge: may this role use this verb on this name, and if not, why.
+
+The bridge used to restate the rule in four places (commands in ``node.py``, service calls and offers in
+``services.py``, advertisements in ``on_demand.py``), each worded its own way; the access report
+(``access.py``) restated it a fifth time. Every check now asks :func:`refusal`, so the rule and its wording
+change in one place, and this module imports nothing from ROS so that it is unit-tested without rclpy.
+
+The rule mirrors the broker's ACL (``broker/acl.py``), which reads the same fleet file: an operator may do
+everything; a viewer may only call services marked ``read_only``; a user without a grant may do nothing.
+
+Every refusal reads ``user '<user>' may not <action> (<who may>): not an operator of <robot> (<standing>)``:
+what was refused, the requirement, and why the user does not meet it, so a reader can tell a viewer from a
+user whose grant was revoked.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from ..config import Role
+
+
+class Verb(StrEnum):
+    """What a user asks the bridge to do; the values are the topic segments under ``from/<user>/``."""
+
+    COMMAND = "cmd"  # a mqtt_to_ros rule: publish on ROS (or a preset's service)
+    CALL = "call"  # call a ROS service the robot exposes
+    PROVIDE = "provide"  # offer a service to ROS
+    ADVERTISE = "advertise"  # keep an on-demand ROS publisher
+
+
+def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
+    """Whether ``role`` may use ``verb``; ``read_only``: the called service is marked read-only (calls only)."""
+    if role is Role.OPERATOR:
+        return True
+    return role is Role.VIEWER and verb is Verb.CALL and read_only
+
+
+def _action(verb: Verb, name: str, robot: str) -> str:
+    if verb is Verb.COMMAND:
+        return f"send '{name}'"
+    if verb is Verb.CALL:
+        return f"call '{name}'"
+    if verb is Verb.PROVIDE:
+        return f"provide services on {robot}"
+    return f"publish on '{name}'"
+
+
+def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, read_only: bool = False) -> str | None:
+    """None when ``user`` (holding ``role`` on ``robot``, None: no grant) may use ``verb`` on ``name``; else why not.
+
+    ``name`` is what the verb acts on: the command's topic leaf (``cmd/twist``), the service, the on-demand
+    topic. The wording is part of the protocol (docs/protocol.md quotes it; clients match on it).
+    """
+    if allowed(role, verb, read_only=read_only):
+        return None
+    who_may = "operators only; it is not read-only" if verb is Verb.CALL else "operators only"
+    standing = "a viewer" if role is Role.VIEWER else "no grant"
+    return f"user '{user}' may not {_action(verb, name, robot)} ({who_may}): not an operator of {robot} ({standing})"

@@ -1,0 +1,69 @@
+"""The bridge's one authorization rule (roslink_mqtt/bridge/authorize.py): every role x verb, and the wording.
+
+Pure logic without rclpy: the same decisions the bridge's four checks and the access report make.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from roslink_mqtt.bridge.authorize import Verb, allowed, refusal
+from roslink_mqtt.config import Role
+
+pytestmark = pytest.mark.unit
+
+NAMES = {Verb.COMMAND: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.ADVERTISE: "lights"}
+
+
+@pytest.mark.parametrize("verb", list(Verb))
+@pytest.mark.parametrize("read_only", [False, True])
+def test_an_operator_may_do_everything(verb: Verb, read_only: bool) -> None:
+    assert allowed(Role.OPERATOR, verb, read_only=read_only)
+    assert refusal("alice", Role.OPERATOR, verb, NAMES[verb], robot="turtle1", read_only=read_only) is None
+
+
+@pytest.mark.parametrize(("verb", "read_only", "expected"), [
+    (Verb.CALL, True, True),  # the one thing a viewer may do besides watching
+    (Verb.CALL, False, False),
+    (Verb.COMMAND, False, False), (Verb.COMMAND, True, False),  # read_only means nothing outside calls
+    (Verb.PROVIDE, False, False), (Verb.PROVIDE, True, False),
+    (Verb.ADVERTISE, False, False), (Verb.ADVERTISE, True, False),
+])
+def test_a_viewer_may_only_call_read_only_services(verb: Verb, read_only: bool, expected: bool) -> None:
+    assert allowed(Role.VIEWER, verb, read_only=read_only) is expected
+    why = refusal("bob", Role.VIEWER, verb, NAMES[verb], robot="turtle1", read_only=read_only)
+    assert (why is None) is expected
+
+
+@pytest.mark.parametrize("verb", list(Verb))
+@pytest.mark.parametrize("read_only", [False, True])
+def test_no_grant_may_do_nothing(verb: Verb, read_only: bool) -> None:
+    assert not allowed(None, verb, read_only=read_only)
+    assert refusal("carol", None, verb, NAMES[verb], robot="turtle1", read_only=read_only) is not None
+
+
+@pytest.mark.parametrize(("verb", "text"), [
+    (Verb.COMMAND, "user 'bob' may not send 'cmd/twist' (operators only): not an operator of turtle1 (a viewer)"),
+    (Verb.CALL, "user 'bob' may not call 'reset' (operators only; it is not read-only): not an operator of turtle1 "
+                "(a viewer)"),
+    (Verb.PROVIDE, "user 'bob' may not provide services on turtle1 (operators only): not an operator of turtle1 "
+                   "(a viewer)"),
+    (Verb.ADVERTISE, "user 'bob' may not publish on 'lights' (operators only): not an operator of turtle1 (a viewer)"),
+])
+def test_every_refusal_is_worded_the_same_way(verb: Verb, text: str) -> None:
+    """docs/protocol.md quotes these, and clients and tests match on 'may not call', 'not an operator of', …"""
+    assert refusal("bob", Role.VIEWER, verb, NAMES[verb], robot="turtle1") == text
+
+
+def test_a_user_without_a_grant_is_told_so() -> None:
+    assert refusal("carol", None, Verb.COMMAND, "cmd/twist", robot="turtle1") == \
+        "user 'carol' may not send 'cmd/twist' (operators only): not an operator of turtle1 (no grant)"
+
+
+def test_the_rule_imports_no_ros() -> None:
+    """The module is the ROS-free core the bridge's rclpy handlers call; importing it must not pull rclpy in."""
+    code = "import sys, roslink_mqtt.bridge.authorize; sys.exit('rclpy' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
