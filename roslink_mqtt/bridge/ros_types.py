@@ -25,9 +25,3 @@ def load_interface(name: str) -> type:
     if not isinstance(cls, type):
         raise UnknownTypeError(f"unknown type '{name}': '{package}' has no {kind} '{type_name}'")
     return cls
-
-
-def type_name(cls: type) -> str:
-    """``geometry_msgs/msg/Twist`` for the Twist class (inverse of :func:`load_interface`)."""
-    package, kind = cls.__module__.split(".")[:2]
-    return f"{package}/{kind}/{cls.__name__}"

@@ -665,6 +665,3 @@ class HardenedBroker(Broker):
                 await handler.handle_connection_closed()
                 dropped += 1
         return dropped
-
-    def connected_sessions(self) -> list[Session]:
-        return [s for s, _ in self._sessions.values() if s.transitions.state == "connected"]

@@ -51,7 +51,6 @@ _REQUIRED: Any = object()
 
 INT32 = (-(2**31), 2**31 - 1)
 UINT8 = (0, 255)
-UINT16 = (0, 65535)
 UINT32 = (0, 2**32 - 1)
 UINT64 = (0, 2**64 - 1)
 
@@ -81,12 +80,6 @@ class MessageSpec:
     direction: Direction
     fields: tuple[Field, ...]
     doc: str = ""
-
-    def field(self, name: str) -> Field:
-        for f in self.fields:
-            if f.name == name:
-                return f
-        raise KeyError(name)
 
     def defaults(self) -> dict[str, Any]:
         """A payload with every optional field at its default (required ones absent)."""
