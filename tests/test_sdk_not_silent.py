@@ -118,7 +118,7 @@ def test_node_publishers_while_the_broker_is_away(tmp_path, caplog) -> None:
         twist = node.create_publisher("geometry_msgs/msg/Twist", "cmd/twist", 10)
         stop = node.create_publisher("std_msgs/msg/Bool", "cmd/emergency_stop", 10)
         broker.stop()
-        _wait(lambda: not node.client.connected, 15, "the node did not notice the broker leave")
+        _wait(lambda: not node.robot_client.connected, 15, "the node did not notice the broker leave")
         with caplog.at_level("WARNING"):
             for _ in range(20):
                 twist.publish({"linear": {"x": 0.1}})
@@ -181,7 +181,7 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
         assert type(refused.value).__name__ == "LoginRefused"
         with pytest.raises(ConnectError, match="refused the login"):
             motion.get(timeout=5)  # a waiting reader is told, not left waiting forever
-        assert node.client.login_refused is not None
+        assert node.robot_client.login_refused is not None
         with pytest.raises(ConnectError, match="refused the login"):
             rclpy.spin(node)  # would otherwise spin forever on a connection that is over
     finally:

@@ -88,7 +88,7 @@ def create_node(node_name: str, *, robot: str | None = None, url: str | None = N
 
 def _check_login(node: Node) -> None:
     """A node whose login the broker refused on a reconnect will never hear anything again: say so."""
-    failure = node.client.login_refused
+    failure = node.robot_client.login_refused
     if failure is not None:
         raise failure
 

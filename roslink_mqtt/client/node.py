@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import secrets
 import threading
+import warnings
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -71,11 +72,12 @@ class Publisher:
         self.mqtt_qos = mqtt_qos(qos_profile)  # None: the SDK's per-command default
         self.leaf = command_leaf(topic)
         self.command = roslink_command(self.leaf)  # "twist" etc., None for generic rules
-        self.topic = node.client.topics.from_user(node.robot, node.client.username, self.leaf)
+        self.topic = node.robot_client.topics.from_user(node.robot, node.robot_client.username, self.leaf)
         # a generic rule's ROS publisher may exist only while someone advertises it (on_demand rules)
-        self.advertised = bool(self.command is None and isinstance(msg_type, str) and node.client.connection.presence)
+        self.advertised = bool(self.command is None and isinstance(msg_type, str)
+                               and node.robot_client.connection.presence)
         if self.advertised:
-            node.client.advertise(node.robot, self.leaf, msg_type)
+            node.robot_client.advertise(node.robot, self.leaf, msg_type)
 
     @property
     def topic_name(self) -> str:
@@ -96,7 +98,7 @@ class Publisher:
         if self.command is not None:
             payload = ros_shaped_to_roslink(self.command, payload)
         try:
-            self._node.client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
+            self._node.robot_client.command(self._node.robot, self.leaf, payload, qos=self.mqtt_qos)
         except (NotConnectedError, CommandRefused) as err:
             if self.command == "emergency_stop":
                 raise
@@ -107,7 +109,7 @@ class Publisher:
 
     def get_subscription_count(self) -> int:
         """1 while the robot is online (its bridge is the only reader), else 0."""
-        info = self._node.client.robot(self._node.robot)
+        info = self._node.robot_client.robot(self._node.robot)
         return int(info is not None and info.online)
 
     def destroy(self) -> None:
@@ -128,7 +130,7 @@ class Subscription:
         self._node, self.msg_type, self.callback, self.qos_profile = node, msg_type, callback, qos_profile
         mqtt_qos(qos_profile)  # refuse a nonsense profile here too; state arrives at the robot's own MQTT QoS
         self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
-        self._sub: StateSubscription = node.client.subscribe(node.robot, topic, self._deliver)
+        self._sub: StateSubscription = node.robot_client.subscribe(node.robot, topic, self._deliver)
         self.topic_name = f"state/{self._sub.name}"
 
     def _deliver(self, item: StateItem) -> None:
@@ -155,7 +157,7 @@ class Service:
     def __init__(self, node: Node, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any],
                  timeout: float) -> None:
         self._node, self.srv_type, self.srv_name, self.callback = node, srv_type, srv_name.strip("/"), callback
-        self._offer = node.client.provide(node.robot, self.srv_name, srv_type, self._handle, timeout=timeout)
+        self._offer = node.robot_client.provide(node.robot, self.srv_name, srv_type, self._handle, timeout=timeout)
 
     def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
         response: dict[str, Any] = {}
@@ -182,22 +184,22 @@ class Client:
 
     def call_async(self, request: dict[str, Any] | None = None) -> Future[Values]:
         """A future with the response dict (``result()``, ``done()``); ServiceError on failure."""
-        return self._node.client.call_future(self._node.robot, self.srv_name, request, self.timeout)
+        return self._node.robot_client.call_future(self._node.robot, self.srv_name, request, self.timeout)
 
     def call(self, request: dict[str, Any] | None = None, timeout_sec: float | None = None) -> Values:
         """Blocking call; works without spinning. Raises ServiceError / ServiceTimeout."""
-        return self._node.client.call(self._node.robot, self.srv_name, request,
+        return self._node.robot_client.call(self._node.robot, self.srv_name, request,
                                       self.timeout if timeout_sec is None else timeout_sec)
 
     def service_is_ready(self) -> bool:
         """Best effort: the robot is online (the bridge answers for its services; it cannot be asked cheaply)."""
-        info = self._node.client.robot(self._node.robot)
+        info = self._node.robot_client.robot(self._node.robot)
         return info is not None and info.online
 
     def wait_for_service(self, timeout_sec: float | None = None) -> bool:
         """Wait until :meth:`service_is_ready`; False on timeout."""
         robot = self._node.robot
-        return self._node.client.directory.wait(lambda robots: robot in robots and robots[robot].online,
+        return self._node.robot_client.directory.wait(lambda robots: robot in robots and robots[robot].online,
                                                 float("inf") if timeout_sec is None else timeout_sec)
 
     def destroy(self) -> None:
@@ -244,6 +246,11 @@ class Node:
     Connection arguments default to ``ROSLINK_URL``, ``ROSLINK_USERNAME``,
     ``ROSLINK_PASSWORD`` and ``ROSLINK_ROBOT``, so ``create_node("name")``
     alone works when the environment names the robot and the login.
+
+    ``robot_client`` is the node's :class:`RobotClient` (its one MQTT connection),
+    for what rclpy has no name for: the robot directory, ``recent_errors``, raw
+    commands. It was called ``client``, which read as this module's :class:`Client`
+    (an rclpy service client); ``client`` still works for one release and warns.
     """
 
     def __init__(self, node_name: str, *, robot: str | None = None, url: str | None = None,
@@ -261,14 +268,14 @@ class Node:
         self._scheduler = Scheduler(f"{node_name}-timers")
         self._logger = Logger(node_name)
         username = username or os.environ.get("ROSLINK_USERNAME") or ""
-        self.client = RobotClient(username or None, password, url=url, robots=[self.robot],
+        self.robot_client = RobotClient(username or None, password, url=url, robots=[self.robot],
                                   client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(8)}",
                                   presence=presence, ca_file=ca_file, insecure_tls=insecure_tls, prefix=prefix,
                                   keepalive=keepalive, on_error=self._on_robot_error, callbacks=self._callbacks)
         self._entities: list[Publisher | Subscription | Service | Client | Timer] = []
         self._destroyed = False
         try:
-            self.client.connect(connect_timeout)
+            self.robot_client.connect(connect_timeout)
         except Exception:
             self._scheduler.close()
             raise
@@ -287,6 +294,13 @@ class Node:
     @property
     def destroyed(self) -> bool:
         return self._destroyed
+
+    @property
+    def client(self) -> RobotClient:
+        """Deprecated name of :attr:`robot_client` (it is not a :class:`Client`); removed in the next release."""
+        warnings.warn("Node.client is deprecated: use Node.robot_client (Node.client is not an rclpy-style Client)",
+                      DeprecationWarning, stacklevel=2)
+        return self.robot_client
 
     # -- entities -----------------------------------------------------------------------
     def create_publisher(self, msg_type: MsgType, topic: str, qos_profile: Any = 10, **_rclpy_options: Any
@@ -319,7 +333,7 @@ class Node:
         if not self._remove(publisher):
             return False
         if publisher.advertised:
-            self.client.unadvertise(self.robot, publisher.leaf)
+            self.robot_client.unadvertise(self.robot, publisher.leaf)
         return True
 
     def destroy_subscription(self, subscription: Subscription) -> bool:
@@ -352,7 +366,7 @@ class Node:
         for entity in list(self._entities):
             if isinstance(entity, Timer):
                 entity.cancel()
-        self.client.close()  # withdraws every provided service first
+        self.robot_client.close()  # withdraws every provided service first
         self._scheduler.close()
         self._entities.clear()
         self._callbacks.wake()
@@ -383,4 +397,4 @@ class Node:
         self._logger.warning(f"{self.robot} refused {error.topic}: {error.error}", throttle_duration_sec=5.0)
 
     def __repr__(self) -> str:
-        return f"<Node {self._name} robot={self.robot} user={self.client.username}>"
+        return f"<Node {self._name} robot={self.robot} user={self.robot_client.username}>"
