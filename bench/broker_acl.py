@@ -20,11 +20,8 @@ embedded broker under 15 % of throughput. Clients are paho (TCP_NODELAY via
 from __future__ import annotations
 
 import argparse
-import getpass
 import os
-import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -33,10 +30,8 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import orjson
-from _children import free_port, start_process, wait_port
 
-from roslink_mqtt.broker.export import export_mosquitto
-from roslink_mqtt.config import load_fleet
+from roslink_mqtt.localproc import LocalProcess, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
 from roslink_mqtt.mqtt import make_client
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,35 +40,26 @@ PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo"}
 TOPIC = "roslink/turtle1/state/robot_status"
 
 
-def fleet_copy(workdir: Path, port: int) -> Path:
-    path = workdir / "robots.yaml"
-    path.write_text(CONFIG.read_text().replace("  port: 1883\n  ws_port: 8083\n", f"  port: {port}\n  ws_port: 0\n"))
-    return path
-
-
-def start_embedded(stack: ExitStack, acl: bool, log: Path) -> tuple[subprocess.Popen, int]:
+def start_embedded(stack: ExitStack, acl: bool, log: Path) -> tuple[LocalProcess, int]:
     port = free_port()
     args = [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(CONFIG), "--host", "127.0.0.1",
             "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"] + ([] if acl else ["--no-acl"])
-    proc = start_process(stack, args, log, dict(os.environ))
-    wait_port(port, proc, "embedded broker", log)
+    proc = start_child(stack, args, log, dict(os.environ), port=port, what="embedded broker")
     return proc, port
 
 
-def start_mosquitto(stack: ExitStack, workdir: Path, log: Path) -> tuple[subprocess.Popen, int] | None:
-    exe = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None)
-    if exe is None:
+def start_mosquitto(stack: ExitStack, workdir: Path, log: Path) -> tuple[LocalProcess, int] | None:
+    if mosquitto_exe() is None:
         return None
-    port = free_port()
-    files = export_mosquitto(load_fleet(fleet_copy(workdir, port)), workdir / "mosquitto")
-    conf = workdir / "mosquitto-bench.conf"
-    # Started as root, Mosquitto would drop to user 'mosquitto', who cannot read the 0600 export.
-    # Its default max_queued_messages (1000) drops QoS>0 messages for a subscriber that falls behind;
+    # a copy of the fleet because the exported config takes its port from the fleet file
+    fleet = fleet_copy(workdir / "robots.yaml", CONFIG, port=free_port(), ws_port=0)
+    # The exported config's max_queued_messages (1000) drops QoS>0 messages for a subscriber that falls behind;
     # paho in Python always falls behind Mosquitto, and a benchmark must not lose messages.
-    conf.write_text(files.conf.read_text() + f"user {getpass.getuser()}\nmax_queued_messages 0\n")
-    proc = start_process(stack, [exe, "-c", str(conf)], log, dict(os.environ))
-    wait_port(port, proc, "mosquitto", log)
-    return proc, port
+    mosquitto = Mosquitto.exported(workdir, fleet, "max_queued_messages 0", export_dir="mosquitto",
+                                   conf_name="mosquitto-bench.conf", log_name=log.name)
+    stack.callback(mosquitto.stop)
+    mosquitto.start()
+    return mosquitto, mosquitto.port
 
 
 def connect(port: int, login: str, client_id: str):

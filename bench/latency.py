@@ -40,10 +40,8 @@ Never asserts on timing: it prints one table.
 from __future__ import annotations
 
 import argparse
-import getpass
 import importlib.metadata
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -58,12 +56,10 @@ from typing import Any
 
 import orjson
 import paho.mqtt.client as mqtt
-import yaml
-from _children import free_port, start_process, tail, wait_port
 
-from roslink_mqtt.broker.export import export_mosquitto
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.config import load_fleet
+from roslink_mqtt.localproc import ChildExited, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child, tail
 from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.protocol import SystemStatus
 from roslink_mqtt.topics import TopicTree
@@ -124,59 +120,46 @@ def bench_fleet(work: Path, port: int, keep_throttle: bool) -> Path:
     A copy because Mosquitto's exported config takes its port from the fleet file, and because the
     throttle would be measured instead of the bridge (see the module docstring).
     """
-    data = yaml.safe_load(CONFIG.read_text())
-    data["broker"].update(port=port, ws_port=0)
-    if not keep_throttle:
-        for rule in data["robots"][ROBOT]["rules"]:
-            if rule.get("mqtt_topic") == f"state/{STATE_NAME}":
-                rule.pop("max_rate", None)
-    path = work / f"robots-{port}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    def lift_throttle(data: dict[str, Any]) -> None:
+        rules = [rule for rule in data["robots"][ROBOT]["rules"] if rule.get("mqtt_topic") == f"state/{STATE_NAME}"]
+        if len(rules) != 1:  # an edit that finds nothing must not silently measure the throttle
+            raise SystemExit(f"latency bench: expected one state/{STATE_NAME} rule for {ROBOT}, found {len(rules)}")
+        rules[0].pop("max_rate", None)
+
+    return fleet_copy(work / f"robots-{port}.yaml", CONFIG, port=port, ws_port=0,
+                      edit=None if keep_throttle else lift_throttle)
 
 
 # -- brokers and the bridge -----------------------------------------------------------------------
-def mosquitto_exe() -> str | None:
-    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    return exe if Path(exe).exists() else None
-
-
 def start_embedded(stack: ExitStack, work: Path, env: dict[str, str], keep_throttle: bool) -> tuple[int, Path]:
     """The embedded amqtt broker as deployed (logins + ACL), on a free loopback port."""
     port = free_port()
     fleet = bench_fleet(work, port, keep_throttle)
-    log = work / "embedded.log"
-    proc = start_process(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                 "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
-                         log, env)
-    wait_port(port, proc, "embedded broker", log)
+    start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
+                        "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
+                work / "embedded.log", env, port=port, what="embedded broker")
     return port, fleet
 
 
 def start_mosquitto(stack: ExitStack, work: Path, env: dict[str, str], keep_throttle: bool
                     ) -> tuple[int, Path] | None:
     """Mosquitto running exactly what ``roslink-mqtt acl export`` writes (set_tcp_nodelay included)."""
-    exe = mosquitto_exe()
-    if exe is None:
+    if mosquitto_exe() is None:
         return None
     port = free_port()
     fleet = bench_fleet(work, port, keep_throttle)
-    files = export_mosquitto(load_fleet(fleet), work / "mosquitto")
-    conf = work / "mosquitto-run.conf"
-    # Started as root, Mosquitto would drop to user 'mosquitto', who cannot read the 0600 export.
-    conf.write_text(files.conf.read_text() + f"user {getpass.getuser()}\n")
-    log = work / "mosquitto.log"
-    proc = start_process(stack, [exe, "-c", str(conf)], log, env)
-    wait_port(port, proc, "mosquitto", log)
+    mosquitto = Mosquitto.exported(work, fleet, export_dir="mosquitto")
+    stack.callback(mosquitto.stop)
+    mosquitto.start()
     return port, fleet
 
 
 def start_bridge(stack: ExitStack, work: Path, env: dict[str, str], fleet: Path, port: int) -> Path:
     """The robot's bridge, as a robot runs it; returns its log (printed if it never comes up)."""
     log = work / f"bridge-{port}.log"
-    start_process(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
-                          ROBOT, "--broker", f"mqtt://127.0.0.1:{port}", "--log-level", "WARNING"],
-                  log, {**env, "ROSLINK_MQTT_PASSWORD": ROBOT_PASSWORD})
+    start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
+                        ROBOT, "--broker", f"mqtt://127.0.0.1:{port}", "--log-level", "WARNING"],
+                log, {**env, "ROSLINK_MQTT_PASSWORD": ROBOT_PASSWORD})
     return log
 
 
@@ -394,8 +377,8 @@ def run_direct(ros: RosSide, work: Path, env: dict[str, str], count: int, rate: 
     ros.cmd, ros.state = cmd, state
     log = work / "ros-sender.log"
     with ExitStack() as phase:
-        proc = start_process(phase, [sys.executable, str(Path(__file__).resolve()), "--ros-sender", "--count",
-                                     str(count), "--rate", str(rate)], log, env)
+        proc = start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--ros-sender", "--count",
+                                   str(count), "--rate", str(rate)], log, env).popen
         try:
             proc.wait(timeout=30 + (WARMUP + count) / rate)
         except subprocess.TimeoutExpired:
@@ -603,6 +586,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # every child was stopped on the way out
         print("latency bench: interrupted", file=sys.stderr)
         return 130
+    except (ChildExited, TimeoutError) as e:  # a broker or the bridge did not come up: its log's tail is in e
+        raise SystemExit(f"latency bench: {e}") from None
     report(results, args.count, args.rate, facts, args.keep_throttle)
     print(f"run took {time.monotonic() - began:.1f} s")
     return 0

@@ -2,8 +2,9 @@
 
     .venv/bin/python bench/services.py [--calls 1000] [--warmup 50] [--max-seconds 120]
 
-Starts its own Mosquitto (127.0.0.1, the demo fleet's logins), the simulated
-robot and the bridge for turtle1, with DDS kept on loopback and a fresh ROS
+Starts its own Mosquitto (127.0.0.1) running exactly what ``roslink-mqtt acl export``
+writes for the demo fleet (logins and ACL: the deployed configuration, as in
+bench/latency.py), the simulated robot and the bridge for turtle1, with DDS kept on loopback and a fresh ROS
 domain. Then, one call at a time, the same std_srvs/srv/Trigger ``reset`` of
 the sim robot is called
 
@@ -15,7 +16,7 @@ and, for the other direction, an rclpy client calls a trivial Trigger service
 back. The paths take turns call by call (round robin), so a busy moment on the
 machine lands on all of them. Prints p50/p99/mean/max per path. Loopback only.
 
-Mosquitto runs with ``set_tcp_nodelay true``: without it, a reply that Mosquitto
+The exported config has ``set_tcp_nodelay true``: without it, a reply that Mosquitto
 writes right after its PUBACK to the same client waits for the client's delayed
 ACK (Nagle), and every call over MQTT takes ~40 ms longer.
 """
@@ -23,9 +24,7 @@ ACK (Nagle), and every call over MQTT takes ~40 ms longer.
 from __future__ import annotations
 
 import argparse
-import getpass
 import os
-import shutil
 import statistics
 import sys
 import tempfile
@@ -35,30 +34,23 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
-from _children import free_port, start_process, wait_port
+from roslink_mqtt.localproc import ChildExited, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 
 
 # -- processes ----------------------------------------------------------------------------------
-def start_mosquitto(stack: ExitStack, work: Path, env: dict[str, str]) -> int:
-    from roslink_mqtt.config import load_fleet
-
-    mosquitto = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not Path(mosquitto).exists():
+def start_mosquitto(stack: ExitStack, work: Path) -> tuple[int, Path]:
+    """Mosquitto with the fleet's exported logins and ACL, on a free loopback port; returns it and the fleet copy."""
+    if mosquitto_exe() is None:
         raise SystemExit("services bench: needs Mosquitto (apt-get install mosquitto)")
-    fleet = load_fleet(CONFIG)
-    passwd = work / "passwd"
-    passwd.write_text("".join(f"{name}:{fleet.password_hash(name)}\n" for name in [*fleet.robots, *fleet.users]))
-    port = free_port()
-    conf = work / "mosquitto.conf"
-    # set_tcp_nodelay: without it Mosquitto's reply can wait ~40 ms behind its own PUBACK (Nagle vs delayed ACK)
-    conf.write_text(f"user {getpass.getuser()}\nlistener {port} 127.0.0.1\npersistence false\n"
-                    f"allow_anonymous false\npassword_file {passwd}\nset_tcp_nodelay true\nlog_dest stderr\n")
-    proc = start_process(stack, [mosquitto, "-c", str(conf)], work / "mosquitto.log", env)
-    wait_port(port, proc, "mosquitto")
-    return port
+    # a copy of the fleet because the exported config takes its port from the fleet file
+    fleet = fleet_copy(work / "robots.yaml", CONFIG, port=free_port(), ws_port=0)
+    mosquitto = Mosquitto.exported(work, fleet)
+    stack.callback(mosquitto.stop)
+    mosquitto.start()
+    return mosquitto.port, fleet
 
 
 # -- measuring ------------------------------------------------------------------------------------
@@ -115,12 +107,15 @@ def main(argv: list[str] | None = None) -> int:
     budget = Budget(args.max_seconds)
     with ExitStack() as stack, tempfile.TemporaryDirectory(prefix="roslink-bench-") as tmp:
         work = Path(tmp)
-        port = start_mosquitto(stack, work, env)
+        try:
+            port, fleet = start_mosquitto(stack, work)
+        except (ChildExited, TimeoutError) as e:
+            raise SystemExit(f"services bench: {e}") from None
         url = f"mqtt://127.0.0.1:{port}"
-        start_process(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
-        start_process(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(CONFIG), "--robot",
-                       "turtle1", "--broker", url, "--log-level", "WARNING"], work / "bridge.log",
-               {**env, "ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
+        start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
+        start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
+                            "turtle1", "--broker", url, "--log-level", "WARNING"], work / "bridge.log",
+                    {**env, "ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
 
         rclpy.init()
         stack.callback(rclpy.try_shutdown)
@@ -176,8 +171,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import paho.mqtt
 
-    print(f"\nROS service round trip (std_srvs/srv/Trigger), one call at a time, loopback: Mosquitto, "
-          f"ROS 2 Jazzy {os.environ.get('RMW_IMPLEMENTATION')}, paho-mqtt {paho.mqtt.__version__}")
+    print(f"\nROS service round trip (std_srvs/srv/Trigger), one call at a time, loopback: "
+          f"Mosquitto with the exported ACL, ROS 2 Jazzy {os.environ.get('RMW_IMPLEMENTATION')}, "
+          f"paho-mqtt {paho.mqtt.__version__}")
     print(f"{'path':<52} {'p50 ms':>8} {'p99 ms':>8} {'mean ms':>8} {'max ms':>8} {'calls':>7}")
     for name, samples in results:
         print(row(name, samples))

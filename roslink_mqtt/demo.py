@@ -12,8 +12,6 @@ from __future__ import annotations
 import argparse
 import os
 import queue
-import socket
-import subprocess
 import sys
 import time
 from contextlib import ExitStack
@@ -23,6 +21,7 @@ import orjson
 
 from .config import load_fleet
 from .fastdds_shm import remove_zombie_segments
+from .localproc import ChildExited, LocalProcess, free_port, port_free, start_child
 from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, decode
@@ -30,34 +29,6 @@ from .ros_env import local_ros_env
 from .topics import TopicTree
 
 DEMO_PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo", "bob": "bob-demo"}
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        try:
-            s.bind(("127.0.0.1", port))
-            return True
-        except OSError:
-            return False
-
-
-def _wait_port(port: int, proc: subprocess.Popen, what: str, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"demo: {what} exited early (code {proc.returncode}); see its log")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.1)
-    raise SystemExit(f"demo: {what} did not open port {port}")
 
 
 class Scene:
@@ -150,23 +121,24 @@ def main(argv: list[str] | None = None) -> int:
     topics = fleet.topics
     logs = Path(args.logs)
     logs.mkdir(parents=True, exist_ok=True)
-    port = fleet.broker.port if _port_free(fleet.broker.port) else _free_port()
+    port = fleet.broker.port if port_free(fleet.broker.port) else free_port()
     remove_zombie_segments()  # a killed earlier run must not leave this one stale DDS state
     env = local_ros_env()
     print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (DDS on loopback), "
           f"logs in {logs}/")
     with ExitStack() as stack:
-        def start(name: str, cmd: list[str], extra_env: dict[str, str] | None = None) -> subprocess.Popen:
-            log = open(logs / f"{name}.log", "wb")  # noqa: SIM115 - closed by the stack
-            stack.callback(log.close)
-            proc = subprocess.Popen([sys.executable, *cmd], stdout=log, stderr=subprocess.STDOUT,
-                                    env={**env, **(extra_env or {}), "PYTHONUNBUFFERED": "1"})
-            stack.callback(_stop, proc)
-            return proc
+        def start(name: str, cmd: list[str], extra_env: dict[str, str] | None = None,
+                  port: int | None = None) -> LocalProcess:
+            """Start ``python cmd…``; stopped (SIGINT, then SIGKILL) when the stack closes, whatever happens."""
+            try:
+                return start_child(stack, [sys.executable, *cmd], logs / f"{name}.log",
+                                   {**env, **(extra_env or {}), "PYTHONUNBUFFERED": "1"}, port=port,
+                                   what=f"the {name}")
+            except (ChildExited, TimeoutError) as e:
+                raise SystemExit(f"demo: {e}") from None
 
-        broker = start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
-                                  "--port", str(port), "--ws-port", "0"])
-        _wait_port(port, broker, "the broker")
+        start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
+                         "--port", str(port), "--ws-port", "0"], port=port)
         print("1. embedded broker up (authentication + ROSLink-key ACLs)")
         start("sim", ["-m", "roslink_mqtt.sim"])
         start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot", "turtle1",
@@ -216,16 +188,6 @@ def main(argv: list[str] | None = None) -> int:
             print("  (no failsafe notice seen)")
         print("Done: stopping the bridge (its offline heartbeat is retained), robot and broker.")
     return 0
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(2)  # SIGINT: clean shutdown
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ The broker's output goes to ``workdir/embedded-broker.log`` (appended across res
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -34,7 +33,8 @@ class EmbeddedBrokerProcess(ManagedProcess):
         self.port = free_port()
         self.ws_port = free_port() if ws else 0
         self.extra_args = list(extra_args)
-        self.log = self.workdir / log_name
+        super().__init__(self.args, self.workdir / log_name, cwd=ROOT, port=self.port, what="embedded broker",
+                         append=True)
         self._log_offset = 0
 
     @property
@@ -43,16 +43,14 @@ class EmbeddedBrokerProcess(ManagedProcess):
                 "--port", str(self.port), "--ws-port", str(self.ws_port), *self.extra_args]
 
     def start(self, timeout: float = 15.0) -> EmbeddedBrokerProcess:
+        self.ready_timeout = timeout
         self._log_offset = self.log.stat().st_size if self.log.exists() else 0  # a restart appends
-        with open(self.log, "ab") as log:
-            self.proc = subprocess.Popen(self.args, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
-        self._wait_ready(timeout)
-        return self
+        return super().start()
 
-    def _wait_ready(self, timeout: float) -> None:
+    def wait_ready(self) -> None:
         """Ready = the 'listening on' line is logged (every listener is bound by then)."""
         assert self.proc is not None
-        deadline = time.monotonic() + timeout
+        deadline = time.monotonic() + self.ready_timeout
         marker = f"listening on mqtt://127.0.0.1:{self.port}".encode()
         while time.monotonic() < deadline:
             if marker in self.log.read_bytes()[self._log_offset:]:
@@ -60,5 +58,5 @@ class EmbeddedBrokerProcess(ManagedProcess):
             if self.proc.poll() is not None:
                 raise RuntimeError(f"embedded broker exited with {self.proc.returncode}:\n{self.output()[-3000:]}")
             time.sleep(0.05)
-        self.kill()
-        raise TimeoutError(f"embedded broker not ready on port {self.port} after {timeout} s:\n{self.output()[-3000:]}")
+        raise TimeoutError(f"embedded broker not ready on port {self.port} after {self.ready_timeout} s:\n"
+                           f"{self.output()[-3000:]}")
