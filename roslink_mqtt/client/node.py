@@ -24,6 +24,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
+from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
 from ..topics import DEFAULT_PREFIX, check_name
 from .calls import Values
 from .commands import command_leaf, roslink_command
@@ -47,16 +48,12 @@ def ros_shaped_to_roslink(command: str, msg: dict[str, Any]) -> dict[str, Any]:
     ``{"lx": .2, "az": .5}``; a PoseStamped/Pose/Point on ``cmd/go_to_waypoint``
     becomes ``{"x", "y", "z"}``; ``{"data": true}`` (std_msgs/Bool) on a command
     without fields (``arm``, ``disarm``, ``land``) becomes ``{}``. ROSLink-shaped
-    dicts pass unchanged.
+    dicts pass unchanged. The field mapping is :mod:`roslink_mqtt.ros_shape`'s, which the bridge reads back.
     """
-    if command == "twist" and ("linear" in msg or "angular" in msg):
-        lin, ang = msg.get("linear") or {}, msg.get("angular") or {}
-        return {"lx": lin.get("x", 0.0), "ly": lin.get("y", 0.0), "lz": lin.get("z", 0.0),
-                "ax": ang.get("x", 0.0), "ay": ang.get("y", 0.0), "az": ang.get("z", 0.0)}
-    if command == "go_to_waypoint" and ("pose" in msg or "position" in msg):
-        pose = msg.get("pose", msg)
-        point = pose.get("position", pose) if isinstance(pose, dict) else {}
-        return {"x": point.get("x", 0.0), "y": point.get("y", 0.0), "z": point.get("z", 0.0)}
+    if command == "twist" and is_ros_twist(msg):
+        return twist_from_ros(msg)
+    if command == "go_to_waypoint" and is_ros_pose(msg):
+        return point_from_ros(msg)
     if command in ("arm", "disarm", "land", "get_map") and set(msg) == {"data"}:
         if msg["data"] is not True:
             raise InvalidArgument(f"{command}: {{'data': {msg['data']!r}}} would do nothing; send {{'data': True}}")

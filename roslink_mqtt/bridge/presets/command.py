@@ -10,6 +10,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ...ros_shape import fill_point, fill_twist
+
 Payload = dict[str, Any]
 
 WAYPOINT_FRAMES = {0: "map", 2: "base_link"}
@@ -32,9 +34,7 @@ def _is_stamped(cls: type) -> bool:
 
 def twist(payload: Payload, cls: type) -> Any:
     msg = cls()
-    target = msg.twist if _is_stamped(cls) else msg
-    target.linear.x, target.linear.y, target.linear.z = payload["lx"], payload["ly"], payload["lz"]
-    target.angular.x, target.angular.y, target.angular.z = payload["ax"], payload["ay"], payload["az"]
+    fill_twist(msg.twist if _is_stamped(cls) else msg, payload)
     return msg
 
 
@@ -47,7 +47,7 @@ def go_to_waypoint(payload: Payload, cls: type) -> Any:
     msg = cls()
     msg.header.frame_id = frame
     point = msg.pose.position if hasattr(msg, "pose") else msg.point
-    point.x, point.y, point.z = float(payload["x"]), float(payload["y"]), float(payload["z"])
+    fill_point(point, payload)
     if hasattr(msg, "pose"):
         msg.pose.orientation.w = 1.0
     return msg
