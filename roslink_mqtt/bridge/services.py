@@ -1,4 +1,4 @@
-"""Services in both directions (DESIGN §6).
+"""Services in both directions (docs/protocol.md, "Services").
 
 * :class:`ServiceCaller` — MQTT users call the robot's ROS services:
   ``from/<user>/call/<name>`` ``{"id", "args"}`` → ``to/<user>/reply/<name>``
