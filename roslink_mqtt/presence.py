@@ -1,4 +1,4 @@
-"""Operator presence (DESIGN §5): who is alive, decided from retained heartbeats and last-wills.
+"""Operator presence (docs/safety.md, "Presence"): who is alive, decided from retained heartbeats and last-wills.
 
 An operator client publishes a retained heartbeat on
 ``roslink/operators/<user>/<client_id>`` about once a second; its last-will

@@ -1,4 +1,4 @@
-"""The MQTT topic tree (DESIGN §3): build and parse every topic ROSLink uses.
+"""The MQTT topic tree (docs/protocol.md, "Topic tree"): build and parse every topic ROSLink uses.
 
 Builders refuse names that would change a topic's meaning: a robot called
 ``+`` or a user called ``a/b`` would let one principal's topic match

@@ -15,7 +15,7 @@ Actions per (principal, topic class):
 * ``retained``  a retained message set before the principal subscribed arrives
 
 A final sweep checks every message any principal received against an independent oracle
-written from DESIGN §3: zero leaks.
+written from broker/README.md ("What it enforces"): zero leaks.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ ACTIONS = ("publish", "subscribe", "receive", "retained")
 WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "roslink/turtle2/#",
              "roslink/+/to/+/#", "roslink/operators/#", "$SYS/#")
 
-# The documented outcome (DESIGN §3, issue 3). r = may read (subscribe, receive, retained),
+# The documented outcome (broker/README.md "What it enforces", issue 3). r = may read (subscribe, receive, retained),
 # w = may publish. Unlisted classes: nothing. "other" is bob (alice for bob himself).
 EXPECTED: dict[str, dict[str, str]] = {
     "turtle1": {"heartbeat@turtle1": "w", "state@turtle1": "w", "to/self@turtle1": "w", "to/other@turtle1": "w",
@@ -106,7 +106,7 @@ def topic_of(cls: str, me: str, *, publish: bool = False) -> str:
     }[kind]
 
 
-# -- an independent oracle, written from DESIGN §3 (not from roslink_mqtt.broker.acl) -------
+# -- an independent oracle, written from broker/README.md (not from roslink_mqtt.broker.acl) --
 
 
 def may_read(login: str, topic: str) -> bool:

@@ -1,4 +1,4 @@
-"""Topic tree: every DESIGN §3 topic is built and parsed back; bad names refused."""
+"""Topic tree: every topic in docs/protocol.md's tree is built and parsed back; bad names refused."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
 """The robot side: an rclpy node mapping ROS topics and services to MQTT. Needs the ``[bridge]`` extra.
 
-Imports rclpy, never amqtt (DESIGN §2).
+Imports rclpy, never amqtt: a robot installs ``[bridge]`` without ``[broker]`` (pyproject.toml).
 """

@@ -1,6 +1,6 @@
 """When must the robot stop? Pure decision logic, driven by the bridge's clock.
 
-Triggers (DESIGN §5): the operator who last commanded motion goes away; the
+Triggers (docs/safety.md, "When the robot stops"): the operator who last commanded motion goes away; the
 bridge loses the broker; the velocity stream goes silent for
 ``command_timeout`` (dead-man). The bridge calls :meth:`Failsafe.tick`
 often (20 Hz) and acts on the reason it returns; events that are known at

@@ -1,4 +1,4 @@
-"""Who may read and write which topic: DESIGN §3 as pure logic, derived from a :class:`Fleet`.
+"""Who may read and write which topic: broker/README.md's table as pure logic, derived from a :class:`Fleet`.
 
 One list of :class:`AclEntry` per login is the single source of truth. The embedded
 broker's topic plugin decides from it, and ``roslink-mqtt acl export`` writes the same

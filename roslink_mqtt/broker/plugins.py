@@ -88,7 +88,7 @@ class FleetAuthPlugin(BaseAuthPlugin):
 
 
 class FleetAclPlugin(BaseTopicPlugin):
-    """DESIGN §3 access rules on PUBLISH, SUBSCRIBE and RECEIVE, cached per session.
+    """The access rules of broker/acl.py on PUBLISH, SUBSCRIBE and RECEIVE, cached per session.
 
     The verdict for (topic, action) is computed once per session from the current
     :class:`~roslink_mqtt.broker.acl.FleetAcl` and kept in ``session.attributes``; after a
