@@ -61,8 +61,8 @@ class Stack:
         assert viewer.connect() == 0
         self.exits.callback(viewer.close)
         viewer.subscribe("roslink/turtle1/#")
-        viewer.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                        timeout=30)
+        self.heartbeat = viewer.wait_for(
+            lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4, timeout=30).json()
         return viewer
 
     @contextmanager
@@ -207,13 +207,18 @@ def test_broker_fault_stops_robot(stack: Stack, sig: int) -> None:
 
 
 def test_broker_restart_bridge_recovers(stack: Stack) -> None:
+    before = stack.viewer.wait_for(lambda m: m.topic.endswith("/heartbeat"), timeout=3).json()
     stack.broker.kill()
     time.sleep(0.5)
     restart = time.monotonic()
     stack.broker.start()
-    viewer = stack.connect_viewer()  # waits for a fresh retained heartbeat (status ACTIVE)
+    stack.connect_viewer()  # waits for a retained heartbeat with status ACTIVE
     _check(stack, "broker restart → bridge back online", time.monotonic() - restart, 5.0)
-    assert viewer
+    after = stack.heartbeat
+    # The same bridge process came back (not a restarted one) and this heartbeat was sent after the restart.
+    assert stack.bridge.poll() is None, "the bridge exited when the broker went away"
+    assert after["payload"]["session"] == before["payload"]["session"], (before, after)
+    assert after["sequence_number"] > before["sequence_number"], (before, after)
     t0 = time.monotonic()
     with stack.operator():
         stack.wait_moving(t0)  # commands work again
