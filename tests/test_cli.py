@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -45,14 +46,36 @@ def test_echo_prints_state_as_json(port) -> None:
     assert len(lines) == 2 and {"x", "y", "yaw"} <= set(orjson.loads(lines[0]))
 
 
-def test_pub_stream_moves_robot_and_call_resets_it(port) -> None:
-    out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.5}', "--rate", "10", "--duration", "1.5")
-    assert out.returncode == 0 and "sent 15 × twist" in out.stdout, out.stdout + out.stderr
-    time.sleep(0.3)
-    motion = orjson.loads(cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1").stdout)
-    assert abs(motion["x"]) > 0.2 or abs(motion["y"]) > 0.2
+def _pose(port: int) -> tuple[float, float, float]:
+    out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "10")
+    assert out.returncode == 0, out.stderr
+    motion = orjson.loads(out.stdout)
+    return motion["x"], motion["y"], motion["yaw"]
+
+
+def _reset(port: int) -> None:
     reset = cli(port, "alice", "call", "turtle1", "reset")
     assert reset.returncode == 0 and '"success": true' in reset.stdout, reset.stdout + reset.stderr
+
+
+def test_pub_stream_moves_robot_and_call_resets_it(port) -> None:
+    # turtle1 is shared by this module's tests: start from the room centre and measure the displacement.
+    _reset(port)
+    time.sleep(0.3)
+    x0, y0, yaw0 = _pose(port)
+    assert abs(x0) < 0.05 and abs(y0) < 0.05, (x0, y0)
+    out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.5}', "--rate", "10", "--duration", "1.5")
+    assert out.returncode == 0 and "sent 15 × twist" in out.stdout, out.stdout + out.stderr
+    time.sleep(1.5)  # the dead-man (command_timeout 1.0 s) has stopped it
+    x1, y1, yaw1 = _pose(port)
+    ahead = (x1 - x0) * math.cos(yaw0) + (y1 - y0) * math.sin(yaw0)
+    aside = -(x1 - x0) * math.sin(yaw0) + (y1 - y0) * math.cos(yaw0)
+    # 0.5 m/s for 1.5 s = 0.75 m straight ahead, plus at most the dead-man's 1.0 s of coasting.
+    assert 0.6 < ahead < 1.3 and abs(aside) < 0.05 and abs(yaw1 - yaw0) < 0.05, (x0, y0, yaw0, x1, y1, yaw1)
+    _reset(port)
+    time.sleep(0.3)
+    x2, y2, _ = _pose(port)
+    assert abs(x2) < 0.05 and abs(y2) < 0.05, (x2, y2)  # back at the centre
 
 
 def test_clear_errors(port) -> None:
