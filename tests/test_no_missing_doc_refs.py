@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# "DESIGN §3", "DESIGN§3", "DESIGN.md": a section of, or the name of, the missing document.
+# The design document cited by section ("DESIGN" + " §3", also without the space) or by file name (".md").
 MISSING_DOC = re.compile(r"\bDESIGN\s*(?:§|\.md\b)")
 
 
