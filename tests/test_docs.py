@@ -20,11 +20,15 @@ def test_protocol_reference_is_current() -> None:
 
 
 def test_control_body_reference_is_current() -> None:
-    """The error and access reports (and the client_id every request may carry) are documented as coded."""
+    """Every control body (fields, topic, QoS, retain flag, id and version rules) is documented as coded."""
     text = (DOCS / "protocol.md").read_text()
     generated = text[text.index(BEGIN_CONTROL): text.index(END_CONTROL) + len(END_CONTROL)]
     assert generated == render_control(), "regenerate: python -m roslink_mqtt.protocol.reference --write docs/…"
-    for _title, _topic, cls in CONTROL_BODIES:
+    for title, topic, cls in CONTROL_BODIES:
+        section = generated[generated.index(f"#### {title}\n"):]
+        assert section.split("\n")[2] == (f"Topic: {topic}. Published with QoS {cls.QOS}, "
+                                          f"{'retained' if cls.RETAINED else 'not retained'}.")
         for field in cls.FIELDS:
-            assert f"| `{field.name}` |" in generated
+            assert f"| `{field.name}` |" in section
+    assert "`roslink_version`" in generated and "read the message as version 2" in generated
     assert "| `client_id` | string, 1..128 characters |" in text  # the envelope header table

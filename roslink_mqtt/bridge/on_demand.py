@@ -27,7 +27,8 @@ from typing import Any
 from rclpy.node import Node
 
 from ..config import Role
-from ..protocol import ProtocolError, loads
+from ..protocol import ProtocolError
+from ..protocol.control import Advertisement
 from .authorize import Verb, refusal
 from .rules import Inbound, ros_qos
 
@@ -68,20 +69,13 @@ class OnDemandPublishers:
             self.error(user, topic, why, payload=payload)
             return
         try:
-            body = loads(payload)
-            if not isinstance(body, dict) or not isinstance(body.get("type"), str):
-                raise ProtocolError('expected {"type": "pkg/msg/Type", "client_id": "<presence client id>"}')
-            unknown = sorted(set(body) - {"type", "client_id"})
-            if unknown:
-                raise ProtocolError(f"unknown field '{unknown[0]}' (fields: type, client_id)")
-            if body["type"] != rule.rule.ros_type:
-                raise ProtocolError(f"'{name}' carries {rule.rule.ros_type}, not {body['type']}")
-            client_id = body.get("client_id", IMPLICIT)
-            if not isinstance(client_id, str):
-                raise ProtocolError("client_id: expected a string")
+            advert = Advertisement.from_json(payload)
+            if advert.type != rule.rule.ros_type:
+                raise ProtocolError(f"'{name}' carries {rule.rule.ros_type}, not {advert.type}")
         except ProtocolError as err:
             self.error(user, topic, str(err), payload=payload)
             return
+        client_id = advert.client_id if advert.client_id is not None else IMPLICIT
         with self._lock:
             self._adverts[name][user] = client_id
 

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import orjson
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
@@ -29,8 +28,8 @@ from rclpy.qos import QoSProfile, qos_profile_services_default
 from rclpy.task import Future
 
 from ..config import Robot, Role, ServiceRule
-from ..protocol import ProtocolError, loads, sender_id
-from ..protocol.control import check_client_id
+from ..protocol import ProtocolError, sender_id
+from ..protocol.control import CallReply, CallRequest, ProviderRequest, ProviderResponse, ServiceOffer
 from ..topics import TopicTree
 from .authorize import Verb, refusal
 from .convert import ConversionError, converter_for
@@ -39,37 +38,12 @@ from .ros_types import UnknownTypeError, load_interface
 log = logging.getLogger("roslink_mqtt.bridge.services")
 
 Publish = Callable[[str, bytes], None]
-MAX_ID_LENGTH = 128
 
 
 def _reply(call_id: Any, *, values: dict | None = None, error: str | None = None,
            client_id: str | None = None) -> bytes:
     """A reply body; ``client_id`` repeats the caller's (every program of the user reads the reply topic)."""
-    body: dict[str, Any] = ({"id": call_id, "result": False, "error": error} if error is not None
-                            else {"id": call_id, "result": True, "values": values or {}})
-    if client_id is not None:
-        body["client_id"] = client_id
-    return orjson.dumps(body)
-
-
-def parse_request(payload: bytes) -> tuple[Any, dict, str | None]:
-    """``{"id": …, "args": {…}, "client_id": …}`` → (id, args, client_id or None); ProtocolError on anything else."""
-    body = loads(payload)
-    if not isinstance(body, dict):
-        raise ProtocolError("expected a JSON object {\"id\": …, \"args\": {…}}")
-    unknown = sorted(set(body) - {"id", "args", "client_id"})
-    if unknown:
-        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: id, args, client_id)")
-    client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-    call_id = body.get("id")
-    if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
-        raise ProtocolError("id: expected a string or integer")
-    if isinstance(call_id, str) and len(call_id) > MAX_ID_LENGTH:
-        raise ProtocolError(f"id: longer than {MAX_ID_LENGTH} characters")
-    args = body.get("args", {})
-    if not isinstance(args, dict):
-        raise ProtocolError("args: expected an object")
-    return call_id, args, client_id
+    return CallReply(call_id, error is None, values, error, client_id).to_json()
 
 
 @dataclass
@@ -103,10 +77,11 @@ class ServiceCaller:
         """A call from ``user`` to service ``name`` (MQTT thread: never blocks)."""
         reply_topic = self.topics.reply(self.robot.name, user, name)
         try:
-            call_id, args, sender = parse_request(payload)
+            call = CallRequest.from_json(payload)
         except ProtocolError as err:
             self.publish(reply_topic, _reply(None, error=str(err), client_id=sender_id(payload)))
             return
+        call_id, args, sender = call.id, call.args, call.client_id
         entry = self.clients.get(name)
         if entry is None:
             known = ", ".join(sorted(self.clients)) or "none"
@@ -162,7 +137,7 @@ class ServiceCaller:
 class _Waiting:
     """A ROS call to a provided service, parked until the provider answers or time runs out."""
 
-    future: Future  # result: ("ok", reply body) or ("error", reason)
+    future: Future  # result: ("ok", ProviderResponse) or ("error", reason)
     deadline: float
 
 
@@ -230,24 +205,12 @@ class ProvidedServices:
             self.error(user, topic, why, payload=payload)
             return
         try:
-            body = loads(payload)
-            if not isinstance(body, dict) or not isinstance(body.get("type"), str):
-                raise ProtocolError('expected {"type": "pkg/srv/Type"} (optional "timeout", "client_id")')
-            unknown = sorted(set(body) - {"type", "timeout", "client_id"})
-            if unknown:
-                raise ProtocolError(f"unknown field '{unknown[0]}' (fields: type, timeout, client_id)")
-            client_id = body.get("client_id")
-            if client_id is not None and not isinstance(client_id, str):
-                raise ProtocolError("client_id: expected a string")
-            timeout = body.get("timeout", 5.0)
-            if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
-                raise ProtocolError("timeout: expected seconds, 0 < timeout <= 3600")
-            if "/srv/" not in body["type"]:
-                raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
-            srv = load_interface(body["type"])
+            parsed = ServiceOffer.from_json(payload)
+            srv = load_interface(parsed.type)
         except (ProtocolError, UnknownTypeError) as err:
             self.error(user, topic, str(err), payload=payload)
             return
+        timeout, client_id = parsed.timeout, parsed.client_id
         with self._lock:
             taken = [u for (u, n), o in self.offers.items() if n == name and u != user]
             if taken:
@@ -336,19 +299,17 @@ class ProvidedServices:
     def response(self, user: str, name: str, topic: str, payload: bytes) -> None:
         """``from/<provider>/response/<name>``: wake the ROS call waiting for it."""
         try:
-            body = loads(payload)
-            if not isinstance(body, dict) or "id" not in body:
-                raise ProtocolError('expected {"id": …, "result": true, "values": {…}}')
+            answer = ProviderResponse.from_json(payload)
         except ProtocolError as err:
             self.error(user, topic, str(err), payload=payload)
             return
         with self._lock:
             offer = self.offers.get((user, name))
-            call = offer.waiting.pop(body["id"], None) if offer is not None and isinstance(body["id"], str) else None
+            call = offer.waiting.pop(answer.id, None) if offer is not None and isinstance(answer.id, str) else None
         if call is None:
-            self.error(user, topic, f"no pending request with id {body['id']!r} for '{name}'", payload=payload)
+            self.error(user, topic, f"no pending request with id {answer.id!r} for '{name}'", payload=payload)
             return
-        self._resolve(call, ("ok", body))
+        self._resolve(call, ("ok", answer))
 
     # -- ROS side (a coroutine on the executor) --------------------------------------------
     def _server_for(self, offer: _Provided) -> Callable[[Any, Any], Any]:
@@ -372,20 +333,19 @@ class ProvidedServices:
             call_id = f"{self.robot.name}-{next(self._ids)}"
             call = offer.waiting[call_id] = _Waiting(Future(), time.monotonic() + offer.timeout)
         try:
-            body: dict[str, Any] = {"id": call_id, "args": converter_for(type(request)).to_dict(request)}
-            if offer.client_id is not None:  # several clients of one user may listen; this names the provider
-                body["client_id"] = offer.client_id
-            self.publish(self.topics.request(self.robot.name, offer.user, offer.name), orjson.dumps(body))
+            # client_id: several clients of one user may listen; it names the provider
+            body = ProviderRequest(call_id, converter_for(type(request)).to_dict(request), offer.client_id)
+            self.publish(self.topics.request(self.robot.name, offer.user, offer.name), body.to_json())
             status, reply = await call.future
         finally:
             with self._lock:
                 offer.waiting.pop(call_id, None)
         if status == "error":
             return _failed(response, reply)
-        if reply.get("result") is False:
-            return _failed(response, str(reply.get("error", "provider reported failure")))
+        if not reply.result:
+            return _failed(response, reply.failure)
         try:
-            return converter_for(type(response)).from_dict(reply.get("values") or {})
+            return converter_for(type(response)).from_dict(reply.values or {})
         except ConversionError as err:
             return _failed(response, f"provider sent a bad response: {err}")
 

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import threading
 
-import orjson
-
+from ..protocol.control import Advertisement
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .errors import InvalidArgument
@@ -55,7 +54,8 @@ class Advertisements:
             if self._counts[key] > 0:
                 return
             del self._counts[key], self._types[key]
-        info = self.connection.publish(self.topics.advertise(robot, self.user, name), b"", qos=1, retain=True)
+        info = self.connection.publish(self.topics.advertise(robot, self.user, name), b"", qos=Advertisement.QOS,
+                                       retain=Advertisement.RETAINED)
         if wait and not self.connection.on_network_thread() and self.connection.connected.is_set():
             info.wait_for_publish(wait)
 
@@ -67,9 +67,9 @@ class Advertisements:
             self.withdraw(robot, name)
 
     def _publish(self, robot: str, name: str, ros_type: str) -> None:
-        body = {"type": ros_type, "client_id": self.connection.client_id}
-        self.connection.publish(self.topics.advertise(robot, self.user, name), orjson.dumps(body), qos=1,
-                                retain=True)
+        body = Advertisement(ros_type, self.connection.client_id)
+        self.connection.publish(self.topics.advertise(robot, self.user, name), body.to_json(),
+                                qos=Advertisement.QOS, retain=Advertisement.RETAINED)
 
     def _republish(self) -> None:
         with self._lock:

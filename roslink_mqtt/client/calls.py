@@ -17,9 +17,8 @@ from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass
 from typing import Any
 
-import orjson
-
-from ..protocol import ProtocolError, loads
+from ..protocol import ProtocolError
+from ..protocol.control import CallReply, CallRequest
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import Scheduler
@@ -55,36 +54,32 @@ class ServiceCalls:
         if args is not None and not isinstance(args, dict):
             raise InvalidType(f"service arguments must be a dict, got {type(args).__name__}")
         call_id = f"{self._prefix}-{next(self._ids)}"
-        body: dict[str, Any] = {"id": call_id, "args": args or {}}
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        payload = orjson.dumps(body)  # fails here, before anything is pending
+        payload = CallRequest(call_id, args or {}, self.client_id).to_json()  # fails here, before anything is pending
         future: Future[Values] = Future()
         timer = self.scheduler.call_later(timeout, lambda: self._expire(call_id, timeout))
         with self._lock:
             self._pending[call_id] = _Pending(robot, service, future, timer)
         future.add_done_callback(lambda _f: self._forget(call_id))  # a cancelled call leaves nothing behind
-        self.connection.publish(self.topics.call(robot, self.user, service), payload, qos=1)
+        self.connection.publish(self.topics.call(robot, self.user, service), payload, qos=CallRequest.QOS)
         return future
 
     def on_reply(self, robot: str, service: str, payload: bytes) -> None:
         """A message on ``to/<user>/reply/<service>`` (network thread)."""
         try:
-            body = loads(payload)
+            reply = CallReply.from_json(payload)
         except ProtocolError:
             return
-        if not isinstance(body, dict) or not isinstance(body.get("id"), str):
+        if not isinstance(reply.id, str):
             return  # not ours (we always send string ids)
         with self._lock:
-            pending = self._pending.pop(body["id"], None)
+            pending = self._pending.pop(reply.id, None)
         if pending is None:
             return  # answered after its timeout, or another client's id
         self.scheduler.cancel(pending.timer)
-        if body.get("result") is True:
-            values = body.get("values")
-            _settle(pending.future, result=values if isinstance(values, dict) else {})
+        if reply.result:
+            _settle(pending.future, result=reply.values or {})
         else:
-            reason = str(body.get("error") or "the robot reported a failure without a reason")
+            reason = reply.error or "the robot reported a failure without a reason"
             _settle(pending.future, error=ServiceError(robot, service, reason))
 
     def pending(self) -> int:

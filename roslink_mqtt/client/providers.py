@@ -17,9 +17,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-import orjson
-
-from ..protocol import ProtocolError, loads
+from ..protocol import ProtocolError
+from ..protocol.control import ProviderRequest, ProviderResponse, ServiceOffer
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import CallbackQueue
@@ -97,8 +96,8 @@ class ServiceProviders:
             if self._offers.get((offer.robot, offer.name)) is not offer:
                 return
             del self._offers[(offer.robot, offer.name)]
-        info = self.connection.publish(self.topics.provide(offer.robot, self.user, offer.name), b"", qos=1,
-                                       retain=True)
+        info = self.connection.publish(self.topics.provide(offer.robot, self.user, offer.name), b"",
+                                       qos=ServiceOffer.QOS, retain=ServiceOffer.RETAINED)
         if wait and not self.connection.on_network_thread() and self.connection.connected.is_set():
             info.wait_for_publish(wait)
 
@@ -109,9 +108,9 @@ class ServiceProviders:
             self.withdraw(offer)
 
     def _publish_offer(self, offer: ProvidedService) -> None:
-        body = {"type": offer.srv_type, "timeout": offer.timeout, "client_id": self.connection.client_id}
-        self.connection.publish(self.topics.provide(offer.robot, self.user, offer.name), orjson.dumps(body),
-                                qos=1, retain=True)
+        body = ServiceOffer(offer.srv_type, offer.timeout, self.connection.client_id)
+        self.connection.publish(self.topics.provide(offer.robot, self.user, offer.name), body.to_json(),
+                                qos=ServiceOffer.QOS, retain=ServiceOffer.RETAINED)
 
     def _republish(self) -> None:
         with self._lock:
@@ -123,18 +122,12 @@ class ServiceProviders:
     def on_request(self, robot: str, name: str, payload: bytes) -> None:
         """``to/<user>/request/<name>``: queue the handler; answer errors at once."""
         try:
-            body = loads(payload)
-            if not isinstance(body, dict) or "id" not in body:
-                raise ProtocolError('expected {"id": …, "args": {…}}')
-            args = body.get("args") or {}
-            if not isinstance(args, dict):
-                raise ProtocolError("args: expected an object")
+            request = ProviderRequest.from_json(payload)
         except ProtocolError as err:
             log.warning("malformed request for %s on %s: %s", name, robot, err)
             return
-        call_id = body["id"]
+        call_id, args, target = request.id, request.args, request.client_id
         offer = self.get(robot, name)
-        target = body.get("client_id")
         if target is not None and target != self.connection.client_id:
             return  # the robot names another of this user's clients as the provider
         if offer is None:
@@ -166,16 +159,17 @@ class ServiceProviders:
             values = offer.handler(args)
             if not isinstance(values, dict):
                 raise InvalidType(f"the handler returned {type(values).__name__}, expected a dict of response fields")
-            payload = orjson.dumps({"id": call_id, "result": True, "values": values,
-                                    "client_id": self.connection.client_id})
+            payload = ProviderResponse(call_id, True, values, client_id=self.connection.client_id).to_json()
         except Exception as err:  # the ROS caller gets the reason instead of waiting for the timeout
             log.exception("service %s on %s failed", offer.name, offer.robot)
             self._respond(offer.robot, offer.name, call_id, error=f"{type(err).__name__}: {err}")
             return
         offer.calls += 1
-        self.connection.publish(self.topics.response(offer.robot, self.user, offer.name), payload, qos=1)
+        self.connection.publish(self.topics.response(offer.robot, self.user, offer.name), payload,
+                                qos=ProviderResponse.QOS)
 
     def _respond(self, robot: str, name: str, call_id: Any, *, error: str) -> None:
         self.connection.publish(self.topics.response(robot, self.user, name),
-                                orjson.dumps({"id": call_id, "result": False, "error": error,
-                                              "client_id": self.connection.client_id}), qos=1)
+                                ProviderResponse(call_id, False, error=error,
+                                                 client_id=self.connection.client_id).to_json(),
+                                qos=ProviderResponse.QOS)

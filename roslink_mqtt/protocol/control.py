@@ -1,6 +1,16 @@
-"""Control bodies: what the bridge tells one user, and how a request names the program that sent it.
+"""Control bodies: every JSON body on the robot's topics that is not a ROSLink message, one frozen type each.
 
-Two bodies travel on a user's own ``to/<user>/…`` topics:
+Services and on-demand publishers use six: :class:`CallRequest` / :class:`CallReply`
+(a user calls a robot's ROS service), :class:`ServiceOffer`, :class:`ProviderRequest`
+and :class:`ProviderResponse` (a user provides a ROS service), and
+:class:`Advertisement` (a user's publisher keeps an on-demand ROS publisher alive).
+The bridge and the SDK both parse and write them only through these types, so the
+two ends of the wire cannot disagree and every refusal reason is worded in one
+place. Bodies the bridge reads are strict (unknown fields refused, except in a
+provider response); bodies a client reads are lenient (unknown fields ignored) so
+the bridge may grow them.
+
+Two more travel on a user's own ``to/<user>/…`` topics:
 
 * :class:`ErrorReport` on ``to/<user>/error``: one refused input. Every program of a
   user reads that topic (MQTT does not tell the bridge which connection published),
@@ -19,12 +29,13 @@ advertisements and responses, and ``$client_id`` in generic ROS JSON bodies — 
 that can never be a ROS field name (ROS field names start with a letter), so it
 cannot collide with the message. The bridge strips it before conversion.
 
-docs/protocol.md renders the field tables of these bodies from :data:`CONTROL_BODIES`.
+docs/protocol.md renders the reference of these bodies (fields, topic, QoS, retain flag, id and version
+rules) from :data:`CONTROL_BODIES`; tests/test_docs.py fails when it drifts.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import orjson
@@ -37,6 +48,7 @@ ACCESS = "access"  # the leaf under to/<user>/ of the AccessReport
 ERROR = "error"  # the leaf under to/<user>/ of ErrorReports
 GENERIC_SENDER_KEY = "$client_id"  # in generic ROS JSON bodies (never a ROS field name)
 ROLES = ("operator", "viewer")
+MAX_CALL_ID = 128  # characters of a string call id
 MAX_SENDER_PARSE = 64 * 1024  # bytes: a larger refused input is not parsed again for its sender (see sender_id)
 
 
@@ -107,6 +119,8 @@ class ErrorReport:
                                                 "`client_id`, body `client_id` or `$client_id`); a report "
                                                 "without it may concern any program of the user"),
     )
+    QOS = 1
+    RETAINED = False
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"topic": self.topic, "error": self.error}
@@ -144,6 +158,8 @@ class AccessReport:
         BodyField("services", "array of strings", True, "the robot's services this user may call: all of them "
                                                         "for an operator, the `read_only` ones for a viewer"),
     )
+    QOS = 1
+    RETAINED = True
 
     @property
     def operator(self) -> bool:
@@ -173,7 +189,308 @@ def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
+def _object(data: bytes | bytearray | memoryview | str, shape: str) -> dict[str, Any]:
+    """Parse a control body that must be a JSON object; ``shape`` is the refusal (it shows the expected form)."""
+    body = loads(data)
+    if not isinstance(body, dict):
+        raise ProtocolError(shape)
+    return body
+
+
+def _no_unknown(body: dict[str, Any], known: tuple[str, ...]) -> None:
+    """Refuse fields the receiver does not know: a misspelt optional field must not be silently ignored."""
+    unknown = sorted(set(body) - set(known))
+    if unknown:
+        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: {', '.join(known)})")
+
+
+CallId = str | int | None  # a caller's id for its call: echoed, never interpreted
+
+
+@dataclass(frozen=True, slots=True)
+class CallRequest:
+    """A call of a robot's ROS service, on ``from/<user>/call/<service>`` (read by the bridge)."""
+
+    id: CallId = None
+    args: dict[str, Any] = field(default_factory=dict)
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", f"string (≤ {MAX_CALL_ID} characters) or integer", False,
+                  "chosen by the caller and echoed in the reply, to match replies to calls (they may arrive in any "
+                  "order); the bridge does not check uniqueness. Missing: the reply has `\"id\": null`"),
+        BodyField("args", "object", False, "the ROS request as JSON (see Generic ROS messages); missing: `{}`"),
+        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False,
+                  "the caller's id, repeated in the reply (every program of the user reads the reply topic)"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"id": self.id, "args": self.args}
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallRequest:
+        body = _object(data, 'expected a JSON object {"id": …, "args": {…}}')
+        _no_unknown(body, ("id", "args", "client_id"))
+        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
+        call_id = body.get("id")
+        if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
+            raise ProtocolError("id: expected a string or integer")
+        if isinstance(call_id, str) and len(call_id) > MAX_CALL_ID:
+            raise ProtocolError(f"id: longer than {MAX_CALL_ID} characters")
+        args = body.get("args", {})
+        if not isinstance(args, dict):
+            raise ProtocolError("args: expected an object")
+        return cls(call_id, args, client_id)
+
+
+@dataclass(frozen=True, slots=True)
+class CallReply:
+    """The bridge's answer to a :class:`CallRequest`, on ``to/<user>/reply/<service>`` (read by the caller).
+
+    Exactly one of ``values`` (``result`` true) and ``error`` (``result`` false) is meaningful.
+    Parsing is as lenient as the SDK has always been with replies: fields it does not know are ignored
+    (the bridge may add some), ``values`` that is not an object reads as ``{}``, any ``result`` other
+    than ``true`` is a failure.
+    """
+
+    id: CallId
+    result: bool
+    values: dict[str, Any] | None = None
+    error: str | None = None
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", "string, integer or null", True, "the call's `id`, unchanged (null when the call was not "
+                                                         "a JSON object or its id was invalid)"),
+        BodyField("result", "boolean", True, "true: the service answered; false: see `error`"),
+        BodyField("values", "object", False, "with `result` true: the ROS response as JSON"),
+        BodyField("error", "string", False, "with `result` false: why (unknown service, refusal, bad arguments, "
+                                            "service not available, timeout, service failed)"),
+        BodyField("client_id", "string", False, "the call's `client_id`, when it had one"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = ({"id": self.id, "result": True, "values": self.values or {}} if self.result
+                                else {"id": self.id, "result": False, "error": self.error})
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallReply:
+        body = _object(data, 'reply: expected a JSON object {"id": …, "result": …}')
+        call_id = body.get("id")
+        if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
+            raise ProtocolError("reply: id: expected a string, integer or null")
+        cid = body.get("client_id")
+        if body.get("result") is True:
+            values = body.get("values")
+            return cls(call_id, True, values if isinstance(values, dict) else {},
+                       client_id=cid if isinstance(cid, str) else None)
+        error = body.get("error")
+        return cls(call_id, False, error=str(error) if error else None,
+                   client_id=cid if isinstance(cid, str) else None)
+
+
+DEFAULT_PROVIDER_TIMEOUT = 5.0  # s, when an offer names none
+MAX_PROVIDER_TIMEOUT = 3600.0  # s
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceOffer:
+    """A retained offer to provide a ROS service, on ``from/<user>/provide/<service>`` (read by the bridge).
+
+    An empty retained message withdraws it; that is not a body, so the receiver handles it before parsing.
+    """
+
+    type: str
+    timeout: float = DEFAULT_PROVIDER_TIMEOUT
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("type", "string `pkg/srv/Type`", True, "the ROS service type; the bridge must know it"),
+        BodyField("timeout", f"number, 0 < timeout ≤ {MAX_PROVIDER_TIMEOUT:g}", False,
+                  f"seconds a ROS call waits for the provider's response (default {DEFAULT_PROVIDER_TIMEOUT:g})"),
+        BodyField("client_id", "string", False, "the provider's presence client id: the ROS service exists while "
+                                                "that client is live (without it: while any client of the user is)"),
+    )
+    QOS = 1
+    RETAINED = True
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"type": self.type, "timeout": self.timeout}
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ServiceOffer:
+        shape = 'expected {"type": "pkg/srv/Type"} (optional "timeout", "client_id")'
+        body = _object(data, shape)
+        if not isinstance(body.get("type"), str):
+            raise ProtocolError(shape)
+        _no_unknown(body, ("type", "timeout", "client_id"))
+        client_id = body.get("client_id")
+        if client_id is not None and not isinstance(client_id, str):
+            raise ProtocolError("client_id: expected a string")
+        timeout = body.get("timeout", DEFAULT_PROVIDER_TIMEOUT)
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
+            raise ProtocolError("timeout: expected seconds, 0 < timeout <= 3600")
+        if "/srv/" not in body["type"]:
+            raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
+        return cls(body["type"], float(timeout), client_id)
+
+
+@dataclass(frozen=True, slots=True)
+class ProviderRequest:
+    """A ROS call forwarded to the provider, on ``to/<provider>/request/<service>`` (read by the provider).
+
+    Fields the provider does not know are ignored (the bridge may add some).
+    """
+
+    id: Any  # the bridge's, "<robot>-<n>"; echoed unchanged in the response
+    args: dict[str, Any] = field(default_factory=dict)
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", "string", True, "chosen by the bridge, `<robot>-<n>`, unique while the bridge runs; "
+                                        "the response must carry it unchanged"),
+        BodyField("args", "object", True, "the ROS request as JSON"),
+        BodyField("client_id", "string", False, "the offer's `client_id`: only that client answers (the user's "
+                                                "other clients read the same topic and ignore it)"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"id": self.id, "args": self.args}
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderRequest:
+        body = _object(data, 'expected {"id": …, "args": {…}}')
+        if "id" not in body:
+            raise ProtocolError('expected {"id": …, "args": {…}}')
+        args = body.get("args") or {}
+        if not isinstance(args, dict):
+            raise ProtocolError("args: expected an object")
+        target = body.get("client_id")
+        if target is not None and not isinstance(target, str):
+            raise ProtocolError("client_id: expected a string")
+        return cls(body["id"], args, target)
+
+
+DEFAULT_PROVIDER_FAILURE = "provider reported failure"
+
+
+@dataclass(frozen=True, slots=True)
+class ProviderResponse:
+    """The provider's answer, on ``from/<provider>/response/<service>`` (read by the bridge).
+
+    Only ``id`` is required of the shape: the bridge matches it to a waiting ROS call (an id that matches
+    none, of any JSON type, is reported as such), and the ROS response converter, not this parser,
+    refuses ``values`` that are not the response type's fields, so the waiting ROS caller gets that reason.
+    """
+
+    id: Any
+    result: bool = True
+    values: Any = None  # the ROS response as JSON; checked by the converter for the waiting call's type
+    error: str | None = None
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", "string", True, "the request's `id`, unchanged"),
+        BodyField("result", "boolean", False, "false: the call fails with `error`; anything else: success"),
+        BodyField("values", "object", False, "the ROS response as JSON (missing: the type's defaults)"),
+        BodyField("error", "string", False, f"with `result` false: why (default `{DEFAULT_PROVIDER_FAILURE}`); "
+                                            "the ROS caller sees it in `message` where the type has one"),
+        BodyField("client_id", "string", False, "names the provider in an error report about this response"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    @property
+    def failure(self) -> str:
+        """Why the call failed (``result`` false)."""
+        return self.error if self.error is not None else DEFAULT_PROVIDER_FAILURE
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = ({"id": self.id, "result": True, "values": self.values} if self.result
+                                else {"id": self.id, "result": False, "error": self.error})
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderResponse:
+        shape = 'expected {"id": …, "result": true, "values": {…}}'
+        body = _object(data, shape)
+        if "id" not in body:
+            raise ProtocolError(shape)
+        cid = body.get("client_id")
+        return cls(body["id"], body.get("result") is not False, body.get("values"),
+                   str(body["error"]) if "error" in body else None, cid if isinstance(cid, str) else None)
+
+
+@dataclass(frozen=True, slots=True)
+class Advertisement:
+    """A retained advertisement of a topic the user publishes, on ``from/<user>/advertise/<name>`` (read by the bridge).
+
+    An empty retained message withdraws it (handled before parsing, like an offer's).
+    """
+
+    type: str
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("type", "string `pkg/msg/Type`", True, "the ROS message type; must be the rule's"),
+        BodyField("client_id", "string", False, "the advertiser's presence client id: an on-demand ROS publisher "
+                                                "exists while that client is live (without it, or empty: while "
+                                                "any client of the user is)"),
+    )
+    QOS = 1
+    RETAINED = True
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"type": self.type}
+        if self.client_id is not None:
+            body["client_id"] = self.client_id
+        return orjson.dumps(body)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> Advertisement:
+        shape = 'expected {"type": "pkg/msg/Type", "client_id": "<presence client id>"}'
+        body = _object(data, shape)
+        if not isinstance(body.get("type"), str):
+            raise ProtocolError(shape)
+        _no_unknown(body, ("type", "client_id"))
+        client_id = body.get("client_id")
+        if "client_id" in body and not isinstance(client_id, str):  # null too: it would mean "implicit" silently
+            raise ProtocolError("client_id: expected a string")
+        return cls(body["type"], client_id)
+
+
+# (title, topic, type): the rendered reference (docs/protocol.md) lists them in this order. Every type says
+# with which MQTT QoS and retain flag its topic is published (QOS, RETAINED); the SDK's senders publish with
+# those constants, the bridge's with QoS 1 and retains only access reports (bridge/node.py).
 CONTROL_BODIES: tuple[tuple[str, str, type], ...] = (
+    ("call request", "`roslink/<robot>/from/<user>/call/<service>`", CallRequest),
+    ("call reply", "`roslink/<robot>/to/<user>/reply/<service>`", CallReply),
+    ("service offer", "`roslink/<robot>/from/<user>/provide/<service>` (an empty retained message withdraws)",
+     ServiceOffer),
+    ("provider request", "`roslink/<robot>/to/<user>/request/<service>`", ProviderRequest),
+    ("provider response", "`roslink/<robot>/from/<user>/response/<service>`", ProviderResponse),
+    ("advertisement", "`roslink/<robot>/from/<user>/advertise/<name>` (an empty retained message withdraws)",
+     Advertisement),
     ("error report", f"`roslink/<robot>/to/<user>/{ERROR}`", ErrorReport),
-    ("access report", f"`roslink/<robot>/to/<user>/{ACCESS}` (retained)", AccessReport),
+    ("access report", f"`roslink/<robot>/to/<user>/{ACCESS}`", AccessReport),
 )

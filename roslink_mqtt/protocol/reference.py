@@ -12,8 +12,19 @@ import base64
 
 import orjson
 
-from .codec import Envelope, encode
-from .control import CONTROL_BODIES, AccessReport, ErrorReport
+from .codec import _HEADER_BOUNDS, ROSLINK_VERSION, Envelope, encode
+from .control import (
+    CONTROL_BODIES,
+    MAX_CALL_ID,
+    AccessReport,
+    Advertisement,
+    CallReply,
+    CallRequest,
+    ErrorReport,
+    ProviderRequest,
+    ProviderResponse,
+    ServiceOffer,
+)
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
@@ -25,6 +36,14 @@ _CONTROL_EXAMPLES: dict[type, object] = {
     ErrorReport: ErrorReport("roslink/turtle1/from/alice/cmd/twist", 'payload.lx: expected number, got "fast"',
                              100, 18, "alice-sdk-5f2c9e0a1b3d4c6e"),
     AccessReport: AccessReport("viewer", ("status",)),
+    CallRequest: CallRequest("42", {}, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    CallReply: CallReply("42", True, {"success": True, "message": "pose reset to the room centre"},
+                         client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    ServiceOffer: ServiceOffer("std_srvs/srv/SetBool", 5.0, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    ProviderRequest: ProviderRequest("turtle1-7", {"data": True}, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    ProviderResponse: ProviderResponse("turtle1-7", True, {"success": True, "message": "motors on"},
+                                       client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    Advertisement: Advertisement("std_msgs/msg/String", "alice-sdk-5f2c9e0a1b3d4c6e"),
 }
 
 _EXAMPLES: dict[str, dict] = {
@@ -86,11 +105,37 @@ def render() -> str:
     return "\n".join(out)
 
 
+_RULES = """\
+Rules every control body follows (the sections below give each one's fields):
+
+* A control body is a JSON object with the fields listed, and no `roslink_version`: it is versioned with the
+  topic tree. Where the **bridge** reads a body (call request, service offer, provider response,
+  advertisement) it refuses what does not match, with the reason on the reply topic (calls) or on
+  `to/<user>/error` (the others); it refuses unknown fields, except in provider responses. Where a **client**
+  reads one (call reply, provider request, error and access reports) it ignores fields it does not know, so
+  the bridge may add some.
+* Ids: a call's `id` is the caller's (string of at most {max_id} characters, or integer), echoed and never
+  interpreted, so a caller picks ids unique among its own outstanding calls (the SDK: a random prefix per
+  connection and a counter). A provider request's `id` is the bridge's, `<robot>-<n>`, and a response must carry
+  it unchanged; a response whose `id` matches no waiting call is reported on `to/<user>/error`.
+* `client_id` names one program of a user (all its programs read the user's topics); where a body gives a
+  length it is checked, elsewhere any string is taken.
+* `roslink_version` exists only in ROSLink envelopes (messages, not control bodies). Bridge and SDK accept
+  any integer {low}..{high} there and read the message as version {version}: the number is not compared,
+  so a peer sending another version is neither refused nor warned about; a value outside {low}..{high}, or
+  not an integer, is refused like any malformed header field (`roslink_version: expected integer
+  {low}..{high}, got …`)."""
+
+
 def render_control() -> str:
     """The field tables of the control bodies (``protocol.control``), with one example each."""
-    out = [BEGIN_CONTROL, ""]
+    low, high = _HEADER_BOUNDS["roslink_version"]
+    out = [BEGIN_CONTROL, "", *_RULES.format(version=ROSLINK_VERSION, low=low, high=high,
+                                             max_id=MAX_CALL_ID).splitlines(), ""]
     for title, topic, cls in CONTROL_BODIES:
-        out += [f"#### {title}", "", f"Topic: {topic}.", "", "| field | type | | meaning |", "|---|---|---|---|"]
+        flags = f"QoS {cls.QOS}, {'retained' if cls.RETAINED else 'not retained'}"
+        out += [f"#### {title}", "", f"Topic: {topic}. Published with {flags}.", "",
+                "| field | type | | meaning |", "|---|---|---|---|"]
         out += [f"| `{f.name}` | {f.type} | {'required' if f.required else 'optional'} | {f.doc} |"
                 for f in cls.FIELDS]
         out += ["", "```json", _CONTROL_EXAMPLES[cls].to_json().decode(), "```", ""]
