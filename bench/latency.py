@@ -158,8 +158,8 @@ def start_bridge(stack: ExitStack, work: Path, env: dict[str, str], fleet: Path,
     """The robot's bridge, as a robot runs it; returns its log (printed if it never comes up)."""
     log = work / f"bridge-{port}.log"
     start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
-                        ROBOT, "--broker", f"mqtt://127.0.0.1:{port}", "--log-level", "WARNING"],
-                log, {**env, "ROSLINK_MQTT_PASSWORD": ROBOT_PASSWORD})
+                        ROBOT, "--url", f"mqtt://127.0.0.1:{port}", "--log-level", "WARNING"],
+                log, {**env, "ROSLINK_PASSWORD": ROBOT_PASSWORD})
     return log
 
 

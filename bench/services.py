@@ -114,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         url = f"mqtt://127.0.0.1:{port}"
         start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
         start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
-                            "turtle1", "--broker", url, "--log-level", "WARNING"], work / "bridge.log",
-                    {**env, "ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
+                            "turtle1", "--url", url, "--log-level", "WARNING"], work / "bridge.log",
+                    {**env, "ROSLINK_PASSWORD": "turtle1-demo"})
 
         rclpy.init()
         stack.callback(rclpy.try_shutdown)

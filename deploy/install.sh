@@ -179,7 +179,7 @@ echo
 if [ "$DRY_RUN" = 1 ]; then echo "Dry run: nothing was changed."; else echo "Installed."; fi
 echo "Next:"
 want broker && echo "  sudoedit $ETC/robots.yaml                # robots, users, grants, broker listeners"
-want bridge && echo "  sudoedit $ETC/bridge.env                 # ROSLINK_ROBOT, ROSLINK_MQTT_PASSWORD, --broker, ROS_DOMAIN_ID"
+want bridge && echo "  sudoedit $ETC/bridge.env                 # ROSLINK_ROBOT, ROSLINK_PASSWORD, --url, ROS_DOMAIN_ID"
 if want bridge && ! want broker; then
     echo "  sudo install -m 640 -o root -g roslink robots.yaml $ETC/robots.yaml   # the fleet file your broker uses"
 fi

@@ -1,13 +1,17 @@
 """Call a ROS service on a robot from anywhere: the robot's ``reset`` (std_srvs/srv/Trigger) over MQTT.
 
     .venv/bin/python examples/call_from_cloud.py [--url mqtt://127.0.0.1:1883] [--username alice]
-                                                 [--password alice-demo] [--robot turtle1] [--service reset]
+                                                 [--password-file FILE] [--robot turtle1] [--service reset]
 
 Uses only the SDK's RobotClient (no ROS on this machine). The call goes
 through the broker to the robot's bridge, which calls the ROS service and
 sends the response back; the same call is made twice, blocking and with
-asyncio. A viewer (``--username bob --password bob-demo``) is refused: the
-error is the robot's reason. Exits 0 on success, 1 when the call failed.
+asyncio. A viewer (``--username bob``) is refused: the error is the robot's
+reason. Exits 0 on success, 1 when the call failed.
+
+Connection: ``--url``/``ROSLINK_URL``, ``--username``/``ROSLINK_USERNAME`` and the password from
+``ROSLINK_PASSWORD`` or ``--password-file`` (never on the command line), as for every roslink-mqtt
+program; without them, the local demo broker and the demo fleet's ``<user>-demo`` login.
 """
 
 from __future__ import annotations
@@ -17,18 +21,21 @@ import asyncio
 import sys
 
 from roslink_mqtt.client import ConnectError, RobotClient, ServiceError
+from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--url", default="mqtt://127.0.0.1:1883", help="broker URL (default: %(default)s)")
-    p.add_argument("--username", default="alice", help="(default: %(default)s)")
-    p.add_argument("--password", default="alice-demo", help="(default: the demo fleet's %(default)s)")
+    add_connection_options(p, old_password_option=True)  # --url, --username, --password-file, --ca-file
     p.add_argument("--robot", default="turtle1", help="(default: %(default)s)")
     p.add_argument("--service", default="reset", help="(default: %(default)s)")
-    p.add_argument("--ca-file", help="CA bundle for mqtts:// and wss:// brokers")
     p.add_argument("--timeout", type=float, default=10.0, help="seconds (default: %(default)s)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    login = resolve_login(args, p.prog, default_username="alice")
+    # Without ROSLINK_PASSWORD or --password-file: the demo fleet's published <user>-demo login (README.md).
+    args.url, args.username, args.ca_file = login.url, login.username, login.ca_file
+    args.password = login.password if login.password is not None else f"{login.username}-demo"
+    return args
 
 
 async def call_with_asyncio(client: RobotClient, robot: str, service: str, timeout: float) -> dict:

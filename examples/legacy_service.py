@@ -1,7 +1,7 @@
 """A program without ROS provides two ROS services on a robot, through its bridge.
 
     .venv/bin/python examples/legacy_service.py [--url mqtt://127.0.0.1:1883] [--username alice]
-                                                [--password alice-demo] [--robot turtle1]
+                                                [--password-file FILE] [--robot turtle1]
 
 Only the SDK is used (no rclpy: this runs on machines that cannot install ROS).
 While it runs, the robot's ROS graph has
@@ -17,6 +17,10 @@ disappear too, when its presence last-will fires.
 The code is written against the rclpy-shaped API; docs/sdk.md (*Porting to
 rclpy*) lists the steps that make it a ROS node (the import, message classes
 instead of type names and dicts, ROS names instead of MQTT ones).
+
+Connection: ``--url``/``ROSLINK_URL``, ``--username``/``ROSLINK_USERNAME`` and the password from
+``ROSLINK_PASSWORD`` or ``--password-file`` (never on the command line), as for every roslink-mqtt
+program; without them, the local demo broker and the demo fleet's ``<user>-demo`` login.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import signal
 import time
 
 import roslink_mqtt.client as rclpy
+from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 
 class MotorDriver:
@@ -42,14 +47,16 @@ class MotorDriver:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--url", default="mqtt://127.0.0.1:1883", help="broker URL (default: %(default)s)")
-    p.add_argument("--username", default="alice", help="an operator of the robot (default: %(default)s)")
-    p.add_argument("--password", default="alice-demo", help="(default: the demo fleet's %(default)s)")
+    add_connection_options(p, old_password_option=True)  # --url, --username, --password-file, --ca-file
     p.add_argument("--robot", default="turtle1", help="(default: %(default)s)")
-    p.add_argument("--ca-file", help="CA bundle for mqtts:// and wss:// brokers")
     p.add_argument("--self-test-seconds", type=float, default=0.2, help="how long self_test takes (%(default)s s)")
     p.add_argument("--run-seconds", type=float, help="stop after this many seconds (default: until Ctrl-C)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    login = resolve_login(args, p.prog, default_username="alice")
+    # Without ROSLINK_PASSWORD or --password-file: the demo fleet's published <user>-demo login (README.md).
+    args.url, args.username, args.ca_file = login.url, login.username, login.ca_file
+    args.password = login.password if login.password is not None else f"{login.username}-demo"
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """Drive a robot along a spiral over MQTT and draw the track it reports back (the ROSLink papers' experiment).
 
     .venv/bin/python examples/spiral.py [--url mqtt://127.0.0.1:1883] [--username alice]
-                                        [--password alice-demo] [--robot turtle1] [--seconds 20]
+                                        [--password-file FILE] [--robot turtle1] [--seconds 20]
                                         [--rate 10] [--csv track.csv] [--no-reset]
 
 A program without ROS (the SDK's RobotClient only) streams twist commands with a
@@ -14,6 +14,10 @@ terminal and optionally writes it as CSV (t, x, y, yaw) for plotting.
 The stream is the safe kind of command: if this program dies, the robot's
 dead-man switch stops it within ``command_timeout`` (1 s by default).
 Exits 0 when the robot reported a track, 1 otherwise.
+
+Connection: ``--url``/``ROSLINK_URL``, ``--username``/``ROSLINK_USERNAME`` and the password from
+``ROSLINK_PASSWORD`` or ``--password-file`` (never on the command line), as for every roslink-mqtt
+program; without them, the local demo broker and the demo fleet's ``<user>-demo`` login.
 """
 
 from __future__ import annotations
@@ -26,15 +30,13 @@ import threading
 import time
 
 from roslink_mqtt.client import GlobalMotion, RobotClient, RoslinkError
+from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--url", default="mqtt://127.0.0.1:1883", help="broker URL (default: %(default)s)")
-    p.add_argument("--username", default="alice", help="(default: %(default)s)")
-    p.add_argument("--password", default="alice-demo", help="(default: the demo fleet's %(default)s)")
+    add_connection_options(p, old_password_option=True)  # --url, --username, --password-file, --ca-file
     p.add_argument("--robot", default="turtle1", help="(default: %(default)s)")
-    p.add_argument("--ca-file", help="CA bundle for mqtts:// and wss:// brokers")
     p.add_argument("--seconds", type=float, default=20.0, help="length of the run (default: %(default)s)")
     p.add_argument("--rate", type=float, default=10.0, help="twist commands per second (default: %(default)s)")
     p.add_argument("--turn", type=float, default=0.8, help="turn rate, rad/s (default: %(default)s)")
@@ -45,6 +47,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if not (args.seconds > 0 and args.rate > 0):
         p.error("--seconds and --rate must be positive")
+    login = resolve_login(args, p.prog, default_username="alice")
+    # Without ROSLINK_PASSWORD or --password-file: the demo fleet's published <user>-demo login (README.md).
+    args.url, args.username, args.ca_file = login.url, login.username, login.ca_file
+    args.password = login.password if login.password is not None else f"{login.username}-demo"
     return args
 
 

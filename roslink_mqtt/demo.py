@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         print("1. embedded broker up (authentication + ROSLink-key ACLs)")
         start("sim", ["-m", "roslink_mqtt.sim"])
         start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot", "turtle1",
-                         "--broker", f"mqtt://127.0.0.1:{port}"], {"ROSLINK_MQTT_PASSWORD": "turtle1-demo"})
+                         "--url", f"mqtt://127.0.0.1:{port}"], {"ROSLINK_PASSWORD": "turtle1-demo"})
         print("2. simulated robot and bridge for turtle1 started")
         scene = Scene(port, topics)
         stack.callback(scene.close)

@@ -382,10 +382,11 @@ def run_bridge_unit(unit_text: str, tmp_path: Path, name: str, port: int, notify
     pairs = service_section(unit_text)
     env_file = environment_file(fake / "etc" / "roslink-mqtt" / "bridge.env")
     args = env_file.get("ROSLINK_BRIDGE_ARGS", "")
-    assert "--broker " in args, "the shipped bridge.env names a broker in ROSLINK_BRIDGE_ARGS"
+    assert "--url " in args, "the shipped bridge.env names a broker in ROSLINK_BRIDGE_ARGS"
+    assert "ROSLINK_PASSWORD" in env_file, "the shipped bridge.env uses the one connection vocabulary"
     extra = {  # what an admin writes into bridge.env, pointed at this test's broker
-        "ROSLINK_MQTT_PASSWORD": DEMO_PASSWORDS["turtle1"],
-        "ROSLINK_BRIDGE_ARGS": re.sub(r"--broker \S+", f"--broker mqtt://127.0.0.1:{port}", args)
+        "ROSLINK_PASSWORD": DEMO_PASSWORDS["turtle1"],
+        "ROSLINK_BRIDGE_ARGS": re.sub(r"--url \S+", f"--url mqtt://127.0.0.1:{port}", args)
         + " --ros-args -r __ns:=/robot1",
         "NOTIFY_SOCKET": notify.address,
     }

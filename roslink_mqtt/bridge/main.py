@@ -1,54 +1,65 @@
 """``roslink-mqtt-bridge``: run the bridge for one robot of the fleet.
 
-    roslink-mqtt-bridge --config config/robots.yaml --robot turtle1 [--broker mqtt://127.0.0.1:1883]
+    roslink-mqtt-bridge --config config/robots.yaml --robot turtle1 [--url mqtt://127.0.0.1:1883]
                         [--ros-args -r __ns:=/robot1 -r cmd_vel:=/base/cmd_vel]
 
-The robot's password comes from ``ROSLINK_MQTT_PASSWORD``, ``--password-file``,
-the config's ``bridge.password_file`` or (demo only) ``bridge.password`` —
-never from the command line, where ``ps`` would show it. SIGHUP re-reads the
-fleet file's users and grants (as the broker does); rule changes need a restart.
+The connection options are the ones every roslink-mqtt program takes (:mod:`roslink_mqtt.connection_options`):
+the broker is ``--url``, else ``ROSLINK_URL``, else the config's ``bridge.broker``. The bridge logs in as its
+robot; the robot's password comes from ``--password-file``, ``ROSLINK_PASSWORD``, the config's
+``bridge.password_file`` or (demo only) ``bridge.password`` — never from the command line, where ``ps``
+would show it. The old ``--broker`` and ``ROSLINK_MQTT_PASSWORD`` still work for one release and log a
+deprecation line. SIGHUP re-reads the fleet file's users and grants (as the broker does); rule changes need
+a restart.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
 import signal
 import sys
 import threading
 from pathlib import Path
 from typing import Any
 
-PASSWORD_ENV = "ROSLINK_MQTT_PASSWORD"
+from ..connection_options import (
+    ENV_PASSWORD,
+    OLD_BRIDGE_PASSWORD_ENV,
+    add_connection_options,
+    read_password_file,
+    resolve_ca_file,
+    resolve_url,
+)
+from ..connection_options import resolve_password as resolve_login_password
+
+PROG = "roslink-mqtt-bridge"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="roslink-mqtt-bridge", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                                 epilog="Everything after --ros-args goes to ROS (remapping, namespace, parameters).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
-    p.add_argument("--robot", required=True, help="robot name in the fleet file")
-    p.add_argument("--broker", help="broker URL, overrides bridge.broker (mqtt://, mqtts://, ws://, wss://)")
-    p.add_argument("--password-file", help=f"file whose first line is the robot's password (or set {PASSWORD_ENV})")
-    p.add_argument("--ca-file", help="CA bundle for mqtts:// / wss:// brokers")
+    p.add_argument("--robot", required=True, help="robot name in the fleet file (the bridge logs in as it)")
+    add_connection_options(p, username=False, default_url=None, url_fallback="else bridge.broker in the config")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p.parse_args(argv)
 
 
 def resolve_password(args: argparse.Namespace, bridge_password: str | None, bridge_password_file: str | None,
                      config_dir: Path) -> str:
-    if os.environ.get(PASSWORD_ENV):
-        return os.environ[PASSWORD_ENV]
-    file = args.password_file or bridge_password_file
-    if file:
-        path = Path(file) if Path(file).is_absolute() or args.password_file else config_dir / file
-        try:
-            return path.read_text(encoding="utf-8").splitlines()[0].strip()
-        except (OSError, IndexError) as err:
-            raise SystemExit(f"roslink-mqtt-bridge: cannot read password file {path}: {err}") from None
+    """The shared order (``--password-file``, ``ROSLINK_PASSWORD``), then the fleet file's own settings.
+
+    The config's ``password_file`` is relative to the config file, so a unit started from ``/`` finds it.
+    """
+    password = resolve_login_password(args, PROG, old_env=OLD_BRIDGE_PASSWORD_ENV)
+    if password:
+        return password
+    if bridge_password_file:
+        path = Path(bridge_password_file)
+        return read_password_file(path if path.is_absolute() else config_dir / path, PROG)
     if bridge_password:
         return bridge_password
-    raise SystemExit(f"roslink-mqtt-bridge: no password for robot '{args.robot}': set {PASSWORD_ENV}, "
+    raise SystemExit(f"{PROG}: no password for robot '{args.robot}': set {ENV_PASSWORD}, "
                      "--password-file or bridge.password_file in the config")
 
 
@@ -89,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
               f"(robots: {', '.join(fleet.robots)})", file=sys.stderr)
         return 2
     try:
-        url = parse_broker_url(args.broker or robot.bridge.broker_url)
+        url = parse_broker_url(resolve_url(args, PROG, default=robot.bridge.broker_url))
     except ValueError as err:
         print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
         return 2
@@ -100,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = rclpy.create_node("roslink_mqtt_bridge")
-        bridge = Bridge(fleet, robot, node, password=password, broker_url=url, ca_file=args.ca_file)
+        bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
+                        ca_file=resolve_ca_file(args))
     except RuleError as err:
         line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)

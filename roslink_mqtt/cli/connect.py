@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import getpass
-import os
 import signal
 import sys
 import threading
@@ -12,28 +11,38 @@ import threading
 import orjson
 
 from ..client import ConnectError, LoginRefused, RobotClient
-from ..client.robot_client import DEFAULT_URL, ENV_PASSWORD, ENV_URL, ENV_USERNAME
+from ..connection_options import (
+    ENV_PASSWORD,
+    ENV_USERNAME,
+    resolve_ca_file,
+    resolve_password,
+    resolve_url,
+    resolve_username,
+)
+from ..connection_options import add_connection_options as _add_options
+
+PROG = "roslink-mqtt"
 
 
 def add_connection_options(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("connection")
-    g.add_argument("--url", default=os.environ.get(ENV_URL, DEFAULT_URL),
-                   help=f"broker URL: mqtt://, mqtts://, ws://, wss:// (env {ENV_URL}; default %(default)s)")
-    g.add_argument("-u", "--username", default=os.environ.get(ENV_USERNAME), help=f"login (env {ENV_USERNAME})")
-    g.add_argument("--password-env", default=ENV_PASSWORD, metavar="VAR",
-                   help="environment variable holding the password (default %(default)s); asked for if unset")
-    g.add_argument("--ca-file", help="CA bundle for mqtts:// and wss://")
+    """The shared ``--url``/``-u``/``--password-file``/``--ca-file`` (roslink_mqtt.connection_options)."""
+    _add_options(p)
 
 
 def open_client(args: argparse.Namespace, *, robots: list[str] = (), presence: bool = True) -> RobotClient:
-    """Connect, or exit with a clear message (no traceback for a refused login or a dead broker)."""
+    """Connect, or exit with a clear message (no traceback for a refused login or a dead broker).
+
+    The resolved URL and username are written back to ``args`` because commands show them (monitor's title).
+    """
+    args.url, args.username = resolve_url(args, PROG), resolve_username(args)
     if not args.username:
-        raise SystemExit(f"roslink-mqtt: no username: pass -u NAME or set {ENV_USERNAME}")
-    password = os.environ.get(args.password_env)
+        raise SystemExit(f"{PROG}: no username: pass -u NAME or set {ENV_USERNAME}")
+    password = resolve_password(args, PROG)
     if password is None:
         if not sys.stdin.isatty():
-            raise SystemExit(f"roslink-mqtt: no password: set {args.password_env}")
+            raise SystemExit(f"{PROG}: no password: set {ENV_PASSWORD} or pass --password-file FILE")
         password = getpass.getpass(f"Password for {args.username}: ")
+    args.ca_file = resolve_ca_file(args)
     client = RobotClient(args.username, password, url=args.url, robots=robots, presence=presence,
                          ca_file=args.ca_file)
     try:

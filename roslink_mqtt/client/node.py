@@ -24,6 +24,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
+from ..connection_options import env_username
 from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
 from ..topics import DEFAULT_PREFIX, check_name
 from .calls import Values
@@ -264,7 +265,7 @@ class Node:
         self._callbacks = CallbackQueue()
         self._scheduler = Scheduler(f"{node_name}-timers")
         self._logger = Logger(node_name)
-        username = username or os.environ.get("ROSLINK_USERNAME") or ""
+        username = username or env_username() or ""
         self.robot_client = RobotClient(username or None, password, url=url, robots=[self.robot],
                                   client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(8)}",
                                   presence=presence, ca_file=ca_file, insecure_tls=insecure_tls, prefix=prefix,

@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import os
 import secrets
 import threading
 import time
@@ -32,6 +31,15 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
+# The connection vocabulary (names, defaults, environment) is shared with the bridge, the CLI and the examples.
+from ..connection_options import (
+    DEFAULT_URL,
+    ENV_USERNAME,
+    env_ca_file,
+    env_password,
+    env_url,
+    env_username,
+)
 from ..mqtt import BrokerUrl
 from ..protocol import ProtocolError, loads
 from ..protocol.control import ACCESS, AccessReport
@@ -58,10 +66,7 @@ from .subscriptions import StateItem, StateSubscription
 
 log = logging.getLogger("roslink_mqtt.client")
 
-DEFAULT_URL = "mqtt://127.0.0.1:1883"
 DEFAULT_CALL_TIMEOUT = 10.0  # s; longer than the robot's own per-service timeout (5 s in the demo), so its reason wins
-ENV_URL, ENV_USERNAME, ENV_PASSWORD = "ROSLINK_URL", "ROSLINK_USERNAME", "ROSLINK_PASSWORD"
-ENV_CA_FILE = "ROSLINK_CA_FILE"
 DEFAULT_STOP_CONFIRM = 2.0  # s an emergency stop waits for the broker's PUBACK before raising CommandNotConfirmed
 ACCESS_WAIT = 0.5  # s after subscribing to a robot's to/<user>/# that a first command waits for the access report
 
@@ -82,16 +87,16 @@ class RobotClient:
                  keepalive: int = 5, stale_after: float = DEFAULT_STALE_AFTER,
                  on_error: Callable[[RobotError], None] | None = None,
                  callbacks: CallbackQueue | None = None) -> None:
-        username = username or os.environ.get(ENV_USERNAME)
+        username = username or env_username()
         if not username:
             raise InvalidArgument(f"no username: pass username= or set {ENV_USERNAME}")
         self.username = check_name(username, "username")
-        password = password if password is not None else os.environ.get(ENV_PASSWORD)
+        password = password if password is not None else env_password()
         self.topics = TopicTree(prefix)
         self.client_id = check_name(client_id or f"{username}-sdk-{secrets.token_hex(8)}", "client id")
-        self.connection = Connection(username=username, password=password, url=url or os.environ.get(ENV_URL)
-                                     or DEFAULT_URL, client_id=self.client_id, topics=self.topics, presence=presence,
-                                     ca_file=ca_file or os.environ.get(ENV_CA_FILE), insecure_tls=insecure_tls,
+        self.connection = Connection(username=username, password=password, url=url or env_url() or DEFAULT_URL,
+                                     client_id=self.client_id, topics=self.topics, presence=presence,
+                                     ca_file=ca_file or env_ca_file(), insecure_tls=insecure_tls,
                                      keepalive=keepalive)
         self.on_error = on_error
         # Reports about other programs of this user are ignored, unless a dashboard asks for every one of them.

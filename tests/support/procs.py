@@ -37,8 +37,8 @@ def run(args: list[str], log: Path, env: dict[str, str] | None = None) -> Iterat
 
 def bridge_args(robot: str, port: int, *extra: str, config: Path = CONFIG) -> list[str]:
     return ["-m", "roslink_mqtt.bridge.main", "--config", str(config), "--robot", robot,
-            "--broker", f"mqtt://127.0.0.1:{port}", *extra]
+            "--url", f"mqtt://127.0.0.1:{port}", *extra]
 
 
 def bridge_env(robot: str) -> dict[str, str]:
-    return {**os.environ, "ROSLINK_MQTT_PASSWORD": DEMO_PASSWORDS[robot]}
+    return {**os.environ, "ROSLINK_PASSWORD": DEMO_PASSWORDS[robot]}
