@@ -12,10 +12,9 @@ from .codec import (
     decode_object,
     encode,
     encode_message,
-    error_reply,
     loads,
 )
-from .control import AccessReport, ErrorReport, sender_id
+from .control import AccessReport, ErrorReport, error_reply, sender_id
 from .enums import AckResult, FlightMode, RobotType, SystemStatus
 from .errors import ProtocolError
 from .messages import SPECS, SPECS_BY_ID, SPECS_BY_NAME, Direction, Field, Kind, MessageId, MessageSpec, spec_for

@@ -177,21 +177,4 @@ def _check_header(obj: dict[str, Any]) -> dict[str, int]:
 
 
 __all__ = ["Envelope", "MessageId", "ROSLINK_VERSION", "ROS_VERSION", "decode", "decode_object", "encode",
-           "encode_message", "error_reply", "loads"]
-
-
-def error_reply(topic: str, reason: str, *, message_id: int | None = None,
-                sequence_number: int | None = None, client_id: str | None = None) -> bytes:
-    """The JSON object published on ``to/<user>/error`` (docs/protocol.md, *Errors*).
-
-    ``client_id`` repeats the sender's id from the refused request, so that only
-    the program that sent it shows the report (see ``protocol.control``).
-    """
-    body: dict[str, Any] = {"topic": topic, "error": reason}
-    if message_id is not None:
-        body["message_id"] = int(message_id)
-    if sequence_number is not None:
-        body["sequence_number"] = sequence_number
-    if client_id is not None:
-        body["client_id"] = client_id
-    return orjson.dumps(body)
+           "encode_message", "loads"]

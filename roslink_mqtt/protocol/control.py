@@ -145,6 +145,16 @@ class ErrorReport:
                    cid if isinstance(cid, str) and cid else None)
 
 
+def error_reply(topic: str, reason: str, *, message_id: int | None = None,
+                sequence_number: int | None = None, client_id: str | None = None) -> bytes:
+    """The :class:`ErrorReport` body for ``to/<user>/error``: the bridge's one way of wording a refusal report.
+
+    ``client_id`` repeats the sender's id from the refused request, so that only
+    the program that sent it shows the report.
+    """
+    return ErrorReport(topic, reason, message_id, sequence_number, client_id).to_json()
+
+
 @dataclass(frozen=True, slots=True)
 class AccessReport:
     """What one user may do on one robot, retained on ``to/<user>/access`` by the robot's bridge."""
