@@ -25,6 +25,7 @@ from .localproc import ChildExited, LocalProcess, free_port, port_free, start_ch
 from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, decode
+from .protocol.control import CallReply, CallRequest, ErrorReport
 from .ros_env import local_ros_env
 from .topics import TopicTree
 
@@ -83,9 +84,9 @@ class Scene:
             print(f"  bob sees {self.topics.state('turtle1', name)}: {_summary(name, newest)}")
         return newest
 
-    def reply(self, timeout: float = 5.0) -> tuple[str, dict]:
-        topic, payload = self.replies.get(timeout=timeout)
-        return topic, orjson.loads(payload)
+    def reply(self, timeout: float = 5.0) -> tuple[str, bytes]:
+        """The next error report or service reply for alice: its topic and its body as sent."""
+        return self.replies.get(timeout=timeout)
 
     def close(self) -> None:
         self.operator.publish(self.topics.operator("alice", "demo-alice"), b"", qos=1, retain=True)
@@ -167,16 +168,16 @@ def main(argv: list[str] | None = None) -> int:
         scene.beat()
         scene.operator.publish(cmd, b'{"lx": "fast"}')
         topic, body = scene.reply()
-        print(f"  {topic}: {body['error']}")
+        print(f"  {topic}: {ErrorReport.from_json(body).error}")
         print("6. alice calls the robot's ROS service 'reset' over MQTT:")
         for attempt in range(10):
             scene.beat()
-            scene.operator.publish(topics.call("turtle1", "alice", "reset"), orjson.dumps({"id": attempt, "args": {}}))
+            scene.operator.publish(topics.call("turtle1", "alice", "reset"), CallRequest(id=attempt).to_json())
             topic, body = scene.reply()
-            if body.get("result"):
+            if topic.endswith("/reply/reset") and CallReply.from_json(body).result:
                 break
             time.sleep(0.5)
-        print(f"  {topic}: {orjson.dumps(body).decode()}")
+        print(f"  {topic}: {body.decode()}")
         print("7. alice drives again, then goes silent: the dead-man stops the robot")
         for seq in range(21, 31):
             scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,

@@ -220,7 +220,6 @@ HAND_CHECK = re.compile(r'\{"id":|"args":|\.get\("(id|args|result|values|type|ti
                         r'sequence_number|role|services)"|\["(id|args)"\]')
 # Not converted yet, outside this change's files; each entry must still match, so the list can only shrink.
 NOT_YET = {
-    "roslink_mqtt/demo.py": "builds a call and reads its reply by hand (use CallRequest / CallReply)",
     "roslink_mqtt/client/errors.py": "RobotError.from_json reads an error report by hand (use ErrorReport)",
 }
 
