@@ -11,6 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from ..protocol import ProtocolError
+from ..protocol.control import ErrorReport
+
 
 class RoslinkError(Exception):
     """Base of every exception the SDK raises on purpose: ``except RoslinkError`` catches them all.
@@ -105,12 +108,12 @@ class RobotError:
 
     @classmethod
     def from_json(cls, robot: str, body: Any) -> RobotError:
-        if not isinstance(body, dict):
-            return cls(robot, "", f"malformed error report: {body!r}")
-        mid, seq, cid = body.get("message_id"), body.get("sequence_number"), body.get("client_id")
-        return cls(robot, str(body.get("topic", "")), str(body.get("error", "")),
-                   mid if isinstance(mid, int) else None, seq if isinstance(seq, int) else None,
-                   cid if isinstance(cid, str) and cid else None)
+        """A report from ``robot``'s error topic; a malformed one is still shown, as what it is."""
+        try:
+            report = ErrorReport.from_body(body)
+        except ProtocolError as err:
+            return cls(robot, "", f"malformed error report: {err}")
+        return cls(robot, report.topic, report.error, report.message_id, report.sequence_number, report.client_id)
 
 
 class CommandRefused(RoslinkError):

@@ -134,7 +134,11 @@ class ErrorReport:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ErrorReport:
-        body = loads(data)
+        return cls.from_body(loads(data))
+
+    @classmethod
+    def from_body(cls, body: Any) -> ErrorReport:
+        """The same check on a body already decoded (the SDK decodes every message on ``to/<user>/`` once)."""
         if not isinstance(body, dict):
             raise ProtocolError(f"error report: expected a JSON object, got {describe(body)}")
         topic, error = body.get("topic"), body.get("error")
