@@ -305,9 +305,9 @@ class TopicPolicy:
 
     def payload_limit(self, topic: str) -> int:
         """Largest payload accepted on ``topic`` (0 = only the broker's max_payload applies)."""
-        levels = self._levels(topic)
-        if levels is not None and levels[0] == OPERATORS:
-            return self.limits.max_presence_bytes  # a presence heartbeat is ~100 bytes
+        # asked on every PUBLISH: a prefix test, no split (a presence heartbeat is ~100 bytes)
+        if topic.startswith(f"{self.live.fleet.prefix}/{OPERATORS}/"):
+            return self.limits.max_presence_bytes
         return 0
 
     def retain_refusal(self, topic: str) -> str | None:

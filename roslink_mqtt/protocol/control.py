@@ -128,9 +128,7 @@ class ErrorReport:
             body["message_id"] = int(self.message_id)
         if self.sequence_number is not None:
             body["sequence_number"] = self.sequence_number
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ErrorReport:
@@ -199,6 +197,19 @@ class AccessReport:
         return cls(role, tuple(services))
 
 
+def _dump(body: dict[str, Any], client_id: str | None) -> bytes:
+    """Encode a control body; ``client_id`` goes last and only when set (bodies without it stay as before)."""
+    if client_id is not None:
+        body["client_id"] = client_id
+    return orjson.dumps(body)
+
+
+def _outcome(call_id: Any, result: bool, values: Any, error: str | None) -> dict[str, Any]:
+    """The shape every answer shares (a call reply, a provider response): values on success, error otherwise."""
+    return {"id": call_id, "result": True, "values": values} if result else {"id": call_id, "result": False,
+                                                                            "error": error}
+
+
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -242,9 +253,7 @@ class CallRequest:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"id": self.id, "args": self.args}
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallRequest:
@@ -291,11 +300,8 @@ class CallReply:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        body: dict[str, Any] = ({"id": self.id, "result": True, "values": self.values or {}} if self.result
-                                else {"id": self.id, "result": False, "error": self.error})
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        body = _outcome(self.id, self.result, self.values or {}, self.error)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallReply:
@@ -340,9 +346,7 @@ class ServiceOffer:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"type": self.type, "timeout": self.timeout}
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ServiceOffer:
@@ -385,9 +389,7 @@ class ProviderRequest:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"id": self.id, "args": self.args}
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderRequest:
@@ -438,11 +440,8 @@ class ProviderResponse:
         return self.error if self.error is not None else DEFAULT_PROVIDER_FAILURE
 
     def to_json(self) -> bytes:
-        body: dict[str, Any] = ({"id": self.id, "result": True, "values": self.values} if self.result
-                                else {"id": self.id, "result": False, "error": self.error})
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        body = _outcome(self.id, self.result, self.values, self.error)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderResponse:
@@ -476,9 +475,7 @@ class Advertisement:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"type": self.type}
-        if self.client_id is not None:
-            body["client_id"] = self.client_id
-        return orjson.dumps(body)
+        return _dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> Advertisement:
