@@ -435,10 +435,10 @@ class HardenedBroker(Broker):
         message = wait_deliver.result()
         if message is not None:
             topic = message.topic
-            if not topic or (defect := topic_defect(topic)) is not None:
-                # MQTT-3.3.2-2 / 1.5.3-2: a protocol violation ends the connection (stock drops the
-                # message silently and stops reading this client's packets, so a QoS 1 sender hung)
-                _drop_connection(handler, f"PUBLISH to {topic!r}: {defect if topic else 'empty topic'}")
+            if not topic:
+                # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
+                # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
+                _drop_connection(handler, "PUBLISH with an empty topic")
                 return True
             if topic.startswith("$"):
                 _log_once(client_session, "$" + topic, logging.INFO,
