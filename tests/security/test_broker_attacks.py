@@ -398,3 +398,23 @@ def test_mosquitto_and_a_client_that_never_reads(tmp_path, clients, qos: int) ->
             assert growth < MEMORY_BOUND
         else:  # docs/safety.md: "Mosquitto 2.0.11 queues QoS 0 for a connected client without bound"
             assert growth > MEMORY_BOUND, "Mosquitto now bounds QoS 0 to slow clients: update docs/safety.md"
+
+
+def test_an_offline_persistent_session_queues_a_bounded_number(tmp_path, clients) -> None:
+    """bob subscribes with a persistent session and leaves; 200 QoS 1 messages later he gets at most the limit."""
+    with _broker(tmp_path, "--limit", "max_offline_messages=50") as broker:
+        bob = Probe(broker.port, "bob", PW["bob"], "bob-persistent", clean=False)
+        assert bob.connect() == 0
+        assert bob.subscribe("roslink/turtle1/state/#", qos=1) == [1]
+        bob.close()
+        robot = clients(broker.port, "turtle1")
+        for i in range(200):
+            robot.client.publish(f"roslink/turtle1/state/n{i}", b"x", qos=1)
+        robot.publish("roslink/turtle1/state/last", b"x")
+        again = Probe(broker.port, "bob", PW["bob"], "bob-persistent", clean=False)
+        assert again.connect() == 0 and again.session_present
+        queued = again.drain(2.0)
+        again.close()
+        print(f"offline queue: {len(queued)} of 201 messages kept for bob")
+        assert 0 < len(queued) <= 50
+        assert "offline queue of" in broker.output()
