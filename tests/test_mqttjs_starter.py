@@ -1,8 +1,10 @@
-"""examples/mqttjs/watch_and_drive.js (plain MQTT.js, no SDK) against a real stack: embedded broker, sim robot, bridge.
+"""The MQTT.js starters (plain MQTT.js, no SDK) against a real stack: embedded broker, sim robot, bridge.
 
-What counts is checked where it happens: the twists on ROS ``/cmd_vel`` and the robot's displacement on
-``/odom``; the script's own output must show the robot's heartbeat and a position that changes. Killing the
-script mid-drive must stop the robot through its last-will (the time is printed).
+* examples/mqttjs/watch_and_drive.js (Node): what counts is checked where it happens -- the twists on ROS
+  ``/cmd_vel`` and the robot's displacement on ``/odom``; the script's own output must show the robot's heartbeat
+  and a position that changes. Killing the script mid-drive must stop the robot through its last-will.
+* examples/mqttjs/index.html in headless Debian Chromium (Selenium) over the broker's WebSocket listener: holding
+  forward moves the robot, releasing stops it, closing the browser stops it. The times are printed.
 """
 
 from __future__ import annotations
@@ -13,12 +15,19 @@ import re
 import shutil
 import signal
 import subprocess
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 
 import pytest
 
-from .support.procs import ROOT
-from .support.robot_stack import turtle1_online
+from .support.embedded_broker import EmbeddedBrokerProcess
+from .support.mqtt_client import TestClient
+from .support.procs import ROOT, bridge_args, bridge_env, run
 from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(120)
@@ -26,6 +35,19 @@ pytestmark = pytest.mark.timeout(120)
 SCRIPT = ROOT / "examples" / "mqttjs" / "watch_and_drive.js"
 NODE = shutil.which("node")
 POSITION = re.compile(r"^position turtle1: x=(-?\d+\.\d+) y=(-?\d+\.\d+) ", re.M)
+
+
+@contextmanager
+def turtle1_online_ws(work: Path) -> Iterator[EmbeddedBrokerProcess]:
+    """tests/support/robot_stack.turtle1_online with the broker's WebSocket listener open too (``.ws_port``)."""
+    with EmbeddedBrokerProcess(work, ws=True) as broker, \
+            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
+            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")):
+        with TestClient(broker.port, "bob", "bob-demo") as bob:
+            assert bob.connect() == 0
+            bob.subscribe("roslink/turtle1/heartbeat")
+            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
+        yield broker
 
 
 @pytest.fixture(scope="module")
@@ -36,10 +58,11 @@ def stack(tmp_path_factory):
     from nav_msgs.msg import Odometry
 
     work = tmp_path_factory.mktemp("mqttjs")
-    with turtle1_online(work) as port:
+    with turtle1_online_ws(work) as broker:
         probe = RosProbe()
         try:
-            yield {"port": port, "cmd_vel": probe.watch(Twist, "/cmd_vel"), "odom": probe.watch(Odometry, "/odom")}
+            yield {"port": broker.port, "ws_port": broker.ws_port, "cmd_vel": probe.watch(Twist, "/cmd_vel"),
+                   "odom": probe.watch(Odometry, "/odom")}
         finally:
             probe.close()
 
@@ -140,3 +163,98 @@ def test_viewer_and_wrong_password_are_refused(stack) -> None:
     wrong = _run(stack["port"], "alice", "not-her-password", "--seconds", "1")
     assert wrong.returncode == 1 and "cannot connect" in wrong.stderr, wrong.stdout + wrong.stderr
     assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.4)]
+
+
+# -- the HTML page in headless Chromium ------------------------------------------------------------------------------
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+
+
+class _QuietHandler(SimpleHTTPRequestHandler):
+    def log_message(self, *args) -> None:  # the page's requests are not the test's output
+        pass
+
+
+@contextmanager
+def _serve_repository() -> Iterator[int]:
+    """The repository over HTTP on 127.0.0.1 (the page finds MQTT.js in ../../node_modules, as documented)."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(_QuietHandler, directory=str(ROOT)))
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
+    thread.start()
+    try:
+        yield server.server_address[1]
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(5)
+
+
+@contextmanager
+def _chromium(profile: Path) -> Iterator[object]:
+    webdriver = pytest.importorskip("selenium.webdriver")
+    assert CHROMIUM.exists() and CHROMEDRIVER.exists(), "chromium + chromium-driver missing (.ci/run installs them)"
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}"):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=str(CHROMEDRIVER)))
+    try:
+        driver.set_page_load_timeout(15)
+        yield driver
+    finally:
+        driver.quit()
+
+
+def _until(what: str, check, timeout: float = 10.0):
+    deadline = time.monotonic() + timeout
+    while True:
+        value = check()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def test_page_drives_with_hold_and_stops_on_release_and_close(stack, tmp_path) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    cmd_vel = stack["cmd_vel"]
+    _quiet(cmd_vel)
+    with _serve_repository() as http_port, _chromium(tmp_path / "profile") as driver:
+        driver.get(f"http://127.0.0.1:{http_port}/examples/mqttjs/index.html"
+                   f"?url=ws://127.0.0.1:{stack['ws_port']}/mqtt&user=alice")
+        text = lambda element_id: driver.find_element(By.ID, element_id).text  # noqa: E731
+        _until("MQTT.js to load", lambda: driver.execute_script("return !!window.mqtt"))
+        driver.find_element(By.ID, "password").send_keys("alice-demo")
+        driver.find_element(By.ID, "connect").click()
+        _until("turtle1 online", lambda: text("robot-state").startswith("online: active"))
+        _until("the access report", lambda: text("access").startswith("operator"))
+        first = _until("a position", lambda: text("position"))
+        forward = driver.find_element(By.ID, "forward")
+        assert forward.is_enabled()
+
+        # Hold forward for 1.5 s: a 10 Hz stream of 0.3 m/s twists reaches ROS and the page sees the robot move.
+        t0 = time.monotonic()
+        ActionChains(driver).click_and_hold(forward).perform()
+        time.sleep(1.5)
+        released = time.monotonic()
+        ActionChains(driver).release().perform()
+        held = [t for t, m in cmd_vel.since(t0) if t <= released and m.linear.x == pytest.approx(0.3)]
+        assert len(held) >= 10, f"{len(held)} forward twists in 1.5 s"
+        at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=released, timeout=2)
+        print(f"page: released forward -> zero twist on /cmd_vel after {(at - released) * 1000:.0f} ms")
+        assert at - released < 0.5
+        assert _until("a new position", lambda: text("position") != first and text("position"))
+        time.sleep(0.3)
+        assert not [m for t, m in cmd_vel.since(released + 0.3) if m.linear.x != 0], "moved after release"
+
+        # Hold forward again and close the browser while holding: the last-will stops the robot.
+        t1 = time.monotonic()
+        ActionChains(driver).click_and_hold(forward).perform()
+        cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.3), after=t1, timeout=3)
+        closed = time.monotonic()
+        driver.quit()
+    at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=closed, timeout=3)
+    print(f"page: browser closed while driving -> zero twist on /cmd_vel after {(at - closed) * 1000:.0f} ms")
+    assert at - closed < 2.0  # the failsafe bound for a vanished operator (docs/safety.md)
