@@ -10,9 +10,21 @@ from collections.abc import Sequence
 from ..client import RoslinkError
 from ..config import ConfigError
 from ..topics import TopicError
-from . import acl_cmd, call_cmd, echo_cmd, fleet_cmd, monitor_cmd, passwd_cmd, pub_cmd, robots_cmd, teleop_cmd
+from . import (
+    acl_cmd,
+    call_cmd,
+    dashboard_cmd,
+    echo_cmd,
+    fleet_cmd,
+    monitor_cmd,
+    passwd_cmd,
+    pub_cmd,
+    robots_cmd,
+    teleop_cmd,
+)
 
-SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd)
+SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd,
+               dashboard_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 

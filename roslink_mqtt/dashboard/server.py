@@ -1,0 +1,167 @@
+"""A static file server for the web dashboard: the page, its script and style, and MQTT.js's browser bundle.
+
+The server holds no credentials and proxies nothing. The browser connects to the broker's WebSocket
+listener itself, with the user's own login, so the broker's ACL stays the only access path: anyone who can
+reach this server learns the page and the broker's WebSocket address, nothing else (not even the fleet's
+robot names — the page discovers robots from what the broker lets the user read).
+
+ROS-free and amqtt-free (stdlib ``http.server`` only), so it runs on any client machine with the core
+install. Serving is a fixed table of files: no path from a request ever reaches the file system.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+STATIC = Path(__file__).resolve().parent / "static"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+# `make install` runs `npm install` at the repository root (package.json lists mqtt@^5).
+DEFAULT_MQTT_JS = REPO_ROOT / "node_modules" / "mqtt" / "dist" / "mqtt.min.js"
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8090
+DEFAULT_WS_PORT = 8083
+DEFAULT_PREFIX = "roslink"
+
+# The page talks to nothing but this server (its files) and a broker's WebSocket (ws: or wss:, any host: the user
+# may type another broker's URL). No inline script, no framing (an e-stop button must not be clickjacked).
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self' ws: wss:; "
+       "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+
+
+class MqttJsMissing(FileNotFoundError):
+    """MQTT.js's browser bundle is not where the server was told to look (``make install`` not run)."""
+
+
+@dataclass(frozen=True)
+class PageConfig:
+    """What the page is told at ``/config.json``: where the broker's WebSocket is and the topic prefix.
+
+    ``ws_url`` empty means "derive it in the browser": ``ws://<the host the page came from>:<ws_port>``, so a
+    page opened through an SSH tunnel or a LAN address points at the same machine's broker.
+    """
+
+    ws_port: int = DEFAULT_WS_PORT
+    ws_url: str = ""
+    prefix: str = DEFAULT_PREFIX
+
+    def to_json(self) -> bytes:
+        return json.dumps({"ws_port": self.ws_port, "ws_url": self.ws_url, "prefix": self.prefix}).encode()
+
+
+def _routes(mqtt_js: Path, config: PageConfig) -> dict[str, tuple[str, Path | bytes]]:
+    """URL path → (content type, file or bytes). The whole surface of the server."""
+    return {
+        "/": ("text/html; charset=utf-8", STATIC / "index.html"),
+        "/index.html": ("text/html; charset=utf-8", STATIC / "index.html"),
+        "/app.js": ("text/javascript; charset=utf-8", STATIC / "app.js"),
+        "/style.css": ("text/css; charset=utf-8", STATIC / "style.css"),
+        "/vendor/mqtt.min.js": ("text/javascript; charset=utf-8", mqtt_js),
+        "/config.json": ("application/json", config.to_json()),
+    }
+
+
+def _handler(routes: dict[str, tuple[str, Path | bytes]], quiet: bool) -> type[BaseHTTPRequestHandler]:
+    class Handler(BaseHTTPRequestHandler):
+        server_version = "roslink-mqtt-dashboard"
+        sys_version = ""
+
+        def _send(self, head_only: bool) -> None:
+            path = self.path.split("?", 1)[0].split("#", 1)[0]
+            route = routes.get(path)
+            if route is None:
+                self.send_error(404, "not found")
+                return
+            ctype, source = route
+            try:
+                body = source if isinstance(source, bytes) else source.read_bytes()
+            except OSError:
+                self.send_error(404, "not found")
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(body)))
+            # Files change with the checkout; a stale cached app.js next to a new index.html would break the page.
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("Content-Security-Policy", CSP)
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.send_header("X-Frame-Options", "DENY")
+            self.send_header("Referrer-Policy", "no-referrer")
+            self.end_headers()
+            if not head_only:
+                self.wfile.write(body)
+
+        def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+            self._send(head_only=False)
+
+        def do_HEAD(self) -> None:  # noqa: N802
+            self._send(head_only=True)
+
+        def log_message(self, format: str, *args: object) -> None:  # noqa: A002 (http.server's signature)
+            if not quiet:
+                super().log_message(format, *args)
+
+    return Handler
+
+
+class DashboardServer:
+    """The dashboard's HTTP server, in a background thread (``start``/``stop``) or in the foreground (``serve``).
+
+    ``port=0`` picks a free port (see :attr:`url`). Raises :class:`MqttJsMissing` at construction when the
+    MQTT.js bundle is absent, so a missing ``make install`` is a clear error and not a blank page.
+    """
+
+    def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, ws_port: int = DEFAULT_WS_PORT,
+                 ws_url: str = "", prefix: str = DEFAULT_PREFIX, mqtt_js: Path = DEFAULT_MQTT_JS,
+                 quiet: bool = True) -> None:
+        mqtt_js = Path(mqtt_js)
+        if not mqtt_js.is_file():
+            raise MqttJsMissing(f"MQTT.js browser bundle not found at {mqtt_js}: run `make install` "
+                                f"(npm install at the repository root) or pass its path")
+        self.config = PageConfig(ws_port=ws_port, ws_url=ws_url, prefix=prefix)
+        self.httpd = ThreadingHTTPServer((host, port), _handler(_routes(mqtt_js, self.config), quiet))
+        self.httpd.daemon_threads = True  # a browser's keep-alive connection must not hold up stop()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def host(self) -> str:
+        return str(self.httpd.server_address[0])
+
+    @property
+    def port(self) -> int:
+        return int(self.httpd.server_address[1])
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def start(self) -> DashboardServer:
+        """Serve in a daemon thread and return at once."""
+        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.2},
+                                        name="dashboard-http", daemon=True)
+        self._thread.start()
+        return self
+
+    def serve(self) -> None:
+        """Serve in this thread until :meth:`stop` is called from another one (or KeyboardInterrupt)."""
+        try:
+            self.httpd.serve_forever(poll_interval=0.2)
+        finally:
+            self.httpd.server_close()
+
+    def stop(self) -> None:
+        """Stop serving and close the socket (returns within about the poll interval)."""
+        self.httpd.shutdown()
+        self.httpd.server_close()
+        if self._thread is not None:
+            self._thread.join(5)
+            self._thread = None
+
+    def __enter__(self) -> DashboardServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,319 @@
+"""The web dashboard in real headless Chromium (Debian's chromium + chromedriver, driven by Selenium).
+
+One stack for the module: the embedded broker with its WebSocket listener, the simulated turtle1 and its
+bridge (real processes), a ROS probe in this process watching what reaches ``/cmd_vel`` and ``/odom``, and the
+dashboard's static server. Each test opens its own browser with a fresh profile and logs in as a demo user;
+the page's MQTT.js connects to the broker's WebSocket itself, so everything the tests see went through the
+broker's ACL. Effects are checked on the ROS side (a twist on ``/cmd_vel``, the sim's odometry), never only in
+the page. A failing test saves a screenshot in its pytest tmp dir and prints the path.
+
+Set ``DASHBOARD_SCREENSHOT=path.png`` to also save the page of the driving test there (docs/dashboard.png
+comes from such a run).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from roslink_mqtt.dashboard import DashboardServer
+
+from .support.embedded_broker import EmbeddedBrokerProcess
+from .support.mqtt_client import TestClient
+from .support.procs import bridge_args, bridge_env, run
+from .support.ros import RosProbe, Watch
+
+pytestmark = [
+    pytest.mark.timeout(150),
+    pytest.mark.skipif(not (Path("/usr/bin/chromium").exists() and Path("/usr/bin/chromedriver").exists()),
+                       reason="needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)"),
+]
+
+FAILSAFE_BOUND = 2.0  # s: docs/safety.md, the worst case of an operator going away (operator_timeout 1.5 + 0.5)
+
+
+# -- the stack -------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
+    """Broker (TCP + WebSocket), sim, bridge, a ROS probe and the dashboard server; yielded once turtle1 is active."""
+    from geometry_msgs.msg import PoseStamped, Twist
+    from nav_msgs.msg import Odometry
+
+    work = tmp_path_factory.mktemp("dashboard")
+    with EmbeddedBrokerProcess(work, ws=True) as broker, \
+            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
+            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")) as bridge:
+        probe = RosProbe()
+        server = None
+        try:
+            cmd_vel = probe.watch(Twist, "/cmd_vel")
+            odom = probe.watch(Odometry, "/odom")
+            goals = probe.watch(PoseStamped, "/goal_pose")
+            with TestClient(broker.port, "bob", "bob-demo") as bob:
+                assert bob.connect() == 0
+                bob.subscribe("roslink/turtle1/heartbeat")
+                bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
+            server = DashboardServer("127.0.0.1", 0, ws_port=broker.ws_port).start()
+            yield {"broker": broker, "bridge": bridge, "cmd_vel": cmd_vel, "odom": odom, "goals": goals,
+                   "url": server.url, "work": work}
+        finally:
+            if server is not None:
+                server.stop()
+            probe.close()
+
+
+# -- the browser -----------------------------------------------------------------------------------------------
+
+def _chrome(profile: Path, precise_memory: bool = False) -> Any:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--no-first-run", f"--user-data-dir={profile}", "--window-size=1280,1000"):
+        options.add_argument(arg)
+    if precise_memory:
+        options.add_argument("--enable-precise-memory-info")  # else performance.memory is coarse and delayed
+    return webdriver.Chrome(options=options, service=Service("/usr/bin/chromedriver"))
+
+
+@contextmanager
+def browser(tmp_path: Path, name: str, precise_memory: bool = False) -> Iterator[Any]:
+    """A fresh headless Chromium; on failure a screenshot lands in ``tmp_path`` (path printed); always quit."""
+    profile = Path(tempfile.mkdtemp(prefix="chromium-profile-"))
+    driver = _chrome(profile, precise_memory)
+    driver.set_page_load_timeout(20)
+    try:
+        yield driver
+    except BaseException:
+        shot = tmp_path / f"{name}-failure.png"
+        try:
+            driver.save_screenshot(str(shot))
+            print(f"\nscreenshot of the failing page: {shot}")
+            logs = driver.get_log("browser")
+            if logs:
+                print("browser console:", *[f"  {e.get('level')} {e.get('message')}" for e in logs[-20:]], sep="\n")
+        except Exception as err:  # the browser may be what failed; the original error matters more
+            print(f"\nno screenshot ({err})")
+        raise
+    finally:
+        try:
+            driver.quit()
+        except Exception:
+            pass  # a test may already have closed it (the page-close test does)
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def wait_until(what: str, check: Callable[[], Any], timeout: float = 10.0, period: float = 0.1) -> Any:
+    """Poll ``check`` until it returns something truthy (bounded in time); fail naming ``what``."""
+    deadline = time.monotonic() + timeout
+    last: Any = None
+    while time.monotonic() < deadline:
+        last = check()
+        if last:
+            return last
+        time.sleep(period)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what} (last: {last!r})")
+
+
+def login(driver: Any, url: str, user: str, password: str) -> None:
+    from selenium.webdriver.common.by import By
+
+    driver.get(url)
+    wait_until("the derived WebSocket URL", lambda: driver.find_element(By.ID, "ws-url").get_attribute("value"))
+    driver.find_element(By.ID, "username").send_keys(user)
+    driver.find_element(By.ID, "password").send_keys(password)
+    driver.find_element(By.ID, "connect").click()
+
+
+def logged_in(driver: Any, user: str) -> None:
+    wait_until(f"{user} connected", lambda: driver.execute_script(
+        "return document.getElementById('conn').dataset.state") == "connected")
+
+
+def robot_row(driver: Any, robot: str) -> dict[str, str] | None:
+    """The fleet row of ``robot`` as {column: text}, or None when the page shows no such row."""
+    return driver.execute_script("""
+        const tr = document.querySelector(`#fleet tbody tr[data-robot="${arguments[0]}"]`);
+        if (!tr) return null;
+        const out = {};
+        for (const td of tr.cells) out[td.className] = td.textContent;
+        return out;""", robot)
+
+
+def pose(driver: Any) -> tuple[float, float, int] | None:
+    """The page's position readout (x, y, count of global_motion messages drawn), None before the first."""
+    d = driver.execute_script("const p = document.getElementById('pose').dataset; return [p.x, p.y, p.n];")
+    return None if d[0] is None else (float(d[0]), float(d[1]), int(d[2]))
+
+
+def visible(driver: Any, element_id: str) -> bool:
+    from selenium.webdriver.common.by import By
+
+    return driver.find_element(By.ID, element_id).is_displayed()
+
+
+def errors_text(driver: Any) -> str:
+    return driver.execute_script("return document.getElementById('errors').textContent")
+
+
+def moving(watch: Watch, since: float) -> list[Any]:
+    """Non-zero twists that reached /cmd_vel after ``since``."""
+    return [m for _, m in watch.since(since) if abs(m.linear.x) > 1e-6 or abs(m.angular.z) > 1e-6]
+
+
+def wait_still(cmd_vel: Watch, quiet: float = 1.2, timeout: float = 15.0) -> None:
+    """Until no non-zero twist has reached /cmd_vel for ``quiet`` s: earlier streams and stops are over."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not moving(cmd_vel, time.monotonic() - quiet):
+            return
+        time.sleep(0.1)
+    raise AssertionError("the robot kept receiving motion commands")
+
+
+def odom_xy(odom: Watch) -> tuple[float, float]:
+    _, msg = odom.wait_for(lambda m: True, timeout=5, after=time.monotonic() - 0.5)
+    return msg.pose.pose.position.x, msg.pose.pose.position.y
+
+
+def hold(driver: Any, element_id: str) -> Any:
+    """Press and keep pressing ``element_id`` (mouse down, no up); returns the ActionChains to release with."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    button = driver.find_element(By.ID, element_id)
+    ActionChains(driver).click_and_hold(button).perform()
+    return button
+
+
+def release(driver: Any, button: Any) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    ActionChains(driver).release(button).perform()
+
+
+def alice_ready(driver: Any, stack: dict[str, Any]) -> None:
+    """alice logged in, turtle1 online and selected, her operator controls shown, her presence published."""
+    login(driver, stack["url"], "alice", "alice-demo")
+    logged_in(driver, "alice")
+    wait_until("turtle1 online", lambda: (robot_row(driver, "turtle1") or {}).get("presence") == "online")
+    wait_until("alice's operator controls", lambda: visible(driver, "controls") and visible(driver, "estop"))
+    wait_until("alice's presence heartbeat", lambda: driver.execute_script(
+        "return window.dashboard.presenceTimer !== null"))
+
+
+def arm_if_blocked(stack: dict[str, Any]) -> None:
+    """A test that leaves turtle1 e-stopped must not break the next one: arm it over plain MQTT."""
+    with TestClient(stack["broker"].port, "alice", "alice-demo", operator=True) as alice:
+        assert alice.connect() == 0
+        alice.publish("roslink/turtle1/from/alice/cmd/arm", {"message_id": 104, "payload": {}})
+        time.sleep(0.3)
+
+
+# -- the tests -------------------------------------------------------------------------------------------------
+
+def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
+    cmd_vel, odom = stack["cmd_vel"], stack["odom"]
+    with browser(tmp_path, "drive") as driver:
+        alice_ready(driver, stack)
+        row = robot_row(driver, "turtle1")
+        assert row["status"] == "active" and row["role"] == "operator" and row["session"].isdigit(), row
+        assert "%" in row["battery"] and row["mode"] == "MANUAL", row
+        first = wait_until("a position on the plot", lambda: pose(driver))
+        wait_until("live positions", lambda: (pose(driver) or (0, 0, 0))[2] >= first[2] + 5)
+        wait_still(cmd_vel)
+        x0, y0 = odom_xy(odom)
+
+        t_press = time.monotonic()
+        button = hold(driver, "drive-fwd")
+        try:
+            _, twist = cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_press)
+            assert twist.linear.x == pytest.approx(0.3) and twist.angular.z == 0.0
+            time.sleep(1.5)
+            streamed = [m for _, m in cmd_vel.since(t_press) if m.linear.x > 0.1]
+            # 10 Hz while held: ~15 in 1.5 s, more than the page's one first command
+            assert len(streamed) >= 10, f"only {len(streamed)} twists in {time.monotonic() - t_press:.1f} s"
+            page_moved = wait_until("the plot's position to change", lambda: (
+                (p := pose(driver)) and math.hypot(p[0] - first[0], p[1] - first[1]) > 0.2 and p))
+        finally:
+            release(driver, button)
+        t_release = time.monotonic()
+        _, stop = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=2, after=t_release)
+        time.sleep(0.5)
+        late = moving(cmd_vel, t_release + 0.3)
+        assert not late, f"motion after release: {late[:3]}"
+        x1, y1 = odom_xy(odom)
+        travelled = math.hypot(x1 - x0, y1 - y0)
+        assert 0.3 < travelled < 1.5, (x0, y0, x1, y1)  # ~0.3 m/s for ~1.6 s on the ROS side
+        print(f"\npad forward: robot moved {travelled:.2f} m on /odom; page showed {page_moved}; released → "
+              f"zero twist after {(cmd_vel.since(t_release)[0][0] - t_release) * 1000:.0f} ms")
+
+        # keyboard: ↑ held drives, key-up stops
+        from selenium.webdriver.common.action_chains import ActionChains
+        from selenium.webdriver.common.keys import Keys
+
+        wait_still(cmd_vel)
+        t_key = time.monotonic()
+        ActionChains(driver).key_down(Keys.ARROW_UP).perform()
+        try:
+            cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_key)
+        finally:
+            ActionChains(driver).key_up(Keys.ARROW_UP).perform()
+        t_up = time.monotonic()
+        cmd_vel.wait_for(lambda m: m.linear.x == 0.0, timeout=2, after=t_up)
+        time.sleep(0.5)
+        assert not moving(cmd_vel, t_up + 0.3)
+
+        # the page's MQTT client object, used from the console, reaches the robot for an operator (the
+        # positive control of the viewer test below)
+        wait_still(cmd_vel)
+        t_console = time.monotonic()
+        driver.execute_script("""
+            const d = window.dashboard;
+            d.client.publish(`roslink/turtle1/from/${d.user}/cmd/twist`, JSON.stringify({lx: 0.21}));""")
+        cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.21), timeout=3, after=t_console)
+
+        # a service button built from alice's access report
+        from selenium.webdriver.common.by import By
+
+        driver.find_element(By.CSS_SELECTOR, '#services button[data-service="reset"]').click()
+        wait_until("the reset reply", lambda: driver.execute_script(
+            "return document.getElementById('service-result').dataset.result") == "ok")
+        assert "pose reset" in driver.find_element(By.ID, "service-result").text
+        wait_until("the plot back at the centre", lambda: (p := pose(driver)) and math.hypot(p[0], p[1]) < 0.05)
+        rates = driver.execute_script("""
+            const out = {};
+            for (const tr of document.querySelectorAll('#rates tbody tr')) out[tr.dataset.topic] = +tr.dataset.hz;
+            return out;""")
+        assert 6 <= rates.get("global_motion", 0) <= 14 and 2 <= rates.get("range_finder_data", 0) <= 8, rates
+        scan_drawn = driver.execute_script("return window.dashboard.robots.get('turtle1').scan.ranges.length")
+        assert scan_drawn == 360
+        wait_until("the GPS panel", lambda: visible(driver, "gps-box"))
+
+        # click on the plot: a go-to-waypoint reaches ROS as a goal pose
+        goals = stack["goals"]
+        driver.find_element(By.ID, "waypoint-mode").click()
+        plot = driver.find_element(By.ID, "plot")
+        t_click = time.monotonic()
+        ActionChains(driver).move_to_element_with_offset(plot, 140, -140).click().perform()  # right of, above centre
+        _, goal = goals.wait_for(lambda m: True, timeout=5, after=t_click)
+        assert goal.pose.position.x > 1.0 and goal.pose.position.y > 1.0, goal.pose.position
+        time.sleep(0.4)  # the plot shows the marker and the trail
+        shot = tmp_path / "dashboard.png"
+        driver.save_screenshot(str(shot))
+        print(f"screenshot: {shot}")
+        if os.environ.get("DASHBOARD_SCREENSHOT"):
+            shutil.copy(shot, os.environ["DASHBOARD_SCREENSHOT"])
