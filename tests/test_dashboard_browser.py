@@ -317,3 +317,222 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         print(f"screenshot: {shot}")
         if os.environ.get("DASHBOARD_SCREENSHOT"):
             shutil.copy(shot, os.environ["DASHBOARD_SCREENSHOT"])
+
+
+def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
+    from selenium.webdriver.common.by import By
+
+    cmd_vel = stack["cmd_vel"]
+    try:
+        with browser(tmp_path, "estop") as driver:
+            alice_ready(driver, stack)
+            wait_still(cmd_vel)
+            button = hold(driver, "drive-fwd")
+            t_press = time.monotonic()
+            try:
+                cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_press)
+                t_stop = time.monotonic()
+                driver.find_element(By.ID, "estop").click()  # while the pad is still held
+            finally:
+                release(driver, button)
+            at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=2, after=t_stop)
+            print(f"\ne-stop: zero twist {(at - t_stop) * 1000:.0f} ms after the click")
+            wait_until("the blocked banner", lambda: visible(driver, "robot-banner") and "blocked" in
+                       driver.find_element(By.ID, "robot-banner").text)
+            assert (robot_row(driver, "turtle1") or {}).get("status") == "emergency"
+
+            # latched: a forward press now is refused by the robot, and the page says so
+            t_try = time.monotonic()
+            button = hold(driver, "drive-fwd")
+            time.sleep(1.2)
+            release(driver, button)
+            time.sleep(0.3)
+            assert not moving(cmd_vel, t_try), "motion after the emergency stop"
+            refusal = wait_until("the refusal in the page", lambda: "emergency stop by alice" in errors_text(driver)
+                                 and errors_text(driver))
+            assert "send cmd/arm to resume" in refusal
+            assert "emergency stop by alice" in driver.find_element(By.ID, "notice").text
+
+            # Resume (arm) clears it: the same press drives again
+            driver.find_element(By.ID, "arm").click()
+            wait_until("turtle1 active again", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "active")
+            assert not visible(driver, "robot-banner")
+            t_again = time.monotonic()
+            button = hold(driver, "drive-fwd")
+            try:
+                cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_again)
+            finally:
+                release(driver, button)
+    finally:
+        arm_if_blocked(stack)
+
+
+def _browser_pids(driver: Any) -> list[int]:
+    """Chromium's main process(es): the children of chromedriver (read from /proc, no extra package)."""
+    root = driver.service.process.pid
+    children: list[int] = []
+    for task in Path(f"/proc/{root}/task").iterdir():
+        children += [int(p) for p in (task / "children").read_text().split()]
+    return children
+
+
+@pytest.mark.parametrize("how", ["quit", "kill"])
+def test_closing_the_page_while_driving_stops_the_robot(stack, tmp_path, how) -> None:
+    """``quit``: the browser closes (the page may still sign off); ``kill``: SIGKILL, only the last-will is left."""
+    import signal
+
+    cmd_vel = stack["cmd_vel"]
+    with browser(tmp_path, f"close-{how}") as driver:
+        alice_ready(driver, stack)
+        wait_still(cmd_vel)
+        pids = _browser_pids(driver)
+        assert pids, "no chromium process under chromedriver"
+        t_press = time.monotonic()
+        hold(driver, "drive-fwd")
+        cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_press)
+        time.sleep(0.5)  # mid-stream: the page keeps sending at 10 Hz while the button is held
+        t_close = time.monotonic()
+        if how == "quit":
+            driver.quit()  # the whole browser goes, with the button still held
+        else:
+            for pid in pids:
+                os.kill(pid, signal.SIGKILL)  # no pagehide, no sign-off: the kernel closes the WebSocket
+    closed = time.monotonic()
+    at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=FAILSAFE_BOUND + 3,
+                             after=t_close)
+    elapsed = at - t_close
+    print(f"\npage closed ({how}) while driving: zero twist on /cmd_vel {elapsed * 1000:.0f} ms after closing "
+          f"began (closing took {(closed - t_close) * 1000:.0f} ms; failsafe bound {FAILSAFE_BOUND:g} s)")
+    time.sleep(1.0)
+    late = moving(cmd_vel, at + 0.2)
+    assert not late, f"motion after the stop: {late[:3]}"
+    assert elapsed <= FAILSAFE_BOUND, f"stopped only after {elapsed:.2f} s"
+    from .conftest import record_measurement
+
+    record_measurement(f"dashboard: page closed ({how}) while driving → stop", elapsed, FAILSAFE_BOUND)
+
+
+def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path) -> None:
+    from selenium.webdriver.common.by import By
+
+    cmd_vel = stack["cmd_vel"]
+    with browser(tmp_path, "bob") as driver:
+        login(driver, stack["url"], "bob", "bob-demo")
+        logged_in(driver, "bob")
+        wait_until("turtle1 online", lambda: (robot_row(driver, "turtle1") or {}).get("presence") == "online")
+        wait_until("bob's role", lambda: (robot_row(driver, "turtle1") or {}).get("role") == "viewer")
+        wait_until("a position on the plot", lambda: pose(driver))
+        assert not visible(driver, "controls") and not visible(driver, "estop") and not visible(driver, "services-box")
+        assert not visible(driver, "waypoint-label")
+        assert "viewer of turtle1" in driver.find_element(By.ID, "viewer-note").text
+        assert not any(b.is_displayed() for b in driver.find_elements(By.CSS_SELECTOR, ".pad button, #arm"))
+        wait_still(cmd_vel)
+
+        # The page's own command path refuses, visibly.
+        assert driver.execute_script("return window.dashboard.sendTwist('turtle1', 0.37, 0)") is False
+        assert "bob is a viewer of turtle1" in errors_text(driver)
+        # The console: the page's MQTT client publishing by hand, with a presence heartbeat first, a bare twist,
+        # an e-stop and a service call. The broker's ACL drops all of it before it reaches the robot.
+        t0 = time.monotonic()
+        driver.execute_script("""
+            const d = window.dashboard, c = d.client;
+            const hb = JSON.stringify({message_id: 0, payload: {type: 0, name: d.clientId, system_status: 4,
+                                       owner_id: 'bob', mode: 0}});
+            c.publish(`roslink/operators/bob/${d.clientId}`, hb, {retain: true});
+            for (let i = 0; i < 10; i++) c.publish('roslink/turtle1/from/bob/cmd/twist', JSON.stringify({lx: 0.37}));
+            c.publish('roslink/turtle1/from/alice/cmd/twist', JSON.stringify({lx: 0.37}));
+            c.publish('roslink/turtle1/from/bob/cmd/emergency_stop', JSON.stringify({reason: 'bob'}), {qos: 1});
+            c.publish('roslink/turtle1/from/bob/call/reset', JSON.stringify({id: 'b1', args: {}}), {qos: 1});""")
+        time.sleep(2.0)
+        assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.37)], "bob's twist reached ROS"
+        assert (robot_row(driver, "turtle1") or {}).get("status") == "active", "bob's e-stop reached the robot"
+        assert driver.execute_script("return document.getElementById('conn').dataset.state") == "connected"
+        driver.execute_script("window.dashboard.client.publish(`roslink/operators/bob/${window.dashboard.clientId}`,"
+                              " '', {retain: true, qos: 1})")
+
+
+def test_carol_does_not_see_turtle1(stack, tmp_path) -> None:
+    with browser(tmp_path, "carol") as driver:
+        login(driver, stack["url"], "carol", "carol-demo")
+        logged_in(driver, "carol")
+        time.sleep(3.0)  # retained heartbeats arrive right after SUBACK; live ones every second
+        assert robot_row(driver, "turtle1") is None
+        assert visible(driver, "fleet-empty")
+        seen = driver.execute_script("return [...window.dashboard.robots.keys()]")
+        assert seen == [], seen
+        assert not visible(driver, "notice"), "carol's subscriptions were refused"
+
+
+def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None:
+    from selenium.webdriver.common.by import By
+
+    with browser(tmp_path, "wrong-password") as driver:
+        login(driver, stack["url"], "alice", "not-her-password")
+        message = wait_until("the login error", lambda: visible(driver, "login-error")
+                             and driver.find_element(By.ID, "login-error").text)
+        print(f"\nwrong password: {message!r}")
+        assert message.startswith("login refused:") and "bad username or password" in message, message
+        assert visible(driver, "login") and not visible(driver, "main")
+        time.sleep(2.5)  # no retry loop: the refusal is final until the user submits again
+        assert "bad username or password" in driver.find_element(By.ID, "login-error").text
+
+
+def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None:
+    """~55 s of 10 Hz motion (the bridge's max_rate), 5 Hz scans and a moving robot: heap and DOM stay bounded.
+
+    Samples are taken after a forced garbage collection (DevTools), so they measure what the page keeps, not
+    what it has not collected yet. Another client drives turtle1 in a circle, so the trail and scan drawing
+    run as in real use.
+    """
+    import threading
+
+    with browser(tmp_path, "memory", precise_memory=True) as driver:
+        alice_ready(driver, stack)
+        wait_until("a position on the plot", lambda: pose(driver))
+        driver.execute_cdp_cmd("Performance.enable", {})
+        stop = threading.Event()
+
+        def drive() -> None:
+            with TestClient(stack["broker"].port, "alice", "alice-demo", operator=True) as op:
+                assert op.connect() == 0
+                seq = int(time.time() * 1000) % 2**32
+                for _ in range(700):  # bounded: at most 70 s at 10 Hz
+                    if stop.is_set():
+                        break
+                    seq += 1
+                    op.publish("roslink/turtle1/from/alice/cmd/twist",
+                               {"message_id": 100, "sequence_number": seq, "payload": {"lx": 0.3, "az": 0.6}}, qos=0)
+                    time.sleep(0.1)
+                op.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.0}, qos=1)
+
+        driver_thread = threading.Thread(target=drive, name="circle-driver", daemon=True)
+        driver_thread.start()
+        samples: list[tuple[float, float, int, int, int]] = []
+        t0 = time.monotonic()
+        try:
+            for i in range(11):  # every 5 s for 55 s
+                time.sleep(max(0.0, t0 + 5 * (i + 1) - time.monotonic()) if i else 5.0)
+                driver.execute_cdp_cmd("HeapProfiler.collectGarbage", {})
+                heap = driver.execute_script("return performance.memory.usedJSHeapSize")
+                dom = driver.execute_script("return document.getElementsByTagName('*').length")
+                metrics = {m["name"]: m["value"]
+                           for m in driver.execute_cdp_cmd("Performance.getMetrics", {})["metrics"]}
+                n = (pose(driver) or (0, 0, 0))[2]
+                samples.append((time.monotonic() - t0, heap / 1e6, dom, int(metrics.get("Nodes", -1)), n))
+                if time.monotonic() - t0 > 56:
+                    break
+        finally:
+            stop.set()
+            driver_thread.join(10)
+        print("\n   t s   heap MB   DOM elements   DOM nodes (incl. detached)   global_motion drawn")
+        for t, heap, dom, nodes, n in samples:
+            print(f"{t:6.1f}   {heap:7.2f}   {dom:12d}   {nodes:26d}   {n:19d}")
+        first, last = samples[1], samples[-1]  # the first sample is still warm-up (lists filling, JIT)
+        duration = last[0] - first[0]
+        assert last[4] - first[4] >= 8 * duration, "the page stopped receiving positions"
+        assert last[1] <= first[1] * 1.5 + 2.0, f"heap grew from {first[1]:.2f} MB to {last[1]:.2f} MB"
+        assert last[2] <= first[2] + 80, f"DOM grew from {first[2]} to {last[2]} elements"
+        assert last[3] <= first[3] + 400, f"DOM nodes grew from {first[3]} to {last[3]}"
+        trail = driver.execute_script("return window.dashboard.robots.get('turtle1').trail.length")
+        print(f"trail points kept: {trail}")
+        assert 100 < trail <= 600

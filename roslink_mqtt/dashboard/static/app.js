@@ -21,7 +21,8 @@
     2: "login refused: client id rejected",
     3: "login refused: the broker is unavailable",
     4: "login refused: bad username or password",
-    5: "login refused: not authorized (bad username or password, or this login may not connect)",
+    // what the embedded broker (and Mosquitto) answer to a wrong password; also a login that may not connect
+    5: "login refused: bad username or password (the broker says: not authorized)",
   };
   const DRIVE = {  // direction → twist, as a fraction of the chosen speed (angular 3× linear, capped by the robot)
     fwd: { lx: 1, az: 0 }, back: { lx: -1, az: 0 }, left: { lx: 0, az: 3 }, right: { lx: 0, az: -3 },
@@ -293,6 +294,7 @@
     robot.hb = hb;
     robot.hbAt = performance.now();
     count(robot, "heartbeat");
+    updateRow(robot, robot.hbAt);
     if (!dash.selected) selectRobot(name);
     else if (dash.selected === name) updateBanner(robot);
   }
