@@ -33,11 +33,13 @@ import orjson
 
 from roslink_mqtt.localproc import LocalProcess, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
 from roslink_mqtt.mqtt import make_client
+from roslink_mqtt.topics import TopicTree
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo"}
-TOPIC = "roslink/turtle1/state/robot_status"
+TOPICS = TopicTree()
+TOPIC = TOPICS.state("turtle1", "robot_status")
 
 
 def start_embedded(stack: ExitStack, acl: bool, log: Path) -> tuple[LocalProcess, int]:
@@ -97,7 +99,7 @@ def run_once(port: int, pid: int, messages: int, qos: int, tag: str) -> tuple[fl
     sub.on_message = on_message
     subscribed = threading.Event()
     sub.on_subscribe = lambda *a: subscribed.set()
-    sub.subscribe("roslink/turtle1/state/#", qos)
+    sub.subscribe(TOPICS.state_filter("turtle1"), qos)
     subscribed.wait(10)
     pub = connect(port, "turtle1", f"bench-pub-{tag}")
     cpu_before = cpu_seconds(pid)

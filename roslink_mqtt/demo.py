@@ -27,7 +27,7 @@ from .presence import operator_heartbeat
 from .protocol import MessageId, decode
 from .protocol.control import CallReply, CallRequest, ErrorReport
 from .ros_env import local_ros_env
-from .topics import TopicTree
+from .topics import Kind, TopicTree, Verb
 
 DEMO_PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo", "bob": "bob-demo"}
 
@@ -50,7 +50,7 @@ class Scene:
         self.operator.loop_start()
         # errors and service replies only (to/alice/ also carries the retained access report)
         self.operator.subscribe([(topics.error("turtle1", "alice"), 1),
-                                 (topics.to_user("turtle1", "alice", "reply") + "/#", 1)])
+                                 (topics.verb_filter("turtle1", "alice", Verb.REPLY), 1)])
 
     @staticmethod
     def _client(user: str, client_id: str, port: int):
@@ -69,7 +69,8 @@ class Scene:
                 topic, payload = self.inbox.get(timeout=left)
             except queue.Empty:
                 break
-            name = topic.rsplit("/", 1)[1]
+            parsed = self.topics.parse(topic)
+            name = parsed.name if parsed.kind is Kind.STATE else parsed.kind.value  # "heartbeat"
             env = decode(payload)
             latest[name] = env.payload
             if name in show:
@@ -147,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         print("2. simulated robot and bridge for turtle1 started")
         scene = Scene(port, topics)
         stack.callback(scene.close)
-        print("3. bob (viewer) subscribes to roslink/turtle1/heartbeat and roslink/turtle1/state/# :")
+        print(f"3. bob (viewer) subscribes to {topics.heartbeat('turtle1')} and {topics.state_filter('turtle1')} :")
         latest = scene.watch(8.0, {"heartbeat", "global_motion", "robot_status", "range_finder_data",
                                    "gps_raw_info"})
         if "heartbeat" not in latest:
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
             scene.beat()
             scene.operator.publish(topics.call("turtle1", "alice", "reset"), CallRequest(id=attempt).to_json())
             topic, body = scene.reply()
-            if topic.endswith("/reply/reset") and CallReply.from_json(body).result:
+            if topic == topics.reply("turtle1", "alice", "reset") and CallReply.from_json(body).result:
                 break
             time.sleep(0.5)
         print(f"  {topic}: {body.decode()}")

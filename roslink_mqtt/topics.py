@@ -1,9 +1,24 @@
-"""The MQTT topic tree (docs/protocol.md, "Topic tree"): build and parse every topic ROSLink uses.
+"""The MQTT topic grammar (docs/protocol.md, "Topic tree"): the one place that builds and parses ROSLink topics.
+
+Every other module builds topics, subscription filters and ACL patterns with
+:class:`TopicTree` and reads incoming topics with :meth:`TopicTree.parse`, so a
+new verb (actions, parameters…) is added here once and every peer agrees on it.
+A test fails when another module splits or formats a topic string itself.
 
 Builders refuse names that would change a topic's meaning: a robot called
 ``+`` or a user called ``a/b`` would let one principal's topic match
-another's ACL. Parsing returns None for topics outside the tree so callers can
-ignore foreign traffic cheaply.
+another's ACL. Filter builders take :data:`ANY` (``+``) where a level may vary.
+Parsing returns None for topics outside the tree so callers can ignore foreign
+traffic cheaply.
+
+Grammar (``P`` is the prefix, ``roslink`` unless configured)::
+
+    P/<robot>/heartbeat                      robot presence (retained)
+    P/<robot>/state/<name…>                  robot → everyone granted it
+    P/<robot>/from/<user>/<verb>/<name…>     user → robot   (verbs sent by users)
+    P/<robot>/from/<user>/<name…>            user → robot   (a generic rule's input: no verb)
+    P/<robot>/to/<user>/<verb>[/<name…>]     robot → user   (verbs sent by robots)
+    P/operators/<user>/<client id>           operator presence (retained)
 """
 
 from __future__ import annotations
@@ -13,17 +28,31 @@ from enum import Enum
 
 DEFAULT_PREFIX = "roslink"
 OPERATORS = "operators"
+SEPARATOR = "/"
+ANY = "+"  # one level of a subscription filter or ACL pattern
+REST = "#"  # every level below, as the last level of a filter
+SYS_TOPICS = "$SYS/#"  # the broker's own topics (outside the tree; admins may read them)
 
 
 class TopicError(ValueError):
     """A name cannot be used in a topic (empty, or contains ``+``, ``#`` or ``/``)."""
 
 
+def levels(topic: str) -> list[str]:
+    """An MQTT topic or filter split into its levels (the broker's filter algebra works on these)."""
+    return topic.split(SEPARATOR)
+
+
+def join(*parts: str) -> str:
+    """Levels (or already joined paths) back into one topic."""
+    return SEPARATOR.join(parts)
+
+
 def check_name(name: str, what: str = "name") -> str:
     """Validate one topic level (robot, user, client id, service name)."""
     if not isinstance(name, str) or not name:
         raise TopicError(f"{what} must be a non-empty string, got {name!r}")
-    for bad in ("+", "#", "/", "\0"):
+    for bad in (ANY, REST, SEPARATOR, "\0"):
         if bad in name:
             raise TopicError(f"{what} {name!r} must not contain {bad!r}")
     if name.startswith("$"):
@@ -35,9 +64,113 @@ def check_path(path: str, what: str = "name") -> str:
     """Validate a multi-level leaf such as ``cmd/twist`` (each level as :func:`check_name`)."""
     if not isinstance(path, str) or not path:
         raise TopicError(f"{what} must be a non-empty string, got {path!r}")
-    for level in path.split("/"):
+    for level in levels(path):
         check_name(level, f"{what} level in {path!r}")
     return path
+
+
+def check_filter_path(path: str, what: str = "filter") -> bool:
+    """Validate a multi-level filter such as ``nav/+`` or ``#``; True if it has a wildcard.
+
+    ``+`` and ``#`` are allowed as whole levels (MQTT wildcards), ``#`` only last, as the broker requires;
+    every other level is checked as :func:`check_name`.
+    """
+    if not isinstance(path, str) or not path:
+        raise TopicError(f"{what} must be a non-empty string, got {path!r}")
+    parts = levels(path)
+    for i, level in enumerate(parts):
+        if level == ANY or level == REST and i == len(parts) - 1:
+            continue
+        if REST in level or ANY in level:
+            raise TopicError(f"'{path}': '+' and '#' must be whole levels, and '#' the last one (e.g. '#', 'nav/+')")
+        check_name(level, f"{what} level in '{path}'")
+    return ANY in parts or REST in parts
+
+
+def _level_or_any(name: str, what: str) -> str:
+    return ANY if name == ANY else check_name(name, what)
+
+
+class Verb(Enum):
+    """What a message under ``from/<user>/`` or ``to/<user>/`` is; its value is the topic level."""
+
+    # sent by users (from/<user>/…)
+    CMD = "cmd"  # a ROSLink command: cmd/<command>
+    CALL = "call"  # call a ROS service: call/<service>
+    PROVIDE = "provide"  # offer a service to ROS (retained; empty withdraws): provide/<service>
+    RESPONSE = "response"  # a provider's answer: response/<service>
+    ADVERTISE = "advertise"  # keep a generic rule's ROS publisher (retained; empty withdraws): advertise/<rule>
+    # sent by robots (to/<user>/…)
+    REPLY = "reply"  # the answer to a call: reply/<service>
+    REQUEST = "request"  # a ROS call for a provider: request/<service>
+    ERROR = "error"  # refusals of what this user sent (no name)
+    ACCESS = "access"  # what this user may do on the robot (retained, no name)
+
+    @property
+    def sent_by_user(self) -> bool:
+        return self in USER_VERBS
+
+    @property
+    def named(self) -> bool:
+        """Whether a name follows the verb (``call/reset``); ``error`` and ``access`` stand alone."""
+        return self not in (Verb.ERROR, Verb.ACCESS)
+
+    @property
+    def retained_by_sender(self) -> bool:
+        """Whether the sender publishes it retained: state that holds until withdrawn, not an order."""
+        return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS)
+
+
+USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE})
+ROBOT_VERBS = frozenset(Verb) - USER_VERBS
+# First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
+RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
+
+
+def split_leaf(leaf: str, *, sent_by_user: bool = True) -> tuple[Verb | None, str]:
+    """``cmd/twist`` → (CMD, ``twist``); a leaf without a verb of that direction → (None, leaf).
+
+    A verb that needs a name but has none (``call``), or has one it must not
+    (``error/x``), is no verb: the leaf is then read as a generic rule's name,
+    which the robot answers with "no mapping".
+    """
+    head, _, rest = leaf.partition(SEPARATOR)
+    try:
+        verb = Verb(head)
+    except ValueError:
+        return None, leaf
+    if verb.sent_by_user is not sent_by_user or bool(rest) is not verb.named:
+        return None, leaf
+    return verb, rest
+
+
+def join_leaf(verb: Verb | None, name: str = "") -> str:
+    """The inverse of :func:`split_leaf`: (CMD, ``twist``) → ``cmd/twist``; (None, ``lights``) → ``lights``."""
+    if verb is None:
+        return check_path(name, "name")
+    if not verb.named:
+        if name:
+            raise TopicError(f"'{verb.value}' takes no name, got {name!r}")
+        return verb.value
+    return join(verb.value, check_path(name, f"{verb.value} name"))
+
+
+def split_first(path: str) -> tuple[str, str]:
+    """``state/global_motion`` → (``state``, ``global_motion``): a rule's mqtt_topic read by the config checks."""
+    head, _, rest = path.partition(SEPARATOR)
+    return head, rest
+
+
+def state_name(name: str) -> str:
+    """What a user means by a state name: ``state/global_motion``, ``/global_motion/`` → ``global_motion``."""
+    name = name.strip(SEPARATOR)
+    head, rest = split_first(name)
+    return rest if head == "state" else name
+
+
+def last_level(path: str) -> str:
+    """``state/global_motion`` → ``global_motion``."""
+    return path.rpartition(SEPARATOR)[2]
 
 
 class Kind(Enum):
@@ -50,11 +183,21 @@ class Kind(Enum):
 
 @dataclass(frozen=True, slots=True)
 class ParsedTopic:
+    """A topic of the tree, read. ``verb`` is set for FROM/TO topics (None: a generic rule's input)."""
+
     kind: Kind
     robot: str | None = None
     user: str | None = None
-    name: str | None = None  # the leaf: state name, or e.g. cmd/twist, call/reset
+    name: str | None = None  # state name; for FROM/TO the part after the verb (service, command, rule)
     client_id: str | None = None
+    verb: Verb | None = None
+
+    @property
+    def leaf(self) -> str:
+        """Everything after ``from/<user>/`` or ``to/<user>/`` (``cmd/twist``): what rules are keyed by."""
+        if self.verb is None:
+            return self.name or ""
+        return join(self.verb.value, self.name) if self.name else self.verb.value
 
 
 class TopicTree:
@@ -62,74 +205,114 @@ class TopicTree:
 
     def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
         self.prefix = check_path(prefix, "prefix")
-        self._levels = len(prefix.split("/"))
+        self._levels = len(levels(prefix))
 
     # -- builders ---------------------------------------------------------
     def robot_root(self, robot: str) -> str:
-        return f"{self.prefix}/{check_name(robot, 'robot')}"
+        return join(self.prefix, check_name(robot, "robot"))
 
     def heartbeat(self, robot: str) -> str:
-        return f"{self.robot_root(robot)}/heartbeat"
+        return join(self.robot_root(robot), "heartbeat")
 
     def state(self, robot: str, name: str) -> str:
-        return f"{self.robot_root(robot)}/state/{check_path(name, 'state name')}"
+        return join(self.robot_root(robot), "state", check_path(name, "state name"))
 
-    def from_user(self, robot: str, user: str, name: str) -> str:
-        return f"{self.robot_root(robot)}/from/{check_name(user, 'user')}/{check_path(name)}"
+    def from_user(self, robot: str, user: str, leaf: str) -> str:
+        """``leaf`` as :func:`join_leaf` makes it (``cmd/twist``, ``lights``)."""
+        return join(self.robot_root(robot), "from", check_name(user, "user"), check_path(leaf))
 
-    def to_user(self, robot: str, user: str, name: str) -> str:
-        return f"{self.robot_root(robot)}/to/{check_name(user, 'user')}/{check_path(name)}"
+    def to_user(self, robot: str, user: str, leaf: str) -> str:
+        return join(self.robot_root(robot), "to", check_name(user, "user"), check_path(leaf))
+
+    def user_topic(self, robot: str, user: str, verb: Verb, name: str = "") -> str:
+        """The topic of ``verb`` between ``user`` and ``robot``, in the direction the verb goes."""
+        leaf = join_leaf(verb, name)
+        return self.from_user(robot, user, leaf) if verb.sent_by_user else self.to_user(robot, user, leaf)
 
     def command(self, robot: str, user: str, command: str) -> str:
-        return self.from_user(robot, user, f"cmd/{check_name(command, 'command')}")
+        return self.user_topic(robot, user, Verb.CMD, check_name(command, "command"))
 
     def call(self, robot: str, user: str, service: str) -> str:
-        return self.from_user(robot, user, f"call/{check_path(service, 'service')}")
+        return self.user_topic(robot, user, Verb.CALL, check_path(service, "service"))
 
     def reply(self, robot: str, user: str, service: str) -> str:
-        return self.to_user(robot, user, f"reply/{check_path(service, 'service')}")
+        return self.user_topic(robot, user, Verb.REPLY, check_path(service, "service"))
 
     def provide(self, robot: str, user: str, service: str) -> str:
-        return self.from_user(robot, user, f"provide/{check_path(service, 'service')}")
+        return self.user_topic(robot, user, Verb.PROVIDE, check_path(service, "service"))
 
     def advertise(self, robot: str, user: str, name: str) -> str:
         """Retained: the user publishes on the generic rule ``name`` (its ROS publisher exists meanwhile)."""
-        return self.from_user(robot, user, f"advertise/{check_path(name, 'topic')}")
+        return self.user_topic(robot, user, Verb.ADVERTISE, check_path(name, "topic"))
 
     def request(self, robot: str, user: str, service: str) -> str:
-        return self.to_user(robot, user, f"request/{check_path(service, 'service')}")
+        return self.user_topic(robot, user, Verb.REQUEST, check_path(service, "service"))
 
     def response(self, robot: str, user: str, service: str) -> str:
-        return self.from_user(robot, user, f"response/{check_path(service, 'service')}")
+        return self.user_topic(robot, user, Verb.RESPONSE, check_path(service, "service"))
 
     def error(self, robot: str, user: str) -> str:
-        return self.to_user(robot, user, "error")
+        return self.user_topic(robot, user, Verb.ERROR)
+
+    def access(self, robot: str, user: str) -> str:
+        return self.user_topic(robot, user, Verb.ACCESS)
 
     def operator(self, user: str, client_id: str) -> str:
-        return f"{self.prefix}/{OPERATORS}/{check_name(user, 'user')}/{check_name(client_id, 'client id')}"
+        return join(self.prefix, OPERATORS, check_name(user, "user"), check_name(client_id, "client id"))
 
-    # -- subscription filters ---------------------------------------------
+    # -- subscription filters and ACL patterns (ANY = "+" allowed for robot/user) ------------
+    def _root(self, robot: str) -> str:
+        return join(self.prefix, _level_or_any(robot, "robot"))
+
+    def heartbeat_filter(self, robot: str = ANY) -> str:
+        return join(self._root(robot), "heartbeat")
+
+    def state_filter(self, robot: str = ANY, name: str = REST) -> str:
+        """State topics of ``robot`` (every robot with ANY) whose name matches ``name`` (a filter: ``nav/+``)."""
+        check_filter_path(name, "state name")
+        return join(self._root(robot), "state", name)
+
+    def from_user_filter(self, robot: str, user: str = ANY) -> str:
+        """Everything ``user`` (every user with ANY) sends ``robot``: what a bridge subscribes to."""
+        return join(self._root(robot), "from", _level_or_any(user, "user"), REST)
+
+    def to_user_filter(self, robot: str, user: str = ANY) -> str:
+        """Everything ``robot`` sends ``user``: replies, requests, errors, the access report."""
+        return join(self._root(robot), "to", _level_or_any(user, "user"), REST)
+
+    def verb_filter(self, robot: str, user: str, verb: Verb) -> str:
+        """Every ``verb`` message between ``user`` and ``robot`` (e.g. all of alice's replies)."""
+        side = "from" if verb.sent_by_user else "to"
+        tail = (verb.value, REST) if verb.named else (verb.value,)
+        return join(self._root(robot), side, _level_or_any(user, "user"), *tail)
+
+    def operators_filter(self, user: str, *, deep: bool = False) -> str:
+        """Presence of every program of ``user`` (``deep``: any depth, as ACL patterns grant it)."""
+        return join(self.prefix, OPERATORS, _level_or_any(user, "user"), REST if deep else ANY)
+
+    def operators_prefix(self) -> str:
+        """The text every operator presence topic starts with (a cheap test on every PUBLISH)."""
+        return join(self.prefix, OPERATORS, "")
+
     def all_from_users(self, robot: str) -> str:
-        """What a bridge subscribes to: every user's commands for its robot."""
-        return f"{self.robot_root(robot)}/from/+/#"
+        return self.from_user_filter(robot)
 
     def operators_of(self, user: str) -> str:
-        return f"{self.prefix}/{OPERATORS}/{check_name(user, 'user')}/+"
+        return self.operators_filter(user)
 
-    def all_state(self, robot: str = "+") -> str:
-        root = f"{self.prefix}/{robot}" if robot == "+" else self.robot_root(robot)
-        return f"{root}/state/#"
+    def all_state(self, robot: str = ANY) -> str:
+        return self.state_filter(robot)
 
     def all_heartbeats(self) -> str:
-        return f"{self.prefix}/+/heartbeat"
+        return self.heartbeat_filter()
 
     # -- parsing -----------------------------------------------------------
     def parse(self, topic: str) -> ParsedTopic | None:
         """Classify a concrete topic; None if it is not part of the tree."""
-        levels = topic.split("/")
-        if "/".join(levels[: self._levels]) != self.prefix:
+        parts = levels(topic)
+        if join(*parts[: self._levels]) != self.prefix:
             return None
-        rest = levels[self._levels:]
+        rest = parts[self._levels:]
         if not rest or any(not level for level in rest):
             return None
         if rest[0] == OPERATORS:
@@ -140,8 +323,9 @@ class TopicTree:
         if len(rest) == 2 and rest[1] == "heartbeat":
             return ParsedTopic(Kind.HEARTBEAT, robot=robot)
         if len(rest) >= 3 and rest[1] == "state":
-            return ParsedTopic(Kind.STATE, robot=robot, name="/".join(rest[2:]))
+            return ParsedTopic(Kind.STATE, robot=robot, name=join(*rest[2:]))
         if len(rest) >= 4 and rest[1] in ("from", "to"):
             kind = Kind.FROM if rest[1] == "from" else Kind.TO
-            return ParsedTopic(kind, robot=robot, user=rest[2], name="/".join(rest[3:]))
+            verb, name = split_leaf(join(*rest[3:]), sent_by_user=kind is Kind.FROM)
+            return ParsedTopic(kind, robot=robot, user=rest[2], name=name, verb=verb)
         return None

@@ -33,7 +33,7 @@ import paho.mqtt.client as mqtt
 import pytest
 
 from roslink_mqtt.mqtt import make_client
-from roslink_mqtt.topics import Kind, TopicTree
+from roslink_mqtt.topics import Kind, TopicTree, Verb
 from tests.support.broker_setup import ExportedMosquitto, write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.procs import DEMO_PASSWORDS
@@ -139,7 +139,7 @@ def may_write(login: str, topic: str) -> bool:
         return False
     if t.robot in OPERATORS.get(login, set()):
         return True
-    return t.robot in VIEWERS.get(login, set()) and t.name in {f"call/{s}" for s in READ_ONLY_SERVICES}
+    return t.robot in VIEWERS.get(login, set()) and t.verb is Verb.CALL and t.name in READ_ONLY_SERVICES
 
 
 def matches(flt: str, topic: str) -> bool:

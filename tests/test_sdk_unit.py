@@ -93,8 +93,8 @@ def test_state_items_typed_generic_or_dropped() -> None:
 def test_command_leaves() -> None:
     assert command_leaf("twist") == "cmd/twist" and command_leaf("cmd/twist") == "cmd/twist"
     assert command_leaf("/led") == "led" and command_leaf("lights/front") == "lights/front"
-    for reserved in ("call/reset", "provide/x", "response/x"):
-        with pytest.raises(ValueError, match="service topic"):
+    for reserved in ("call/reset", "provide/x", "response/x", "advertise/lights"):
+        with pytest.raises(ValueError, match=f"'{reserved.partition('/')[0]}' topic with its own API"):
             command_leaf(reserved)
     with pytest.raises(ValueError):
         command_leaf("cmd/+")

@@ -12,9 +12,9 @@ readable by that user alone (the ACL every broker already applies to ``to/<user>
 from __future__ import annotations
 
 from ..config import Fleet, Role
-from ..protocol.control import ACCESS, AccessReport
-from ..topics import TopicTree
-from .authorize import Verb, allowed
+from ..protocol.control import AccessReport
+from ..topics import TopicTree, Verb
+from .authorize import allowed
 
 
 def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, bytes]:
@@ -24,11 +24,11 @@ def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, byt
     for user, role in sorted(fleet.users_of(robot).items()):
         callable_ = tuple(s.name for s in services if allowed(role, Verb.CALL, read_only=s.read_only))
         report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_)
-        out[topics.to_user(robot, user, ACCESS)] = report.to_json()
+        out[topics.access(robot, user)] = report.to_json()
     return out
 
 
 def cleared_reports(before: Fleet, after: Fleet, robot: str, topics: TopicTree) -> list[str]:
     """Access topics of users who lost ``robot`` in a reload: their retained report must be cleared."""
     gone = set(before.users_of(robot)) - set(after.users_of(robot))
-    return [topics.to_user(robot, user, ACCESS) for user in sorted(gone)]
+    return [topics.access(robot, user) for user in sorted(gone)]

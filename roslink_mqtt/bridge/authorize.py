@@ -15,18 +15,8 @@ user whose grant was revoked.
 
 from __future__ import annotations
 
-from enum import StrEnum
-
 from ..config import Role
-
-
-class Verb(StrEnum):
-    """What a user asks the bridge to do; the values are the topic segments under ``from/<user>/``."""
-
-    COMMAND = "cmd"  # a mqtt_to_ros rule: publish on ROS (or a preset's service)
-    CALL = "call"  # call a ROS service the robot exposes
-    PROVIDE = "provide"  # offer a service to ROS
-    ADVERTISE = "advertise"  # keep an on-demand ROS publisher
+from ..topics import Verb
 
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
@@ -37,20 +27,24 @@ def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
 
 
 def _action(verb: Verb, name: str, robot: str) -> str:
-    if verb is Verb.COMMAND:
+    if verb is Verb.CMD:
         return f"send '{name}'"
     if verb is Verb.CALL:
         return f"call '{name}'"
     if verb is Verb.PROVIDE:
         return f"provide services on {robot}"
+    if verb is Verb.RESPONSE:
+        return f"answer calls to '{name}'"
     return f"publish on '{name}'"
 
 
 def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, read_only: bool = False) -> str | None:
     """None when ``user`` (holding ``role`` on ``robot``, None: no grant) may use ``verb`` on ``name``; else why not.
 
-    ``name`` is what the verb acts on: the command's topic leaf (``cmd/twist``), the service, the on-demand
-    topic. The wording is part of the protocol (docs/protocol.md quotes it; clients match on it).
+    ``name`` is what the verb acts on: the command's topic leaf (``cmd/twist``; a generic rule's input such as
+    ``lights`` is a command too, verb :attr:`Verb.CMD`), the service, the on-demand topic. Verbs come from the
+    topic grammar (:class:`roslink_mqtt.topics.Verb`). The wording is part of the protocol (docs/protocol.md
+    quotes it; clients match on it).
     """
     if allowed(role, verb, read_only=read_only):
         return None

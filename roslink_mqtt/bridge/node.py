@@ -26,9 +26,9 @@ from ..protocol import (
     sender_id,
 )
 from ..protocol.control import pop_generic_sender
-from ..topics import Kind, TopicTree
+from ..topics import Kind, TopicTree, Verb
 from .access import access_reports, cleared_reports
-from .authorize import Verb, refusal
+from .authorize import refusal
 from .convert import ConversionError, converter_for
 from .failsafe import Failsafe, late_motion
 from .link import MqttLink, bridge_client_id
@@ -337,9 +337,8 @@ class Bridge:
             return
         if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name:
             return
-        user, name = parsed.user, parsed.name
-        kind, _, leaf = name.partition("/")
-        if retained and kind not in ("provide", "advertise"):
+        user, verb, leaf = parsed.user, parsed.verb, parsed.name
+        if retained and not (verb is not None and verb.retained_by_sender):
             # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
             # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.
             if payload:
@@ -347,24 +346,25 @@ class Bridge:
                                          "without the retain flag (and clear this one with an empty retained message)",
                             payload=payload)
             return
-        if kind == "call" and leaf:
+        if verb is Verb.CALL:
             self.caller.handle(user, leaf, payload)
             return
-        if kind == "provide" and leaf:
+        if verb is Verb.PROVIDE:
             self.provided.offer(user, leaf, topic, payload)
             return
-        if kind == "response" and leaf:
+        if verb is Verb.RESPONSE:
             self.provided.response(user, leaf, topic, payload)
             return
-        if kind == "advertise" and leaf:
+        if verb is Verb.ADVERTISE:
             self.on_demand.advertise(user, leaf, topic, payload)
             return
+        name = parsed.leaf
         rule = self.inbound.get(name)
         if rule is None:
             self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
                                      f"(commands: {', '.join(sorted(self.inbound)) or 'none'})", payload=payload)
             return
-        why = refusal(user, self.role_of(user), Verb.COMMAND, name, robot=self.robot.name)
+        why = refusal(user, self.role_of(user), Verb.CMD, name, robot=self.robot.name)
         if why:
             self.refuse(user, topic, why, payload=payload)
             return
@@ -418,7 +418,7 @@ class Bridge:
         with self._lock:
             if preset != "emergency_stop" and not self.operators.is_live(user):
                 self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
-                                         f"on {self.topics.prefix}/operators/{user}/<client_id> every second",
+                                         f"on {self.topics.operator(user, '<client_id>')} every second",
                             message_id, sequence, client_id=sender)
                 return
             if rule.is_velocity or preset in GOAL_PRESETS:

@@ -29,7 +29,8 @@ from rclpy.node import Node
 from ..config import Role
 from ..protocol import ProtocolError
 from ..protocol.control import Advertisement
-from .authorize import Verb, refusal
+from ..topics import Verb
+from .authorize import refusal
 from .rules import Inbound, ros_qos
 
 log = logging.getLogger("roslink_mqtt.bridge.on_demand")

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ..config import Robot, RosQos, Rule, VelocityLimits
 from ..config.model import Direction
 from ..protocol import SPECS_BY_NAME, Envelope, MessageSpec, encode
-from ..topics import TopicTree
+from ..topics import TopicTree, split_first
 from .convert import ConversionError, converter_for
 from .presets import COMMAND_PRESETS, STATE_PRESETS
 from .ros_types import UnknownTypeError, load_interface
@@ -136,7 +136,7 @@ def _check_field_paths(rule: Rule, ros_cls: type) -> None:
 
 def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
     ros_cls = _load(rule)
-    topic = topics.state(robot.name, rule.mqtt_topic.removeprefix("state/"))
+    topic = topics.state(robot.name, split_first(rule.mqtt_topic)[1])
     period = 1.0 / rule.max_rate if rule.max_rate else 0.0
     if rule.preset is not None:
         preset = _preset(rule, STATE_PRESETS, "state")

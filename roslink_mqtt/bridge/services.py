@@ -30,8 +30,8 @@ from rclpy.task import Future
 from ..config import Robot, Role, ServiceRule
 from ..protocol import ProtocolError, sender_id
 from ..protocol.control import CallReply, CallRequest, ProviderRequest, ProviderResponse, ServiceOffer
-from ..topics import TopicTree
-from .authorize import Verb, refusal
+from ..topics import TopicTree, Verb
+from .authorize import refusal
 from .convert import ConversionError, converter_for
 from .ros_types import UnknownTypeError, load_interface
 

@@ -33,9 +33,7 @@ from enum import IntFlag, StrEnum
 from typing import Any
 
 from ..config import Fleet, Role
-from ..topics import OPERATORS
-
-SYS_TOPICS = "$SYS/#"
+from ..topics import ANY, SYS_TOPICS, Kind, Verb, levels
 
 
 class Access(IntFlag):
@@ -66,7 +64,7 @@ class AclEntry:
     levels: tuple[str, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "levels", tuple(self.pattern.split("/")))
+        object.__setattr__(self, "levels", tuple(levels(self.pattern)))
 
 
 # -- MQTT filter algebra --------------------------------------------------------------
@@ -113,9 +111,9 @@ def is_valid_filter(topic_filter: str) -> bool:
     """MQTT-4.7.1: ``#`` only as the whole last level, ``+`` only as a whole level."""
     if not topic_filter:
         return False
-    levels = topic_filter.split("/")
-    for i, level in enumerate(levels):
-        if "#" in level and (level != "#" or i != len(levels) - 1):
+    parts = levels(topic_filter)
+    for i, level in enumerate(parts):
+        if "#" in level and (level != "#" or i != len(parts) - 1):
             return False
         if "+" in level and level != "+":
             return False
@@ -126,32 +124,32 @@ def is_valid_filter(topic_filter: str) -> bool:
 
 
 def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
-    p = fleet.prefix
+    t = fleet.topics
     entries = [
-        AclEntry(f"{p}/{robot}/heartbeat", Access.WRITE),
-        AclEntry(f"{p}/{robot}/state/#", Access.WRITE),
-        AclEntry(f"{p}/{robot}/to/+/#", Access.WRITE),
-        AclEntry(f"{p}/{robot}/from/+/#", Access.READ),
+        AclEntry(t.heartbeat(robot), Access.WRITE),
+        AclEntry(t.state_filter(robot), Access.WRITE),
+        AclEntry(t.to_user_filter(robot, ANY), Access.WRITE),
+        AclEntry(t.from_user_filter(robot, ANY), Access.READ),
     ]
-    entries += [AclEntry(f"{p}/{OPERATORS}/{user}/#", Access.READ) for user in sorted(fleet.users_of(robot))]
+    entries += [AclEntry(t.operators_filter(user, deep=True), Access.READ) for user in sorted(fleet.users_of(robot))]
     return entries
 
 
 def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
-    p = fleet.prefix
+    t = fleet.topics
     if fleet.users[user].admin:
         return [AclEntry("#", Access.READWRITE), AclEntry(SYS_TOPICS, Access.READ)]
-    entries = [AclEntry(f"{p}/{OPERATORS}/{user}/#", Access.WRITE)]
+    entries = [AclEntry(t.operators_filter(user, deep=True), Access.WRITE)]
     for robot, role in sorted(fleet.roles_of(user).items()):
         entries += [
-            AclEntry(f"{p}/{robot}/heartbeat", Access.READ),
-            AclEntry(f"{p}/{robot}/state/#", Access.READ),
-            AclEntry(f"{p}/{robot}/to/{user}/#", Access.READ),
+            AclEntry(t.heartbeat(robot), Access.READ),
+            AclEntry(t.state_filter(robot), Access.READ),
+            AclEntry(t.to_user_filter(robot, user), Access.READ),
         ]
         if role is Role.OPERATOR:
-            entries.append(AclEntry(f"{p}/{robot}/from/{user}/#", Access.WRITE))
+            entries.append(AclEntry(t.from_user_filter(robot, user), Access.WRITE))
         else:
-            entries += [AclEntry(f"{p}/{robot}/from/{user}/call/{svc.name}", Access.WRITE)
+            entries += [AclEntry(t.call(robot, user, svc.name), Access.WRITE)
                         for svc in fleet.robots[robot].services if svc.read_only]
     return entries
 
@@ -187,15 +185,15 @@ class FleetAcl:
         if action == Action.SUBSCRIBE:
             if not is_valid_filter(topic):
                 return False
-            wanted = topic.split("/")
+            wanted = levels(topic)
             return any(filters_overlap(wanted, pattern) for pattern in self._read.get(login, ()))
         if "+" in topic or "#" in topic:
             return False  # a concrete topic never contains wildcards
         patterns = self._write if action == Action.PUBLISH else self._read if action == Action.RECEIVE else None
         if patterns is None:
             return False
-        levels = topic.split("/")
-        return any(topic_matches(pattern, levels) for pattern in patterns.get(login, ()))
+        concrete = levels(topic)
+        return any(topic_matches(pattern, concrete) for pattern in patterns.get(login, ()))
 
 
 class DecisionCache:
@@ -283,7 +281,7 @@ class LiveFleet:
 # Requests a user may leave retained under from/<user>/: offers that stay true while the user is there.
 # Everything else under from/ is a command or a call, executed when it arrives; a retained one would be
 # executed again by every bridge that subscribes later, so the broker refuses it.
-RETAINABLE_VERBS = frozenset({"provide", "advertise"})
+RETAINABLE_VERBS = frozenset(v for v in Verb if v.sent_by_user and v.retained_by_sender)
 
 
 class TopicPolicy:
@@ -296,29 +294,20 @@ class TopicPolicy:
     def __init__(self, live: LiveFleet, limits: Any) -> None:
         self.live, self.limits = live, limits
 
-    def _levels(self, topic: str) -> list[str] | None:
-        """The levels after the fleet prefix, or None for a topic outside the tree."""
-        prefix = self.live.fleet.prefix
-        if not topic.startswith(prefix + "/"):
-            return None
-        return topic[len(prefix) + 1:].split("/")
-
     def payload_limit(self, topic: str) -> int:
         """Largest payload accepted on ``topic`` (0 = only the broker's max_payload applies)."""
-        # asked on every PUBLISH: a prefix test, no split (a presence heartbeat is ~100 bytes)
-        if topic.startswith(f"{self.live.fleet.prefix}/{OPERATORS}/"):
+        # asked on every PUBLISH: a prefix test, no parse (a presence heartbeat is ~100 bytes)
+        if topic.startswith(self.live.fleet.topics.operators_prefix()):
             return self.limits.max_presence_bytes
         return 0
 
     def retain_refusal(self, topic: str) -> str | None:
         """Why a retained PUBLISH on ``topic`` is refused, or None."""
-        levels = self._levels(topic)
-        if levels is None or len(levels) < 4 or levels[1] != "from":
+        parsed = self.live.fleet.topics.parse(topic)
+        if parsed is None or parsed.kind is not Kind.FROM or parsed.verb in RETAINABLE_VERBS:
             return None
-        verb = levels[3]
-        if verb in RETAINABLE_VERBS:
-            return None
-        return (f"retained '{verb}' messages are refused: a command or call is executed when it arrives, "
+        what = parsed.verb.value if parsed.verb is not None else parsed.leaf
+        return (f"retained '{what}' messages are refused: a command or call is executed when it arrives, "
                 "and a retained copy would run again whenever a bridge reconnects")
 
     def retained_limit(self, login: str | None) -> int | None:

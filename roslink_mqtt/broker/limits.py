@@ -16,6 +16,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any
 
+from ..topics import levels
+
 KIB, MIB = 1024, 1024 * 1024
 
 
@@ -52,7 +54,7 @@ class BrokerLimits:
 
 
 def split_topic(topic: str) -> list[str]:
-    return topic.split("/")
+    return levels(topic)
 
 
 class RetainedIndex:

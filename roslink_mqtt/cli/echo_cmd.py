@@ -20,7 +20,7 @@ from ..client import RobotClient, RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, ProtocolError, loads
 from ..protocol.messages import Direction
-from ..topics import TopicError, check_name
+from ..topics import Kind, TopicError, TopicTree, check_filter_path, check_name, state_name
 from .connect import add_connection_options, open_client
 
 EXIT_OK = 0
@@ -41,8 +41,9 @@ EPILOG = (f"exit status: {EXIT_OK} done (or Ctrl-C without --count); {EXIT_TIMEO
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    every_name = TopicTree().state("ROBOT", "NAME")
     p = sub.add_parser("echo", help="print a robot's state messages (like ros2 topic echo)",
-                       description="Print each message on roslink/ROBOT/state/NAME as one JSON line. NAME may be "
+                       description=f"Print each message on {every_name} as one JSON line. NAME may be "
                                    "'heartbeat' (the robot's presence) or a pattern such as '#' (every state; "
                                    'each line is then {"state": NAME, "message": …}).', epilog=EPILOG)
     p.add_argument("robot")
@@ -63,25 +64,17 @@ def check_state_name(name: str) -> tuple[str, bool]:
 
     ``+`` and ``#`` are allowed as whole levels (MQTT wildcards), ``#`` only last, as the broker requires.
     """
-    name = name.strip("/").removeprefix("state/")
+    name = state_name(name)
     if not name:
         raise TopicError("the state name is empty")
-    levels = name.split("/")
-    for i, level in enumerate(levels):
-        if level == "#" and i == len(levels) - 1 or level == "+":
-            continue
-        if "#" in level or "+" in level:
-            raise TopicError(f"'{name}': '+' and '#' must be whole levels, and '#' the last one (e.g. '#', "
-                             f"'nav/+')")
-        check_name(level, f"state name level in '{name}'")
-    return name, "#" in levels or "+" in levels
+    return name, check_filter_path(name, "state name")
 
 
 class _Stream:
     """Messages of one subscription, parsed on the network thread and handed to the main thread by a queue."""
 
-    def __init__(self, robot: str, prefix: str, *, heartbeat: bool, pattern: bool) -> None:
-        self.robot, self.prefix, self.heartbeat, self.pattern = robot, prefix, heartbeat, pattern
+    def __init__(self, robot: str, topics: TopicTree, *, heartbeat: bool, pattern: bool) -> None:
+        self.robot, self.topics, self.heartbeat, self.pattern = robot, topics, heartbeat, pattern
         self.queue: queue.Queue[Any] = queue.Queue(1000)
 
     def handle(self, topic: str, payload: bytes, _retained: bool) -> None:
@@ -94,7 +87,10 @@ class _Stream:
                 return
             line = body.get("payload", body) if isinstance(body, dict) else body
         else:
-            leaf = topic[len(self.prefix):]
+            parsed = self.topics.parse(topic)
+            if parsed is None or parsed.kind is not Kind.STATE or not parsed.name:
+                return
+            leaf = parsed.name
             item = parse_state_item(payload, self.robot, leaf)
             if item is None:
                 return
@@ -109,17 +105,18 @@ class _Stream:
 
 def census(client: RobotClient, robot: str, seconds: float = CENSUS_TIME) -> list[str]:
     """The state names ``robot`` publishes, collected for ``seconds`` (retained ones at once)."""
-    prefix = f"{client.topics.robot_root(robot)}/state/"
+    every_state = client.topics.state_filter(robot)
     names: set[str] = set()
 
     def seen(topic: str, payload: bytes, _retained: bool) -> None:
-        if payload:
-            names.add(topic[len(prefix):])
+        parsed = client.topics.parse(topic)
+        if payload and parsed is not None and parsed.kind is Kind.STATE and parsed.name:
+            names.add(parsed.name)
 
-    if not client.connection.subscribe(prefix + "#", seen):
+    if not client.connection.subscribe(every_state, seen):
         return []
     time.sleep(seconds)
-    client.connection.unsubscribe(prefix + "#", seen)
+    client.connection.unsubscribe(every_state, seen)
     return sorted(names)
 
 
@@ -158,12 +155,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail(EXIT_USAGE, "--count and --timeout must not be negative")
     client = open_client(args, robots=[args.robot], presence=False)
     topics = client.topics
-    if name == HEARTBEAT:
-        topic, prefix = topics.heartbeat(args.robot), ""
-    else:
-        prefix = f"{topics.robot_root(args.robot)}/state/"
-        topic = prefix + name
-    stream = _Stream(args.robot, prefix, heartbeat=name == HEARTBEAT, pattern=pattern)
+    topic = topics.heartbeat(args.robot) if name == HEARTBEAT else topics.state_filter(args.robot, name)
+    stream = _Stream(args.robot, topics, heartbeat=name == HEARTBEAT, pattern=pattern)
     seen = 0
     start = time.monotonic()
     deadline = start + args.timeout if args.timeout else None

@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     # which would tear the live table apart. A monitor shows all of them: it sends nothing itself, and
     # watching what the user's programs get refused is its job (other programs see only their own).
     client.all_errors = True
+    view.topics = client.topics
     for error in list(client.recent_errors):
         view.record_error(error)
     client.on_error = view.record_error

@@ -22,6 +22,7 @@ from ..client.directory import RobotInfo
 from ..client.errors import RobotError
 from ..client.messages import Ack, GlobalMotion, GpsRawInfo, RobotStatus
 from ..protocol import AckResult, SystemStatus
+from ..topics import Kind, TopicTree
 
 # The state streams the monitor subscribes to for every robot it watches (topic leaves under state/).
 STATE_NAMES = ("robot_status", "global_motion", "gps_raw_info", "ack")
@@ -116,13 +117,11 @@ def presence(info: RobotInfo | None, now: float) -> str:
     return "online"
 
 
-def short_topic(topic: str) -> str:
+def short_topic(topic: str, topics: TopicTree) -> str:
     """``cmd/twist`` for ``roslink/turtle1/from/alice/cmd/twist``: the robot and user are shown elsewhere."""
-    parts = topic.split("/")
-    if "from" in parts:
-        i = parts.index("from")
-        if len(parts) > i + 2:
-            return "/".join(parts[i + 2:])
+    parsed = topics.parse(topic)
+    if parsed is not None and parsed.kind is Kind.FROM:
+        return parsed.leaf
     return topic or MISSING
 
 
@@ -142,8 +141,10 @@ class FleetView:
     """
 
     def __init__(self, clock: Callable[[], float] = time.monotonic, rate_window: float = RATE_WINDOW,
-                 max_errors: int = 20) -> None:
+                 max_errors: int = 20, topics: TopicTree | None = None) -> None:
+        """``topics``: the fleet's topic tree (its prefix), to show refused topics short."""
         self.clock = clock
+        self.topics = topics or TopicTree()
         self.rate_window = rate_window
         self._robots: dict[str, _Robot] = {}
         self._errors: collections.deque[ErrorLine] = collections.deque(maxlen=max_errors)
@@ -216,7 +217,8 @@ class FleetView:
         now = self.clock() if now is None else now
         with self._lock:
             lines = list(self._errors)[-limit:] if limit > 0 else []
-        return [f"{e.error.robot or MISSING} refused {short_topic(e.error.topic)}: {e.error.error or MISSING} "
+        return [f"{e.error.robot or MISSING} refused {short_topic(e.error.topic, self.topics)}: "
+                f"{e.error.error or MISSING} "
                 f"({age(now - e.at)} ago)" for e in lines]
 
     # -- internals (lock held) ---------------------------------------------------------------

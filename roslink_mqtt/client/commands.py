@@ -28,7 +28,7 @@ import orjson
 
 from ..protocol import SPECS, Direction, encode_message, spec_for
 from ..protocol.control import GENERIC_SENDER_KEY
-from ..topics import TopicTree, check_path
+from ..topics import TopicTree, Verb, check_path, join_leaf, split_leaf
 from .errors import InvalidArgument
 
 MASK, HALF = 0xFFFFFFFF, 2**31
@@ -39,23 +39,23 @@ def wall_clock_ms() -> int:
 
 
 COMMAND_NAMES = frozenset(spec.name for spec in SPECS if spec.direction is Direction.COMMAND)
-RESERVED = ("call", "provide", "response")  # leaves with their own API (services)
 
 
 def command_leaf(name: str) -> str:
     """``"twist"`` → ``"cmd/twist"``; ``"cmd/twist"`` and generic rule names (``"led"``) stay as they are."""
     name = name.strip("/")
-    leaf = f"cmd/{name}" if name in COMMAND_NAMES else name
-    check_path(leaf, "command")
-    if leaf.split("/", 1)[0] in RESERVED:
-        raise InvalidArgument(f"'{leaf}' is a service topic: use call()/provide() (or create_client/create_service)")
+    leaf = join_leaf(Verb.CMD, name) if name in COMMAND_NAMES else check_path(name, "command")
+    verb, _ = split_leaf(leaf)
+    if verb is not None and verb is not Verb.CMD:
+        raise InvalidArgument(f"'{leaf}' is a '{verb.value}' topic with its own API: use call()/provide()/advertise() "
+                              "(or create_client/create_service/create_publisher)")
     return leaf
 
 
 def roslink_command(leaf: str) -> str | None:
     """The ROSLink command name a leaf carries (``cmd/twist`` → ``twist``), None for generic rules."""
-    kind, _, name = leaf.partition("/")
-    return name if kind == "cmd" and name in COMMAND_NAMES else None
+    verb, name = split_leaf(leaf)
+    return name if verb is Verb.CMD and name in COMMAND_NAMES else None
 
 
 class CommandStreams:

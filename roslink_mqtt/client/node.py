@@ -26,7 +26,7 @@ from typing import Any
 
 from ..connection_options import env_username
 from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
-from ..topics import DEFAULT_PREFIX, check_name
+from ..topics import DEFAULT_PREFIX, check_name, join
 from .calls import Values
 from .commands import command_leaf, roslink_command
 from .context import default_context
@@ -129,7 +129,7 @@ class Subscription:
         mqtt_qos(qos_profile)  # refuse a nonsense profile here too; state arrives at the robot's own MQTT QoS
         self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
         self._sub: StateSubscription = node.robot_client.subscribe(node.robot, topic, self._deliver)
-        self.topic_name = f"state/{self._sub.name}"
+        self.topic_name = join("state", self._sub.name)
 
     def _deliver(self, item: StateItem) -> None:
         if self.typed:

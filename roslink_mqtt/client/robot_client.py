@@ -42,8 +42,8 @@ from ..connection_options import (
 )
 from ..mqtt import BrokerUrl
 from ..protocol import ProtocolError, loads
-from ..protocol.control import ACCESS, AccessReport
-from ..topics import DEFAULT_PREFIX, Kind, TopicTree, check_name
+from ..protocol.control import AccessReport
+from ..topics import DEFAULT_PREFIX, Kind, TopicTree, Verb, check_name, state_name
 from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
 from .commands import CommandStreams, command_leaf, roslink_command
@@ -199,7 +199,7 @@ class RobotClient:
             self._watched.add(robot)
         self.connection.subscribe(self.topics.heartbeat(robot), self._on_heartbeat, timeout=timeout)
         # one filter for replies, requests, error and access reports (TopicTree builds concrete topics only)
-        mine = f"{self.topics.robot_root(robot)}/to/{self.username}/#"
+        mine = self.topics.to_user_filter(robot, self.username)
         granted = self.connection.subscribe(mine, self._on_to_user, timeout=timeout)
         with self._access_changed:
             if granted:
@@ -236,7 +236,7 @@ class RobotClient:
         returned subscription (``for``/``async for``/``get(timeout)``).
         """
         self.watch(robot)
-        name = name.strip("/").removeprefix("state/")
+        name = state_name(name)
         topic = self.topics.state(robot, name)
         sub = StateSubscription(robot, name, topic, callback, self.callbacks, maxsize,
                                 on_close=self._unsubscribe_state)
@@ -445,14 +445,14 @@ class RobotClient:
 
     def _on_to_user(self, topic: str, payload: bytes, _retained: bool) -> None:
         parsed = self.topics.parse(topic)
-        if parsed is None or parsed.kind is not Kind.TO or parsed.user != self.username or not parsed.name:
+        if parsed is None or parsed.kind is not Kind.TO or parsed.user != self.username:
             return
-        robot, (kind, _, leaf) = parsed.robot or "", parsed.name.partition("/")
-        if kind == "reply" and leaf:
-            self._calls.on_reply(robot, leaf, payload)
-        elif kind == "request" and leaf:
-            self._providers.on_request(robot, leaf, payload)
-        elif kind == "error" and not leaf:
+        robot, verb, name = parsed.robot or "", parsed.verb, parsed.name or ""
+        if verb is Verb.REPLY:
+            self._calls.on_reply(robot, name, payload)
+        elif verb is Verb.REQUEST:
+            self._providers.on_request(robot, name, payload)
+        elif verb is Verb.ERROR:
             try:
                 error = RobotError.from_json(robot, loads(payload))
             except ProtocolError:
@@ -461,7 +461,7 @@ class RobotClient:
                 log.debug("%s: ignoring an error report for %s: %s", self.client_id, error.client_id, error.error)
                 return  # another program of the same user sent what was refused
             self._on_error(robot, error)
-        elif kind == ACCESS and not leaf:
+        elif verb is Verb.ACCESS:
             self._on_access(robot, payload)
 
     # -- what the broker lets us do ---------------------------------------------------------------
@@ -495,7 +495,7 @@ class RobotClient:
         with self._access_changed:
             if robot in self._no_grant:
                 return (f"user '{self.username}' has no grant on {robot}: the broker refused to let us read "
-                        f"{self.topics.robot_root(robot)}/to/{self.username}/#")
+                        f"{self.topics.to_user_filter(robot, self.username)}")
             if wait and not self.connection.on_network_thread():
                 deadline = self._access_asked.get(robot, 0.0) + ACCESS_WAIT
                 while robot not in self._access and time.monotonic() < deadline:

@@ -11,7 +11,19 @@ from typing import Any
 from ..protocol.enums import RobotType
 from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
-from ..topics import OPERATORS, TopicError, check_name, check_path
+from ..topics import (
+    OPERATORS,
+    RESERVED_RULE_LEVELS,
+    TopicError,
+    TopicTree,
+    Verb,
+    check_name,
+    check_path,
+    join,
+    join_leaf,
+    last_level,
+    split_first,
+)
 from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
     LIMIT_MODES,
@@ -36,7 +48,6 @@ from .yamlsource import ConfigError, Path, Source, load_yaml
 _REQUIRED: Any = object()
 _ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
-_RESERVED_FROM = ("call", "provide", "response", "advertise")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
 
@@ -323,13 +334,14 @@ class _FleetReader:
                             "ros_qos", "max_rate", "fields", "limits", "on_demand"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
-        first = mqtt_topic.split("/")[0]
-        if direction is Direction.ROS_TO_MQTT and (first != "state" or "/" not in mqtt_topic):
+        first, _ = split_first(mqtt_topic)
+        if direction is Direction.ROS_TO_MQTT and (first != "state" or first == mqtt_topic):
             raise self.err(path + ("mqtt_topic",), f"a ros_to_mqtt rule publishes under state/, e.g. "
-                                                   f"state/{mqtt_topic.split('/')[-1]}; got '{mqtt_topic}'")
-        if direction is Direction.MQTT_TO_ROS and first in _RESERVED_FROM + ("state",):
-            raise self.err(path + ("mqtt_topic",), f"'{first}/' is reserved; an mqtt_to_ros rule reads "
-                                                   f"from/<user>/<mqtt_topic>, e.g. cmd/twist")
+                                                   f"{join('state', last_level(mqtt_topic))}; got '{mqtt_topic}'")
+        if direction is Direction.MQTT_TO_ROS and first in RESERVED_RULE_LEVELS:
+            example = TopicTree().from_user("<robot>", "<user>", "<mqtt_topic>")
+            raise self.err(path + ("mqtt_topic",), f"'{first}/' is reserved; an mqtt_to_ros rule reads {example}, "
+                                                   f"e.g. {join_leaf(Verb.CMD, 'twist')}")
         preset = self.value(path, "preset", self.choice(tuple(SPECS_BY_NAME)), None)
         if preset is not None:
             wanted = MsgDirection.STATE if direction is Direction.ROS_TO_MQTT else MsgDirection.COMMAND

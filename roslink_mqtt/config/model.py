@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
+from functools import cached_property
 
 from ..protocol.enums import RobotType
 from ..topics import TopicTree
@@ -173,8 +174,9 @@ class Fleet:
     # not errors: the bridge checks those when it starts.
     notes: tuple[str, ...] = ()
 
-    @property
+    @cached_property
     def topics(self) -> TopicTree:
+        """The fleet's topic grammar (built once: the broker asks on every PUBLISH)."""
         return TopicTree(self.prefix)
 
     def robot_by_key(self, key: str) -> Robot | None:

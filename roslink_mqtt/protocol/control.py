@@ -40,12 +40,14 @@ from typing import Any
 
 import orjson
 
+from ..topics import TopicTree
 from .codec import MAX_CLIENT_ID, loads
 from .errors import ProtocolError
 from .validate import describe
 
-ACCESS = "access"  # the leaf under to/<user>/ of the AccessReport
-ERROR = "error"  # the leaf under to/<user>/ of ErrorReports
+_DOC = TopicTree()  # topics as docs/protocol.md shows them: placeholders in angle brackets
+_R, _U = "<robot>", "<user>"
+
 GENERIC_SENDER_KEY = "$client_id"  # in generic ROS JSON bodies (never a ROS field name)
 ROLES = ("operator", "viewer")
 MAX_CALL_ID = 128  # characters of a string call id
@@ -494,14 +496,12 @@ class Advertisement:
 # with which MQTT QoS and retain flag its topic is published (QOS, RETAINED); the SDK's senders publish with
 # those constants, the bridge's with QoS 1 and retains only access reports (bridge/node.py).
 CONTROL_BODIES: tuple[tuple[str, str, type], ...] = (
-    ("call request", "`roslink/<robot>/from/<user>/call/<service>`", CallRequest),
-    ("call reply", "`roslink/<robot>/to/<user>/reply/<service>`", CallReply),
-    ("service offer", "`roslink/<robot>/from/<user>/provide/<service>` (an empty retained message withdraws)",
-     ServiceOffer),
-    ("provider request", "`roslink/<robot>/to/<user>/request/<service>`", ProviderRequest),
-    ("provider response", "`roslink/<robot>/from/<user>/response/<service>`", ProviderResponse),
-    ("advertisement", "`roslink/<robot>/from/<user>/advertise/<name>` (an empty retained message withdraws)",
-     Advertisement),
-    ("error report", f"`roslink/<robot>/to/<user>/{ERROR}`", ErrorReport),
-    ("access report", f"`roslink/<robot>/to/<user>/{ACCESS}`", AccessReport),
+    ("call request", f"`{_DOC.call(_R, _U, '<service>')}`", CallRequest),
+    ("call reply", f"`{_DOC.reply(_R, _U, '<service>')}`", CallReply),
+    ("service offer", f"`{_DOC.provide(_R, _U, '<service>')}` (an empty retained message withdraws)", ServiceOffer),
+    ("provider request", f"`{_DOC.request(_R, _U, '<service>')}`", ProviderRequest),
+    ("provider response", f"`{_DOC.response(_R, _U, '<service>')}`", ProviderResponse),
+    ("advertisement", f"`{_DOC.advertise(_R, _U, '<name>')}` (an empty retained message withdraws)", Advertisement),
+    ("error report", f"`{_DOC.error(_R, _U)}`", ErrorReport),
+    ("access report", f"`{_DOC.access(_R, _U)}`", AccessReport),
 )

@@ -12,6 +12,7 @@ import base64
 
 import orjson
 
+from ..topics import TopicTree
 from .codec import _HEADER_BOUNDS, ROSLINK_VERSION, Envelope, encode
 from .control import (
     CONTROL_BODIES,
@@ -33,8 +34,8 @@ BEGIN_CONTROL = "<!-- BEGIN GENERATED: control bodies (python -m roslink_mqtt.pr
 END_CONTROL = "<!-- END GENERATED: control bodies -->"
 
 _CONTROL_EXAMPLES: dict[type, object] = {
-    ErrorReport: ErrorReport("roslink/turtle1/from/alice/cmd/twist", 'payload.lx: expected number, got "fast"',
-                             100, 18, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    ErrorReport: ErrorReport(TopicTree().command("turtle1", "alice", "twist"),
+                             'payload.lx: expected number, got "fast"', 100, 18, "alice-sdk-5f2c9e0a1b3d4c6e"),
     AccessReport: AccessReport("viewer", ("status",)),
     CallRequest: CallRequest("42", {}, "alice-sdk-5f2c9e0a1b3d4c6e"),
     CallReply: CallReply("42", True, {"success": True, "message": "pose reset to the room centre"},
@@ -81,11 +82,12 @@ def _field_row(f: Field) -> str:
 
 
 def _topic(spec: MessageSpec) -> str:
+    doc = TopicTree()  # placeholders in angle brackets, as docs/protocol.md shows topics
     if spec.name == "heartbeat":
-        return "`roslink/<robot>/heartbeat` (retained)"
+        return f"`{doc.heartbeat('<robot>')}` (retained)"
     if spec.direction is Direction.STATE:
-        return f"`roslink/<robot>/state/{spec.name}`"
-    return f"`roslink/<robot>/from/<user>/cmd/{spec.name}`"
+        return f"`{doc.state('<robot>', spec.name)}`"
+    return f"`{doc.command('<robot>', '<user>', spec.name)}`"
 
 
 def render() -> str:
