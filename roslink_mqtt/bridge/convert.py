@@ -29,22 +29,8 @@ import orjson
 from rosidl_parser import definition as d
 
 from ..protocol.validate import describe
+from .refusals import ConversionError
 from .ros_types import load_interface
-
-
-class ConversionError(ValueError):
-    """Untrusted JSON does not fit the ROS type; the message names the field path (``linear.x: …``)."""
-
-    def __init__(self, reason: str, path: str = "") -> None:
-        super().__init__(f"{path}: {reason}" if path else reason)
-        self.reason, self.path = reason, path
-
-    def inside(self, segment: str) -> ConversionError:
-        """The same error seen from the enclosing field (``segment`` is a field name or ``[i]``)."""
-        if not self.path:
-            return ConversionError(self.reason, segment)
-        return ConversionError(self.reason, segment + (self.path if self.path.startswith("[") else "." + self.path))
-
 
 _pack_f = struct.Struct("<f").pack
 NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}

@@ -40,7 +40,7 @@ class MqttLink:
     """
 
     def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl,
-                 keepalive: int, will: tuple[str, bytes], subscriptions: Callable[[], list[tuple[str, int]]],
+                 keepalive: int, will: tuple[str, bytes] | None, subscriptions: Callable[[], list[tuple[str, int]]],
                  on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
                  ca_file: str | None = None, max_reconnect_delay: float = 2.0) -> None:
@@ -49,14 +49,18 @@ class MqttLink:
         self.connected = threading.Event()
         self.client = make_client(client_id, username=username, password=password, url=url, ca_file=ca_file,
                                   max_reconnect_delay=max_reconnect_delay)
-        will_topic, will_payload = will
-        self.client.will_set(will_topic, will_payload, qos=1, retain=True)
+        if will is not None:
+            self.set_will(*will)
         self.client.on_connect = self._handle_connect
         self.client.on_disconnect = self._handle_disconnect
         self.client.on_message = self._handle_message
         self.client.on_connect_fail = self._handle_connect_fail
         self._refused_logged = False
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
+
+    def set_will(self, topic: str, payload: bytes) -> None:
+        """The retained last-will the broker publishes if we vanish; before :meth:`start` (it goes with CONNECT)."""
+        self.client.will_set(topic, payload, qos=1, retain=True)
 
     # -- lifecycle ------------------------------------------------------------
     def start(self) -> None:

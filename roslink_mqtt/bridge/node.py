@@ -1,52 +1,42 @@
-"""The bridge: ROS topics ↔ MQTT per the robot's rules, with presence, checks and failsafe stops."""
+"""The bridge's ROS adapter: publishers, service clients and timers around the ROS-free command endpoint.
+
+Every decision about what users send (parse, authorize, validate, presence and motion gates, the sequence
+rule, failsafe stops) is :class:`~roslink_mqtt.bridge.endpoint.CommandEndpoint`'s. This module owns what
+needs rclpy: the ROS → MQTT subscriptions, the publishers and service clients the endpoint's decisions go
+to, the services both ways (:mod:`.service_caller`, :mod:`.service_provider`), on-demand publishers, and the
+timers that drive heartbeats and supervision.
+"""
 
 from __future__ import annotations
 
 import logging
-import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from rclpy.node import Node
 
-from ..config import Fleet, Robot, Role
-from ..presence import MAX_PRESENCE_BYTES, OperatorTracker, Presence, classify_presence
-from ..protocol import (
-    AckResult,
-    Envelope,
-    MessageId,
-    ProtocolError,
-    SequenceTracker,
-    SystemStatus,
-    decode,
-    encode,
-    error_reply,
-    loads,
-    sender_id,
-)
-from ..protocol.control import pop_generic_sender
-from ..topics import Kind, TopicTree, Verb
+from ..config import Fleet, Robot
+from ..protocol import AckResult, SystemStatus
+from ..topics import Verb
 from .access import access_reports, cleared_reports
-from .authorize import refusal
 from .convert import ConversionError, converter_for
-from .failsafe import Failsafe, late_motion
+from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
-from .presets import CommandRefused
+from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
-from .rules import Inbound, Outbound, RuleError, compile_rules, ros_qos
-from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, is_standstill, make_safe_twist
-from .services import ProvidedServices, ServiceCaller
+from .routes import Inbound
+from .rules import Outbound, RuleError, compile_rules, ros_qos
+from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
+from .service_caller import ServiceCaller
+from .service_provider import ProvidedServices
 from .systemd import SystemdNotifier
 from .throttle import Throttle
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
-SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
-GOAL_PRESETS = ("go_to_waypoint", "takeoff")
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
-MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
 
 
 def _static_part(robot: Robot) -> tuple:
@@ -55,52 +45,38 @@ def _static_part(robot: Robot) -> tuple:
             tuple(replace(s, line=None) for s in robot.services))
 
 
-class Bridge:
-    """Owns one rclpy node (composition, not inheritance: no clashes with rclpy's own attributes).
+@dataclass
+class _CommandCall:
+    """A preset command carried out by a ROS service, waiting for its outcome to acknowledge."""
 
-    Threads: ROS callbacks and the supervision timer run in the executor;
-    MQTT messages arrive on paho's network thread. ``_lock`` serialises
-    everything that touches motion state, so a stop and a command can never
-    interleave.
-    """
+    preset: str
+    resumes_motion: bool  # arm: motion may be commanded again once the service succeeds
+    message_id: int | None
+    sequence: int | None
+    service: str
+    future: Any
 
-    def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
-                 ca_file: str | None = None) -> None:
-        self.node = node
-        self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
-        settings = robot.bridge
-        self.session = int(time.time()) & 0xFFFFFFFF  # grows with every start
-        self.owner = ""  # user who last commanded the robot
-        self.motion_blocked: str | None = None  # why velocity commands are refused (e-stop, disarmed)
-        self.sequences = SequenceTracker()
-        self.operators = OperatorTracker(settings.operator_timeout)
-        self.failsafe = Failsafe(settings.command_timeout)
-        self._lock = threading.RLock()
-        self._heartbeat_seq = self._ack_seq = 0
-        self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
-        self._stop_repeats_left = 0
-        self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho thread only)
-        self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
-        outbound, self.inbound = compile_rules(robot, self.topics)
-        self.velocity_publishers: list[tuple[Inbound, Any]] = []
-        self.publishers_by_rule: dict[str, Any] = {}
-        for rule in outbound:
-            self._subscribe_ros(rule)
-        self.command_services: dict[str, Any] = {}  # preset commands carried out by calling a ROS service
-        self._service_commands: dict[Any, tuple[float, str, int | None, int | None, str]] = {}
-        for name, rule in self.inbound.items():
-            if rule.is_service:
-                self.command_services[name] = node.create_client(rule.ros_cls, rule.rule.ros_topic)
-                continue
-            if rule.rule.on_demand:
-                continue  # its ROS publisher comes and goes with its advertisers (OnDemandPublishers)
-            latched = rule.spec is not None and rule.spec.name == "emergency_stop"
-            pub = node.create_publisher(rule.ros_cls, rule.rule.ros_topic, ros_qos(rule.rule.ros_qos, latched=latched))
-            self.publishers_by_rule[name] = pub
-            if rule.is_velocity:
-                self.velocity_publishers.append((rule, pub))
-        self.failsafe_actions = []
-        for i, action in enumerate(settings.on_failsafe):
+
+class RosActuators:
+    """:class:`~roslink_mqtt.bridge.endpoint.Actuators` with rclpy: one publisher or service client per route."""
+
+    def __init__(self, node: Node, robot: Robot, routes: dict[str, Inbound], on_demand: OnDemandPublishers) -> None:
+        self.node, self.robot, self.on_demand = node, robot, on_demand
+        self.velocity: list[tuple[Inbound, Any]] = []
+        self.publishers: dict[str, Any] = {}
+        self.services: dict[str, Any] = {}
+        self.calls: PendingCalls[_CommandCall] = PendingCalls()
+        self.endpoint: CommandEndpoint | None = None  # set once the endpoint exists (it acknowledges outcomes)
+        for name, route in routes.items():
+            if route.is_service:
+                self.services[name] = node.create_client(route.ros_cls, route.rule.ros_topic)
+            elif not route.rule.on_demand:  # an on-demand publisher comes and goes with its advertisers
+                qos = ros_qos(route.rule.ros_qos, latched=route.behaviour.latched)
+                pub = self.publishers[name] = node.create_publisher(route.ros_cls, route.rule.ros_topic, qos)
+                if route.is_velocity:
+                    self.velocity.append((route, pub))
+        self.on_failsafe: list[tuple[Any, Any]] = []
+        for i, action in enumerate(robot.bridge.on_failsafe):
             try:
                 cls = load_interface(action.ros_type)
                 message = converter_for(cls).from_dict(action.message)
@@ -108,39 +84,120 @@ class Bridge:
                     raise UnsafeCommand("a failsafe action must not move the robot: every velocity must be 0")
             except (UnknownTypeError, ConversionError, UnsafeCommand) as err:
                 raise RuleError(f"bridge.on_failsafe[{i}]: {err}") from None
-            self.failsafe_actions.append((node.create_publisher(cls, action.ros_topic, 10), message))
-        role_of = self.role_of
+            self.on_failsafe.append((node.create_publisher(cls, action.ros_topic, 10), message))
+
+    # -- Actuators ---------------------------------------------------------------------------
+    def publish(self, user: str, route: Inbound, msg: Any) -> None:
+        if route.rule.on_demand:
+            self.on_demand.publish(user, route.name, msg)
+        else:
+            self.publishers[route.name].publish(msg)
+
+    def call_service(self, route: Inbound, request: Any, message_id: int | None, sequence: int | None) -> str | None:
+        client = self.services[route.name]
+        if not client.service_is_ready():
+            return f"service not available: {route.rule.ros_topic} ({route.rule.ros_type})"
+        future = client.call_async(request)
+        preset = route.spec.name if route.spec is not None else route.name
+        key = self.calls.add(_CommandCall(preset, route.behaviour.resumes_motion, message_id, sequence,
+                                          route.rule.ros_topic, future),
+                             time.monotonic() + COMMAND_SERVICE_TIMEOUT)
+        future.add_done_callback(lambda f, key=key: self._service_done(key, f))
+        return None
+
+    def zero_velocity(self) -> None:
+        for route, pub in self.velocity:
+            pub.publish(route.ros_cls())
+
+    def failsafe_actions(self) -> None:
+        for pub, msg in self.on_failsafe:
+            pub.publish(msg)
+
+    # -- outcomes of service-backed commands ---------------------------------------------------------
+    def _service_done(self, key: int, future: Any) -> None:
+        call = self.calls.take(key)
+        if call is None or self.endpoint is None:  # already acknowledged as a timeout
+            return
+        response = future.result() if not future.cancelled() and future.exception() is None else None
+        ok = response is not None and getattr(response, "success", True)
+        if ok and call.resumes_motion:
+            self.endpoint.resume_motion()
+        text = getattr(response, "message", "") if response is not None else f"{call.service} failed"
+        self.endpoint.publish_ack(call.message_id or 0, call.sequence, AckResult.ACCEPTED if ok else AckResult.FAILED,
+                                  text or f"{call.preset} {'done' if ok else 'failed'}")
+
+    def expire(self, now: float) -> None:
+        """Acknowledge service-backed commands whose service did not answer in time."""
+        for call in self.calls.expire(now):
+            call.future.cancel()
+            if self.endpoint is not None:
+                self.endpoint.publish_ack(call.message_id or 0, call.sequence, AckResult.FAILED,
+                                          f"{call.preset}: {call.service} did not answer within "
+                                          f"{COMMAND_SERVICE_TIMEOUT:g} s")
+
+
+class Bridge:
+    """Owns one rclpy node (composition, not inheritance: no clashes with rclpy's own attributes).
+
+    Threads: ROS callbacks and the supervision timer run in the executor; MQTT messages arrive on paho's
+    network thread and go straight to the endpoint, whose lock serialises motion state.
+    """
+
+    def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
+                 ca_file: str | None = None) -> None:
+        self.node, self.fleet, self.robot = node, fleet, robot
+        self.topics = fleet.topics
+        settings = robot.bridge
+        outbound, routes = compile_rules(robot, self.topics)
+        for rule in outbound:
+            self._subscribe_ros(rule)
+        self.link = MqttLink(
+            client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
+            keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
+            on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file)
+        role_of = self._role_of
+        self.on_demand = OnDemandPublishers(node, {n: r for n, r in routes.items() if r.rule.on_demand},
+                                            {n for n, r in routes.items() if not r.rule.on_demand},
+                                            role_of, self._is_live, self._refuse, robot=robot.name)
+        self.actuators = RosActuators(node, robot, routes, self.on_demand)
+        self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes)
+        self.actuators.endpoint = self.endpoint
+        self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         try:
             self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of)
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
-                                         self.operators.is_live, self.refuse,
+                                         self._is_live, self._refuse,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
-        self.on_demand = OnDemandPublishers(node, {n: r for n, r in self.inbound.items() if r.rule.on_demand},
-                                            {n for n, r in self.inbound.items() if not r.rule.on_demand},
-                                            role_of, self.operators.is_live, self.refuse, robot=robot.name)
-        self.link = MqttLink(
-            client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
-            keepalive=settings.keepalive, will=(self.topics.heartbeat(robot.name),
-                                                self._heartbeat(SystemStatus.OFFLINE)),
-            subscriptions=self.mqtt_subscriptions, on_message=self.on_mqtt, on_up=self.on_link_up,
-            on_down=self.on_link_down, ca_file=ca_file)
+        self.endpoint.handlers.update({
+            Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),
+            Verb.PROVIDE: self.provided.offer,
+            Verb.RESPONSE: self.provided.response,
+            Verb.ADVERTISE: self.on_demand.advertise,
+        })
         self.systemd = SystemdNotifier()
-        node.create_timer(settings.heartbeat_period, self.publish_heartbeat)
+        node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
         log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs", robot.name, len(outbound),
-                 len(self.inbound), len(self.velocity_publishers))
+                 len(routes), len(self.actuators.velocity))
 
-    def role_of(self, user: str) -> Role | None:
-        """The user's role on this robot, computed once per user and fleet version (any thread)."""
-        fleet, cache = self._grants  # one read: a reload swaps both at once
-        try:
-            return cache[user]
-        except KeyError:
-            role = cache[user] = fleet.roles_of(user).get(self.robot.name)
-            return role
+    # the endpoint's, looked up at call time (the endpoint is built after the helpers that need these)
+    def _role_of(self, user: str) -> Any:
+        return self.endpoint.role_of(user)
+
+    def _is_live(self, user: str, client_id: str | None = None) -> bool:
+        return self.endpoint.operators.is_live(user, client_id)
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> None:
+        self.endpoint.refuse(*args, **kwargs)
+
+    def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
+        self.endpoint.on_mqtt(topic, payload, retained, arrived)
+
+    def _publish_reliable(self, topic: str, payload: bytes) -> None:
+        self.link.publish(topic, payload, qos=1)
 
     def reload(self, fleet: Fleet) -> None:
         """Apply a re-read fleet file's users and grants now (SIGHUP); rule changes need a restart.
@@ -156,27 +213,19 @@ class Bridge:
         if _static_part(robot) != _static_part(self.robot):
             log.warning("reload: the rules or bridge settings of %s changed; restart the bridge to apply them "
                         "(users and grants apply now)", self.robot.name)
-        before, after = self.fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
-        with self._lock:
-            old_fleet, self.fleet, self._grants = self.fleet, fleet, (fleet, {})
+        old_fleet = self.fleet
+        before, after = old_fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
+        self.fleet = fleet
+        for user in self.endpoint.set_fleet(fleet):
+            self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
+            self.on_demand.withdraw_user(user)
         self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
         for user in sorted(set(before) - set(after)):
             self.link.unsubscribe(self.topics.operators_of(user))
         for user in sorted(set(after) - set(before)):
             self.link.subscribe(self.topics.operators_of(user), 1)
-        demoted = sorted(u for u, role in before.items() if role is Role.OPERATOR and after.get(u) is not Role.OPERATOR)
-        for user in demoted:
-            self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
-            self.on_demand.withdraw_user(user)
-            with self._lock:
-                why = self.failsafe.operator_gone(user)
-                if why:
-                    self.trigger_stop(f"{why} (operator grant removed)")
         log.info("reloaded %s: %d users may see %s (%s)", fleet.file, len(after), self.robot.name,
                  ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
-
-    def _publish_reliable(self, topic: str, payload: bytes) -> None:
-        self.link.publish(topic, payload, qos=1)
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
@@ -186,9 +235,10 @@ class Bridge:
     def stop(self) -> None:
         """Clean shutdown: stop the robot, tell everyone we are offline (the will covers unclean ones)."""
         self.systemd.stopping()
-        with self._lock:
-            self._publish_zero_velocity()
-        self.link.stop([(self.topics.heartbeat(self.robot.name), self._heartbeat(SystemStatus.OFFLINE), 1, True)])
+        with self.endpoint.lock:
+            self.actuators.zero_velocity()
+        self.link.stop([(self.topics.heartbeat(self.robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
+                         True)])
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
         subs = [(self.topics.all_from_users(self.robot.name), 1)]
@@ -197,10 +247,8 @@ class Bridge:
 
     def on_link_up(self) -> None:
         self.systemd.status(f"connected to {self.link.url}")
-        with self._lock:
-            self.failsafe.link_up = True
-            self._pending_heartbeat = None
-        self.publish_heartbeat()
+        self.endpoint.link_up()
+        self.endpoint.publish_heartbeat()
         self.publish_access()
 
     def publish_access(self, cleared: list[str] = ()) -> None:
@@ -213,93 +261,7 @@ class Bridge:
     def on_link_down(self, reason: str) -> None:
         closing = self.link.closing  # our own stop() disconnected: a shutdown, not a failure
         self.systemd.status("disconnected (stopping)" if closing else f"broker lost ({reason}); reconnecting")
-        with self._lock:
-            why = self.failsafe.link_lost()
-            if why:
-                if closing:
-                    self.trigger_stop("the bridge is shutting down", level=logging.INFO)
-                else:
-                    self.trigger_stop(f"{why} ({reason})")
-
-    # -- presence ------------------------------------------------------------------
-    def _heartbeat(self, status: SystemStatus) -> bytes:
-        self._heartbeat_seq = (self._heartbeat_seq + 1) & 0xFFFFFFFF
-        payload = {"type": int(self.robot.type), "name": self.robot.name, "system_status": int(status),
-                   "owner_id": self.owner, "mode": 0, "session": self.session}
-        return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
-
-    def publish_heartbeat(self) -> None:
-        status = SystemStatus.EMERGENCY if self.motion_blocked else SystemStatus.ACTIVE
-        info = self.link.publish(self.topics.heartbeat(self.robot.name), self._heartbeat(status), qos=1, retain=True)
-        with self._lock:
-            if info is not None and self._pending_heartbeat is None:
-                self._pending_heartbeat = (time.monotonic(), info)
-
-    # -- supervision (executor, 20 Hz) -------------------------------------------------
-    def supervise(self) -> None:
-        now = time.monotonic()
-        self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
-        with self._lock:
-            self._check_link(now)
-            for user in self.operators.expire(now):
-                why = self.failsafe.operator_gone(user)
-                if why:
-                    self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")
-            why = self.failsafe.tick(now, self.operators.live_users())
-            if why:
-                self.trigger_stop(why)
-            if self._stop_repeats_left > 0:
-                self._stop_repeats_left -= 1
-                self._publish_zero_velocity()
-        self.caller.expire(now)
-        self.provided.expire(now)
-        self._expire_command_services(now)
-        self.provided.refresh()
-        self.on_demand.refresh()
-
-    def _check_link(self, now: float) -> None:
-        """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
-        pending = self._pending_heartbeat
-        if pending is None:
-            return
-        sent_at, info = pending
-        if info.is_published():
-            self._pending_heartbeat = None
-            if not self.failsafe.link_up and self.link.connected.is_set():
-                self.failsafe.link_up = True
-                log.info("broker answers again")
-        elif now - sent_at > self.robot.bridge.link_timeout and self.failsafe.link_up:
-            why = self.failsafe.link_lost()
-            log.warning("broker silent for %.2f s", now - sent_at)
-            if why:
-                self.trigger_stop(f"{why} (no answer for {self.robot.bridge.link_timeout:g} s)")
-
-    def trigger_stop(self, reason: str, level: int = logging.WARNING) -> None:
-        """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why.
-
-        ``level`` INFO is for stops that are the expected end of something (a client that signed off, a
-        requested shutdown): the robot stops exactly the same way, but the log does not cry failure.
-        """
-        with self._lock:
-            self.failsafe.stopped()
-            self._publish_zero_velocity()
-            self._stop_repeats_left = round(self.robot.bridge.stop_hold * SUPERVISION_RATE)
-            for pub, msg in self.failsafe_actions:
-                pub.publish(msg)
-        log.log(level, "%s of %s: %s", "failsafe stop" if level >= logging.WARNING else "stop", self.robot.name,
-                reason)
-        self.publish_ack(0, None, AckResult.FAILSAFE, reason)
-
-    def _publish_zero_velocity(self) -> None:
-        for rule, pub in self.velocity_publishers:
-            pub.publish(rule.ros_cls())
-
-    def publish_ack(self, command: int, sequence: int | None, result: AckResult, text: str) -> None:
-        self._ack_seq = (self._ack_seq + 1) & 0xFFFFFFFF
-        payload = {"command": int(command), "command_sequence": -1 if sequence is None else sequence,
-                   "result": int(result), "text": text}
-        self.link.publish(self.topics.state(self.robot.name, "ack"),
-                          encode(Envelope(MessageId.ACK, payload, self.robot.system_id, self._ack_seq)), qos=1)
+        self.endpoint.link_down(reason, closing=closing)
 
     # -- ROS → MQTT ------------------------------------------------------------------
     def _subscribe_ros(self, out: Outbound) -> None:
@@ -326,197 +288,13 @@ class Bridge:
     def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
         self.link.publish(topic, payload, qos, retain)
 
-    # -- MQTT → ROS (paho network thread) ---------------------------------------------
-    def on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
-        """One MQTT message; ``arrived`` (monotonic, from the link) lets late motion be dropped, not executed."""
-        parsed = self.topics.parse(topic)
-        if parsed is None:
-            return
-        if parsed.kind is Kind.OPERATOR:
-            self.on_operator(parsed.user, parsed.client_id, payload)
-            return
-        if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name:
-            return
-        user, verb, leaf = parsed.user, parsed.verb, parsed.name
-        if retained and not (verb is not None and verb.retained_by_sender):
-            # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
-            # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.
-            if payload:
-                self.refuse(user, topic, "ignored a retained command from the broker: publish commands "
-                                         "without the retain flag (and clear this one with an empty retained message)",
-                            payload=payload)
-            return
-        if verb is Verb.CALL:
-            self.caller.handle(user, leaf, payload)
-            return
-        if verb is Verb.PROVIDE:
-            self.provided.offer(user, leaf, topic, payload)
-            return
-        if verb is Verb.RESPONSE:
-            self.provided.response(user, leaf, topic, payload)
-            return
-        if verb is Verb.ADVERTISE:
-            self.on_demand.advertise(user, leaf, topic, payload)
-            return
-        name = parsed.leaf
-        rule = self.inbound.get(name)
-        if rule is None:
-            self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
-                                     f"(commands: {', '.join(sorted(self.inbound)) or 'none'})", payload=payload)
-            return
-        why = refusal(user, self.role_of(user), Verb.CMD, name, robot=self.robot.name)
-        if why:
-            self.refuse(user, topic, why, payload=payload)
-            return
-        self.handle_command(user, topic, rule, payload, arrived)
-
-    def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
-        """Operator presence. Classified before the lock (bounded work), so presence can never hold up a stop."""
-        presence = classify_presence(payload)
-        if presence is Presence.OVERSIZED:
-            self._ignore_oversized_presence(user, client_id, len(payload))
-            return
-        with self._lock:
-            if not self.operators.record(user, client_id, presence, time.monotonic()):
-                why = self.failsafe.operator_gone(user)
-                if why and presence is Presence.SIGNED_OFF:
-                    # a program that finished: the robot stops all the same, but nothing failed
-                    self.trigger_stop(f"{why} (signed off)", level=logging.INFO)
-                elif why:
-                    self.trigger_stop(f"{why} (last-will)")
-
-    def _ignore_oversized_presence(self, user: str, client_id: str, size: int) -> None:
-        """Say once per client (and for a bounded number of clients) that its presence bodies are ignored."""
-        key = (user, client_id)
-        if key in self._oversized_presence or len(self._oversized_presence) >= MAX_OVERSIZED_LOGGED:
-            return
-        self._oversized_presence.add(key)
-        reason = (f"ignored an oversized presence payload ({size} bytes, limit {MAX_PRESENCE_BYTES}) from "
-                  f"{user}/{client_id}: it does not count as a heartbeat")
-        log.warning("%s", reason)
-        self.refuse(user, self.topics.operator(user, client_id), reason, client_id=client_id)
-
-    def handle_command(self, user: str, topic: str, rule: Inbound, payload: bytes,
-                       arrived: float | None = None) -> None:
-        """Decode, check and execute one command (paho thread); motion that waited too long here is dropped."""
-        message_id = sequence = sender = None  # sender: the client id the request names, for error reports
-        preset = rule.spec.name if rule.spec is not None else None
-        try:
-            if rule.spec is not None:
-                envelope = decode(payload, rule.spec.message_id)
-                message_id, sequence, sender = envelope.message_id, envelope.sequence_number, envelope.client_id
-                msg = rule.build(envelope.payload)
-            else:
-                body = loads(payload)
-                sender = pop_generic_sender(body)  # '$client_id' is not a field of the ROS message
-                msg = rule.build(body)
-            if rule.is_velocity:
-                make_safe_twist(msg, rule.limits)
-        except (ProtocolError, ConversionError, CommandRefused, UnsafeCommand) as err:
-            self.refuse(user, topic, str(err), message_id, sequence, payload=payload)
-            return
-        with self._lock:
-            if preset != "emergency_stop" and not self.operators.is_live(user):
-                self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
-                                         f"on {self.topics.operator(user, '<client_id>')} every second",
-                            message_id, sequence, client_id=sender)
-                return
-            if rule.is_velocity or preset in GOAL_PRESETS:
-                if self.motion_blocked:
-                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
-                                client_id=sender)
-                    return
-                late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
-                                   stop=rule.is_velocity and is_standstill(msg))
-                if late:
-                    self.refuse(user, topic, late, message_id, sequence, client_id=sender)
-                    return
-            # The number is recorded only once every other check has passed: a command refused for its body,
-            # for missing presence or for blocked motion must not use it up, or the same command resent once
-            # the gate opens would be dropped as a duplicate. A stop is never "too old" to obey.
-            if sequence is not None and preset != "emergency_stop":
-                verdict = self.sequences.check((user, rule.rule.mqtt_topic), sequence)
-                if not verdict.accepted:
-                    self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
-                                message_id, sequence, client_id=sender)
-                    return
-            if rule.is_velocity or preset in GOAL_PRESETS:
-                self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
-                if rule.is_velocity:
-                    self.failsafe.velocity_command(user, time.monotonic())
-                else:
-                    self.failsafe.goal_command(user)
-            if preset == "emergency_stop":
-                self.block_motion(f"emergency stop by {user}")
-            elif preset == "disarm":
-                self.block_motion(f"disarmed by {user}")
-            elif preset == "arm" and not rule.is_service:
-                self.motion_blocked = None
-            self.owner = user
-            if rule.is_service:
-                self._call_command_service(user, topic, rule, msg, message_id, sequence, sender)
-            elif rule.rule.on_demand:
-                self.on_demand.publish(user, rule.rule.mqtt_topic, msg)
-            else:
-                self.publishers_by_rule[rule.rule.mqtt_topic].publish(msg)
-
-    def _call_command_service(self, user: str, topic: str, rule: Inbound, request: Any, message_id: int | None,
-                              sequence: int | None, sender: str | None = None) -> None:
-        """Carry out a preset command through a ROS service; the outcome is acknowledged on state/ack."""
-        client = self.command_services[rule.rule.mqtt_topic]
-        if not client.service_is_ready():
-            self.refuse(user, topic, f"service not available: {rule.rule.ros_topic} ({rule.rule.ros_type})",
-                        message_id, sequence, client_id=sender)
-            return
-        future = client.call_async(request)
-        deadline = time.monotonic() + COMMAND_SERVICE_TIMEOUT
-        self._service_commands[future] = (deadline, rule.spec.name, message_id, sequence, rule.rule.ros_topic)
-        future.add_done_callback(self._command_service_done)
-
-    def _command_service_done(self, future: Any) -> None:
-        with self._lock:
-            entry = self._service_commands.pop(future, None)
-        if entry is None:  # already acknowledged as a timeout
-            return
-        _, preset, message_id, sequence, service = entry
-        response = future.result() if not future.cancelled() and future.exception() is None else None
-        ok = response is not None and getattr(response, "success", True)
-        if ok and preset == "arm":
-            with self._lock:
-                self.motion_blocked = None
-        text = getattr(response, "message", "") if response is not None else f"{service} failed"
-        self.publish_ack(message_id or 0, sequence, AckResult.ACCEPTED if ok else AckResult.FAILED,
-                         text or f"{preset} {'done' if ok else 'failed'}")
-
-    def _expire_command_services(self, now: float) -> None:
-        with self._lock:
-            late = [(f, e) for f, e in self._service_commands.items() if now > e[0]]
-            for future, _ in late:
-                del self._service_commands[future]
-        for future, (_, preset, message_id, sequence, service) in late:
-            future.cancel()
-            self.publish_ack(message_id or 0, sequence, AckResult.FAILED,
-                             f"{preset}: {service} did not answer within {COMMAND_SERVICE_TIMEOUT:g} s")
-
-    def block_motion(self, reason: str) -> None:
-        """Zero every velocity output and refuse motion until an operator arms again."""
-        with self._lock:
-            self.motion_blocked = reason
-            self.failsafe.stopped()
-            self._publish_zero_velocity()
-        log.warning("motion blocked on %s: %s", self.robot.name, reason)
-
-    def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
-               sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None) -> None:
-        """Report a refused input on ``to/<user>/error``, addressed to the program that sent it.
-
-        Every program of ``user`` reads that topic, so the report repeats the sender's client id: given
-        (``client_id``), or read from the refused ``payload`` here, on the rare refusal path rather than for
-        every accepted command. A request that names no sender gets a report without one (any program may show it).
-        """
-        if client_id is None and payload is not None:
-            client_id = sender_id(payload)
-        log.debug("refused %s: %s", topic, reason)
-        self.link.publish(self.topics.error(self.robot.name, user),
-                          error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
-                                      client_id=client_id), qos=1)
+    # -- supervision (executor, 20 Hz) -------------------------------------------------
+    def supervise(self) -> None:
+        now = time.monotonic()
+        self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
+        self.endpoint.supervise(now)
+        self.caller.expire(now)
+        self.provided.expire(now)
+        self.actuators.expire(now)
+        self.provided.refresh()
+        self.on_demand.refresh()

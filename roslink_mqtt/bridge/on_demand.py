@@ -31,7 +31,8 @@ from ..protocol import ProtocolError
 from ..protocol.control import Advertisement
 from ..topics import Verb
 from .authorize import refusal
-from .rules import Inbound, ros_qos
+from .routes import Inbound
+from .rules import ros_qos
 
 log = logging.getLogger("roslink_mqtt.bridge.on_demand")
 

@@ -15,13 +15,14 @@ from typing import Any
 import orjson
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from ..config import Robot, RosQos, Rule, VelocityLimits
+from ..config import Robot, RosQos, Rule
 from ..config.model import Direction
-from ..protocol import SPECS_BY_NAME, Envelope, MessageSpec, encode
+from ..protocol import SPECS_BY_NAME, Envelope, encode
 from ..topics import TopicTree, split_first
 from .convert import ConversionError, converter_for
 from .presets import COMMAND_PRESETS, STATE_PRESETS
 from .ros_types import UnknownTypeError, load_interface
+from .routes import Inbound
 from .safety import VELOCITY_TYPES
 
 
@@ -51,19 +52,6 @@ class Outbound:
     topic: str
     serialize: Callable[[Any], bytes]
     period: float  # 0 = no throttle
-
-
-@dataclass
-class Inbound:
-    """mqtt_to_ros: a payload from a user becomes a ROS message on one topic."""
-
-    rule: Rule
-    ros_cls: type
-    spec: MessageSpec | None  # the ROSLink message for preset rules; None for generic JSON
-    build: Callable[[Any], Any]  # validated payload (preset) or parsed JSON (generic) -> ROS message
-    is_velocity: bool
-    limits: VelocityLimits
-    is_service: bool = False  # the preset calls a ROS service (ros_cls is the srv type) instead of publishing
 
 
 def _load(rule: Rule) -> type:

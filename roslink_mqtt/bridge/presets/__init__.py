@@ -6,7 +6,8 @@ rule publishes (users → robot). Each lists the ROS types it accepts so a
 preset/type mismatch is caught when the bridge starts.
 """
 
-from .command import COMMAND_PRESETS, CommandPreset, CommandRefused
+from .command import COMMAND_PRESETS, ORDINARY, CommandBehaviour, CommandPreset, CommandRefused
 from .state import STATE_PRESETS, StatePreset
 
-__all__ = ["COMMAND_PRESETS", "STATE_PRESETS", "CommandPreset", "CommandRefused", "StatePreset"]
+__all__ = ["COMMAND_PRESETS", "ORDINARY", "STATE_PRESETS", "CommandBehaviour", "CommandPreset", "CommandRefused",
+           "StatePreset"]

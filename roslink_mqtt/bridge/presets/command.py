@@ -22,10 +22,31 @@ class CommandRefused(ValueError):
 
 
 @dataclass(frozen=True, slots=True)
+class CommandBehaviour:
+    """What a command does to the robot's motion, as data the bridge's command endpoint reads.
+
+    Velocity is not here: any rule on a velocity type (preset or generic) is motion, recognised by its ROS type,
+    so that limits and the dead-man cannot be bypassed by choosing another rule.
+    """
+
+    moves_robot: bool = False  # an autonomous goal (waypoint, takeoff): refused while motion is blocked,
+    #                            cancelled by the failsafe when its operator or the broker goes away
+    blocks_motion: str | None = None  # refuse motion after it, until resumed ("emergency stop by <user>")
+    resumes_motion: bool = False  # lifts a block (arm); a service-backed arm lifts it only when the service succeeds
+    latched: bool = False  # its ROS publisher is transient-local: a node that starts later still sees it
+    never_stale: bool = False  # executed whatever its sequence number and without operator presence
+    #                            (a stop from anyone granted must never be dropped as old or unannounced)
+
+
+ORDINARY = CommandBehaviour()
+
+
+@dataclass(frozen=True, slots=True)
 class CommandPreset:
     name: str
     ros_types: tuple[str, ...]
     build: Callable[[Payload, type], Any]
+    behaviour: CommandBehaviour = ORDINARY
 
 
 def _is_stamped(cls: type) -> bool:
@@ -81,12 +102,14 @@ _EMPTY, _BOOL = "std_msgs/msg/Empty", "std_msgs/msg/Bool"
 COMMAND_PRESETS: dict[str, CommandPreset] = {p.name: p for p in (
     CommandPreset("twist", ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"), twist),
     CommandPreset("go_to_waypoint", ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PointStamped"),
-                  go_to_waypoint),
-    CommandPreset("takeoff", ("std_msgs/msg/Float64", "std_msgs/msg/Float32", _EMPTY), takeoff),
+                  go_to_waypoint, CommandBehaviour(moves_robot=True)),
+    CommandPreset("takeoff", ("std_msgs/msg/Float64", "std_msgs/msg/Float32", _EMPTY), takeoff,
+                  CommandBehaviour(moves_robot=True)),
     CommandPreset("land", (_EMPTY, _BOOL), _signal(True)),
-    CommandPreset("arm", (_EMPTY, _BOOL), _signal(True)),
-    CommandPreset("disarm", (_EMPTY, _BOOL), _signal(False)),
+    CommandPreset("arm", (_EMPTY, _BOOL), _signal(True), CommandBehaviour(resumes_motion=True)),
+    CommandPreset("disarm", (_EMPTY, _BOOL), _signal(False), CommandBehaviour(blocks_motion="disarmed")),
     CommandPreset("set_mode", ("std_msgs/msg/String",), set_mode),
     CommandPreset("get_map", (_EMPTY, _BOOL), _signal(True)),
-    CommandPreset("emergency_stop", (_BOOL, _EMPTY), _signal(True)),
+    CommandPreset("emergency_stop", (_BOOL, _EMPTY), _signal(True),
+                  CommandBehaviour(blocks_motion="emergency stop", latched=True, never_stale=True)),
 )}

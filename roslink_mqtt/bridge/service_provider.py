@@ -1,14 +1,11 @@
-"""Services in both directions (docs/protocol.md, "Services").
+"""Services provided by MQTT clients to ROS (docs/protocol.md, "Services provided by MQTT clients").
 
-* :class:`ServiceCaller` — MQTT users call the robot's ROS services:
-  ``from/<user>/call/<name>`` ``{"id", "args"}`` → ``to/<user>/reply/<name>``
-  ``{"id", "result", "values" | "error"}``. Calls are asynchronous: the MQTT
-  thread never waits for ROS, and a slow service never blocks topics.
-* :class:`ProvidedServices` — an MQTT client *provides* a service to ROS:
-  the bridge creates the ROS service while the provider is live, forwards each
-  call as ``to/<provider>/request/<name>`` and answers with the provider's
-  ``from/<provider>/response/<name>``. When the provider withdraws or goes
-  away, the ROS service is destroyed and waiting ROS calls fail cleanly.
+An MQTT client *provides* a service: the bridge creates the ROS service while
+the provider is live, forwards each call as ``to/<provider>/request/<name>``
+and answers with the provider's ``from/<provider>/response/<name>``. When the
+provider withdraws or goes away, the ROS service is destroyed and waiting ROS
+calls fail cleanly. The other direction, MQTT users calling ROS services, is
+:mod:`.service_caller`.
 """
 
 from __future__ import annotations
@@ -27,9 +24,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_services_default
 from rclpy.task import Future
 
-from ..config import Robot, Role, ServiceRule
-from ..protocol import ProtocolError, sender_id
-from ..protocol.control import CallReply, CallRequest, ProviderRequest, ProviderResponse, ServiceOffer
+from ..config import Robot, Role
+from ..protocol import ProtocolError
+from ..protocol.control import ProviderRequest, ProviderResponse, ServiceOffer
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .convert import ConversionError, converter_for
@@ -38,99 +35,6 @@ from .ros_types import UnknownTypeError, load_interface
 log = logging.getLogger("roslink_mqtt.bridge.services")
 
 Publish = Callable[[str, bytes], None]
-
-
-def _reply(call_id: Any, *, values: dict | None = None, error: str | None = None,
-           client_id: str | None = None) -> bytes:
-    """A reply body; ``client_id`` repeats the caller's (every program of the user reads the reply topic)."""
-    return CallReply(call_id, error is None, values, error, client_id).to_json()
-
-
-@dataclass
-class _Pending:
-    user: str
-    call_id: Any
-    reply_topic: str
-    deadline: float
-    timeout: float
-    future: Any
-    client: Any
-    client_id: str | None = None  # the caller's, repeated in the reply
-
-
-class ServiceCaller:
-    """Calls the robot's configured ROS services on behalf of MQTT users."""
-
-    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None]) -> None:
-        self.robot, self.topics, self.publish, self.role_of = robot, topics, publish, role_of
-        self._lock = threading.Lock()
-        self._pending: dict[int, _Pending] = {}
-        self._ids = itertools.count(1)
-        self.clients: dict[str, tuple[ServiceRule, Any, Any]] = {}
-        group = ReentrantCallbackGroup()
-        for rule in robot.services:
-            srv = load_interface(rule.ros_type)
-            self.clients[rule.name] = (rule, srv, node.create_client(srv, rule.ros_service, callback_group=group))
-
-    def handle(self, user: str, name: str, payload: bytes) -> None:
-        """A call from ``user`` to service ``name`` (MQTT thread: never blocks)."""
-        reply_topic = self.topics.reply(self.robot.name, user, name)
-        try:
-            call = CallRequest.from_json(payload)
-        except ProtocolError as err:
-            self.publish(reply_topic, _reply(None, error=str(err), client_id=sender_id(payload)))
-            return
-        call_id, args, sender = call.id, call.args, call.client_id
-        entry = self.clients.get(name)
-        if entry is None:
-            known = ", ".join(sorted(self.clients)) or "none"
-            self.publish(reply_topic, _reply(call_id, error=f"unknown service '{name}' (services: {known})",
-                                             client_id=sender))
-            return
-        rule, srv, client = entry
-        why = refusal(user, self.role_of(user), Verb.CALL, name, robot=self.robot.name, read_only=rule.read_only)
-        if why:
-            self.publish(reply_topic, _reply(call_id, error=why, client_id=sender))
-            return
-        try:
-            request = converter_for(srv.Request).from_dict(args)
-        except ConversionError as err:
-            self.publish(reply_topic, _reply(call_id, error=f"bad arguments: args.{err}", client_id=sender))
-            return
-        if not client.service_is_ready():
-            self.publish(reply_topic, _reply(call_id, error=f"service not available: {rule.ros_service} "
-                                                            f"({rule.ros_type}) has no server", client_id=sender))
-            return
-        future = client.call_async(request)
-        key = next(self._ids)
-        with self._lock:
-            self._pending[key] = _Pending(user, call_id, reply_topic, time.monotonic() + rule.timeout, rule.timeout,
-                                          future, client, sender)
-        future.add_done_callback(lambda f, key=key, srv=srv: self._done(key, srv, f))
-
-    def _done(self, key: int, srv: Any, future: Any) -> None:
-        with self._lock:
-            pending = self._pending.pop(key, None)
-        if pending is None:  # already answered as a timeout
-            return
-        if future.cancelled() or future.exception() is not None:
-            self.publish(pending.reply_topic, _reply(pending.call_id, error=f"service failed: {future.exception()}",
-                                                     client_id=pending.client_id))
-            return
-        values = converter_for(srv.Response).to_dict(future.result())
-        self.publish(pending.reply_topic, _reply(pending.call_id, values=values, client_id=pending.client_id))
-
-    def expire(self, now: float) -> None:
-        """Answer calls past their timeout (called from the bridge's supervision timer)."""
-        with self._lock:
-            late = [(k, p) for k, p in self._pending.items() if now > p.deadline]
-            for k, _ in late:
-                del self._pending[k]
-        for _, p in late:
-            p.client.remove_pending_request(p.future)
-            self.publish(p.reply_topic, _reply(p.call_id, error=f"timeout: no answer within {p.timeout:g} s",
-                                               client_id=p.client_id))
 
 
 @dataclass

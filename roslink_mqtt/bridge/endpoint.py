@@ -1,0 +1,381 @@
+"""The bridge's command endpoint: topic and bytes in → a refusal out, or one thing for ROS to carry out. ROS-free.
+
+Everything a user sends the robot passes here: parse the topic (:mod:`roslink_mqtt.topics`), authorize
+(:mod:`.authorize`), decode and validate the body, make velocities safe, then the gates — operator presence,
+motion blocked by an emergency stop or a disarm, motion that waited too long inside the bridge — and the
+sequence rule (stale and duplicate numbers are dropped; a number is recorded only once every other check has
+passed). What survives becomes a call on :class:`Actuators`; what does not becomes an error report on
+``to/<user>/error``. Presence, the failsafe decisions, stops, acknowledgements and the robot's heartbeat live
+here too, because they read and change the same motion state under the same lock.
+
+The ROS side (:mod:`.node`) owns publishers, service clients and timers and implements :class:`Actuators`;
+the MQTT side is any object with ``publish``. So the endpoint runs in-process in unit tests with a recording
+link and recording actuators (``tests/test_bridge_endpoint.py``), the way rosbridge tests one capability with a
+real protocol object, while the integration tests keep running the real bridge.
+
+Threads: MQTT messages arrive on paho's network thread, supervision and ROS callbacks on the executor.
+``lock`` serialises everything that touches motion state, so a stop and a command never interleave.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+from ..config import Fleet, Robot, Role
+from ..presence import MAX_PRESENCE_BYTES, OperatorTracker, Presence, classify_presence
+from ..protocol import (
+    AckResult,
+    Envelope,
+    MessageId,
+    SequenceTracker,
+    SystemStatus,
+    decode,
+    encode,
+    error_reply,
+    loads,
+    sender_id,
+)
+from ..protocol.control import ErrorReport, pop_generic_sender
+from ..topics import Kind, TopicTree, Verb
+from .authorize import refusal
+from .failsafe import Failsafe, late_motion
+from .refusals import INPUT_REFUSALS
+from .routes import Inbound
+from .safety import is_standstill, make_safe_twist
+
+log = logging.getLogger("roslink_mqtt.bridge")
+
+SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
+MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
+ACK_QOS = 1  # state/ack: the outcome of a command (and every failsafe stop) must not be lost
+
+
+class Link(Protocol):
+    """The MQTT side: :class:`~roslink_mqtt.bridge.link.MqttLink`, or a recording stand-in in tests."""
+
+    connected: threading.Event
+
+    def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> Any: ...
+
+
+class Actuators(Protocol):
+    """The ROS side: what the endpoint asks to be carried out (bridge/node.py implements it with rclpy)."""
+
+    def publish(self, user: str, route: Inbound, msg: Any) -> None:
+        """Publish ``msg`` on the route's ROS topic (on-demand routes: through the user's publisher)."""
+
+    def call_service(self, route: Inbound, request: Any, message_id: int | None, sequence: int | None) -> str | None:
+        """Call the route's ROS service; the outcome is acknowledged later. A reason if it cannot be called now."""
+
+    def zero_velocity(self) -> None:
+        """Publish a zero velocity on every velocity output."""
+
+    def failsafe_actions(self) -> None:
+        """Publish the fleet file's ``bridge.on_failsafe`` messages."""
+
+
+# (user, name, topic, payload): the verbs the endpoint hands on whole (services, offers, advertisements)
+VerbHandler = Callable[[str, str, str, bytes], None]
+
+
+class CommandEndpoint:
+    """Decides what to do with every input of one robot, and keeps its motion state."""
+
+    def __init__(self, fleet: Fleet, robot: Robot, link: Link, actuators: Actuators,
+                 routes: Mapping[str, Inbound], handlers: Mapping[Verb, VerbHandler] | None = None) -> None:
+        """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``handlers``: call, provide,
+        response and advertise, each given (user, name, topic, payload)."""
+        self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
+        self.link, self.actuators, self.routes = link, actuators, dict(routes)
+        self.handlers: dict[Verb, VerbHandler] = dict(handlers or {})
+        settings = robot.bridge
+        self.session = int(time.time()) & 0xFFFFFFFF  # grows with every start
+        self.owner = ""  # user who last commanded the robot
+        self.motion_blocked: str | None = None  # why motion is refused (e-stop, disarmed)
+        self.sequences = SequenceTracker()
+        self.operators = OperatorTracker(settings.operator_timeout)
+        self.failsafe = Failsafe(settings.command_timeout)
+        self.lock = threading.RLock()
+        self._heartbeat_seq = self._ack_seq = 0
+        self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
+        self._stop_repeats_left = 0
+        self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho thread only)
+        self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
+
+    # -- grants --------------------------------------------------------------------------
+    def role_of(self, user: str) -> Role | None:
+        """The user's role on this robot, computed once per user and fleet version (any thread)."""
+        fleet, cache = self._grants  # one read: a reload swaps both at once
+        try:
+            return cache[user]
+        except KeyError:
+            role = cache[user] = fleet.roles_of(user).get(self.robot.name)
+            return role
+
+    def set_fleet(self, fleet: Fleet) -> list[str]:
+        """Apply a re-read fleet file's grants; stop the robot if its motion owner lost operator rights.
+
+        Returns the users demoted from operator (the ROS side withdraws what they provide).
+        """
+        before, after = self.fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
+        with self.lock:
+            self.fleet, self._grants = fleet, (fleet, {})
+        demoted = sorted(u for u, role in before.items() if role is Role.OPERATOR and after.get(u) is not Role.OPERATOR)
+        for user in demoted:
+            with self.lock:
+                why = self.failsafe.operator_gone(user)
+                if why:
+                    self.trigger_stop(f"{why} (operator grant removed)")
+        return demoted
+
+    # -- MQTT in (paho network thread) ----------------------------------------------------
+    def on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
+        """One MQTT message; ``arrived`` (monotonic, from the link) lets late motion be dropped, not executed."""
+        parsed = self.topics.parse(topic)
+        if parsed is None:
+            return
+        if parsed.kind is Kind.OPERATOR:
+            self.on_operator(parsed.user or "", parsed.client_id or "", payload)
+            return
+        if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name or not parsed.user:
+            return
+        user, verb = parsed.user, parsed.verb
+        if retained and not (verb is not None and verb.retained_by_sender):
+            # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
+            # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.
+            if payload:
+                self.refuse(user, topic, "ignored a retained command from the broker: publish commands "
+                                         "without the retain flag (and clear this one with an empty retained message)",
+                            payload=payload)
+            return
+        if verb is not None and verb is not Verb.CMD:
+            handler = self.handlers.get(verb)
+            if handler is None:
+                self.refuse(user, topic, f"'{verb.value}' is not served by this bridge", payload=payload)
+            else:
+                handler(user, parsed.name or "", topic, payload)
+            return
+        name = parsed.leaf
+        route = self.routes.get(name)
+        if route is None:
+            self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
+                                     f"(commands: {', '.join(sorted(self.routes)) or 'none'})", payload=payload)
+            return
+        why = refusal(user, self.role_of(user), Verb.CMD, name, robot=self.robot.name)
+        if why:
+            self.refuse(user, topic, why, payload=payload)
+            return
+        self.handle_command(user, topic, route, payload, arrived)
+
+    def handle_command(self, user: str, topic: str, route: Inbound, payload: bytes,
+                       arrived: float | None = None) -> None:
+        """Decode, check and carry out one command; motion that waited too long in the bridge is dropped."""
+        message_id = sequence = sender = None  # sender: the client id the request names, for error reports
+        behaviour = route.behaviour
+        try:
+            if route.spec is not None:
+                envelope = decode(payload, route.spec.message_id)
+                message_id, sequence, sender = envelope.message_id, envelope.sequence_number, envelope.client_id
+                msg = route.build(envelope.payload)
+            else:
+                body = loads(payload)
+                sender = pop_generic_sender(body)  # '$client_id' is not a field of the ROS message
+                msg = route.build(body)
+            if route.is_velocity:
+                make_safe_twist(msg, route.limits)
+        except INPUT_REFUSALS as err:
+            self.refuse(user, topic, str(err), message_id, sequence, payload=payload)
+            return
+        with self.lock:
+            if not behaviour.never_stale and not self.operators.is_live(user):
+                self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
+                                         f"on {self.topics.operator(user, '<client_id>')} every second",
+                            message_id, sequence, client_id=sender)
+                return
+            if route.moves_robot:
+                if self.motion_blocked:
+                    self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
+                                client_id=sender)
+                    return
+                late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
+                                   stop=route.is_velocity and is_standstill(msg))
+                if late:
+                    self.refuse(user, topic, late, message_id, sequence, client_id=sender)
+                    return
+            # The number is recorded only once every other check has passed: a command refused for its body,
+            # for missing presence or for blocked motion must not use it up, or the same command resent once
+            # the gate opens would be dropped as a duplicate. A stop is never "too old" to obey.
+            if sequence is not None and not behaviour.never_stale:
+                verdict = self.sequences.check((user, route.name), sequence)
+                if not verdict.accepted:
+                    self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
+                                message_id, sequence, client_id=sender)
+                    return
+            if route.moves_robot:
+                self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
+                if route.is_velocity:
+                    self.failsafe.velocity_command(user, time.monotonic())
+                else:
+                    self.failsafe.goal_command(user)
+            if behaviour.blocks_motion:
+                self.block_motion(f"{behaviour.blocks_motion} by {user}")
+            elif behaviour.resumes_motion and not route.is_service:
+                self.motion_blocked = None  # a service-backed arm resumes only when its service succeeds
+            self.owner = user
+            if route.is_service:
+                why = self.actuators.call_service(route, msg, message_id, sequence)
+                if why:
+                    self.refuse(user, topic, why, message_id, sequence, client_id=sender)
+            else:
+                self.actuators.publish(user, route, msg)
+
+    def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
+        """Operator presence. Classified before the lock (bounded work), so presence can never hold up a stop."""
+        presence = classify_presence(payload)
+        if presence is Presence.OVERSIZED:
+            self._ignore_oversized_presence(user, client_id, len(payload))
+            return
+        with self.lock:
+            if not self.operators.record(user, client_id, presence, time.monotonic()):
+                why = self.failsafe.operator_gone(user)
+                if why and presence is Presence.SIGNED_OFF:
+                    # a program that finished: the robot stops all the same, but nothing failed
+                    self.trigger_stop(f"{why} (signed off)", level=logging.INFO)
+                elif why:
+                    self.trigger_stop(f"{why} (last-will)")
+
+    def _ignore_oversized_presence(self, user: str, client_id: str, size: int) -> None:
+        """Say once per client (and for a bounded number of clients) that its presence bodies are ignored."""
+        key = (user, client_id)
+        if key in self._oversized_presence or len(self._oversized_presence) >= MAX_OVERSIZED_LOGGED:
+            return
+        self._oversized_presence.add(key)
+        reason = (f"ignored an oversized presence payload ({size} bytes, limit {MAX_PRESENCE_BYTES}) from "
+                  f"{user}/{client_id}: it does not count as a heartbeat")
+        log.warning("%s", reason)
+        self.refuse(user, self.topics.operator(user, client_id), reason, client_id=client_id)
+
+    # -- motion state ------------------------------------------------------------------------
+    def resume_motion(self) -> None:
+        """A service-backed arm succeeded: motion may be commanded again."""
+        with self.lock:
+            self.motion_blocked = None
+
+    def block_motion(self, reason: str) -> None:
+        """Zero every velocity output and refuse motion until an operator arms again."""
+        with self.lock:
+            self.motion_blocked = reason
+            self.failsafe.stopped()
+            self.actuators.zero_velocity()
+        log.warning("motion blocked on %s: %s", self.robot.name, reason)
+
+    def trigger_stop(self, reason: str, level: int = logging.WARNING) -> None:
+        """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why.
+
+        ``level`` INFO is for stops that are the expected end of something (a client that signed off, a
+        requested shutdown): the robot stops exactly the same way, but the log does not cry failure.
+        """
+        with self.lock:
+            self.failsafe.stopped()
+            self.actuators.zero_velocity()
+            self._stop_repeats_left = round(self.robot.bridge.stop_hold * SUPERVISION_RATE)
+            self.actuators.failsafe_actions()
+        log.log(level, "%s of %s: %s", "failsafe stop" if level >= logging.WARNING else "stop", self.robot.name,
+                reason)
+        self.publish_ack(0, None, AckResult.FAILSAFE, reason)
+
+    def operator_gone(self, user: str, why_suffix: str) -> None:
+        """Stop if ``user`` owned the motion (their presence ended, their grant went)."""
+        with self.lock:
+            why = self.failsafe.operator_gone(user)
+            if why:
+                self.trigger_stop(f"{why} ({why_suffix})")
+
+    # -- the link ------------------------------------------------------------------------------
+    def link_up(self) -> None:
+        with self.lock:
+            self.failsafe.link_up = True
+            self._pending_heartbeat = None
+
+    def link_down(self, reason: str, *, closing: bool) -> None:
+        """The broker connection ended; ``closing``: our own shutdown, not a failure."""
+        with self.lock:
+            why = self.failsafe.link_lost()
+            if why:
+                if closing:
+                    self.trigger_stop("the bridge is shutting down", level=logging.INFO)
+                else:
+                    self.trigger_stop(f"{why} ({reason})")
+
+    def _check_link(self, now: float) -> None:
+        """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
+        pending = self._pending_heartbeat
+        if pending is None:
+            return
+        sent_at, info = pending
+        if info.is_published():
+            self._pending_heartbeat = None
+            if not self.failsafe.link_up and self.link.connected.is_set():
+                self.failsafe.link_up = True
+                log.info("broker answers again")
+        elif now - sent_at > self.robot.bridge.link_timeout and self.failsafe.link_up:
+            why = self.failsafe.link_lost()
+            log.warning("broker silent for %.2f s", now - sent_at)
+            if why:
+                self.trigger_stop(f"{why} (no answer for {self.robot.bridge.link_timeout:g} s)")
+
+    # -- supervision (executor, SUPERVISION_RATE) ------------------------------------------------
+    def supervise(self, now: float) -> None:
+        """Link check, operator expiry, the failsafe's timers, and the repeats of a stop."""
+        with self.lock:
+            self._check_link(now)
+            for user in self.operators.expire(now):
+                why = self.failsafe.operator_gone(user)
+                if why:
+                    self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")
+            why = self.failsafe.tick(now, self.operators.live_users())
+            if why:
+                self.trigger_stop(why)
+            if self._stop_repeats_left > 0:
+                self._stop_repeats_left -= 1
+                self.actuators.zero_velocity()
+
+    # -- MQTT out --------------------------------------------------------------------------------
+    def heartbeat(self, status: SystemStatus) -> bytes:
+        self._heartbeat_seq = (self._heartbeat_seq + 1) & 0xFFFFFFFF
+        payload = {"type": int(self.robot.type), "name": self.robot.name, "system_status": int(status),
+                   "owner_id": self.owner, "mode": 0, "session": self.session}
+        return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
+
+    def publish_heartbeat(self) -> None:
+        status = SystemStatus.EMERGENCY if self.motion_blocked else SystemStatus.ACTIVE
+        info = self.link.publish(self.topics.heartbeat(self.robot.name), self.heartbeat(status), qos=1, retain=True)
+        with self.lock:
+            if info is not None and self._pending_heartbeat is None:
+                self._pending_heartbeat = (time.monotonic(), info)
+
+    def publish_ack(self, command: int, sequence: int | None, result: AckResult, text: str) -> None:
+        self._ack_seq = (self._ack_seq + 1) & 0xFFFFFFFF
+        payload = {"command": int(command), "command_sequence": -1 if sequence is None else sequence,
+                   "result": int(result), "text": text}
+        self.link.publish(self.topics.state(self.robot.name, "ack"),
+                          encode(Envelope(MessageId.ACK, payload, self.robot.system_id, self._ack_seq)), qos=ACK_QOS)
+
+    def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
+               sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None) -> None:
+        """Report a refused input on ``to/<user>/error``, addressed to the program that sent it.
+
+        Every program of ``user`` reads that topic, so the report repeats the sender's client id: given
+        (``client_id``), or read from the refused ``payload`` here, on the rare refusal path rather than for
+        every accepted command. A request that names no sender gets a report without one (any program may show it).
+        """
+        if client_id is None and payload is not None:
+            client_id = sender_id(payload)
+        log.debug("refused %s: %s", topic, reason)
+        self.link.publish(self.topics.error(self.robot.name, user),
+                          error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
+                                      client_id=client_id), qos=ErrorReport.QOS)
