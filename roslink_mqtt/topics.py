@@ -107,6 +107,11 @@ class Verb(Enum):
     ACCESS = "access"  # what this user may do on the robot (retained, no name)
 
     @property
+    def meaning(self) -> str:
+        """One line for docs/protocol.md's verb table (rendered from this enum)."""
+        return _MEANINGS[self]
+
+    @property
     def sent_by_user(self) -> bool:
         return self in USER_VERBS
 
@@ -120,6 +125,18 @@ class Verb(Enum):
         """Whether the sender publishes it retained: state that holds until withdrawn, not an order."""
         return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS)
 
+
+_MEANINGS = {
+    Verb.CMD: "a ROSLink command (`cmd/twist`) or a rule named `cmd/…`",
+    Verb.CALL: "call one of the robot's ROS services; answered on `reply/<service>`",
+    Verb.PROVIDE: "offer a service to ROS (an empty retained message withdraws)",
+    Verb.RESPONSE: "a provider's answer to a `request/<service>`",
+    Verb.ADVERTISE: "keep a generic rule's ROS publisher while you are present (empty withdraws)",
+    Verb.REPLY: "the answer to your `call/<service>`",
+    Verb.REQUEST: "a ROS node calls a service you provide",
+    Verb.ERROR: "why something you sent was refused",
+    Verb.ACCESS: "what the broker lets you do on this robot",
+}
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS

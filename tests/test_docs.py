@@ -6,7 +6,18 @@ from pathlib import Path
 
 from roslink_mqtt.protocol import SPECS
 from roslink_mqtt.protocol.control import CONTROL_BODIES
-from roslink_mqtt.protocol.reference import BEGIN, BEGIN_CONTROL, END, END_CONTROL, render, render_control
+from roslink_mqtt.protocol.reference import (
+    BEGIN,
+    BEGIN_CONTROL,
+    BEGIN_VERBS,
+    END,
+    END_CONTROL,
+    END_VERBS,
+    render,
+    render_control,
+    render_verbs,
+)
+from roslink_mqtt.topics import Verb
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -32,3 +43,13 @@ def test_control_body_reference_is_current() -> None:
             assert f"| `{field.name}` |" in section
     assert "`roslink_version`" in generated and "read the message as version 2" in generated
     assert "| `client_id` | string, 1..128 characters |" in text  # the envelope header table
+
+
+def test_verb_table_is_current() -> None:
+    """docs/protocol.md lists every verb of the topic grammar, as coded."""
+    text = (DOCS / "protocol.md").read_text()
+    generated = text[text.index(BEGIN_VERBS): text.index(END_VERBS) + len(END_VERBS)]
+    assert generated == render_verbs(), "regenerate: python -m roslink_mqtt.protocol.reference --write docs/…"
+    for verb in Verb:
+        assert f"| `{verb.value}` | `roslink/<robot>/{'from' if verb.sent_by_user else 'to'}/<user>/{verb.value}" \
+            in generated

@@ -72,3 +72,15 @@ def test_old_except_clauses_still_catch() -> None:
     with pytest.raises(TypeError) as bad_type:
         mqtt_qos("ten")
     assert isinstance(bad_type.value, errors.RoslinkError)
+
+
+def test_an_invalid_command_payload_is_a_roslink_error_too() -> None:
+    """The SDK validates commands with the protocol's rules; what it raises then is still a RoslinkError."""
+    from roslink_mqtt.client.commands import CommandStreams
+    from roslink_mqtt.protocol import ProtocolError
+    from roslink_mqtt.topics import TopicTree
+
+    with pytest.raises(errors.RoslinkError) as bad:
+        CommandStreams(TopicTree(), "alice").build("turtle1", "twist", {"lx": "fast"})
+    assert isinstance(bad.value, ProtocolError) and isinstance(bad.value, ValueError)
+    assert "payload.lx: expected number" in str(bad.value)

@@ -13,14 +13,7 @@ from typing import Any
 
 from ..protocol import ProtocolError
 from ..protocol.control import ErrorReport
-
-
-class RoslinkError(Exception):
-    """Base of every exception the SDK raises on purpose: ``except RoslinkError`` catches them all.
-
-    Where an error used to be a builtin (``ValueError`` for a bad argument …), its class
-    derives from that builtin too, so code written against the older SDK keeps catching it.
-    """
+from ..protocol.errors import RoslinkError
 
 
 class InvalidArgument(RoslinkError, ValueError):

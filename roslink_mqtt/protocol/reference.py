@@ -12,7 +12,7 @@ import base64
 
 import orjson
 
-from ..topics import TopicTree
+from ..topics import TopicTree, Verb
 from .codec import _HEADER_BOUNDS, ROSLINK_VERSION, Envelope, encode
 from .control import (
     CONTROL_BODIES,
@@ -32,6 +32,8 @@ BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protoco
 END = "<!-- END GENERATED: message reference -->"
 BEGIN_CONTROL = "<!-- BEGIN GENERATED: control bodies (python -m roslink_mqtt.protocol.reference) -->"
 END_CONTROL = "<!-- END GENERATED: control bodies -->"
+BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.reference) -->"
+END_VERBS = "<!-- END GENERATED: verbs -->"
 
 _CONTROL_EXAMPLES: dict[type, object] = {
     ErrorReport: ErrorReport(TopicTree().command("turtle1", "alice", "twist"),
@@ -145,13 +147,28 @@ def render_control() -> str:
     return "\n".join(out)
 
 
+def render_verbs() -> str:
+    """The verbs of the topic grammar (``roslink_mqtt.topics.Verb``): direction, name, retain flag, meaning."""
+    doc = TopicTree()
+    out = [BEGIN_VERBS, "", "| verb | topic | retained by its sender | meaning |", "|---|---|---|---|"]
+    for verb in Verb:
+        name = "<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else (
+            "<command>" if verb is Verb.CMD else "<rule>")
+        topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
+        out.append(f"| `{verb.value}` | `{topic}` | {'yes' if verb.retained_by_sender else 'no'} | {verb.meaning} |")
+    out += ["", "A topic under `from/<user>/` whose first level is none of the user's verbs is a generic rule's "
+                "input (`from/<user>/lights`).", END_VERBS]
+    return "\n".join(out)
+
+
 def write(path: str) -> None:
     """Replace the generated sections of ``path`` (between their markers) with a fresh render."""
     from pathlib import Path
 
     doc = Path(path)
     text = doc.read_text()
-    for begin, end_marker, fresh in ((BEGIN, END, render()), (BEGIN_CONTROL, END_CONTROL, render_control())):
+    for begin, end_marker, fresh in ((BEGIN, END, render()), (BEGIN_CONTROL, END_CONTROL, render_control()),
+                                     (BEGIN_VERBS, END_VERBS, render_verbs())):
         start, end = text.index(begin), text.index(end_marker) + len(end_marker)
         text = text[:start] + fresh + text[end:]
     doc.write_text(text)
@@ -166,3 +183,5 @@ if __name__ == "__main__":
         print(render())
         print()
         print(render_control())
+        print()
+        print(render_verbs())
