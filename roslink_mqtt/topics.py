@@ -100,11 +100,16 @@ class Verb(Enum):
     PROVIDE = "provide"  # offer a service to ROS (retained; empty withdraws): provide/<service>
     RESPONSE = "response"  # a provider's answer: response/<service>
     ADVERTISE = "advertise"  # keep a generic rule's ROS publisher (retained; empty withdraws): advertise/<rule>
+    GOAL = "goal"  # send a goal to a ROS action: goal/<action>
+    CANCEL = "cancel"  # cancel one of your goals: cancel/<action>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
     ERROR = "error"  # refusals of what this user sent (no name)
     ACCESS = "access"  # what this user may do on the robot (retained, no name)
+    GOAL_STATUS = "goal_status"  # a goal accepted, rejected or being canceled: goal_status/<action>
+    FEEDBACK = "feedback"  # a goal's progress (newest wins): feedback/<action>
+    RESULT = "result"  # a goal's end: result/<action>
 
     @property
     def meaning(self) -> str:
@@ -136,9 +141,14 @@ _MEANINGS = {
     Verb.REQUEST: "a ROS node calls a service you provide",
     Verb.ERROR: "why something you sent was refused",
     Verb.ACCESS: "what the broker lets you do on this robot",
+    Verb.GOAL: "send a goal to one of the robot's ROS actions (your id names it)",
+    Verb.CANCEL: "cancel one of your goals",
+    Verb.GOAL_STATUS: "your goal was accepted, rejected, or is being canceled",
+    Verb.FEEDBACK: "your goal's progress (rate-limited, newest wins)",
+    Verb.RESULT: "your goal ended: succeeded, aborted, canceled or timed out, with the ROS result",
 }
 
-USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE})
+USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
@@ -267,6 +277,12 @@ class TopicTree:
 
     def response(self, robot: str, user: str, service: str) -> str:
         return self.user_topic(robot, user, Verb.RESPONSE, check_path(service, "service"))
+
+    def goal(self, robot: str, user: str, action: str) -> str:
+        return self.user_topic(robot, user, Verb.GOAL, check_path(action, "action"))
+
+    def cancel(self, robot: str, user: str, action: str) -> str:
+        return self.user_topic(robot, user, Verb.CANCEL, check_path(action, "action"))
 
     def error(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ERROR)

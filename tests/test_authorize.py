@@ -17,7 +17,7 @@ from roslink_mqtt.topics import USER_VERBS, Verb
 pytestmark = pytest.mark.unit
 
 NAMES = {Verb.CMD: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.RESPONSE: "plan",
-         Verb.ADVERTISE: "lights"}
+         Verb.ADVERTISE: "lights", Verb.GOAL: "fibonacci", Verb.CANCEL: "fibonacci"}
 USER_VERBS = sorted(USER_VERBS, key=lambda v: v.value)  # what users send; the robot's verbs are not asked about
 
 
@@ -29,8 +29,9 @@ def test_an_operator_may_do_everything(verb: Verb, read_only: bool) -> None:
 
 
 @pytest.mark.parametrize(("verb", "read_only", "expected"), [
-    (Verb.CALL, True, True),  # the one thing a viewer may do besides watching
+    (Verb.CALL, True, True),  # what a viewer may do besides watching, where the fleet file opens it
     (Verb.CALL, False, False),
+    (Verb.GOAL, True, True), (Verb.GOAL, False, False), (Verb.CANCEL, True, True), (Verb.CANCEL, False, False),
     (Verb.CMD, False, False), (Verb.CMD, True, False),  # read_only means nothing outside calls
     (Verb.PROVIDE, False, False), (Verb.PROVIDE, True, False),
     (Verb.ADVERTISE, False, False), (Verb.ADVERTISE, True, False),

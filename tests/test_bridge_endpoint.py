@@ -127,6 +127,8 @@ class RecordingActuators:
     zeros: int = 0
     failsafe_runs: int = 0
     service_ready: bool = True
+    goals: dict[str, int] = field(default_factory=dict)  # user -> goals in flight (the action side's table)
+    canceled: list[tuple[str | None, str]] = field(default_factory=list)
 
     def publish(self, user: str, route: Inbound, msg: Any) -> None:
         self.published.append((user, route.name, msg))
@@ -143,13 +145,19 @@ class RecordingActuators:
     def failsafe_actions(self) -> None:
         self.failsafe_runs += 1
 
+    def cancel_goals(self, user: str | None, reason: str) -> int:
+        count = sum(n for u, n in self.goals.items() if user is None or u == user)
+        self.goals = {u: n for u, n in self.goals.items() if not (user is None or u == user)}
+        self.canceled.append((user, reason))
+        return count
+
 
 class Harness:
     def __init__(self) -> None:
         self.link, self.ros = RecordingLink(), RecordingActuators()
         self.handled: list[tuple[Verb, str, str]] = []
         handlers = {verb: (lambda user, name, _t, _p, verb=verb: self.handled.append((verb, user, name)))
-                    for verb in (Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE)}
+                    for verb in (Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL)}
         self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES, handlers)
         self.endpoint.link_up()
         self.seq = 1000
@@ -203,8 +211,9 @@ def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
     assert [(name, m.data) for _, name, m in h.ros.published] == [("lights", True)]
 
 
-@pytest.mark.parametrize("verb", [Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE])
-def test_service_and_advertise_verbs_go_to_their_handlers(h: Harness, verb: Verb) -> None:
+@pytest.mark.parametrize("verb", [Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL])
+def test_service_action_and_advertise_verbs_go_to_their_handlers(h: Harness, verb: Verb) -> None:
+    h.present()
     h.endpoint.on_mqtt(T.user_topic("turtle1", "alice", verb, "nav/reset"), CallRequest("1").to_json(),
                        retained=verb.retained_by_sender)
     assert h.handled == [(verb, "alice", "nav/reset")] and h.link.errors("alice") == []
@@ -417,3 +426,48 @@ def test_refusals_name_the_sender_and_use_the_error_qos(h: Harness) -> None:
     sent = next(p for p in h.link.sent if p.topic == T.error("turtle1", "alice"))
     assert (report.client_id, report.message_id, sent.qos, sent.retain) == ("alice-prog", 100, ErrorReport.QOS,
                                                                             False)
+
+
+# -- action goals: the same gates as motion, canceled where velocity stops ---------------------------------
+def _goal(h: Harness, user: str = "alice") -> None:
+    h.endpoint.on_mqtt(T.goal("turtle1", user, "fibonacci"), b'{"id": "g1", "goal": {"order": 5}}')
+
+
+def test_a_goal_needs_presence_and_unblocked_motion_a_cancel_does_not(h: Harness) -> None:
+    _goal(h)
+    assert h.handled == [] and h.link.errors("alice")[0].error.startswith("no live operator heartbeat")
+    h.endpoint.on_mqtt(T.cancel("turtle1", "alice", "fibonacci"), b'{"id": "g1"}')
+    assert h.handled == [(Verb.CANCEL, "alice", "fibonacci")]
+    h.present()
+    h.command("emergency_stop")
+    _goal(h)
+    assert h.link.errors("alice")[-1].error == "emergency stop by alice: send cmd/arm to resume"
+    h.command("arm")
+    _goal(h)
+    assert h.handled[-1] == (Verb.GOAL, "alice", "fibonacci")
+
+
+@pytest.mark.parametrize(("end", "whose", "why"), [
+    ("last-will", "alice", "operator alice went away (last-will)"),
+    ("signoff", "alice", "operator alice went away (signed off)"),
+    ("silence", "alice", "operator alice went away (no heartbeat for 1.5 s)"),
+    ("broker", None, "lost the broker (connection lost)"),
+    ("e-stop", None, "emergency stop by admin"),
+])
+def test_goals_are_canceled_where_velocity_stops(h: Harness, end: str, whose: str | None, why: str) -> None:
+    h.present()
+    h.present("admin", "console")
+    h.ros.goals = {"alice": 2, "admin": 1}
+    if end == "last-will":
+        h.endpoint.on_mqtt(T.operator("alice", "laptop"), b"")
+    elif end == "signoff":
+        h.endpoint.on_mqtt(T.operator("alice", "laptop"), operator_signoff("alice", "laptop"))
+    elif end == "silence":  # everyone's presence times out here; alice's goals are canceled with her reason
+        h.endpoint.supervise(time.monotonic() + ROBOT.bridge.operator_timeout + 0.1)
+    elif end == "broker":
+        h.endpoint.link_down("connection lost", closing=False)
+    else:
+        h.command("emergency_stop", user="admin")
+    assert (whose, why) in h.ros.canceled
+    count = 2 if whose == "alice" else 3
+    assert f"canceled {count} action goal(s){f' of {whose}' if whose else ''}: {why}" in _failsafe_acks(h)

@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from roslink_mqtt.protocol import SPECS
-from roslink_mqtt.protocol.control import CONTROL_BODIES
 from roslink_mqtt.protocol.reference import (
     BEGIN,
     BEGIN_CONTROL,
     BEGIN_VERBS,
+    DOCUMENTED_BODIES,
     END,
     END_CONTROL,
     END_VERBS,
@@ -35,7 +35,7 @@ def test_control_body_reference_is_current() -> None:
     text = (DOCS / "protocol.md").read_text()
     generated = text[text.index(BEGIN_CONTROL): text.index(END_CONTROL) + len(END_CONTROL)]
     assert generated == render_control(), "regenerate: python -m roslink_mqtt.protocol.reference --write docs/…"
-    for title, topic, cls in CONTROL_BODIES:
+    for title, topic, cls in DOCUMENTED_BODIES:
         section = generated[generated.index(f"#### {title}\n"):]
         assert section.split("\n")[2] == (f"Topic: {topic}. Published with QoS {cls.QOS}, "
                                           f"{'retained' if cls.RETAINED else 'not retained'}.")

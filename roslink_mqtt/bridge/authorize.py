@@ -18,12 +18,16 @@ from __future__ import annotations
 from ..config import Role
 from ..topics import Verb
 
+# what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true)
+VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL})
+
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
-    """Whether ``role`` may use ``verb``; ``read_only``: the called service is marked read-only (calls only)."""
+    """Whether ``role`` may use ``verb``; ``read_only``: the service is marked read-only, or the action is open
+    to viewers (``viewers: true``); it means nothing for other verbs."""
     if role is Role.OPERATOR:
         return True
-    return role is Role.VIEWER and verb is Verb.CALL and read_only
+    return role is Role.VIEWER and verb in VIEWER_VERBS and read_only
 
 
 def _action(verb: Verb, name: str, robot: str) -> str:
@@ -35,6 +39,10 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"provide services on {robot}"
     if verb is Verb.RESPONSE:
         return f"answer calls to '{name}'"
+    if verb is Verb.GOAL:
+        return f"send goals to '{name}'"
+    if verb is Verb.CANCEL:
+        return f"cancel goals of '{name}'"
     return f"publish on '{name}'"
 
 
@@ -48,6 +56,7 @@ def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, 
     """
     if allowed(role, verb, read_only=read_only):
         return None
-    who_may = "operators only; it is not read-only" if verb is Verb.CALL else "operators only"
+    who_may = ("operators only; it is not read-only" if verb is Verb.CALL else
+               "operators only; it is not open to viewers" if verb in VIEWER_VERBS else "operators only")
     standing = "a viewer" if role is Role.VIEWER else "no grant"
     return f"user '{user}' may not {_action(verb, name, robot)} ({who_may}): not an operator of {robot} ({standing})"

@@ -77,6 +77,9 @@ class Actuators(Protocol):
     def failsafe_actions(self) -> None:
         """Publish the fleet file's ``bridge.on_failsafe`` messages."""
 
+    def cancel_goals(self, user: str | None, reason: str) -> int:
+        """Cancel the action goals of ``user`` (None: of everyone), results saying ``reason``; how many."""
+
 
 # (user, name, topic, payload): the verbs the endpoint hands on whole (services, offers, advertisements)
 VerbHandler = Callable[[str, str, str, bytes], None]
@@ -130,6 +133,7 @@ class CommandEndpoint:
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (operator grant removed)")
+            self._cancel_goals(user, f"{user} is no longer an operator of {self.robot.name}")
         return demoted
 
     # -- MQTT in (paho network thread) ----------------------------------------------------
@@ -152,6 +156,8 @@ class CommandEndpoint:
                                          "without the retain flag (and clear this one with an empty retained message)",
                             payload=payload)
             return
+        if verb is Verb.GOAL and not self._goal_gates(user, topic, payload):
+            return
         if verb is not None and verb is not Verb.CMD:
             handler = self.handlers.get(verb)
             if handler is None:
@@ -170,6 +176,26 @@ class CommandEndpoint:
             self.refuse(user, topic, why, payload=payload)
             return
         self.handle_command(user, topic, route, payload, arrived)
+
+    def _goal_gates(self, user: str, topic: str, payload: bytes) -> bool:
+        """A goal may move the robot: it needs the sender's live presence and motion not blocked."""
+        with self.lock:
+            if not self.operators.is_live(user):
+                self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
+                                         f"on {self.topics.operator(user, '<client_id>')} every second",
+                            payload=payload)
+                return False
+            if self.motion_blocked:
+                self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", payload=payload)
+                return False
+        return True
+
+    def _cancel_goals(self, user: str | None, why: str) -> None:
+        """Cancel goals exactly where velocity stops (presence ended, broker lost, e-stop); say so on state/ack."""
+        count = self.actuators.cancel_goals(user, why)
+        if count:
+            whose = f" of {user}" if user else ""
+            self.publish_ack(0, None, AckResult.FAILSAFE, f"canceled {count} action goal(s){whose}: {why}")
 
     def handle_command(self, user: str, topic: str, route: Inbound, payload: bytes,
                        arrived: float | None = None) -> None:
@@ -240,13 +266,17 @@ class CommandEndpoint:
             self._ignore_oversized_presence(user, client_id, len(payload))
             return
         with self.lock:
-            if not self.operators.record(user, client_id, presence, time.monotonic()):
+            gone = not self.operators.record(user, client_id, presence, time.monotonic())
+            if gone:
                 why = self.failsafe.operator_gone(user)
                 if why and presence is Presence.SIGNED_OFF:
                     # a program that finished: the robot stops all the same, but nothing failed
                     self.trigger_stop(f"{why} (signed off)", level=logging.INFO)
                 elif why:
                     self.trigger_stop(f"{why} (last-will)")
+        if gone:
+            ending = "signed off" if presence is Presence.SIGNED_OFF else "last-will"
+            self._cancel_goals(user, f"operator {user} went away ({ending})")
 
     def _ignore_oversized_presence(self, user: str, client_id: str, size: int) -> None:
         """Say once per client (and for a bounded number of clients) that its presence bodies are ignored."""
@@ -272,6 +302,7 @@ class CommandEndpoint:
             self.failsafe.stopped()
             self.actuators.zero_velocity()
         log.warning("motion blocked on %s: %s", self.robot.name, reason)
+        self._cancel_goals(None, reason)
 
     def trigger_stop(self, reason: str, level: int = logging.WARNING) -> None:
         """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why.
@@ -310,6 +341,7 @@ class CommandEndpoint:
                     self.trigger_stop("the bridge is shutting down", level=logging.INFO)
                 else:
                     self.trigger_stop(f"{why} ({reason})")
+        self._cancel_goals(None, "the bridge is shutting down" if closing else f"lost the broker ({reason})")
 
     def _check_link(self, now: float) -> None:
         """A heartbeat not acknowledged within link_timeout means the broker stopped answering."""
@@ -333,7 +365,8 @@ class CommandEndpoint:
         """Link check, operator expiry, the failsafe's timers, and the repeats of a stop."""
         with self.lock:
             self._check_link(now)
-            for user in self.operators.expire(now):
+            expired = self.operators.expire(now)
+            for user in expired:
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")
@@ -343,6 +376,8 @@ class CommandEndpoint:
             if self._stop_repeats_left > 0:
                 self._stop_repeats_left -= 1
                 self.actuators.zero_velocity()
+        for user in expired:
+            self._cancel_goals(user, f"operator {user} went away (no heartbeat for {self.operators.timeout:g} s)")
 
     # -- MQTT out --------------------------------------------------------------------------------
     def heartbeat(self, status: SystemStatus) -> bytes:

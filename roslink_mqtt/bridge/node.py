@@ -20,6 +20,7 @@ from ..config import Fleet, Robot
 from ..protocol import AckResult, SystemStatus
 from ..topics import Verb
 from .access import access_reports, cleared_reports
+from .action_caller import ActionCaller
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
@@ -67,6 +68,7 @@ class RosActuators:
         self.services: dict[str, Any] = {}
         self.calls: PendingCalls[_CommandCall] = PendingCalls()
         self.endpoint: CommandEndpoint | None = None  # set once the endpoint exists (it acknowledges outcomes)
+        self.actions: ActionCaller | None = None  # set once built (its refusals go through the endpoint)
         for name, route in routes.items():
             if route.is_service:
                 self.services[name] = node.create_client(route.ros_cls, route.rule.ros_topic)
@@ -112,6 +114,9 @@ class RosActuators:
     def failsafe_actions(self) -> None:
         for pub, msg in self.on_failsafe:
             pub.publish(msg)
+
+    def cancel_goals(self, user: str | None, reason: str) -> int:
+        return self.actions.cancel_goals(user, reason) if self.actions is not None else 0
 
     # -- outcomes of service-backed commands ---------------------------------------------------------
     def _service_done(self, key: int, future: Any) -> None:
@@ -171,7 +176,14 @@ class Bridge:
                                          self._is_live, self._refuse,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
+        try:
+            self.actions = ActionCaller(node, robot, self.topics, self.link_publish_qos, role_of, self._refuse)
+        except UnknownTypeError as err:
+            raise RuleError(str(err)) from None
+        self.actuators.actions = self.actions
         self.endpoint.handlers.update({
+            Verb.GOAL: self.actions.goal,
+            Verb.CANCEL: self.actions.cancel,
             Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),
             Verb.PROVIDE: self.provided.offer,
             Verb.RESPONSE: self.provided.response,
@@ -180,8 +192,8 @@ class Bridge:
         self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
-        log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs", robot.name, len(outbound),
-                 len(routes), len(self.actuators.velocity))
+        log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs, %d actions", robot.name,
+                 len(outbound), len(routes), len(self.actuators.velocity), len(self.actions.actions))
 
     # the endpoint's, looked up at call time (the endpoint is built after the helpers that need these)
     def _role_of(self, user: str) -> Any:
@@ -288,6 +300,9 @@ class Bridge:
     def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
         self.link.publish(topic, payload, qos, retain)
 
+    def link_publish_qos(self, topic: str, payload: bytes, qos: int) -> None:
+        self.link.publish(topic, payload, qos)
+
     # -- supervision (executor, 20 Hz) -------------------------------------------------
     def supervise(self) -> None:
         now = time.monotonic()
@@ -296,5 +311,6 @@ class Bridge:
         self.caller.expire(now)
         self.provided.expire(now)
         self.actuators.expire(now)
+        self.actions.supervise(now)
         self.provided.refresh()
         self.on_demand.refresh()

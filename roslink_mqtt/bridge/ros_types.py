@@ -12,9 +12,9 @@ class UnknownTypeError(ValueError):
 
 @cache
 def load_interface(name: str) -> type:
-    """The message or service class for ``pkg/msg/Type`` or ``pkg/srv/Type``."""
+    """The message, service or action class for ``pkg/msg/Type``, ``pkg/srv/Type`` or ``pkg/action/Type``."""
     parts = name.split("/")
-    if len(parts) != 3 or parts[1] not in ("msg", "srv") or not all(parts):
+    if len(parts) != 3 or parts[1] not in ("msg", "srv", "action") or not all(parts):
         raise UnknownTypeError(f"'{name}' is not a ROS type name like geometry_msgs/msg/Twist")
     package, kind, type_name = parts
     try:

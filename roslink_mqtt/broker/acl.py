@@ -10,7 +10,8 @@ With ``P`` the fleet prefix (``roslink``):
   ``P/R/from/+/#`` plus ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
 * user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
   writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
-  ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``.
+  ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``, and ``P/R/from/U/goal/<a>`` and
+  ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``.
 * an admin reads and writes ``#`` and reads ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
 * an unknown login (and anonymous) may do nothing.
 
@@ -151,6 +152,10 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
         else:
             entries += [AclEntry(t.call(robot, user, svc.name), Access.WRITE)
                         for svc in fleet.robots[robot].services if svc.read_only]
+            for action in fleet.robots[robot].actions:
+                if action.viewers:
+                    entries += [AclEntry(t.goal(robot, user, action.name), Access.WRITE),
+                                AclEntry(t.cancel(robot, user, action.name), Access.WRITE)]
     return entries
 
 

@@ -5,6 +5,7 @@ Core install only (pyyaml); the broker and the bridge both read it.
 
 from .loader import load_fleet, parse_fleet
 from .model import (
+    ActionRule,
     BridgeSettings,
     BrokerSettings,
     Direction,
@@ -24,7 +25,7 @@ from .passwords import PasswordHashError, hash_password, verify_password
 from .yamlsource import ConfigError
 
 __all__ = [
-    "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
+    "ActionRule", "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
     "PasswordHashError",
     "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",

@@ -27,6 +27,7 @@ from ..topics import (
 from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
     LIMIT_MODES,
+    ActionRule,
     BridgeSettings,
     BrokerSettings,
     Direction,
@@ -46,7 +47,7 @@ from .passwords import PasswordHashError, check_hash_format
 from .yamlsource import ConfigError, Path, Source, load_yaml
 
 _REQUIRED: Any = object()
-_ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv)/[A-Z][A-Za-z0-9]*$")
+_ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv|action)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
@@ -164,9 +165,9 @@ class _FleetReader:
     def ros_type(self, kind: str) -> Callable[[Path, Any], str]:
         def check(path: Path, v: Any) -> str:
             if not isinstance(v, str) or not _ROS_TYPE.match(v) or f"/{kind}/" not in v:
-                raise self.err(path, f"expected a ROS {kind} type like "
-                                     f"{'geometry_msgs/msg/Twist' if kind == 'msg' else 'std_srvs/srv/Trigger'}, "
-                                     f"got {_show(v)}")
+                example = {"msg": "geometry_msgs/msg/Twist", "srv": "std_srvs/srv/Trigger",
+                           "action": "nav2_msgs/action/NavigateToPose"}[kind]
+                raise self.err(path, f"expected a ROS {kind} type like {example}, got {_show(v)}")
             return v
         return check
 
@@ -244,7 +245,7 @@ class _FleetReader:
         return robots
 
     def robot(self, path: Path, name: str) -> Robot:
-        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services"))
+        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services", "actions"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         return Robot(
@@ -256,6 +257,7 @@ class _FleetReader:
             bridge=self.bridge(path + ("bridge",)) if self.get(path).get("bridge") is not None else BridgeSettings(),
             rules=self.rules(path + ("rules",)) if "rules" in self.get(path) else (),
             services=self.services(path + ("services",)) if "services" in self.get(path) else (),
+            actions=self.actions(path + ("actions",)) if "actions" in self.get(path) else (),
         )
 
     def limits(self, path: Path) -> VelocityLimits:
@@ -414,6 +416,26 @@ class _FleetReader:
                                    self.value(sp, "read_only", self.boolean, False),
                                    self.value(sp, "timeout", self.number(0, 3600, open_low=True), 5.0),
                                    self.src.line_of(sp)))
+        return tuple(out)
+
+    def actions(self, path: Path) -> tuple[ActionRule, ...]:
+        out: list[ActionRule] = []
+        names: set[str] = set()
+        for i in range(len(self.sequence(path))):
+            ap = path + (i,)
+            self.mapping(ap, ("name", "ros_action", "ros_type", "viewers", "timeout", "feedback_rate"))
+            ros_action = self.value(ap, "ros_action", self.ros_name)
+            name = self.value(ap, "name", self.topic_path, None) or ros_action.strip("/~").replace("/", "_")
+            if name in names:
+                raise self.err(ap + ("name",), f"action name '{name}' is used twice")
+            names.add(name)
+            ros_type = self.value(ap, "ros_type", self.ros_type("action"))
+            self.interface(ap + ("ros_type",), ros_type)
+            out.append(ActionRule(name, ros_action, ros_type,
+                                  self.value(ap, "viewers", self.boolean, False),
+                                  self.value(ap, "timeout", self.number(0, 86400, open_low=True), 60.0),
+                                  self.value(ap, "feedback_rate", self.number(0, 1000, open_low=True), 10.0),
+                                  self.src.line_of(ap)))
         return tuple(out)
 
     def users(self, path: Path, robots: dict[str, Robot]) -> dict[str, User]:

@@ -107,6 +107,19 @@ class ServiceRule:
 
 
 @dataclass(frozen=True, slots=True)
+class ActionRule:
+    """A ROS action on the robot that MQTT users may send goals to (docs/protocol.md, "Actions")."""
+
+    name: str  # MQTT name: goal/<name>, cancel/<name>
+    ros_action: str  # resolved by the bridge node, so remapping and namespaces apply
+    ros_type: str  # pkg/action/Type
+    viewers: bool = False  # viewers may send goals too (operators always may)
+    timeout: float = 60.0  # s from acceptance to result; the bridge cancels the goal and reports "timeout" after
+    feedback_rate: float = 10.0  # Hz at most per goal; newer feedback replaces older (newest wins)
+    line: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class FailsafeAction:
     """A ROS message the bridge publishes on every failsafe stop (e.g. cancel a goal, raise an e-stop line)."""
 
@@ -144,9 +157,13 @@ class Robot:
     bridge: BridgeSettings = field(default_factory=BridgeSettings)
     rules: tuple[Rule, ...] = ()
     services: tuple[ServiceRule, ...] = ()
+    actions: tuple[ActionRule, ...] = ()
 
     def service(self, name: str) -> ServiceRule | None:
         return next((s for s in self.services if s.name == name), None)
+
+    def action(self, name: str) -> ActionRule | None:
+        return next((a for a in self.actions if a.name == name), None)
 
 
 @dataclass(frozen=True, slots=True)

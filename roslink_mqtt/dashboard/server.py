@@ -67,8 +67,8 @@ def _routes(mqtt_js: Path, config: PageConfig) -> dict[str, tuple[str, Path | by
 
 def _handler(routes: dict[str, tuple[str, Path | bytes]], quiet: bool) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
-        server_version = "roslink-mqtt-dashboard"
-        sys_version = ""
+        def version_string(self) -> str:  # no Python version in the Server header
+            return "roslink-mqtt-dashboard"
 
         def _send(self, head_only: bool) -> None:
             path = self.path.split("?", 1)[0].split("#", 1)[0]

@@ -26,6 +26,7 @@ from .control import (
     ProviderResponse,
     ServiceOffer,
 )
+from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
@@ -35,7 +36,15 @@ END_CONTROL = "<!-- END GENERATED: control bodies -->"
 BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.reference) -->"
 END_VERBS = "<!-- END GENERATED: verbs -->"
 
+DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES  # in the order docs/protocol.md shows them
+
 _CONTROL_EXAMPLES: dict[type, object] = {
+    GoalRequest: GoalRequest("dock-3", {"order": 5}, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    GoalCancel: GoalCancel("dock-3", "alice-sdk-5f2c9e0a1b3d4c6e"),
+    GoalStatus: GoalStatus("dock-3", "accepted", client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    GoalFeedback: GoalFeedback("dock-3", {"sequence": [0, 1, 1, 2]}, "alice-sdk-5f2c9e0a1b3d4c6e"),
+    GoalResult: GoalResult("dock-3", "succeeded", {"sequence": [0, 1, 1, 2, 3, 5]},
+                           client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ErrorReport: ErrorReport(TopicTree().command("turtle1", "alice", "twist"),
                              'payload.lx: expected number, got "fast"', 100, 18, "alice-sdk-5f2c9e0a1b3d4c6e"),
     AccessReport: AccessReport("viewer", ("status",)),
@@ -136,7 +145,7 @@ def render_control() -> str:
     low, high = _HEADER_BOUNDS["roslink_version"]
     out = [BEGIN_CONTROL, "", *_RULES.format(version=ROSLINK_VERSION, low=low, high=high,
                                              max_id=MAX_CALL_ID).splitlines(), ""]
-    for title, topic, cls in CONTROL_BODIES:
+    for title, topic, cls in DOCUMENTED_BODIES:
         flags = f"QoS {cls.QOS}, {'retained' if cls.RETAINED else 'not retained'}"
         out += [f"#### {title}", "", f"Topic: {topic}. Published with {flags}.", "",
                 "| field | type | | meaning |", "|---|---|---|---|"]

@@ -13,7 +13,8 @@ example in the docs does something a user can see: ``mode``
 ``emergency_stop`` (std_msgs/Bool) and ``goal_pose`` (PoseStamped) are logged;
 ``land`` and ``get_map`` (std_srvs/Trigger) answer, and the bridge reports
 the answer on ``state/ack``. A ground robot does not fly: takeoff and land
-say so instead of pretending.
+say so instead of pretending. ``fibonacci`` (test_msgs/action/Fibonacci) is a
+ROS action whose goals take a while and report progress (:mod:`.fibonacci`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from sensor_msgs.msg import BatteryState, LaserScan, NavSatFix, NavSatStatus
 from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 
+from .fibonacci import FibonacciServer
 from .world import World
 
 PHYSICS_RATE = 50.0  # Hz
@@ -64,6 +66,7 @@ class SimRobot(Node):
         self.create_subscription(Bool, "disarmed", lambda m: log.info(f"disarmed: {m.data}"), 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # as the bridge publishes it
         self.create_subscription(Bool, "emergency_stop", lambda m: log.warning(f"emergency stop: {m.data}"), latched)
+        self.fibonacci = FibonacciServer(self)  # a ROS action: goals with feedback, cancelable
         self.create_service(Trigger, "land", self.on_land)
         self.create_service(Trigger, "get_map", self.on_get_map)
         self.create_timer(1.0 / PHYSICS_RATE, self.on_physics)

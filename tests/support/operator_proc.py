@@ -1,6 +1,6 @@
 """A teleoperating client as its own process, so tests can SIGKILL or SIGSTOP it.
 
-    python -m tests.support.operator_proc PORT USER PASSWORD ROBOT [--stream-seconds S] [--lx V]
+    python -m tests.support.operator_proc PORT USER PASSWORD ROBOT [--stream-seconds S] [--lx V] [--goal ACTION]
 
 Runs operator presence and publishes twist commands at 10 Hz for S seconds
 (forever if not given), then keeps only its presence alive.
@@ -28,6 +28,8 @@ def main() -> None:
     p.add_argument("--lx", type=float, default=0.2)
     p.add_argument("--client-id", default=None)
     p.add_argument("--waypoint", action="store_true", help="send one go_to_waypoint instead of a twist stream")
+    p.add_argument("--goal", metavar="ACTION", help="send one goal (Fibonacci order 40, id 'proc-goal') to ACTION "
+                                                  "instead of a twist stream, then keep only presence")
     args = p.parse_args()
     client_id = args.client_id or f"op-{args.user}-{time.monotonic_ns()}"
     client = make_client(client_id, username=args.user, password=args.password,
@@ -41,6 +43,12 @@ def main() -> None:
     presence.start()
     print("operator ready", flush=True)
     topic = TopicTree().command(args.robot, args.user, "twist")
+    if args.goal:
+        client.publish(TopicTree().goal(args.robot, args.user, args.goal),
+                       orjson.dumps({"id": "proc-goal", "goal": {"order": 40}, "client_id": client_id}), qos=1)
+        print("goal sent", flush=True)
+        while True:
+            time.sleep(1.0)
     start, seq = time.monotonic(), 0
     while args.waypoint:  # the same goal once a second (idempotent), no velocity stream
         client.publish(TopicTree().command(args.robot, args.user, "go_to_waypoint"),

@@ -11,6 +11,7 @@
   const TWIST_PERIOD_MS = 100;       // 10 Hz while a drive button or key is held
   const TRAIL_MAX = 600;             // points kept per robot (60 s at 10 Hz)
   const GPS_MAX = 300;
+  const RECENT_MAX = 30;             // poses kept to place each scan where it was taken (3 s at 10 Hz)
   const LOG_MAX = 30;                // list items kept in the error and ack lists
   const CALL_TIMEOUT_MS = 10000;
   const STATUS = ["uninit", "boot", "calibrating", "standby", "active", "critical", "emergency", "power-off",
@@ -53,8 +54,8 @@
   const view = { half: 6, cx: 0, cy: 0 };    // plot: half the shown width in metres, and its centre
 
   function newRobot(name) {
-    return { name, hb: null, hbAt: 0, status: null, access: undefined, rates: new Map(), pose: null,
-             trail: [], scan: null, gps: [], gpsFix: null, poses: 0, row: null, cells: null, image: null };
+    return { name, hb: null, hbAt: 0, status: null, access: undefined, rates: new Map(), pose: null, recent: [],
+             trail: [], scan: null, gps: [], gpsFix: null, poses: 0, row: null, cells: null };
   }
 
   // ---------------------------------------------------------------------------------------------- helpers
@@ -318,8 +319,11 @@
       const m = parse(payload);
       const p = m && (m.payload || m);
       if (!p || typeof p.x !== "number" || typeof p.y !== "number") return;
-      robot.pose = { x: p.x, y: p.y, yaw: typeof p.yaw === "number" ? p.yaw : 0, vx: p.vx, wz: p.wz };
+      robot.pose = { x: p.x, y: p.y, yaw: typeof p.yaw === "number" ? p.yaw : 0, vx: p.vx, wz: p.wz,
+                     t: typeof p.time_boot_ms === "number" ? p.time_boot_ms : 0 };
       robot.poses += 1;
+      robot.recent.push(robot.pose);
+      if (robot.recent.length > RECENT_MAX) robot.recent.shift();
       const last = robot.trail[robot.trail.length - 1];
       if (!last || Math.hypot(last[0] - p.x, last[1] - p.y) > 0.01) {
         robot.trail.push([p.x, p.y]);
@@ -330,7 +334,10 @@
     } else if (name === "range_finder_data") {
       const m = parse(payload);
       const s = m && (m.payload || m);
-      if (s && Array.isArray(s.ranges)) { robot.scan = s; dirty = true; }
+      if (s && Array.isArray(s.ranges)) {
+        robot.scan = s;
+        dirty = true;
+      }
     } else if (name === "gps_raw_info") {
       const m = parse(payload);
       const g = m && (m.payload || m);
@@ -356,6 +363,27 @@
                { result });
       }
     }
+  }
+
+  // The pose when a scan was taken (both carry their ROS header stamp), interpolated between the poses before and
+  // after it, so a turning robot's scan is drawn where it was measured rather than rotated by the time between
+  // the two messages. Null (use the latest pose) when the stamps are missing or far apart.
+  function poseAt(robot, ms) {
+    if (!(ms > 0)) return null;
+    let before = null, after = null;
+    for (const p of robot.recent) {
+      if (!(p.t > 0)) continue;
+      if (p.t <= ms && (!before || p.t > before.t)) before = p;
+      if (p.t >= ms && (!after || p.t < after.t)) after = p;
+    }
+    if (before && after) {
+      if (after.t === before.t) return before;
+      const k = (ms - before.t) / (after.t - before.t);
+      const dyaw = Math.atan2(Math.sin(after.yaw - before.yaw), Math.cos(after.yaw - before.yaw));
+      return { x: before.x + k * (after.x - before.x), y: before.y + k * (after.y - before.y), yaw: before.yaw + k * dyaw };
+    }
+    const near = before || after;
+    return near && Math.abs(near.t - ms) <= 150 ? near : null;
   }
 
   function onPersonal(name, robot, rest, payload, packet) {
@@ -568,13 +596,13 @@
     }
     // laser scan, around the robot in its heading (the scanner is taken to sit on base_link)
     if (p && robot.scan) {
-      const s = robot.scan;
+      const s = robot.scan, at = poseAt(robot, typeof s.time_usec === "number" ? s.time_usec / 1000 : 0) || p;
       g.fillStyle = "#d9534f";
       for (let i = 0; i < s.ranges.length; i++) {
         const r = s.ranges[i];
         if (typeof r !== "number") continue;
-        const a = p.yaw + s.angle_min + i * s.angle_increment;
-        const [px, py] = toPx(p.x + r * Math.cos(a), p.y + r * Math.sin(a));
+        const a = at.yaw + s.angle_min + i * s.angle_increment;
+        const [px, py] = toPx(at.x + r * Math.cos(a), at.y + r * Math.sin(a));
         g.fillRect(px - 1.5, py - 1.5, 3, 3);
       }
     }

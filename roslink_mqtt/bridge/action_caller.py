@@ -1,0 +1,301 @@
+"""MQTT users send goals to the robot's ROS actions (docs/protocol.md, "Actions").
+
+``from/<user>/goal/<action>`` ``{"id", "goal"}`` → ``to/<user>/goal_status/<action>`` (accepted / rejected),
+``to/<user>/feedback/<action>`` (at most ``feedback_rate`` per second, newest wins) and one
+``to/<user>/result/<action>``; ``from/<user>/cancel/<action>`` ``{"id"}`` cancels. Goals are keyed by
+(user, action, id): ids are the user's own, so two users' ids never collide and nobody can cancel another
+user's goal. Malformed or refused goals are reported on ``to/<user>/error`` and never reach ROS.
+
+Safety: :meth:`ActionCaller.cancel_goals` cancels a user's goals (their presence ended) or everyone's (the
+broker was lost, an emergency stop); the command endpoint calls it exactly where it stops velocity. A goal
+without a result after its ``timeout`` is canceled and reported as ``timeout``.
+
+Threads: MQTT messages only check and queue; every rclpy action-client call runs on the executor (woken by a
+guard condition), because rclpy's ``ActionClient`` records a request's sequence number only after sending it,
+so a response handled on the executor in between would be lost.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from rclpy.action import ActionClient
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from ..config import ActionRule, Robot, Role
+from ..protocol import ProtocolError
+from ..protocol.goals import (
+    ACCEPTED,
+    CANCELED,
+    CANCELING,
+    FAILED,
+    REJECTED,
+    ROS_STATUS,
+    TIMEOUT,
+    GoalCancel,
+    GoalFeedback,
+    GoalRequest,
+    GoalResult,
+    GoalStatus,
+)
+from ..topics import TopicTree, Verb
+from .authorize import refusal
+from .convert import ConversionError, converter_for
+from .ros_types import UnknownTypeError, load_interface
+
+log = logging.getLogger("roslink_mqtt.bridge.actions")
+
+RESULT_GRACE = 5.0  # s a canceled goal may take to send its result before the bridge reports it as failed
+SERVER_WAIT = 2.0  # s a goal waits for its action server to be discovered (a bridge or robot just started)
+MAX_GOALS_PER_USER = 64  # goals one user may have in flight on one robot
+
+
+@dataclass
+class _Goal:
+    user: str
+    action: str
+    id: str
+    client_id: str | None
+    rule: ActionRule
+    msg: Any
+    handle: Any = None  # the ClientGoalHandle once accepted
+    deadline: float = 0.0  # monotonic: the result is due (timeout)
+    end_status: str | None = None  # the bridge ended it: reported instead of the ROS status
+    end_reason: str | None = None
+    cancel_asked: bool = False  # the user canceled before the server accepted it
+    waiting_since: float | None = None  # the action server was not there yet: supervise() retries
+    cancel_sent: bool = False
+    forget_at: float | None = None  # canceled: give up waiting for the result then
+    last_feedback: float = 0.0
+    pending_feedback: dict[str, Any] | None = None
+
+    @property
+    def key(self) -> tuple[str, str, str]:
+        return (self.user, self.action, self.id)
+
+
+Publish = Callable[[str, bytes, int], None]
+
+
+class ActionCaller:
+    """One rclpy ActionClient per configured action, and the table of goals in flight."""
+
+    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
+                 role_of: Callable[[str], Role | None], refuse: Callable[..., None]) -> None:
+        self.robot, self.topics, self.publish, self.role_of, self.refuse = robot, topics, publish, role_of, refuse
+        group = ReentrantCallbackGroup()
+        self.actions: dict[str, tuple[ActionRule, Any, ActionClient]] = {}
+        for rule in robot.actions:
+            try:
+                cls = load_interface(rule.ros_type)
+            except UnknownTypeError as err:
+                raise UnknownTypeError(f"actions: {rule.name}: {err}") from None
+            self.actions[rule.name] = (rule, cls, ActionClient(node, cls, rule.ros_action, callback_group=group))
+        self._goals: dict[tuple[str, str, str], _Goal] = {}
+        self._lock = threading.Lock()
+        self._inbox: collections.deque[Callable[[], None]] = collections.deque()
+        self._wake = node.create_guard_condition(self._drain, callback_group=group)
+
+    # -- MQTT thread: check, then queue for the executor ---------------------------------------------
+    def goal(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """``from/<user>/goal/<name>`` (the endpoint has checked presence and the motion gate)."""
+        try:
+            request = GoalRequest.from_json(payload)
+        except ProtocolError as err:
+            self.refuse(user, topic, str(err), payload=payload)
+            return
+        entry = self.actions.get(name)
+        if entry is None:
+            self.refuse(user, topic, f"unknown action '{name}' (actions: {', '.join(sorted(self.actions)) or 'none'})",
+                        client_id=request.client_id)
+            return
+        rule, cls, _client = entry
+        why = refusal(user, self.role_of(user), Verb.GOAL, name, robot=self.robot.name, read_only=rule.viewers)
+        if why:
+            self.refuse(user, topic, why, client_id=request.client_id)
+            return
+        try:
+            msg = converter_for(cls.Goal).from_dict(request.goal)
+        except ConversionError as err:
+            self.refuse(user, topic, f"goal.{err} ({rule.ros_type})", client_id=request.client_id)
+            return
+        goal = _Goal(user, name, request.id, request.client_id, rule, msg)
+        with self._lock:
+            if goal.key in self._goals:
+                self.refuse(user, topic, f"goal id '{request.id}' is already in use on '{name}': choose an id that "
+                                         "is unique among your goals that have not ended", client_id=request.client_id)
+                return
+            if sum(1 for g in self._goals.values() if g.user == user) >= MAX_GOALS_PER_USER:
+                self.refuse(user, topic, f"too many goals in flight ({MAX_GOALS_PER_USER}) for {user} on "
+                                         f"{self.robot.name}", client_id=request.client_id)
+                return
+            self._goals[goal.key] = goal
+        self._queue(lambda: self._send(goal))
+
+    def cancel(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """``from/<user>/cancel/<name>``: cancel one of ``user``'s own goals."""
+        try:
+            request = GoalCancel.from_json(payload)
+        except ProtocolError as err:
+            self.refuse(user, topic, str(err), payload=payload)
+            return
+        rule = self.actions.get(name)
+        if rule is not None:
+            why = refusal(user, self.role_of(user), Verb.CANCEL, name, robot=self.robot.name,
+                          read_only=rule[0].viewers)
+            if why:
+                self.refuse(user, topic, why, client_id=request.client_id)
+                return
+        with self._lock:
+            goal = self._goals.get((user, name, request.id))
+        if goal is None:
+            self.refuse(user, topic, f"no goal '{request.id}' of yours on '{name}' is in flight (ended, never sent, "
+                                     "or another user's)", client_id=request.client_id)
+            return
+        self._queue(lambda: self._cancel(goal, None, None))
+
+    def cancel_goals(self, user: str | None, reason: str) -> int:
+        """Cancel every goal of ``user`` (None: of everyone); the results say ``reason``. Any thread."""
+        with self._lock:
+            goals = [g for g in self._goals.values() if user is None or g.user == user]
+        for goal in goals:
+            self._queue(lambda goal=goal: self._cancel(goal, CANCELED, reason))
+        if goals:
+            log.warning("canceling %d goal(s)%s: %s", len(goals), f" of {user}" if user else "", reason)
+        return len(goals)
+
+    def _queue(self, work: Callable[[], None]) -> None:
+        self._inbox.append(work)
+        self._wake.trigger()
+
+    # -- executor ------------------------------------------------------------------------------
+    def _drain(self) -> None:
+        while self._inbox:
+            work = self._inbox.popleft()
+            try:
+                work()
+            except Exception:  # one goal's failure must not stop the others (nor the executor)
+                log.exception("action work failed")
+
+    def _send(self, goal: _Goal) -> None:
+        if goal.end_status is not None:  # canceled by the bridge before it was sent
+            self._finish(goal, goal.end_status, None, goal.end_reason)
+            return
+        _rule, _cls, client = self.actions[goal.action]
+        if not client.server_is_ready():
+            now = time.monotonic()
+            if goal.waiting_since is None:
+                goal.waiting_since = now  # supervise() tries again until SERVER_WAIT has passed
+            elif now - goal.waiting_since > SERVER_WAIT or goal.cancel_asked:
+                self._status(goal, REJECTED, f"action server not available: {goal.rule.ros_action} "
+                                             f"({goal.rule.ros_type})")
+                self._forget(goal)
+            return
+        goal.waiting_since = None
+        future = client.send_goal_async(goal.msg, feedback_callback=lambda fb: self._feedback(goal, fb))
+        future.add_done_callback(lambda f: self._responded(goal, f))
+
+    def _responded(self, goal: _Goal, future: Any) -> None:
+        handle = future.result() if future.exception() is None else None
+        if handle is None or not handle.accepted:
+            why = "the action server rejected the goal" if handle is not None else \
+                f"sending failed: {future.exception()}"
+            self._status(goal, REJECTED, why)
+            self._forget(goal)
+            return
+        goal.handle = handle
+        goal.deadline = time.monotonic() + goal.rule.timeout
+        self._status(goal, ACCEPTED)
+        handle.get_result_async().add_done_callback(lambda f: self._result(goal, f))
+        if (goal.end_status is not None or goal.cancel_asked) and not goal.cancel_sent:  # canceled while sent
+            self._cancel(goal, goal.end_status, goal.end_reason)
+
+    def _cancel(self, goal: _Goal, status: str | None, reason: str | None) -> None:
+        """Cancel ``goal``; ``status``/``reason``: the bridge ends it (reported instead of the ROS status)."""
+        if status is not None and goal.end_status is None:
+            goal.end_status, goal.end_reason = status, reason
+        if goal.handle is None:
+            goal.cancel_asked = True
+            return  # not accepted yet: _responded cancels it as soon as it is
+        if goal.cancel_sent:
+            return
+        goal.cancel_sent = True
+        goal.forget_at = time.monotonic() + RESULT_GRACE
+        goal.handle.cancel_goal_async().add_done_callback(lambda f: self._cancel_answered(goal, f))
+
+    def _cancel_answered(self, goal: _Goal, future: Any) -> None:
+        response = future.result() if future.exception() is None else None
+        if response is not None and response.goals_canceling:
+            self._status(goal, CANCELING)
+
+    def _feedback(self, goal: _Goal, message: Any) -> None:
+        body = converter_for(type(message.feedback)).to_dict(message.feedback)
+        now = time.monotonic()
+        if now - goal.last_feedback >= 1.0 / goal.rule.feedback_rate:
+            goal.last_feedback, goal.pending_feedback = now, None
+            self._send_feedback(goal, body)
+        else:
+            goal.pending_feedback = body  # newest wins; supervise() sends it when its turn comes
+
+    def _result(self, goal: _Goal, future: Any) -> None:
+        response = future.result() if future.exception() is None else None
+        if response is None:
+            self._finish(goal, goal.end_status or FAILED, None, goal.end_reason or f"no result: {future.exception()}")
+            return
+        result = converter_for(type(response.result)).to_dict(response.result)
+        status = ROS_STATUS.get(response.status, FAILED)
+        if goal.end_status is not None and status == CANCELED:
+            status = goal.end_status  # canceled by the bridge: say why (timeout, presence ended, …)
+        self._finish(goal, status, result, goal.end_reason if goal.end_status == status else None)
+
+    def supervise(self, now: float) -> None:
+        """Flush due feedback, cancel goals past their timeout, give up on results that never came (executor)."""
+        with self._lock:
+            goals = list(self._goals.values())
+        for goal in goals:
+            if goal.waiting_since is not None:
+                self._send(goal)
+                continue
+            if goal.pending_feedback is not None and now - goal.last_feedback >= 1.0 / goal.rule.feedback_rate:
+                body, goal.pending_feedback, goal.last_feedback = goal.pending_feedback, None, now
+                self._send_feedback(goal, body)
+            if goal.handle is not None and not goal.cancel_sent and now > goal.deadline:
+                self._cancel(goal, TIMEOUT, f"no result within {goal.rule.timeout:g} s: the bridge canceled it")
+            elif goal.forget_at is not None and now > goal.forget_at:
+                self._finish(goal, goal.end_status or FAILED, None,
+                             (goal.end_reason or "canceled") + f"; no result {RESULT_GRACE:g} s after the cancel")
+
+    # -- MQTT out ----------------------------------------------------------------------------
+    def _status(self, goal: _Goal, status: str, error: str | None = None) -> None:
+        body = GoalStatus(goal.id, status, error, goal.client_id)
+        self.publish(self.topics.user_topic(self.robot.name, goal.user, Verb.GOAL_STATUS, goal.action), body.to_json(),
+                     GoalStatus.QOS)
+
+    def _send_feedback(self, goal: _Goal, feedback: dict[str, Any]) -> None:
+        body = GoalFeedback(goal.id, feedback, goal.client_id)
+        self.publish(self.topics.user_topic(self.robot.name, goal.user, Verb.FEEDBACK, goal.action), body.to_json(),
+                     GoalFeedback.QOS)
+
+    def _finish(self, goal: _Goal, status: str, result: dict[str, Any] | None, error: str | None) -> None:
+        if not self._forget(goal):
+            return  # already reported (the result and the grace timer raced)
+        if goal.pending_feedback is not None:
+            self._send_feedback(goal, goal.pending_feedback)
+        body = GoalResult(goal.id, status, result, error, goal.client_id)
+        self.publish(self.topics.user_topic(self.robot.name, goal.user, Verb.RESULT, goal.action), body.to_json(),
+                     GoalResult.QOS)
+
+    def _forget(self, goal: _Goal) -> bool:
+        with self._lock:
+            return self._goals.pop(goal.key, None) is not None
+
+    def in_flight(self, user: str | None = None) -> int:
+        with self._lock:
+            return sum(1 for g in self._goals.values() if user is None or g.user == user)
