@@ -182,3 +182,33 @@ def test_emergency_stop_cancels_every_goal(stack) -> None:
     time.sleep(0.5)
     again = send_goal(stack.admin, "admin", {"order": 3})
     assert GoalResult.from_json(until_result(stack.admin, "admin", again)[-1].payload).status == "succeeded"
+
+
+# -- the SDK ----------------------------------------------------------------------------------------------
+def test_sdk_send_goal_feedback_result_and_cancel(stack) -> None:
+    from roslink_mqtt.client import GoalError, RobotClient
+
+    url = f"mqtt://127.0.0.1:{stack.port}"
+    with RobotClient("alice", "alice-demo", url=url, robots=["turtle1"]) as alice:
+        alice.wait_for_robot("turtle1", timeout=10)
+        progress: list[list[int]] = []
+        handle = alice.send_goal("turtle1", ACTION, {"order": 6}, lambda fb: progress.append(fb["sequence"]))
+        assert handle.accepted(timeout=10)
+        result = handle.result(timeout=20)
+        assert (result.status, result.result["sequence"]) == ("succeeded", [0, 1, 1, 2, 3, 5, 8])
+        deadline = time.monotonic() + 2
+        while not progress and time.monotonic() < deadline:  # callbacks run in the dispatcher thread
+            time.sleep(0.05)
+        assert progress and progress[-1][:3] == [0, 1, 1]
+        long = alice.send_goal("turtle1", ACTION, {"order": 40})
+        assert long.accepted(timeout=10)
+        long.cancel()
+        assert long.result(timeout=20).status == "canceled"
+        with pytest.raises(GoalError, match="rejected"):
+            alice.send_goal("turtle1", ACTION, {"order": 99}).result(timeout=10)
+        with pytest.raises(GoalError, match="goal.order: expected"):
+            alice.send_goal("turtle1", ACTION, {"order": "many"}).result(timeout=10)
+    with RobotClient("bob", "bob-demo", url=url, robots=["turtle1"]) as bob:
+        bob.wait_for_robot("turtle1", timeout=10)
+        with pytest.raises(GoalError, match=r"not open to viewers\); as a viewer of turtle1 you may use: fib_public"):
+            bob.send_goal("turtle1", ACTION, {"order": 3}).result(timeout=10)

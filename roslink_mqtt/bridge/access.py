@@ -19,11 +19,12 @@ from .authorize import allowed
 
 def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, bytes]:
     """``{topic: retained body}`` for every user granted ``robot`` (admins count as operators)."""
-    services = fleet.robots[robot].services
+    services, actions = fleet.robots[robot].services, fleet.robots[robot].actions
     out: dict[str, bytes] = {}
     for user, role in sorted(fleet.users_of(robot).items()):
         callable_ = tuple(s.name for s in services if allowed(role, Verb.CALL, read_only=s.read_only))
-        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_)
+        goals = tuple(a.name for a in actions if allowed(role, Verb.GOAL, read_only=a.viewers))
+        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_, goals)
         out[topics.access(robot, user)] = report.to_json()
     return out
 

@@ -114,27 +114,29 @@ class ActionCaller:
         entry = self.actions.get(name)
         if entry is None:
             self.refuse(user, topic, f"unknown action '{name}' (actions: {', '.join(sorted(self.actions)) or 'none'})",
-                        client_id=request.client_id)
+                        client_id=request.client_id, request_id=request.id)
             return
         rule, cls, _client = entry
         why = refusal(user, self.role_of(user), Verb.GOAL, name, robot=self.robot.name, read_only=rule.viewers)
         if why:
-            self.refuse(user, topic, why, client_id=request.client_id)
+            self.refuse(user, topic, why, client_id=request.client_id, request_id=request.id)
             return
         try:
             msg = converter_for(cls.Goal).from_dict(request.goal)
         except ConversionError as err:
-            self.refuse(user, topic, f"goal.{err} ({rule.ros_type})", client_id=request.client_id)
+            self.refuse(user, topic, f"goal.{err} ({rule.ros_type})", client_id=request.client_id,
+                        request_id=request.id)
             return
         goal = _Goal(user, name, request.id, request.client_id, rule, msg)
         with self._lock:
             if goal.key in self._goals:
                 self.refuse(user, topic, f"goal id '{request.id}' is already in use on '{name}': choose an id that "
-                                         "is unique among your goals that have not ended", client_id=request.client_id)
+                                         "is unique among your goals that have not ended", client_id=request.client_id,
+                            request_id=request.id)
                 return
             if sum(1 for g in self._goals.values() if g.user == user) >= MAX_GOALS_PER_USER:
                 self.refuse(user, topic, f"too many goals in flight ({MAX_GOALS_PER_USER}) for {user} on "
-                                         f"{self.robot.name}", client_id=request.client_id)
+                                         f"{self.robot.name}", client_id=request.client_id, request_id=request.id)
                 return
             self._goals[goal.key] = goal
         self._queue(lambda: self._send(goal))
@@ -151,13 +153,13 @@ class ActionCaller:
             why = refusal(user, self.role_of(user), Verb.CANCEL, name, robot=self.robot.name,
                           read_only=rule[0].viewers)
             if why:
-                self.refuse(user, topic, why, client_id=request.client_id)
+                self.refuse(user, topic, why, client_id=request.client_id, request_id=request.id)
                 return
         with self._lock:
             goal = self._goals.get((user, name, request.id))
         if goal is None:
             self.refuse(user, topic, f"no goal '{request.id}' of yours on '{name}' is in flight (ended, never sent, "
-                                     "or another user's)", client_id=request.client_id)
+                                     "or another user's)", client_id=request.client_id, request_id=request.id)
             return
         self._queue(lambda: self._cancel(goal, None, None))
 

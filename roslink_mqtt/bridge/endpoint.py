@@ -39,7 +39,7 @@ from ..protocol import (
     loads,
     sender_id,
 )
-from ..protocol.control import ErrorReport, pop_generic_sender
+from ..protocol.control import ErrorReport, pop_generic_sender, request_id
 from ..topics import Kind, TopicTree, Verb
 from .authorize import refusal
 from .failsafe import Failsafe, late_motion
@@ -183,10 +183,11 @@ class CommandEndpoint:
             if not self.operators.is_live(user):
                 self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
                                          f"on {self.topics.operator(user, '<client_id>')} every second",
-                            payload=payload)
+                            payload=payload, request_id=request_id(payload))
                 return False
             if self.motion_blocked:
-                self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", payload=payload)
+                self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", payload=payload,
+                            request_id=request_id(payload))
                 return False
         return True
 
@@ -401,7 +402,8 @@ class CommandEndpoint:
                           encode(Envelope(MessageId.ACK, payload, self.robot.system_id, self._ack_seq)), qos=ACK_QOS)
 
     def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
-               sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None) -> None:
+               sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None,
+               request_id: str | int | None = None) -> None:
         """Report a refused input on ``to/<user>/error``, addressed to the program that sent it.
 
         Every program of ``user`` reads that topic, so the report repeats the sender's client id: given
@@ -413,4 +415,4 @@ class CommandEndpoint:
         log.debug("refused %s: %s", topic, reason)
         self.link.publish(self.topics.error(self.robot.name, user),
                           error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
-                                      client_id=client_id), qos=ErrorReport.QOS)
+                                      client_id=client_id, request_id=request_id), qos=ErrorReport.QOS)

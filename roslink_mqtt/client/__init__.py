@@ -26,6 +26,7 @@ from .errors import (
     CommandNotConfirmed,
     CommandRefused,
     ConnectError,
+    GoalError,
     InvalidArgument,
     InvalidType,
     LoginRefused,
@@ -38,6 +39,7 @@ from .errors import (
     SubscriptionFailed,
     WaitTimeout,
 )
+from .goals import GoalHandle
 from .messages import (
     Ack,
     Arm,
@@ -71,7 +73,8 @@ _FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription"
 
 __all__ = [
     "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
-    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "InvalidArgument",
+    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoalError", "GoalHandle", "GoToWaypoint", "GpsRawInfo", "Heartbeat",
+    "Image", "InvalidArgument",
     "InvalidType", "Land", "LoginRefused", "Map", "Node", "NodeDestroyed", "NotConnectedError", "OperatorPresence",
     "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
     "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",

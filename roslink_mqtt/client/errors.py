@@ -98,6 +98,7 @@ class RobotError:
     message_id: int | None = None
     sequence_number: int | None = None
     client_id: str | None = None
+    request_id: str | int | None = None  # the refused request's id (a goal, a cancel), when it had one
 
     @classmethod
     def from_json(cls, robot: str, body: Any) -> RobotError:
@@ -106,7 +107,16 @@ class RobotError:
             report = ErrorReport.from_body(body)
         except ProtocolError as err:
             return cls(robot, "", f"malformed error report: {err}")
-        return cls(robot, report.topic, report.error, report.message_id, report.sequence_number, report.client_id)
+        return cls(robot, report.topic, report.error, report.message_id, report.sequence_number, report.client_id,
+                   report.id)
+
+
+class GoalError(RoslinkError):
+    """A goal was refused (on the robot's error topic), rejected by its action server, or never answered."""
+
+    def __init__(self, robot: str, action: str, goal_id: str, reason: str) -> None:
+        super().__init__(f"{robot}/{action} goal '{goal_id}': {reason}")
+        self.robot, self.action, self.goal_id, self.reason = robot, action, goal_id, reason
 
 
 class CommandRefused(RoslinkError):

@@ -61,6 +61,7 @@ from .errors import (
     ServiceError,
     WaitTimeout,
 )
+from .goals import ActionGoals, FeedbackCallback, GoalHandle
 from .providers import Handler, ProvidedService, ServiceProviders
 from .subscriptions import StateItem, StateSubscription
 
@@ -109,6 +110,7 @@ class RobotClient:
         self._streams = CommandStreams(self.topics, username, client_id=self.client_id)
         self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username, client_id=self.client_id)
         self._providers = ServiceProviders(self.connection, self.topics, username)
+        self._goals = ActionGoals(self.connection, self.callbacks, self.topics, username, client_id=self.client_id)
         self._advertisements = Advertisements(self.connection, self.topics, username)
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
@@ -154,6 +156,7 @@ class RobotClient:
             self._providers.withdraw_all()
             self._advertisements.withdraw_all()
         self._calls.fail_all("the client was closed")
+        self._goals.fail_all("the client was closed")
         self.connection.close()
         self._scheduler.close()
         if self._dispatcher is not None:
@@ -400,6 +403,32 @@ class RobotClient:
             await asyncio.to_thread(self.watch, robot)  # waits for SUBACKs: keep it off the loop
         return await asyncio.wrap_future(self.call_future(robot, service, args, timeout))
 
+    def send_goal(self, robot: str, action: str, goal: dict[str, Any] | None = None,
+                  feedback_callback: FeedbackCallback | None = None, *, goal_id: str | None = None) -> GoalHandle:
+        """Send a goal to the ROS action ``action`` of ``robot``; returns at once with a :class:`GoalHandle`.
+
+        ``goal`` is the action's goal as a dict (``{"order": 5}`` for test_msgs/action/Fibonacci);
+        ``feedback_callback(feedback_dict)`` runs in the dispatcher thread for each (rate-limited) feedback.
+        ``handle.result(timeout)`` blocks for the end; ``handle.cancel()`` cancels. The robot cancels the goal
+        itself if this program's operator presence ends (the client must run presence, as for commands).
+        """
+        self.connection.require(f"goal for {action}")
+        self.watch(robot)
+        handle = self._goals.send(robot, action, goal, feedback_callback, goal_id=goal_id)
+        reason = self._refusal(robot, "goal", action)
+        if reason is not None:
+            self._goals.on_error(RobotError(robot, self.topics.goal(robot, self.username, action), reason,
+                                            client_id=self.client_id, request_id=handle.id))
+        return handle
+
+    async def send_goal_async(self, robot: str, action: str, goal: dict[str, Any] | None = None,
+                              feedback_callback: FeedbackCallback | None = None, *,
+                              goal_id: str | None = None) -> GoalHandle:
+        """``await`` form of :meth:`send_goal`: returns once the goal is accepted (GoalError if not)."""
+        handle = await asyncio.to_thread(self.send_goal, robot, action, goal, feedback_callback, goal_id=goal_id)
+        await asyncio.wrap_future(handle.accepted_future)
+        return handle
+
     def provide(self, robot: str, service: str, srv_type: str, handler: Handler, *, timeout: float = 5.0
                 ) -> ProvidedService:
         """Offer a ROS service on ``robot``: ``handler(request_fields) -> response_fields``.
@@ -463,6 +492,12 @@ class RobotClient:
             self._on_error(robot, error)
         elif verb is Verb.ACCESS:
             self._on_access(robot, payload)
+        elif verb is Verb.GOAL_STATUS:
+            self._goals.on_status(robot, name, payload)
+        elif verb is Verb.FEEDBACK:
+            self._goals.on_feedback(robot, name, payload)
+        elif verb is Verb.RESULT:
+            self._goals.on_result(robot, name, payload)
 
     # -- what the broker lets us do ---------------------------------------------------------------
     def _on_access(self, robot: str, payload: bytes) -> None:
@@ -510,6 +545,12 @@ class RobotClient:
             allowed = ", ".join(report.services) or "none"
             return (f"user '{user}' may not call '{service}' (operators only; it is not read-only); as a viewer of "
                     f"{robot} you may call: {allowed}")
+        if action == "goal":
+            if report.may_send_goal(service):
+                return None
+            allowed = ", ".join(report.actions) or "none"
+            return (f"user '{user}' may not send goals to '{service}' (operators only; it is not open to viewers); "
+                    f"as a viewer of {robot} you may use: {allowed}")
         if report.operator:
             return None
         if action == "provide":
@@ -519,6 +560,7 @@ class RobotClient:
     def _on_login_refused(self, failure: LoginRefused) -> None:
         """The broker refused our login on reconnect (network thread): fail what waits, tell the caller."""
         self._calls.fail_all(str(failure))
+        self._goals.fail_all(str(failure))
         with self._watch_lock:
             subscriptions = list(self._subscriptions)
         for sub in subscriptions:
@@ -536,6 +578,8 @@ class RobotClient:
                     event.set()
                     awaited = True
         self._providers.on_error(error)
+        if self._goals.on_error(error):
+            awaited = True  # the goal's handle raises it (GoalError); on_error still hears of it
         callback = self.on_error
         if callback is not None:
             self.callbacks.put(lambda: callback(error))

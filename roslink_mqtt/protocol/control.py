@@ -111,6 +111,7 @@ class ErrorReport:
     message_id: int | None = None
     sequence_number: int | None = None
     client_id: str | None = None
+    id: str | int | None = None  # the refused request's own id (a goal, a cancel), when it had one
 
     FIELDS = (
         BodyField("topic", "string", True, "the topic the refused input was published to"),
@@ -120,6 +121,8 @@ class ErrorReport:
         BodyField("client_id", "string", False, "the sender's id, when the request named one (envelope "
                                                 "`client_id`, body `client_id` or `$client_id`); a report "
                                                 "without it may concern any program of the user"),
+        BodyField("id", "string or integer", False, "the refused request's `id` (a goal, a cancel), when it had "
+                                                   "one: which of your requests this is about"),
     )
     QOS = 1
     RETAINED = False
@@ -130,6 +133,8 @@ class ErrorReport:
             body["message_id"] = int(self.message_id)
         if self.sequence_number is not None:
             body["sequence_number"] = self.sequence_number
+        if self.id is not None:
+            body["id"] = self.id
         return _dump(body, self.client_id)
 
     @classmethod
@@ -144,19 +149,35 @@ class ErrorReport:
         topic, error = body.get("topic"), body.get("error")
         if not isinstance(topic, str) or not isinstance(error, str):
             raise ProtocolError('error report: expected {"topic": "…", "error": "…"}')
-        mid, seq, cid = body.get("message_id"), body.get("sequence_number"), body.get("client_id")
+        mid, seq, cid, rid = body.get("message_id"), body.get("sequence_number"), body.get("client_id"), body.get("id")
         return cls(topic, error, mid if _is_int(mid) else None, seq if _is_int(seq) else None,
-                   cid if isinstance(cid, str) and cid else None)
+                   cid if isinstance(cid, str) and cid else None,
+                   rid if isinstance(rid, str) or _is_int(rid) else None)
 
 
 def error_reply(topic: str, reason: str, *, message_id: int | None = None,
-                sequence_number: int | None = None, client_id: str | None = None) -> bytes:
+                sequence_number: int | None = None, client_id: str | None = None,
+                request_id: str | int | None = None) -> bytes:
     """The :class:`ErrorReport` body for ``to/<user>/error``: the bridge's one way of wording a refusal report.
 
     ``client_id`` repeats the sender's id from the refused request, so that only
     the program that sent it shows the report.
     """
-    return ErrorReport(topic, reason, message_id, sequence_number, client_id).to_json()
+    return ErrorReport(topic, reason, message_id, sequence_number, client_id, request_id).to_json()
+
+
+def request_id(payload: bytes | bytearray | memoryview | str | None) -> str | int | None:
+    """The ``id`` a refused control body names (a goal's, a cancel's), None if none; the refusal path only."""
+    if not payload or len(payload) > MAX_SENDER_PARSE:
+        return None
+    try:
+        body = loads(payload)
+    except ProtocolError:
+        return None
+    rid = body.get("id") if isinstance(body, dict) else None
+    if isinstance(rid, str) and 0 < len(rid) <= MAX_CALL_ID or _is_int(rid):
+        return rid
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,12 +186,17 @@ class AccessReport:
 
     role: str  # "operator" or "viewer"
     services: tuple[str, ...] = ()  # services this user may call; the broker drops calls to any other
+    actions: tuple[str, ...] = ()  # actions this user may send goals to (and cancel them)
 
     FIELDS = (
-        BodyField("role", "string", True, "`operator` (commands, calls, provides, advertises) or `viewer` "
-                                          "(reads state; calls only the services listed)"),
+        BodyField("role", "string", True, "`operator` (commands, calls, provides, advertises, goals) or `viewer` "
+                                          "(reads state; calls only the services and sends goals only to the "
+                                          "actions listed)"),
         BodyField("services", "array of strings", True, "the robot's services this user may call: all of them "
                                                         "for an operator, the `read_only` ones for a viewer"),
+        BodyField("actions", "array of strings", False, "the robot's actions this user may send goals to: all of "
+                                                        "them for an operator, those with `viewers: true` for a "
+                                                        "viewer (missing from older bridges: none listed)"),
     )
     QOS = 1
     RETAINED = True
@@ -183,8 +209,12 @@ class AccessReport:
         """An operator may call anything (the bridge answers unknown names); a viewer only the listed ones."""
         return self.operator or service in self.services
 
+    def may_send_goal(self, action: str) -> bool:
+        """As :meth:`may_call`, for actions."""
+        return self.operator or action in self.actions
+
     def to_json(self) -> bytes:
-        return orjson.dumps({"role": self.role, "services": list(self.services)})
+        return orjson.dumps({"role": self.role, "services": list(self.services), "actions": list(self.actions)})
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> AccessReport:
@@ -196,7 +226,10 @@ class AccessReport:
             raise ProtocolError(f"access report: role: expected one of {', '.join(ROLES)}, got {describe(role)}")
         if not isinstance(services, list) or not all(isinstance(s, str) for s in services):
             raise ProtocolError("access report: services: expected an array of strings")
-        return cls(role, tuple(services))
+        actions = body.get("actions", [])
+        if not isinstance(actions, list) or not all(isinstance(a, str) for a in actions):
+            raise ProtocolError("access report: actions: expected an array of strings")
+        return cls(role, tuple(services), tuple(actions))
 
 
 def _dump(body: dict[str, Any], client_id: str | None) -> bytes:
