@@ -8,12 +8,15 @@ SIGKILL cancels its goal within the failsafe bound (printed); an emergency stop 
 
 from __future__ import annotations
 
+import os
 import signal
+import subprocess
 import sys
 import time
 import uuid
 from types import SimpleNamespace
 
+import orjson
 import pytest
 
 from roslink_mqtt.protocol.goals import GoalResult, GoalStatus
@@ -22,7 +25,7 @@ from .conftest import record_measurement
 from .support.broker_setup import ExportedMosquitto, write_fleet
 from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.mqtt_client import Received, TestClient
-from .support.procs import bridge_args, bridge_env, run
+from .support.procs import ROOT, bridge_args, bridge_env, run
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -212,3 +215,18 @@ def test_sdk_send_goal_feedback_result_and_cancel(stack) -> None:
         bob.wait_for_robot("turtle1", timeout=10)
         with pytest.raises(GoalError, match=r"not open to viewers\); as a viewer of turtle1 you may use: fib_public"):
             bob.send_goal("turtle1", ACTION, {"order": 3}).result(timeout=10)
+
+
+def test_cli_action_send_prints_feedback_and_result(stack) -> None:
+    env = {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}
+    done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "action", "send", "turtle1", ACTION,
+                           '{"order": 5}', "--feedback", "--url", f"mqtt://127.0.0.1:{stack.port}", "-u", "alice"],
+                          capture_output=True, text=True, env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = [orjson.loads(line) for line in done.stdout.splitlines()]
+    assert any("feedback" in line for line in lines[:-1])
+    assert lines[-1] == {"status": "succeeded", "result": {"sequence": [0, 1, 1, 2, 3, 5]}, "error": None}
+    rejected = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "action", "send", "turtle1", ACTION,
+                               '{"order": 99}', "--url", f"mqtt://127.0.0.1:{stack.port}", "-u", "alice"],
+                              capture_output=True, text=True, env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
+    assert rejected.returncode == 1 and "the action server rejected the goal" in rejected.stdout, rejected.stdout

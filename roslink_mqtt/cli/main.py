@@ -12,6 +12,7 @@ from ..config import ConfigError
 from ..topics import TopicError
 from . import (
     acl_cmd,
+    action_cmd,
     call_cmd,
     dashboard_cmd,
     echo_cmd,
@@ -23,8 +24,8 @@ from . import (
     teleop_cmd,
 )
 
-SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd,
-               dashboard_cmd)
+SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd,
+               acl_cmd, dashboard_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 
