@@ -205,6 +205,12 @@ def release(driver: Any, button: Any) -> None:
     ActionChains(driver).release(button).perform()
 
 
+def no_console_errors(driver: Any) -> None:
+    """The page logged no error (an uncaught exception, a refused script or socket) to the browser console."""
+    severe = [e["message"] for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+    assert not severe, "browser console errors:\n" + "\n".join(severe)
+
+
 def alice_ready(driver: Any, stack: dict[str, Any]) -> None:
     """alice logged in, turtle1 online and selected, her operator controls shown, her presence published."""
     login(driver, stack["url"], "alice", "alice-demo")
@@ -315,6 +321,7 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         shot = tmp_path / "dashboard-drive.png"
         driver.save_screenshot(str(shot))
         print(f"screenshot: {shot}")
+        no_console_errors(driver)
 
 
 def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
@@ -445,6 +452,7 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.37)], "bob's twist reached ROS"
         assert (robot_row(driver, "turtle1") or {}).get("status") == "active", "bob's e-stop reached the robot"
         assert driver.execute_script("return document.getElementById('conn').dataset.state") == "connected"
+        no_console_errors(driver)
         driver.execute_script("window.dashboard.client.publish(`roslink/operators/bob/${window.dashboard.clientId}`,"
                               " '', {retain: true, qos: 1})")
 
@@ -473,6 +481,20 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
         assert visible(driver, "login") and not visible(driver, "main")
         time.sleep(2.5)  # no retry loop: the refusal is final until the user submits again
         assert "bad username or password" in driver.find_element(By.ID, "login-error").text
+
+        # a broker URL where nothing listens: said so, not a blank page
+        from roslink_mqtt.localproc import free_port
+
+        url = driver.find_element(By.ID, "ws-url")
+        url.clear()
+        url.send_keys(f"ws://127.0.0.1:{free_port()}")
+        driver.find_element(By.ID, "password").send_keys("alice-demo")
+        driver.find_element(By.ID, "connect").click()
+        unreachable = wait_until("the unreachable message", lambda: "cannot reach the broker" in
+                                 driver.find_element(By.ID, "login-error").text and
+                                 driver.find_element(By.ID, "login-error").text)
+        print(f"unreachable broker: {unreachable!r}")
+        assert driver.find_element(By.ID, "connect").is_enabled()
 
 
 def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None:
