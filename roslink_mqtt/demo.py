@@ -26,6 +26,7 @@ from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, decode
 from .protocol.control import CallReply, CallRequest, ErrorReport
+from .protocol.goals import GoalRequest
 from .ros_env import local_ros_env
 from .topics import Kind, TopicTree, Verb
 
@@ -50,7 +51,8 @@ class Scene:
         self.operator.loop_start()
         # errors and service replies only (to/alice/ also carries the retained access report)
         self.operator.subscribe([(topics.error("turtle1", "alice"), 1),
-                                 (topics.verb_filter("turtle1", "alice", Verb.REPLY), 1)])
+                                 *((topics.verb_filter("turtle1", "alice", verb), 1)
+                                   for verb in (Verb.REPLY, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT))])
 
     @staticmethod
     def _client(user: str, client_id: str, port: int):
@@ -179,7 +181,24 @@ def main(argv: list[str] | None = None) -> int:
                 break
             time.sleep(0.5)
         print(f"  {topic}: {body.decode()}")
-        print("7. alice drives again, then goes silent: the dead-man stops the robot")
+        print("7. alice sends a goal to the robot's ROS action 'fibonacci' (order 6) and watches it progress:")
+        scene.beat()
+        scene.operator.publish(topics.goal("turtle1", "alice", "fibonacci"),
+                               GoalRequest("demo-goal", {"order": 6}).to_json(), qos=1)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline:
+            try:
+                topic, body = scene.reply(timeout=deadline - time.monotonic())
+            except queue.Empty:
+                print("  (no result seen)")
+                break
+            parsed = topics.parse(topic)
+            if parsed is None or parsed.name != "fibonacci":
+                continue
+            print(f"  {parsed.verb.value}: {body.decode()}")
+            if parsed.verb is Verb.RESULT:
+                break
+        print("8. alice drives again, then goes silent: the dead-man stops the robot")
         for seq in range(21, 31):
             scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,
                                                       "payload": {"lx": 0.3}}))

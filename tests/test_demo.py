@@ -22,6 +22,8 @@ def test_demo_runs(tmp_path) -> None:
                      "bob sees roslink/turtle1/state/range_finder_data",
                      "payload.lx: expected number, got \"fast\"",
                      "/to/alice/reply/reset", '"result":true',
+                     'goal_status: {"id":"demo-goal","status":"accepted"}', "feedback: ",
+                     'result: {"id":"demo-goal","status":"succeeded","result":{"sequence":[0,1,1,2,3,5,8]}}',
                      "dead-man"):
         assert expected in text, f"missing {expected!r} in:\n{text}"
     moved = [line for line in text.splitlines() if "the robot moved" in line]
