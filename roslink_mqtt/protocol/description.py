@@ -1,0 +1,323 @@
+"""The robot description: what one robot maps, retained on ``state/description`` (docs/protocol.md).
+
+A robot's bridge publishes one :class:`RobotDescription` whenever it connects: its name, ROSLink type and
+system id, the protocol version, its velocity limits, and every entry of its part of the fleet file — state it
+publishes (with the ROSLink message or the ROS type each carries), commands it takes, ROS services users may
+call, ROS actions users may send goals to — with the field layout of every ROS type those entries mention,
+nested messages expanded, like ``ros2 interface show``. Dashboards and Node-RED flows build their UI from it;
+``roslink-mqtt info ROBOT`` prints it.
+
+**The same for everyone.** The description lives under ``state/``, which every user granted the robot reads
+through one ACL entry; a broker's ACL cannot serve one retained message differently per role. So it is *not*
+filtered per role: it lists everything and marks each entry with who may use it, ``operators`` or ``viewers``
+(viewers and operators). What *you* may use is your own access report (``to/<user>/access``,
+:class:`~roslink_mqtt.protocol.control.AccessReport`); a client combines the two.
+
+Like the other bodies a client reads, parsing is lenient about fields it does not know (the bridge may add
+some) and strict about the shape of those it does, with the exact reason in the :class:`ProtocolError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import orjson
+
+from ..topics import TopicTree, Verb, join_leaf
+from .codec import ROS_VERSION, ROSLINK_VERSION, loads
+from .control import BodyField
+from .errors import ProtocolError
+from .validate import describe
+
+DESCRIPTION = "description"  # the state name: roslink/<robot>/state/description
+OPERATORS, VIEWERS = "operators", "viewers"  # who may use an entry (viewers: viewers and operators)
+WHO = (OPERATORS, VIEWERS)
+_DOC = TopicTree()
+
+# A field layout: field name → a primitive type as a .msg file spells it (``float64``, ``string``, ``float64[36]``,
+# ``int32[]``, ``int32[<=5]``, ``string<=10``) or, for a nested message, {"type": "pkg/msg/Type", "fields": {…}}
+# (arrays of messages: the element's fields, and "type" reads ``pkg/msg/Type[]``). A service type's layout is
+# {"request": …, "response": …}, an action type's {"goal": …, "result": …, "feedback": …}.
+Layout = dict[str, Any]
+
+
+def _where(path: str, what: str, value: Any) -> ProtocolError:
+    return ProtocolError(f"description: {path}: expected {what}, got {describe(value)}")
+
+
+def _str(body: dict[str, Any], key: str, path: str, *, required: bool = True) -> str | None:
+    value = body.get(key)
+    if value is None and not required:
+        return None
+    if not isinstance(value, str) or not value:
+        raise _where(f"{path}.{key}" if path else key, "a non-empty string", value)
+    return value
+
+
+def _num(body: dict[str, Any], key: str, path: str, default: float | None = None) -> float | None:
+    value = body.get(key, default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _where(f"{path}.{key}", "a number", value)
+    return float(value)
+
+
+def _bool(body: dict[str, Any], key: str, path: str) -> bool:
+    value = body.get(key, False)
+    if not isinstance(value, bool):
+        raise _where(f"{path}.{key}", "true or false", value)
+    return value
+
+
+def _who(body: dict[str, Any], path: str, default: str) -> str:
+    value = body.get("who", default)
+    if value not in WHO:
+        raise _where(f"{path}.who", f"{OPERATORS} or {VIEWERS}", value)
+    return value
+
+
+def _fields(body: dict[str, Any], path: str) -> dict[str, str]:
+    value = body.get("fields") or {}
+    if not isinstance(value, dict) or not all(isinstance(v, str) for v in value.values()):
+        raise _where(f"{path}.fields", "an object of MQTT field → ROS field path", value)
+    return dict(value)
+
+
+def _drop_empty(body: dict[str, Any]) -> dict[str, Any]:
+    """Leave out optional keys that say nothing (None, False, {}), so the body stays small."""
+    return {k: v for k, v in body.items() if v is not None and v is not False and v != {}}
+
+
+@dataclass(frozen=True, slots=True)
+class StateEntry:
+    """A state stream, ``state/<name>``: a ROSLink message (``message``) or a ROS message as JSON (``ros_type``)."""
+
+    name: str
+    message: str | None = None  # the ROSLink message it carries (a preset), None for generic ROS JSON
+    ros_type: str | None = None  # the ROS type it comes from (None: the bridge's own, e.g. ack)
+    retained: bool = False
+    max_rate: float | None = None  # Hz, newest wins
+    fields: dict[str, str] = field(default_factory=dict)  # generic rules that select fields: MQTT → ROS path
+    who: str = VIEWERS  # everyone granted the robot reads state
+
+    def to_body(self) -> dict[str, Any]:
+        return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
+                            "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
+                            "who": self.who})
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> StateEntry:
+        if not isinstance(body, dict):
+            raise _where(path, "an object", body)
+        return cls(_str(body, "name", path), _str(body, "message", path, required=False),
+                   _str(body, "ros_type", path, required=False), _bool(body, "retained", path),
+                   _num(body, "max_rate", path), _fields(body, path), _who(body, path, VIEWERS))
+
+
+@dataclass(frozen=True, slots=True)
+class CommandEntry:
+    """A command input, ``from/<user>/<name>`` (``cmd/twist``; a generic rule's ``lights``)."""
+
+    name: str  # the topic leaf under from/<user>/
+    message: str | None = None  # the ROSLink command (a preset), None for generic ROS JSON
+    ros_type: str | None = None  # what the bridge publishes to ROS (or the ROS service a preset calls)
+    on_demand: bool = False
+    fields: dict[str, str] = field(default_factory=dict)
+    limits: dict[str, Any] = field(default_factory=dict)  # velocity inputs: the limits the bridge clamps to
+    who: str = OPERATORS
+
+    def to_body(self) -> dict[str, Any]:
+        return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
+                            "on_demand": self.on_demand, "fields": self.fields, "limits": self.limits,
+                            "who": self.who})
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> CommandEntry:
+        if not isinstance(body, dict):
+            raise _where(path, "an object", body)
+        limits = body.get("limits") or {}
+        if not isinstance(limits, dict):
+            raise _where(f"{path}.limits", "an object", limits)
+        return cls(_str(body, "name", path), _str(body, "message", path, required=False),
+                   _str(body, "ros_type", path, required=False), _bool(body, "on_demand", path),
+                   _fields(body, path), limits, _who(body, path, OPERATORS))
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceEntry:
+    """A ROS service users may call: ``from/<user>/call/<name>`` → ``to/<user>/reply/<name>``."""
+
+    name: str
+    ros_type: str
+    read_only: bool = False
+    timeout: float | None = None  # s the bridge waits for the ROS service
+    who: str = OPERATORS
+
+    def to_body(self) -> dict[str, Any]:
+        return {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
+                "who": self.who}
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> ServiceEntry:
+        if not isinstance(body, dict):
+            raise _where(path, "an object", body)
+        return cls(_str(body, "name", path), _str(body, "ros_type", path), _bool(body, "read_only", path),
+                   _num(body, "timeout", path), _who(body, path, OPERATORS))
+
+
+@dataclass(frozen=True, slots=True)
+class ActionEntry:
+    """A ROS action users may send goals to: ``from/<user>/goal/<name>``, ``cancel/<name>``."""
+
+    name: str
+    ros_type: str
+    viewers: bool = False  # viewers may send goals too
+    timeout: float | None = None  # s from acceptance to result
+    feedback_rate: float | None = None  # Hz at most per goal
+    who: str = OPERATORS
+
+    def to_body(self) -> dict[str, Any]:
+        return {"name": self.name, "ros_type": self.ros_type, "viewers": self.viewers, "timeout": self.timeout,
+                "feedback_rate": self.feedback_rate, "who": self.who}
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> ActionEntry:
+        if not isinstance(body, dict):
+            raise _where(path, "an object", body)
+        return cls(_str(body, "name", path), _str(body, "ros_type", path), _bool(body, "viewers", path),
+                   _num(body, "timeout", path), _num(body, "feedback_rate", path), _who(body, path, OPERATORS))
+
+
+def _entries(body: dict[str, Any], key: str, cls: Any) -> tuple[Any, ...]:
+    items = body.get(key, [])
+    if not isinstance(items, list):
+        raise _where(key, "an array", items)
+    return tuple(cls.from_body(item, f"{key}[{i}]") for i, item in enumerate(items))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotDescription:
+    """What one robot maps, retained on ``state/description`` by its bridge (read by every granted user)."""
+
+    robot: str
+    system_id: int
+    type: str = "ground"  # RobotType name, lower case
+    protocol_version: int = ROSLINK_VERSION
+    ros_version: int = ROS_VERSION
+    limits: dict[str, Any] = field(default_factory=dict)  # {"linear": m/s, "angular": rad/s, "mode": …}
+    state: tuple[StateEntry, ...] = ()
+    commands: tuple[CommandEntry, ...] = ()
+    services: tuple[ServiceEntry, ...] = ()
+    actions: tuple[ActionEntry, ...] = ()
+    types: dict[str, Layout] = field(default_factory=dict)  # ROS type name → field layout
+
+    FIELDS = (
+        BodyField("robot", "string", True, "the robot's name"),
+        BodyField("system_id", "integer", True, "its ROSLink system id"),
+        BodyField("type", "string", True, "its ROSLink robot type: `generic`, `ground`, `quadrotor`, …"),
+        BodyField("protocol_version", "integer", True, "the ROSLink protocol version its bridge speaks "
+                                                       f"({ROSLINK_VERSION})"),
+        BodyField("ros_version", "integer", True, f"the envelope's `ros_version` ({ROS_VERSION}: ROS 2 Jazzy)"),
+        BodyField("limits", "object", True, "the bridge's velocity limits: `linear` (m/s), `angular` (rad/s), "
+                                            "`mode` (`norm` or `per_axis`); a velocity command may have its "
+                                            "own (`limits` in its entry)"),
+        BodyField("state", "array of objects", True, "what the robot publishes on `state/<name>`: `name`, "
+                                                     "`message` (the ROSLink message, for presets), `ros_type` "
+                                                     "(the ROS type it comes from; without `message` the body is "
+                                                     "that message as JSON), optional `retained`, `max_rate` "
+                                                     "(Hz), `fields` (MQTT field → ROS field path), and `who`: "
+                                                     "`viewers`. Includes the bridge's own `ack`"),
+        BodyField("commands", "array of objects", True, "what the robot takes on `from/<user>/<name>`: `name` "
+                                                        "(`cmd/twist`, a generic rule's `lights`), `message` "
+                                                        "(ROSLink command) or the ROS JSON of `ros_type`, optional "
+                                                        "`on_demand`, `fields`, `limits` (velocity inputs: what "
+                                                        "the bridge clamps to), and `who`: `operators`"),
+        BodyField("services", "array of objects", True, "ROS services to `call/<name>`: `name`, `ros_type`, "
+                                                        "`read_only`, `timeout` (s), `who` (`viewers` when "
+                                                        "read-only, else `operators`)"),
+        BodyField("actions", "array of objects", True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
+                                                       "`viewers`, `timeout` (s), `feedback_rate` (Hz), `who` "
+                                                       "(`viewers` when open to viewers, else `operators`)"),
+        BodyField("types", "object", True, "every ROS type named above → its field layout: field → primitive "
+                                           "type as a .msg file spells it (`float64`, `string`, `float64[36]`, "
+                                           "`int32[]`, `string<=10`) or, "
+                                           "for a nested message, `{\"type\": \"pkg/msg/Type\", \"fields\": "
+                                           "{…}}`; a service is `{\"request\", \"response\"}`, an action "
+                                           "`{\"goal\", \"result\", \"feedback\"}`"),
+    )
+    QOS = 1
+    RETAINED = True
+
+    def to_json(self) -> bytes:
+        return orjson.dumps({
+            "robot": self.robot, "system_id": self.system_id, "type": self.type,
+            "protocol_version": self.protocol_version, "ros_version": self.ros_version, "limits": self.limits,
+            "state": [e.to_body() for e in self.state], "commands": [e.to_body() for e in self.commands],
+            "services": [e.to_body() for e in self.services], "actions": [e.to_body() for e in self.actions],
+            "types": self.types,
+        })
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> RobotDescription:
+        body = loads(data)
+        if not isinstance(body, dict):
+            raise ProtocolError(f"description: expected a JSON object, got {describe(body)}")
+        robot = _str(body, "robot", "")
+        system_id = body.get("system_id")
+        if isinstance(system_id, bool) or not isinstance(system_id, int):
+            raise _where("system_id", "an integer", system_id)
+        versions = []
+        for key, default in (("protocol_version", ROSLINK_VERSION), ("ros_version", ROS_VERSION)):
+            value = body.get(key, default)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise _where(key, "an integer", value)
+            versions.append(value)
+        limits, types = body.get("limits", {}), body.get("types", {})
+        if not isinstance(limits, dict):
+            raise _where("limits", "an object", limits)
+        if not isinstance(types, dict) or not all(isinstance(v, dict) for v in types.values()):
+            raise _where("types", "an object of ROS type → field layout", types)
+        return cls(robot, system_id, _str(body, "type", "", required=False) or "generic", versions[0], versions[1],
+                   limits, _entries(body, "state", StateEntry), _entries(body, "commands", CommandEntry),
+                   _entries(body, "services", ServiceEntry), _entries(body, "actions", ActionEntry), types)
+
+    # -- reading it --------------------------------------------------------------------------------------
+    def entry(self, name: str) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | None:
+        """The first entry called ``name`` (state, then commands, services, actions)."""
+        for entries in (self.state, self.commands, self.services, self.actions):
+            for e in entries:
+                if e.name == name:
+                    return e
+        return None
+
+    def layout(self, ros_type: str | None) -> Layout | None:
+        """The field layout of ``ros_type`` (None when the description has none)."""
+        return self.types.get(ros_type) if ros_type else None
+
+
+# docs/protocol.md's example (protocol/reference.py renders it)
+EXAMPLE = RobotDescription(
+    "turtle1", 1, "ground", limits={"linear": 0.5, "angular": 1.5, "mode": "norm"},
+    state=(StateEntry("battery_voltage", None, "std_msgs/msg/Float32", max_rate=1.0), StateEntry("ack", "ack")),
+    commands=(CommandEntry(join_leaf(Verb.CMD, "twist"), "twist", "geometry_msgs/msg/Twist",
+                           limits={"linear": 0.5, "angular": 1.5, "mode": "norm"}),
+              CommandEntry("lights", None, "std_msgs/msg/Bool", on_demand=True)),
+    services=(ServiceEntry("reset", "std_srvs/srv/Trigger", False, 5.0),),
+    actions=(ActionEntry("fibonacci", "test_msgs/action/Fibonacci", False, 30.0, 5.0),),
+    types={"std_msgs/msg/Float32": {"data": "float32"},
+           "geometry_msgs/msg/Twist": {part: {"type": "geometry_msgs/msg/Vector3",
+                                              "fields": {"x": "float64", "y": "float64", "z": "float64"}}
+                                       for part in ("linear", "angular")},
+           "std_msgs/msg/Bool": {"data": "bool"},
+           "std_srvs/srv/Trigger": {"request": {}, "response": {"success": "bool", "message": "string"}},
+           "test_msgs/action/Fibonacci": {"goal": {"order": "int32"}, "result": {"sequence": "int32[]"},
+                                          "feedback": {"sequence": "int32[]"}}},
+)
+
+# (title, topic, type) for the rendered reference, after the goal bodies
+DESCRIPTION_BODIES: tuple[tuple[str, str, type], ...] = (
+    ("robot description", f"`{_DOC.state('<robot>', DESCRIPTION)}` (written by the robot's bridge)",
+     RobotDescription),
+)
