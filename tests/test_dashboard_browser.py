@@ -452,12 +452,22 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.37)], "bob's twist reached ROS"
         assert (robot_row(driver, "turtle1") or {}).get("status") == "active", "bob's e-stop reached the robot"
         assert driver.execute_script("return document.getElementById('conn').dataset.state") == "connected"
+
+        # A camera image, when the robot maps one, is shown to viewers too (played here as turtle1's state/image:
+        # the demo fleet maps no camera). A 1×1 PNG.
+        png = ("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8z8BQDwAEhQGAhKmMIQAAAABJRU5ErkJggg==")
+        with TestClient(stack["broker"].port, "turtle1", "turtle1-demo") as robot:
+            assert robot.connect() == 0
+            robot.publish("roslink/turtle1/state/image", {"message_id": 5, "system_id": 1, "payload": {
+                "time_usec": 0, "width": 1, "height": 1, "format": "png", "data": png}})
+            wait_until("the camera image", lambda: visible(driver, "camera-box") and driver.execute_script(
+                "const i = document.getElementById('camera'); return i.complete && i.naturalWidth === 1"))
         no_console_errors(driver)
         driver.execute_script("window.dashboard.client.publish(`roslink/operators/bob/${window.dashboard.clientId}`,"
                               " '', {retain: true, qos: 1})")
 
 
-def test_carol_does_not_see_turtle1(stack, tmp_path) -> None:
+def test_carol_does_not_see_turtle1_but_her_turtle2_online_stale_offline(stack, tmp_path) -> None:
     with browser(tmp_path, "carol") as driver:
         login(driver, stack["url"], "carol", "carol-demo")
         logged_in(driver, "carol")
@@ -467,6 +477,32 @@ def test_carol_does_not_see_turtle1(stack, tmp_path) -> None:
         seen = driver.execute_script("return [...window.dashboard.robots.keys()]")
         assert seen == [], seen
         assert not visible(driver, "notice"), "carol's subscriptions were refused"
+
+        # Her own turtle2 (no bridge runs: admin plays its heartbeat) appears online, goes stale when the beats
+        # stop without a will, and offline on the bridge's last-will; no access report, so no controls.
+        def heartbeat(status: int) -> dict[str, Any]:
+            return {"message_id": 0, "system_id": 2, "payload": {"type": 1, "name": "turtle2", "system_status": status,
+                                                                  "owner_id": "", "mode": 2, "session": 7}}
+
+        with TestClient(stack["broker"].port, "admin", "admin-demo") as admin:
+            assert admin.connect() == 0
+            try:
+                admin.publish("roslink/turtle2/heartbeat", heartbeat(4))
+                row = wait_until("turtle2 online", lambda: (r := robot_row(driver, "turtle2")) and
+                                 r["presence"] == "online" and r)
+                assert row["session"] == "7" and row["mode"] == "GUIDED" and row["status"] == "active", row
+                assert not visible(driver, "controls") and not visible(driver, "estop")
+                assert "access report" in driver.find_element("id", "viewer-note").text
+                t_last = time.monotonic()
+                stale = wait_until("turtle2 stale", lambda: (robot_row(driver, "turtle2") or {}).get("presence")
+                                   == "stale", timeout=10)
+                assert stale and time.monotonic() - t_last >= 4.5  # 5 s without a heartbeat
+                admin.publish("roslink/turtle2/heartbeat", heartbeat(8), retain=True)
+                wait_until("turtle2 offline", lambda: (robot_row(driver, "turtle2") or {}).get("presence") == "offline")
+                assert robot_row(driver, "turtle1") is None
+            finally:
+                admin.publish("roslink/turtle2/heartbeat", b"", retain=True)  # leave no retained heartbeat behind
+        wait_until("turtle2 gone with its cleared heartbeat", lambda: robot_row(driver, "turtle2") is None)
 
 
 def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None:
