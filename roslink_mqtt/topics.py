@@ -32,6 +32,7 @@ SEPARATOR = "/"
 ANY = "+"  # one level of a subscription filter or ACL pattern
 REST = "#"  # every level below, as the last level of a filter
 SYS_TOPICS = "$SYS/#"  # the broker's own topics (outside the tree; admins may read them)
+PARAM_EVENTS = "parameter_events"  # state/parameter_events/<node>
 
 
 class TopicError(ValueError):
@@ -102,6 +103,7 @@ class Verb(Enum):
     ADVERTISE = "advertise"  # keep a generic rule's ROS publisher (retained; empty withdraws): advertise/<rule>
     GOAL = "goal"  # send a goal to a ROS action: goal/<action>
     CANCEL = "cancel"  # cancel one of your goals: cancel/<action>
+    PARAM = "param"  # get, set, list or describe a ROS node's parameters: param/<node>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -110,6 +112,7 @@ class Verb(Enum):
     GOAL_STATUS = "goal_status"  # a goal accepted, rejected or being canceled: goal_status/<action>
     FEEDBACK = "feedback"  # a goal's progress (newest wins): feedback/<action>
     RESULT = "result"  # a goal's end: result/<action>
+    PARAM_REPLY = "param_reply"  # the answer to a param request: param_reply/<node>
 
     @property
     def meaning(self) -> str:
@@ -146,9 +149,12 @@ _MEANINGS = {
     Verb.GOAL_STATUS: "your goal was accepted, rejected, or is being canceled",
     Verb.FEEDBACK: "your goal's progress (rate-limited, newest wins)",
     Verb.RESULT: "your goal ended: succeeded, aborted, canceled or timed out, with the ROS result",
+    Verb.PARAM: "get, set, list or describe the parameters of one of the robot's ROS nodes",
+    Verb.PARAM_REPLY: "the answer to your `param/<node>` request",
 }
 
-USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL})
+USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
+                        Verb.PARAM})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
@@ -283,6 +289,13 @@ class TopicTree:
 
     def cancel(self, robot: str, user: str, action: str) -> str:
         return self.user_topic(robot, user, Verb.CANCEL, check_path(action, "action"))
+
+    def param(self, robot: str, user: str, node: str) -> str:
+        return self.user_topic(robot, user, Verb.PARAM, check_name(node, "parameter node"))
+
+    def param_events(self, robot: str, node: str) -> str:
+        """Changes of ``node``'s parameters (from ROS ``/parameter_events``): a state topic, never retained."""
+        return self.state(robot, join(PARAM_EVENTS, check_name(node, "parameter node")))
 
     def error(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ERROR)

@@ -17,7 +17,8 @@ from roslink_mqtt.topics import USER_VERBS, Verb
 pytestmark = pytest.mark.unit
 
 NAMES = {Verb.CMD: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.RESPONSE: "plan",
-         Verb.ADVERTISE: "lights", Verb.GOAL: "fibonacci", Verb.CANCEL: "fibonacci"}
+         Verb.ADVERTISE: "lights", Verb.GOAL: "fibonacci", Verb.CANCEL: "fibonacci",
+         Verb.PARAM: "sim_robot"}
 USER_VERBS = sorted(USER_VERBS, key=lambda v: v.value)  # what users send; the robot's verbs are not asked about
 
 
@@ -32,6 +33,7 @@ def test_an_operator_may_do_everything(verb: Verb, read_only: bool) -> None:
     (Verb.CALL, True, True),  # what a viewer may do besides watching, where the fleet file opens it
     (Verb.CALL, False, False),
     (Verb.GOAL, True, True), (Verb.GOAL, False, False), (Verb.CANCEL, True, True), (Verb.CANCEL, False, False),
+    (Verb.PARAM, True, True), (Verb.PARAM, False, False),  # read_only: a read, or a node with viewers_may_set
     (Verb.CMD, False, False), (Verb.CMD, True, False),  # read_only means nothing outside calls
     (Verb.PROVIDE, False, False), (Verb.PROVIDE, True, False),
     (Verb.ADVERTISE, False, False), (Verb.ADVERTISE, True, False),

@@ -31,6 +31,7 @@ from rclpy.node import Node
 
 from ..config import ActionRule, Robot, Role
 from ..protocol import ProtocolError
+from ..protocol.control import request_id
 from ..protocol.goals import (
     ACCEPTED,
     CANCELED,
@@ -109,7 +110,7 @@ class ActionCaller:
         try:
             request = GoalRequest.from_json(payload)
         except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload)
+            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
             return
         entry = self.actions.get(name)
         if entry is None:
@@ -146,7 +147,7 @@ class ActionCaller:
         try:
             request = GoalCancel.from_json(payload)
         except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload)
+            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
             return
         rule = self.actions.get(name)
         if rule is not None:

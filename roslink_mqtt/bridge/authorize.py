@@ -18,8 +18,9 @@ from __future__ import annotations
 from ..config import Role
 from ..topics import Verb
 
-# what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true)
-VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL})
+# what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true,
+# reading parameters, setting those of a node with viewers_may_set)
+VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM})
 
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
@@ -43,6 +44,8 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"send goals to '{name}'"
     if verb is Verb.CANCEL:
         return f"cancel goals of '{name}'"
+    if verb is Verb.PARAM:
+        return f"set parameters of '{name}'"
     return f"publish on '{name}'"
 
 

@@ -25,6 +25,7 @@ from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
+from .parameters import ParameterBridge
 from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
 from .routes import Inbound
@@ -181,7 +182,10 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(str(err)) from None
         self.actuators.actions = self.actions
+        self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
+                                          lambda user: self._is_live(user), self._refuse)
         self.endpoint.handlers.update({
+            Verb.PARAM: self.parameters.handle,
             Verb.GOAL: self.actions.goal,
             Verb.CANCEL: self.actions.cancel,
             Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),
@@ -262,6 +266,14 @@ class Bridge:
         self.endpoint.link_up()
         self.endpoint.publish_heartbeat()
         self.publish_access()
+        self.publish_description()
+
+    def publish_description(self) -> None:
+        """Retained ``state/description``: what this robot maps, with field layouts (bridge/description.py)."""
+        from .description import description_message
+
+        topic, body = description_message(self.robot, self.topics)
+        self.link.publish(topic, body, qos=1, retain=True)
 
     def publish_access(self, cleared: list[str] = ()) -> None:
         """Retained ``to/<user>/access`` for every granted user (bridge/access.py says why); clear ``cleared``."""
@@ -312,5 +324,6 @@ class Bridge:
         self.provided.expire(now)
         self.actuators.expire(now)
         self.actions.supervise(now)
+        self.parameters.expire(now)
         self.provided.refresh()
         self.on_demand.refresh()

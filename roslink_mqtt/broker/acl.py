@@ -11,7 +11,8 @@ With ``P`` the fleet prefix (``roslink``):
 * user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
   writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
   ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``, and ``P/R/from/U/goal/<a>`` and
-  ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``.
+  ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``, and ``P/R/from/U/param/<n>`` for
+  its exposed parameter nodes (reads; the bridge refuses a viewer's set unless ``viewers_may_set``).
 * an admin reads and writes ``#`` and reads ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
 * an unknown login (and anonymous) may do nothing.
 
@@ -156,6 +157,9 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
                 if action.viewers:
                     entries += [AclEntry(t.goal(robot, user, action.name), Access.WRITE),
                                 AclEntry(t.cancel(robot, user, action.name), Access.WRITE)]
+            # viewers read every exposed node's parameters (the bridge refuses a set unless viewers_may_set)
+            entries += [AclEntry(t.param(robot, user, rule.name), Access.WRITE)
+                        for rule in fleet.robots[robot].parameters]
     return entries
 
 

@@ -12,6 +12,7 @@ from .model import (
     FailsafeAction,
     Fleet,
     Grant,
+    ParameterRule,
     Robot,
     Role,
     RosQos,
@@ -26,7 +27,7 @@ from .yamlsource import ConfigError
 
 __all__ = [
     "ActionRule", "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
-    "PasswordHashError",
+    "ParameterRule", "PasswordHashError",
     "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",
 ]

@@ -34,6 +34,7 @@ from .model import (
     FailsafeAction,
     Fleet,
     Grant,
+    ParameterRule,
     Robot,
     Role,
     RosQos,
@@ -245,7 +246,8 @@ class _FleetReader:
         return robots
 
     def robot(self, path: Path, name: str) -> Robot:
-        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services", "actions"))
+        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services", "actions",
+                            "parameters"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         return Robot(
@@ -258,6 +260,7 @@ class _FleetReader:
             rules=self.rules(path + ("rules",)) if "rules" in self.get(path) else (),
             services=self.services(path + ("services",)) if "services" in self.get(path) else (),
             actions=self.actions(path + ("actions",)) if "actions" in self.get(path) else (),
+            parameters=self.parameters(path + ("parameters",)) if "parameters" in self.get(path) else (),
         )
 
     def limits(self, path: Path) -> VelocityLimits:
@@ -436,6 +439,22 @@ class _FleetReader:
                                   self.value(ap, "timeout", self.number(0, 86400, open_low=True), 60.0),
                                   self.value(ap, "feedback_rate", self.number(0, 1000, open_low=True), 10.0),
                                   self.src.line_of(ap)))
+        return tuple(out)
+
+    def parameters(self, path: Path) -> tuple[ParameterRule, ...]:
+        out: list[ParameterRule] = []
+        names: set[str] = set()
+        for i in range(len(self.sequence(path))):
+            pp = path + (i,)
+            self.mapping(pp, ("node", "name", "viewers_may_set", "timeout"))
+            node = self.value(pp, "node", self.ros_name)
+            name = self.value(pp, "name", self.topic_name("parameter name"), None) or node.strip("/~").replace("/", "_")
+            if name in names:
+                raise self.err(pp + ("name",), f"parameter node name '{name}' is used twice")
+            names.add(name)
+            out.append(ParameterRule(name, node, self.value(pp, "viewers_may_set", self.boolean, False),
+                                     self.value(pp, "timeout", self.number(0, 3600, open_low=True), 5.0),
+                                     self.src.line_of(pp)))
         return tuple(out)
 
     def users(self, path: Path, robots: dict[str, Robot]) -> dict[str, User]:

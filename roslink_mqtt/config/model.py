@@ -120,6 +120,17 @@ class ActionRule:
 
 
 @dataclass(frozen=True, slots=True)
+class ParameterRule:
+    """A ROS node whose parameters MQTT users may read (every granted user) and set (operators)."""
+
+    name: str  # MQTT name: param/<name>
+    node: str  # the ROS node's name; relative names resolve in the bridge node's namespace
+    viewers_may_set: bool = False  # viewers may set too (they may always read)
+    timeout: float = 5.0  # s for the node's parameter services to answer
+    line: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class FailsafeAction:
     """A ROS message the bridge publishes on every failsafe stop (e.g. cancel a goal, raise an e-stop line)."""
 
@@ -158,6 +169,7 @@ class Robot:
     rules: tuple[Rule, ...] = ()
     services: tuple[ServiceRule, ...] = ()
     actions: tuple[ActionRule, ...] = ()
+    parameters: tuple[ParameterRule, ...] = ()
 
     def service(self, name: str) -> ServiceRule | None:
         return next((s for s in self.services if s.name == name), None)

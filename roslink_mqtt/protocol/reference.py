@@ -26,8 +26,11 @@ from .control import (
     ProviderResponse,
     ServiceOffer,
 )
+from .description import DESCRIPTION_BODIES, RobotDescription
+from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
+from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
 END = "<!-- END GENERATED: message reference -->"
@@ -36,9 +39,15 @@ END_CONTROL = "<!-- END GENERATED: control bodies -->"
 BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.reference) -->"
 END_VERBS = "<!-- END GENERATED: verbs -->"
 
-DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES  # in the order docs/protocol.md shows them
+# in the order docs/protocol.md shows them
+DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES + PARAM_BODIES + DESCRIPTION_BODIES
 
 _CONTROL_EXAMPLES: dict[type, object] = {
+    RobotDescription: DESCRIPTION_EXAMPLE,
+    ParamRequest: ParamRequest("p-1", "set", values={"max_speed": 0.3}, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    ParamReply: ParamReply("p-1", True, {"max_speed": {"successful": True, "reason": ""}},
+                           client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    ParamEvent: ParamEvent("/sim_robot", changed={"max_speed": 0.3}),
     GoalRequest: GoalRequest("dock-3", {"order": 5}, "alice-sdk-5f2c9e0a1b3d4c6e"),
     GoalCancel: GoalCancel("dock-3", "alice-sdk-5f2c9e0a1b3d4c6e"),
     GoalStatus: GoalStatus("dock-3", "accepted", client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
@@ -161,8 +170,10 @@ def render_verbs() -> str:
     doc = TopicTree()
     out = [BEGIN_VERBS, "", "| verb | topic | retained by its sender | meaning |", "|---|---|---|---|"]
     for verb in Verb:
-        name = "<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else (
-            "<command>" if verb is Verb.CMD else "<rule>")
+        name = ("<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else
+                "<action>" if verb in (Verb.GOAL, Verb.CANCEL, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT) else
+                "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY) else
+                "<command>" if verb is Verb.CMD else "<rule>")
         topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
         out.append(f"| `{verb.value}` | `{topic}` | {'yes' if verb.retained_by_sender else 'no'} | {verb.meaning} |")
     out += ["", "A topic under `from/<user>/` whose first level is none of the user's verbs is a generic rule's "

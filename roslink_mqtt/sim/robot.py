@@ -24,6 +24,7 @@ import os
 
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState, LaserScan, NavSatFix, NavSatStatus
@@ -47,6 +48,12 @@ class SimRobot(Node):
         self.lat0 = float(self.declare_parameter("origin_lat", 24.7136).value)
         self.lon0 = float(self.declare_parameter("origin_lon", 46.6753).value)
         self.world = World(half_size=float(self.declare_parameter("room_half_size", 5.0).value))
+        # max_speed is worth tuning live (ros2 param set, or over MQTT): the motion model reads it every command
+        self.world.max_speed = float(self.declare_parameter(
+            "max_speed", 1.0, ParameterDescriptor(description="top forward speed of the motors, m/s",
+                                                  floating_point_range=[FloatingPointRange(from_value=0.0,
+                                                                                           to_value=5.0)])).value)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
         self.battery = 100.0
         self.odom_pub = self.create_publisher(Odometry, "odom", 10)
         self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
@@ -77,6 +84,14 @@ class SimRobot(Node):
         dds = f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')} " + " ".join(
             f"{k}={os.environ.get(k, '(unset)')}" for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION"))
         self.get_logger().info(f"simulated robot ready in a {2 * self.world.half_size:g} m room; DDS: {dds}")
+
+    def on_set_parameters(self, parameters: list) -> SetParametersResult:
+        """Apply max_speed when it changes (the descriptor's range has refused values outside 0..5 already)."""
+        for parameter in parameters:
+            if parameter.name == "max_speed":
+                self.world.max_speed = float(parameter.value)
+                self.get_logger().info(f"max_speed is now {self.world.max_speed:g} m/s")
+        return SetParametersResult(successful=True)
 
     def on_cmd_vel(self, msg: Twist) -> None:
         self.world.command(msg.linear.x, msg.angular.z)

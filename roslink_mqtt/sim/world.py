@@ -26,13 +26,15 @@ class World:
     pose: Pose | None = None
     v: float = 0.0  # commanded forward speed, m/s
     w: float = 0.0  # commanded turn rate, rad/s
+    max_speed: float = 1.0  # m/s the motors can do: faster commands are driven at this speed (a parameter)
 
     def __post_init__(self) -> None:
         if self.pose is None:
             self.pose = Pose()
 
     def command(self, v: float, w: float) -> None:
-        self.v = v if math.isfinite(v) else 0.0
+        v = v if math.isfinite(v) else 0.0
+        self.v = max(-self.max_speed, min(self.max_speed, v))
         self.w = w if math.isfinite(w) else 0.0
 
     def step(self, dt: float) -> None:
