@@ -9,15 +9,19 @@ refusals: a viewer's set, an unexposed node, a wrong type, a malformed request.
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
 import time
 from types import SimpleNamespace
 
+import orjson
 import pytest
 
 from .support.broker_setup import ExportedMosquitto, write_fleet
 from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.mqtt_client import TestClient
-from .support.procs import bridge_args, bridge_env, run
+from .support.procs import ROOT, bridge_args, bridge_env, run
 from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(180)
@@ -117,3 +121,33 @@ def test_refusals_go_to_the_error_topic(stack, user: str, node: str, body: dict,
     answer = ask(getattr(stack, user), user, body, node=node)
     assert why in answer.get("refused", ""), answer
     assert ask(stack.alice, "alice", {"op": "get", "names": ["max_speed"]})["values"] == {"max_speed": 1.0}
+
+
+# -- SDK and CLI ------------------------------------------------------------------------------------------
+def test_sdk_and_cli(stack) -> None:
+    from roslink_mqtt.client import ParameterError, RobotClient
+
+    url = f"mqtt://127.0.0.1:{stack.port}"
+    with RobotClient("alice", "alice-demo", url=url, robots=["turtle1"]) as alice:
+        alice.wait_for_robot("turtle1", timeout=10)
+        assert alice.get_parameters("turtle1", NODE, ["max_speed"]) == {"max_speed": 1.0}
+        assert "max_speed" in alice.list_parameters("turtle1", NODE)
+        assert alice.describe_parameters("turtle1", NODE, ["max_speed"])["max_speed"]["type"] == "double"
+        assert alice.set_parameters("turtle1", NODE, {"max_speed": 0.5}) == {"max_speed": {"successful": True,
+                                                                                          "reason": ""}}
+        with pytest.raises(ParameterError, match="values.max_speed: expected double, got string"):
+            alice.set_parameters("turtle1", NODE, {"max_speed": "fast"})
+        with pytest.raises(ParameterError, match="does not expose parameters"):
+            alice.get_parameters("turtle1", "elsewhere", ["x"])
+    env = {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}
+    base = [sys.executable, "-m", "roslink_mqtt.cli.main", "param"]
+    conn = ["--url", url, "-u", "alice"]
+    got = subprocess.run([*base, "get", "turtle1", NODE, "max_speed", *conn], capture_output=True, text=True,
+                         env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
+    assert got.returncode == 0 and orjson.loads(got.stdout) == {"max_speed": 0.5}, got.stdout + got.stderr
+    set_ = subprocess.run([*base, "set", "turtle1", NODE, "max_speed", "1.0", *conn], capture_output=True,
+                          text=True, env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
+    assert set_.returncode == 0, set_.stdout + set_.stderr
+    bad = subprocess.run([*base, "set", "turtle1", NODE, "max_speed", "7", *conn], capture_output=True, text=True,
+                         env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
+    assert bad.returncode == 1 and '"successful": false' in bad.stdout, bad.stdout

@@ -18,14 +18,15 @@ from . import (
     echo_cmd,
     fleet_cmd,
     monitor_cmd,
+    param_cmd,
     passwd_cmd,
     pub_cmd,
     robots_cmd,
     teleop_cmd,
 )
 
-SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, teleop_cmd, monitor_cmd, passwd_cmd, fleet_cmd,
-               acl_cmd, dashboard_cmd)
+SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, param_cmd, teleop_cmd, monitor_cmd, passwd_cmd,
+               fleet_cmd, acl_cmd, dashboard_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 

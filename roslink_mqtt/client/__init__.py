@@ -32,6 +32,7 @@ from .errors import (
     LoginRefused,
     NodeDestroyed,
     NotConnectedError,
+    ParameterError,
     RobotError,
     RoslinkError,
     ServiceError,
@@ -74,8 +75,8 @@ _FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription"
 __all__ = [
     "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
     "GeoTaggedImage", "GetMap", "GlobalMotion", "GoalError", "GoalHandle", "GoToWaypoint", "GpsRawInfo", "Heartbeat",
-    "Image", "InvalidArgument",
-    "InvalidType", "Land", "LoginRefused", "Map", "Node", "NodeDestroyed", "NotConnectedError", "OperatorPresence",
+    "Image", "InvalidArgument", "InvalidType", "Land", "LoginRefused", "Map", "Node", "NodeDestroyed",
+    "NotConnectedError", "OperatorPresence", "ParameterError",
     "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
     "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",
     "Subscription", "SubscriptionFailed", "Takeoff", "Timer", "Twist", "WaitTimeout", "create_node", "init", "ok",

@@ -119,6 +119,14 @@ class GoalError(RoslinkError):
         self.robot, self.action, self.goal_id, self.reason = robot, action, goal_id, reason
 
 
+class ParameterError(RoslinkError):
+    """A parameter request was refused, or the node did not answer (not running, timeout)."""
+
+    def __init__(self, robot: str, node: str, reason: str) -> None:
+        super().__init__(f"{robot}/{node} parameters: {reason}")
+        self.robot, self.node, self.reason = robot, node, reason
+
+
 class CommandRefused(RoslinkError):
     """A command was refused by the robot (raised by commands sent with ``check=``)."""
 

@@ -62,6 +62,7 @@ from .errors import (
     WaitTimeout,
 )
 from .goals import ActionGoals, FeedbackCallback, GoalHandle
+from .params import ParameterRequests
 from .providers import Handler, ProvidedService, ServiceProviders
 from .subscriptions import StateItem, StateSubscription
 
@@ -111,6 +112,8 @@ class RobotClient:
         self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username, client_id=self.client_id)
         self._providers = ServiceProviders(self.connection, self.topics, username)
         self._goals = ActionGoals(self.connection, self.callbacks, self.topics, username, client_id=self.client_id)
+        self._params = ParameterRequests(self.connection, self._scheduler, self.topics, username,
+                                         client_id=self.client_id)
         self._advertisements = Advertisements(self.connection, self.topics, username)
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
@@ -157,6 +160,7 @@ class RobotClient:
             self._advertisements.withdraw_all()
         self._calls.fail_all("the client was closed")
         self._goals.fail_all("the client was closed")
+        self._params.fail_all("the client was closed")
         self.connection.close()
         self._scheduler.close()
         if self._dispatcher is not None:
@@ -188,6 +192,34 @@ class RobotClient:
         """What the broker lets us do on ``robot`` (``.role``, ``.services``), from its bridge; None if unknown."""
         with self._access_changed:
             return self._access.get(robot)
+
+    def description(self, robot: str, timeout: float = 5.0) -> Any:
+        """What ``robot`` maps (a :class:`~roslink_mqtt.protocol.description.RobotDescription`): its state,
+        commands, services and actions, each marked with who may use it, and the field layout of every ROS type.
+
+        Read from the bridge's retained ``state/description``; WaitTimeout when none comes within ``timeout``
+        (robot never connected, or an older bridge), SubscriptionFailed when the broker refuses to let us read it.
+        """
+        from ..protocol.description import DESCRIPTION, RobotDescription
+        from .errors import SubscriptionFailed
+
+        self.connection.require(f"description of {robot}", now=False)
+        topic, box, arrived = self.topics.state(robot, DESCRIPTION), [], threading.Event()
+
+        def on_description(_topic: str, payload: bytes, _retained: bool) -> None:
+            if payload and not arrived.is_set():
+                box.append(payload)
+                arrived.set()
+
+        try:
+            if not self.connection.subscribe(topic, on_description, timeout=timeout):
+                raise SubscriptionFailed(f"the broker refused {topic} to {self.username} (is {robot} granted?)")
+            if not arrived.wait(timeout):
+                raise WaitTimeout(f"no description of {robot} within {timeout:g} s (is its bridge connected, and "
+                                  "recent enough to publish one?)")
+        finally:
+            self.connection.unsubscribe(topic, on_description)
+        return RobotDescription.from_json(box[0])
 
     # -- robots ---------------------------------------------------------------------------
     def watch(self, robot: str, *, timeout: float = 5.0) -> None:
@@ -429,6 +461,33 @@ class RobotClient:
         await asyncio.wrap_future(handle.accepted_future)
         return handle
 
+    # -- parameters of the robot's ROS nodes -------------------------------------------------------------
+    def _param(self, robot: str, node: str, op: str, timeout: float, **kwargs: Any) -> dict[str, Any]:
+        self.connection.require(f"parameter {op} on {node}")
+        self.watch(robot)
+        return self._params.start(robot, node, op, timeout=timeout, **kwargs).result()
+
+    def get_parameters(self, robot: str, node: str, names: list[str], *, timeout: float = 10.0) -> dict[str, Any]:
+        """``{name: value}`` of ``node``'s parameters (None: not declared); ParameterError if refused or silent."""
+        return self._param(robot, node, "get", timeout, names=tuple(names))
+
+    def set_parameters(self, robot: str, node: str, values: dict[str, Any], *,
+                       timeout: float = 10.0) -> dict[str, dict[str, Any]]:
+        """Set parameters; ``{name: {"successful": bool, "reason": str}}`` as the node's own validation answered.
+
+        A value of the wrong type (a string for a double…) raises ParameterError before anything is set.
+        """
+        return self._param(robot, node, "set", timeout, values=values)
+
+    def list_parameters(self, robot: str, node: str, prefixes: list[str] | None = None, *,
+                        timeout: float = 10.0) -> list[str]:
+        return list(self._param(robot, node, "list", timeout, names=tuple(prefixes or ())).get("names", []))
+
+    def describe_parameters(self, robot: str, node: str, names: list[str], *,
+                            timeout: float = 10.0) -> dict[str, dict[str, Any]]:
+        """``{name: {"type", "description", "read_only", ranges…}}``."""
+        return self._param(robot, node, "describe", timeout, names=tuple(names))
+
     def provide(self, robot: str, service: str, srv_type: str, handler: Handler, *, timeout: float = 5.0
                 ) -> ProvidedService:
         """Offer a ROS service on ``robot``: ``handler(request_fields) -> response_fields``.
@@ -498,6 +557,8 @@ class RobotClient:
             self._goals.on_feedback(robot, name, payload)
         elif verb is Verb.RESULT:
             self._goals.on_result(robot, name, payload)
+        elif verb is Verb.PARAM_REPLY:
+            self._params.on_reply(robot, name, payload)
 
     # -- what the broker lets us do ---------------------------------------------------------------
     def _on_access(self, robot: str, payload: bytes) -> None:
@@ -561,6 +622,7 @@ class RobotClient:
         """The broker refused our login on reconnect (network thread): fail what waits, tell the caller."""
         self._calls.fail_all(str(failure))
         self._goals.fail_all(str(failure))
+        self._params.fail_all(str(failure))
         with self._watch_lock:
             subscriptions = list(self._subscriptions)
         for sub in subscriptions:
@@ -578,8 +640,8 @@ class RobotClient:
                     event.set()
                     awaited = True
         self._providers.on_error(error)
-        if self._goals.on_error(error):
-            awaited = True  # the goal's handle raises it (GoalError); on_error still hears of it
+        if self._goals.on_error(error) or self._params.on_error(error):
+            awaited = True  # the goal's handle (GoalError) or the request (ParameterError) raises it
         callback = self.on_error
         if callback is not None:
             self.callbacks.put(lambda: callback(error))
