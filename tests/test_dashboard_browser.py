@@ -323,6 +323,21 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         print(f"screenshot: {shot}")
         no_console_errors(driver)
 
+        # Log out: the page signs off and clears its retained presence heartbeat (no stale operator left behind)
+        client_id = driver.execute_script("return window.dashboard.clientId")
+        presence = f"roslink/operators/alice/{client_id}"
+        with TestClient(stack["broker"].port, "admin", "admin-demo") as admin:
+            assert admin.connect() == 0
+            admin.subscribe(presence)
+            assert admin.wait_for(lambda m: m.topic == presence, timeout=3).payload  # retained, live
+            driver.find_element(By.ID, "logout").click()
+            wait_until("the login form again", lambda: visible(driver, "login") and not visible(driver, "estop"))
+            admin.wait_for(lambda m: m.topic == presence and m.payload == b"", timeout=3)
+        with TestClient(stack["broker"].port, "admin", "admin-demo") as late:
+            assert late.connect() == 0
+            late.subscribe(presence)
+            assert [m for m in late.drain(0.5) if m.payload] == [], "a retained heartbeat outlived the logout"
+
 
 def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
     from selenium.webdriver.common.by import By

@@ -145,9 +145,11 @@
       return;
     }
     dash.client = client;
-    client.on("connect", onConnect);
-    client.on("message", onMessage);
+    const current = () => dash.client === client;  // events of a client replaced by a new login are ignored
+    client.on("connect", () => { if (current()) onConnect(); });
+    client.on("message", (t, payload, packet) => { if (current()) onMessage(t, payload, packet); });
     client.on("error", (err) => {
+      if (!current()) return;
       const text = CONNACK[err && err.code] || `connection error: ${err && err.message ? err.message : err}`;
       if (err && CONNACK[err.code]) {  // a refused CONNACK: say why and stop trying
         client.options.reconnectPeriod = 0;
@@ -166,6 +168,7 @@
       else loginError(text);
     });
     client.on("close", () => {
+      if (!current()) return;
       const was = dash.connected;
       dash.connected = false;
       stopDriving(false);
@@ -178,7 +181,7 @@
         notice("connection to the broker lost: reconnecting (the robot stops on its own within its failsafe bound)");
       }
     });
-    client.on("reconnect", () => setConn("connecting", "reconnecting …"));
+    client.on("reconnect", () => { if (current()) setConn("connecting", "reconnecting …"); });
   }
 
   function onConnect() {
@@ -208,7 +211,7 @@
     stopPresence(true);
     if (dash.client) {
       dash.client.options.reconnectPeriod = 0;
-      dash.client.end(true);
+      dash.client.end(false);  // not forced: the zero twist and the sign-off above go out before DISCONNECT
     }
     dash.client = null;
     dash.connected = false;
@@ -222,6 +225,8 @@
     dash.operatorAnywhere = false;
     dash.commanding = false;
     ui.fleet.tBodies[0].replaceChildren();
+    ui.errors.replaceChildren();
+    ui.acks.replaceChildren();
     show(ui.robotView, false);
     show(ui.main, false);
     show(ui.login, true);
