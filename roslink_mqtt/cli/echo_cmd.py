@@ -4,11 +4,19 @@
 (the robot's presence, which lives outside ``state/``), or an MQTT pattern under ``state/`` such as ``'#'``
 (every state stream; each line then says which). When nothing comes, echo says why instead of exiting
 silently, with an exit status a script can tell apart (see ``EXIT_*``).
+
+``--field PATH`` prints one field of each message (``x``, ``pose.position.x``, ``ranges.0``: dotted, list
+indices as numbers) as JSON; a path the message does not have ends echo with status 2 and the fields it has.
+``--hz`` prints how often messages arrive instead of the messages, like ``ros2 topic hz``: once a second, and
+once more at the end, the average rate over every message so far and the min, max and standard deviation of the
+gaps between them. Retained messages (a replay of the last value, not a new one) are not counted. ``--count``
+then counts measured messages and ``--timeout`` bounds the measurement, as for echoing.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import queue
 import sys
 import time
@@ -25,7 +33,7 @@ from .connect import add_connection_options, open_client
 
 EXIT_OK = 0
 EXIT_TIMEOUT = 1  # some messages came, but fewer than --count before --timeout
-EXIT_USAGE = 2  # a name that cannot be a state (argparse uses 2 as well)
+EXIT_USAGE = 2  # a name that cannot be a state, a --field the messages do not have (argparse uses 2 as well)
 EXIT_NOTHING = 3  # the robot is online but nothing came on this name: it probably publishes no such state
 EXIT_OFFLINE = 4  # the robot was not seen online (offline, or not granted to you): nothing could come
 EXIT_INTERRUPTED = 130  # Ctrl-C before --count messages
@@ -35,7 +43,8 @@ HINT_AFTER = 5.0  # s without a message before a run without --timeout says what
 CENSUS_TIME = 1.2  # s to collect the robot's state names (1 Hz streams show up once)
 
 EPILOG = (f"exit status: {EXIT_OK} done (or Ctrl-C without --count); {EXIT_TIMEOUT} fewer than COUNT messages "
-          f"before --timeout; {EXIT_USAGE} bad arguments; {EXIT_NOTHING} nothing at all on NAME while the robot "
+          f"before --timeout; {EXIT_USAGE} bad arguments, or --field names a field the messages do not have; "
+          f"{EXIT_NOTHING} nothing at all on NAME while the robot "
           f"was online (it probably has no such state); {EXIT_OFFLINE} robot not online or not yours to see; "
           f"{EXIT_INTERRUPTED} Ctrl-C before COUNT messages.")
 
@@ -50,8 +59,47 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name", help="state name, e.g. global_motion, robot_status, ack; heartbeat; or '#'")
     p.add_argument("-n", "--count", type=int, default=0, help="stop after COUNT messages (0 = until Ctrl-C)")
     p.add_argument("--timeout", type=float, default=0.0, help="give up after this many seconds (0 = never)")
+    p.add_argument("--field", metavar="PATH", help="print only this field of each message, as JSON (dotted: "
+                                                   "x, pose.position.x; list items by number: ranges.0)")
+    p.add_argument("--hz", action="store_true", help="print the message rate once a second instead of the "
+                                                     "messages, like ros2 topic hz (retained messages not counted)")
     add_connection_options(p)
     p.set_defaults(run=run)
+
+
+class FieldMissing(LookupError):
+    """A --field path the message does not have; says which level was missing and what was there."""
+
+
+def field_value(message: Any, path: str) -> Any:
+    """The value at dotted ``path`` in ``message`` (list items by number); FieldMissing saying what is there."""
+    value, done = message, []
+    for key in path.split("."):
+        if isinstance(value, dict) and key in value:
+            value = value[key]
+        elif isinstance(value, list) and key.lstrip("-").isdigit() and -len(value) <= int(key) < len(value):
+            value = value[int(key)]
+        else:
+            where = ".".join(done) or "the message"
+            if isinstance(value, dict):
+                has = f"its fields: {', '.join(value) or 'none'}"
+            elif isinstance(value, list):
+                has = f"a list of {len(value)}: items 0..{len(value) - 1}" if value else "an empty list"
+            else:
+                has = f"it is {orjson.dumps(value).decode()[:40]}, not an object"
+            raise FieldMissing(f"no field '{path}': {where} has no '{key}' ({has})")
+        done.append(key)
+    return value
+
+
+def rate_report(times: list[float]) -> str:
+    """``ros2 topic hz``'s two lines for the arrival times ``times`` (monotonic seconds, at least two)."""
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    mean = sum(gaps) / len(gaps)
+    std = math.sqrt(sum((g - mean) ** 2 for g in gaps) / len(gaps))
+    rate = 1.0 / mean if mean > 0 else float("inf")
+    return (f"average rate: {rate:.3f}\n\tmin: {min(gaps):.3f}s max: {max(gaps):.3f}s std dev: {std:.5f}s "
+            f"window: {len(times)}")
 
 
 def _fail(code: int, message: str) -> int:
@@ -77,7 +125,8 @@ class _Stream:
         self.robot, self.topics, self.heartbeat, self.pattern = robot, topics, heartbeat, pattern
         self.queue: queue.Queue[Any] = queue.Queue(1000)
 
-    def handle(self, topic: str, payload: bytes, _retained: bool) -> None:
+    def handle(self, topic: str, payload: bytes, retained: bool) -> None:
+        arrived = time.monotonic()
         if not payload:  # a cleared retained message (e.g. a deleted heartbeat): nothing to show
             return
         if self.heartbeat:
@@ -98,7 +147,7 @@ class _Stream:
             if self.pattern:
                 line = {"state": leaf, "message": line}
         try:
-            self.queue.put_nowait(line)
+            self.queue.put_nowait((arrived, retained, line))
         except queue.Full:  # the printer is stuck (a paused terminal): drop rather than grow
             pass
 
@@ -118,6 +167,11 @@ def census(client: RobotClient, robot: str, seconds: float = CENSUS_TIME) -> lis
     time.sleep(seconds)
     client.connection.unsubscribe(every_state, seen)
     return sorted(names)
+
+
+def _print(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
 
 
 def _what(robot: str, name: str) -> str:
@@ -153,12 +207,16 @@ def run(args: argparse.Namespace) -> int:
         return _fail(EXIT_USAGE, str(err))
     if args.count < 0 or args.timeout < 0:
         return _fail(EXIT_USAGE, "--count and --timeout must not be negative")
+    if args.field is not None and (args.hz or pattern or not all(args.field.split("."))):
+        return _fail(EXIT_USAGE, "--field needs one state name (not a pattern), no --hz, and a path such as "
+                                 "x or pose.position.x")
     client = open_client(args, robots=[args.robot], presence=False)
     topics = client.topics
     topic = topics.heartbeat(args.robot) if name == HEARTBEAT else topics.state_filter(args.robot, name)
     stream = _Stream(args.robot, topics, heartbeat=name == HEARTBEAT, pattern=pattern)
     seen = 0
-    start = time.monotonic()
+    times: list[float] = []  # --hz: arrival of each measured message
+    start = last_report = time.monotonic()
     deadline = start + args.timeout if args.timeout else None
     hinted = False
     try:
@@ -174,13 +232,33 @@ def run(args: argparse.Namespace) -> int:
                 print(f"roslink-mqtt echo: nothing yet: {_nothing_reason(client, args.robot, name)[1]}; "
                       f"still waiting (Ctrl-C to stop)", file=sys.stderr)
                 continue
+            if args.hz and len(times) >= 2 and now - last_report >= 1.0:
+                last_report = now
+                _print(rate_report(times))
             try:
-                line = stream.queue.get(timeout=min(1.0, deadline - now) if deadline is not None else 1.0)
+                arrived, retained, line = stream.queue.get(
+                    timeout=max(0.0, min(1.0, deadline - now) if deadline is not None else 1.0))
             except queue.Empty:
                 continue
-            sys.stdout.write(orjson.dumps(line).decode() + "\n")
-            sys.stdout.flush()
+            if args.hz:
+                if retained:
+                    continue  # the broker's copy of an old value: no arrival to time
+                times.append(arrived)
+            elif args.field is not None:
+                try:
+                    line = field_value(line, args.field)
+                except FieldMissing as err:
+                    return _fail(EXIT_USAGE, f"{_what(args.robot, name)}: {err}")
+                _print(orjson.dumps(line).decode())
+            else:
+                _print(orjson.dumps(line).decode())
             seen += 1
+        if args.hz:
+            if len(times) >= 2:
+                _print(rate_report(times))
+            elif seen:
+                return _fail(EXIT_TIMEOUT, f"only 1 message on {_what(args.robot, name)} within "
+                                           f"{args.timeout:g} s: no rate")
         if seen and (not args.count or seen >= args.count):
             return EXIT_OK  # COUNT messages, or "print what comes for --timeout seconds" and some came
         if seen:
@@ -189,6 +267,8 @@ def run(args: argparse.Namespace) -> int:
         code, reason = _nothing_reason(client, args.robot, name)
         return _fail(code, f"nothing on {_what(args.robot, name)} within {args.timeout:g} s: {reason}")
     except KeyboardInterrupt:
+        if args.hz and len(times) >= 2:
+            _print(rate_report(times))
         return EXIT_INTERRUPTED if args.count and seen < args.count else EXIT_OK
     finally:
         client.close()
