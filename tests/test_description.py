@@ -71,6 +71,9 @@ def test_description_lists_exactly_what_the_fleet_file_maps(port) -> None:
     assert [(a.name, a.ros_type, a.viewers, a.timeout, a.feedback_rate) for a in d.actions] == [
         (a.name, a.ros_type, a.viewers, a.timeout, a.feedback_rate) for a in robot.actions]
     assert [a.who for a in d.actions] == [VIEWERS if a.viewers else OPERATORS for a in robot.actions]
+    assert [(p.name, p.node, p.timeout, p.set_by, p.who) for p in d.parameters] == [
+        (p.name, p.node, p.timeout, VIEWERS if p.viewers_may_set else OPERATORS, VIEWERS) for p in robot.parameters]
+    assert d.parameters  # the demo fleet exposes the sim's parameters
     twist = next(c for c in d.commands if c.message == "twist")
     assert twist.limits == d.limits
 
@@ -107,6 +110,7 @@ def test_info_prints_the_description_and_marks_what_you_may_not_use(port) -> Non
     assert "global_motion" in out and "ROSLink twist (geometry_msgs/msg/Twist)" in out
     reset = next(line for line in out.splitlines() if line.strip().startswith("reset "))
     assert "operators" in reset and "(not you)" in reset
+    assert "(you may read, not set)" in out  # the sim's parameters: bob reads, operators set
     assert "int32 order" in out and "geometry_msgs/msg/Vector3 linear" in out  # --types: interface layouts
     alice = cli(port, "alice", "info", "turtle1")
     assert alice.returncode == 0 and "you (alice): operator" in alice.stdout and "(not you)" not in alice.stdout

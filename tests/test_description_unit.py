@@ -16,6 +16,7 @@ from roslink_mqtt.protocol.description import (
     VIEWERS,
     ActionEntry,
     CommandEntry,
+    ParameterEntry,
     RobotDescription,
     ServiceEntry,
     StateEntry,
@@ -40,6 +41,9 @@ robots:
     actions:
       - {{name: fib, ros_action: fib, ros_type: test_msgs/action/Fibonacci, viewers: true, timeout: 9.0}}
       - {{name: fib2, ros_action: fib2, ros_type: test_msgs/action/Fibonacci}}
+    parameters:
+      - {{name: base, node: base_controller}}
+      - {{name: cam, node: /camera/driver, viewers_may_set: true, timeout: 2.0}}
     rules:
       - {{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/global_motion,
          preset: global_motion, max_rate: 10}}
@@ -99,6 +103,8 @@ def test_builder_lists_every_entry_of_the_config_with_who_may_use_it() -> None:
                           ServiceEntry("status", "std_srvs/srv/Trigger", True, 2.0, VIEWERS))
     assert d.actions == (ActionEntry("fib", "test_msgs/action/Fibonacci", True, 9.0, 10.0, VIEWERS),
                          ActionEntry("fib2", "test_msgs/action/Fibonacci", False, 60.0, 10.0, OPERATORS))
+    assert d.parameters == (ParameterEntry("base", "base_controller", OPERATORS, 5.0, VIEWERS),
+                            ParameterEntry("cam", "/camera/driver", VIEWERS, 2.0, VIEWERS))
     assert d.types == LAYOUTS
     assert sorted(asked) == sorted(LAYOUTS)  # each type introspected once
 
@@ -110,6 +116,9 @@ def test_who_is_the_authorization_rule_for_a_viewer() -> None:
     for a in d.actions:
         assert (a.who == VIEWERS) is allowed(Role.VIEWER, Verb.GOAL, read_only=a.viewers)
     assert all(c.who == OPERATORS for c in d.commands) and all(s.who == VIEWERS for s in d.state)
+    for p in d.parameters:
+        assert p.who == VIEWERS and allowed(Role.VIEWER, Verb.PARAM, read_only=True)
+        assert (p.set_by == VIEWERS) is allowed(Role.VIEWER, Verb.PARAM, read_only=p.node == "/camera/driver")
 
 
 def test_a_type_without_layout_is_left_out_not_fatal(caplog) -> None:
@@ -158,6 +167,8 @@ def test_unknown_fields_are_ignored_missing_lists_are_empty() -> None:
      'description: actions[0].timeout: expected a number, got "long"'),
     (b'{"robot": "r", "system_id": 1, "commands": [{"name": "c", "on_demand": 1}]}',
      "description: commands[0].on_demand: expected true or false, got 1"),
+    (b'{"robot": "r", "system_id": 1, "parameters": [{"name": "p", "node": "n", "set_by": "all"}]}',
+     'description: parameters[0].set_by: expected operators or viewers, got "all"'),
     (b'{"robot": "r", "system_id": 1, "types": {"a/msg/B": 3}}',
      "description: types: expected an object of ROS type → field layout, got an object"),
 ])

@@ -9,7 +9,8 @@ prints). :func:`description_message` gives the bridge the topic and the body to 
 
 Who may use an entry is the one authorization rule's answer for a viewer (:func:`.authorize.allowed`): state
 is for everyone granted the robot, commands for operators, services and actions for viewers where the fleet
-file opens them (``read_only``, ``viewers: true``).
+file opens them (``read_only``, ``viewers: true``); parameters are read by everyone and set by operators, or by
+viewers where ``viewers_may_set``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from ..protocol.description import (
     ActionEntry,
     CommandEntry,
     Layout,
+    ParameterEntry,
     RobotDescription,
     ServiceEntry,
     StateEntry,
@@ -71,6 +73,8 @@ def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
                 for s in robot.services]
     actions = [ActionEntry(a.name, a.ros_type, a.viewers, a.timeout, a.feedback_rate,
                            _who(Verb.GOAL, read_only=a.viewers)) for a in robot.actions]
+    parameters = [ParameterEntry(p.name, p.node, _who(Verb.PARAM, read_only=p.viewers_may_set), p.timeout,
+                                 _who(Verb.PARAM, read_only=True)) for p in robot.parameters]
     types: dict[str, Layout] = {}
     for ros_type in [e.ros_type for e in (*state, *commands, *services, *actions)]:
         if ros_type is None or ros_type in types:
@@ -82,7 +86,7 @@ def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
     kind = RobotType(robot.type).name.lower()
     return RobotDescription(robot.name, robot.system_id, kind, limits=asdict(robot.bridge.limits),
                             state=tuple(state), commands=tuple(commands), services=tuple(services),
-                            actions=tuple(actions), types=types)
+                            actions=tuple(actions), types=types, parameters=tuple(parameters))
 
 
 def description_message(robot: Robot, topics: TopicTree, fields_of: FieldsOf | None = None) -> tuple[str, bytes]:

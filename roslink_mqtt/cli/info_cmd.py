@@ -113,6 +113,11 @@ def summary(d: RobotDescription, report: AccessReport | None, user: str, *, type
     out += ["", "actions:"] + ([f"  {a.name:<22} {a.ros_type:<54} {a.who:<9} timeout {_num(a.timeout)} s, "
                                 f"feedback ≤ {_num(a.feedback_rate)} Hz" + mark("action", a.name)
                                 for a in d.actions] or ["  none"])
+    viewer = report is not None and not report.operator
+    out += ["", "parameters (everyone granted reads them):"] + (
+        [f"  {p.name:<22} node {p.node:<49} set by {p.set_by:<9} timeout {_num(p.timeout)} s"
+         + ("  (you may read, not set)" if viewer and p.set_by != "viewers" else "") for p in d.parameters]
+        or ["  none"])
     if types:
         out += ["", "types:"]
         for name, layout in d.types.items():

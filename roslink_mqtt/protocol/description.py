@@ -190,6 +190,31 @@ class ActionEntry:
                    _num(body, "timeout", path), _num(body, "feedback_rate", path), _who(body, path, OPERATORS))
 
 
+@dataclass(frozen=True, slots=True)
+class ParameterEntry:
+    """A ROS node whose parameters users may read (``param/<name>``, get/list/describe) and set."""
+
+    name: str  # the MQTT name: from/<user>/param/<name>
+    node: str  # the ROS node
+    set_by: str = OPERATORS  # who may set them (everyone granted the robot may read them)
+    timeout: float | None = None  # s for the node to answer
+    who: str = VIEWERS  # who may use it: reading is open to every granted user
+
+    def to_body(self) -> dict[str, Any]:
+        return {"name": self.name, "node": self.node, "set_by": self.set_by, "timeout": self.timeout,
+                "who": self.who}
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> ParameterEntry:
+        if not isinstance(body, dict):
+            raise _where(path, "an object", body)
+        set_by = body.get("set_by", OPERATORS)
+        if set_by not in WHO:
+            raise _where(f"{path}.set_by", f"{OPERATORS} or {VIEWERS}", set_by)
+        return cls(_str(body, "name", path), _str(body, "node", path), set_by, _num(body, "timeout", path),
+                   _who(body, path, VIEWERS))
+
+
 def _entries(body: dict[str, Any], key: str, cls: Any) -> tuple[Any, ...]:
     items = body.get(key, [])
     if not isinstance(items, list):
@@ -212,6 +237,7 @@ class RobotDescription:
     services: tuple[ServiceEntry, ...] = ()
     actions: tuple[ActionEntry, ...] = ()
     types: dict[str, Layout] = field(default_factory=dict)  # ROS type name → field layout
+    parameters: tuple[ParameterEntry, ...] = ()
 
     FIELDS = (
         BodyField("robot", "string", True, "the robot's name"),
@@ -240,6 +266,11 @@ class RobotDescription:
         BodyField("actions", "array of objects", True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
                                                        "`viewers`, `timeout` (s), `feedback_rate` (Hz), `who` "
                                                        "(`viewers` when open to viewers, else `operators`)"),
+        BodyField("parameters", "array of objects", True, "ROS nodes whose parameters `param/<name>` reads "
+                                                          "(get, list, describe: `who` is `viewers`) and sets "
+                                                          "(`set_by`: `operators`, or `viewers` where the fleet "
+                                                          "file opens it): `name`, `node` (the ROS node), "
+                                                          "`set_by`, `timeout` (s), `who`"),
         BodyField("types", "object", True, "every ROS type named above → its field layout: field → primitive "
                                            "type as a .msg file spells it (`float64`, `string`, `float64[36]`, "
                                            "`int32[]`, `string<=10`) or, "
@@ -256,7 +287,7 @@ class RobotDescription:
             "protocol_version": self.protocol_version, "ros_version": self.ros_version, "limits": self.limits,
             "state": [e.to_body() for e in self.state], "commands": [e.to_body() for e in self.commands],
             "services": [e.to_body() for e in self.services], "actions": [e.to_body() for e in self.actions],
-            "types": self.types,
+            "parameters": [e.to_body() for e in self.parameters], "types": self.types,
         })
 
     @classmethod
@@ -281,12 +312,13 @@ class RobotDescription:
             raise _where("types", "an object of ROS type → field layout", types)
         return cls(robot, system_id, _str(body, "type", "", required=False) or "generic", versions[0], versions[1],
                    limits, _entries(body, "state", StateEntry), _entries(body, "commands", CommandEntry),
-                   _entries(body, "services", ServiceEntry), _entries(body, "actions", ActionEntry), types)
+                   _entries(body, "services", ServiceEntry), _entries(body, "actions", ActionEntry), types,
+                   _entries(body, "parameters", ParameterEntry))
 
     # -- reading it --------------------------------------------------------------------------------------
-    def entry(self, name: str) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | None:
-        """The first entry called ``name`` (state, then commands, services, actions)."""
-        for entries in (self.state, self.commands, self.services, self.actions):
+    def entry(self, name: str) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | ParameterEntry | None:
+        """The first entry called ``name`` (state, then commands, services, actions, parameters)."""
+        for entries in (self.state, self.commands, self.services, self.actions, self.parameters):
             for e in entries:
                 if e.name == name:
                     return e
@@ -306,6 +338,7 @@ EXAMPLE = RobotDescription(
               CommandEntry("lights", None, "std_msgs/msg/Bool", on_demand=True)),
     services=(ServiceEntry("reset", "std_srvs/srv/Trigger", False, 5.0),),
     actions=(ActionEntry("fibonacci", "test_msgs/action/Fibonacci", False, 30.0, 5.0),),
+    parameters=(ParameterEntry("sim_robot", "sim_robot", OPERATORS, 5.0),),
     types={"std_msgs/msg/Float32": {"data": "float32"},
            "geometry_msgs/msg/Twist": {part: {"type": "geometry_msgs/msg/Vector3",
                                               "fields": {"x": "float64", "y": "float64", "z": "float64"}}
