@@ -104,6 +104,7 @@ class Verb(Enum):
     GOAL = "goal"  # send a goal to a ROS action: goal/<action>
     CANCEL = "cancel"  # cancel one of your goals: cancel/<action>
     PARAM = "param"  # get, set, list or describe a ROS node's parameters: param/<node>
+    LOG = "log"  # a log line for the robot's /rosout, from an SDK node: log/<node>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -151,10 +152,11 @@ _MEANINGS = {
     Verb.RESULT: "your goal ended: succeeded, aborted, canceled or timed out, with the ROS result",
     Verb.PARAM: "get, set, list or describe the parameters of one of the robot's ROS nodes",
     Verb.PARAM_REPLY: "the answer to your `param/<node>` request",
+    Verb.LOG: "a log line of one of your programs, for the robot's `/rosout`",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
-                        Verb.PARAM})
+                        Verb.PARAM, Verb.LOG})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
@@ -292,6 +294,9 @@ class TopicTree:
 
     def param(self, robot: str, user: str, node: str) -> str:
         return self.user_topic(robot, user, Verb.PARAM, check_name(node, "parameter node"))
+
+    def log(self, robot: str, user: str, node: str) -> str:
+        return self.user_topic(robot, user, Verb.LOG, check_name(node, "node name"))
 
     def param_events(self, robot: str, node: str) -> str:
         """Changes of ``node``'s parameters (from ROS ``/parameter_events``): a state topic, never retained."""

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.unit
 
 NAMES = {Verb.CMD: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.RESPONSE: "plan",
          Verb.ADVERTISE: "lights", Verb.GOAL: "fibonacci", Verb.CANCEL: "fibonacci",
-         Verb.PARAM: "sim_robot"}
+         Verb.PARAM: "sim_robot", Verb.LOG: "legacy_arm"}
 USER_VERBS = sorted(USER_VERBS, key=lambda v: v.value)  # what users send; the robot's verbs are not asked about
 
 
@@ -34,6 +34,7 @@ def test_an_operator_may_do_everything(verb: Verb, read_only: bool) -> None:
     (Verb.CALL, False, False),
     (Verb.GOAL, True, True), (Verb.GOAL, False, False), (Verb.CANCEL, True, True), (Verb.CANCEL, False, False),
     (Verb.PARAM, True, True), (Verb.PARAM, False, False),  # read_only: a read, or a node with viewers_may_set
+    (Verb.LOG, True, False), (Verb.LOG, False, False),  # a viewer's programs do not write the robot's /rosout
     (Verb.CMD, False, False), (Verb.CMD, True, False),  # read_only means nothing outside calls
     (Verb.PROVIDE, False, False), (Verb.PROVIDE, True, False),
     (Verb.ADVERTISE, False, False), (Verb.ADVERTISE, True, False),

@@ -28,6 +28,7 @@ from .on_demand import OnDemandPublishers
 from .parameters import ParameterBridge
 from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
+from .rosout import RosoutForwarder
 from .routes import Inbound
 from .rules import Outbound, RuleError, compile_rules, ros_qos
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
@@ -184,8 +185,10 @@ class Bridge:
         self.actuators.actions = self.actions
         self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
                                           lambda user: self._is_live(user), self._refuse)
+        self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.endpoint.handlers.update({
             Verb.PARAM: self.parameters.handle,
+            Verb.LOG: self.rosout.handle,
             Verb.GOAL: self.actions.goal,
             Verb.CANCEL: self.actions.cancel,
             Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),

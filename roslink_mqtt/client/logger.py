@@ -4,6 +4,9 @@ rclpy prints ``[INFO] [time] [node]: text`` to stderr without any setup, and
 programs ported from ROS expect to see their log lines, so the first node
 installs one stderr handler on the ``roslink_mqtt.node`` logger unless the
 application configured logging itself.
+
+A node's logger also sends every line at or above its level through the link to the robot's ``/rosout``
+(``sink``), as an rclpy node's logger does; ``set_level`` filters both.
 """
 
 from __future__ import annotations
@@ -11,7 +14,11 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
+
+# (logger name, level, text, file, function, line): where a node's log lines go besides the local log
+Sink = Callable[[str, int, str, str, str, int], None]
 
 ROOT = "roslink_mqtt.node"
 
@@ -30,14 +37,16 @@ def _ensure_handler() -> None:
 class Logger:
     """``debug/info/warn/warning/error/fatal``; ``once=True`` and ``throttle_duration_sec=`` as in rclpy."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, sink: Sink | None = None) -> None:
         _ensure_handler()
-        self.name = name
+        self.name, self.sink = name, sink
         self._log = logging.getLogger(f"{ROOT}.{name}")
+        if self._log.level == logging.NOTSET:  # rclpy's default severity, whatever the application's root level
+            self._log.setLevel(logging.INFO)
         self._last: dict[tuple[int, str], float] = {}
 
     def get_child(self, name: str) -> Logger:
-        return Logger(f"{self.name}.{name}")
+        return Logger(f"{self.name}.{name}", self.sink)
 
     def set_level(self, level: int) -> None:
         self._log.setLevel(level)
@@ -52,6 +61,14 @@ class Logger:
                 return False
             self._last[key] = now
         self._log.log(level, text, extra={"node": self.name})
+        if self.sink is not None and self._log.isEnabledFor(level):
+            caller = sys._getframe(2)  # _emit <- info() <- the program's call
+            code = caller.f_code
+            try:
+                self.sink(self.name, 50 if level >= logging.CRITICAL else level, text, code.co_filename,
+                          code.co_name, caller.f_lineno)
+            except Exception:  # the link must never break a program's logging
+                pass
         return True
 
     def debug(self, message: Any, **kwargs: Any) -> bool:

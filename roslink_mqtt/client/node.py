@@ -26,7 +26,7 @@ from typing import Any
 
 from ..connection_options import env_username
 from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
-from ..topics import DEFAULT_PREFIX, check_name, join
+from ..topics import DEFAULT_PREFIX, Verb, check_name, join
 from .calls import Values
 from .commands import command_leaf, roslink_command
 from .context import default_context
@@ -264,7 +264,7 @@ class Node:
         self.call_timeout = call_timeout
         self._callbacks = CallbackQueue()
         self._scheduler = Scheduler(f"{node_name}-timers")
-        self._logger = Logger(node_name)
+        self._logger = Logger(node_name, sink=self._to_rosout)
         username = username or env_username() or ""
         self.robot_client = RobotClient(username or None, password, url=url, robots=[self.robot],
                                   client_id=client_id or f"{username}-{node_name}-{secrets.token_hex(8)}",
@@ -384,7 +384,16 @@ class Node:
         except ValueError:
             return False
 
+    def _to_rosout(self, name: str, level: int, text: str, file: str, function: str, line: int) -> None:
+        """Log lines go to the robot's /rosout too, as an rclpy node's do (dropped while not connected)."""
+        client = getattr(self, "robot_client", None)  # not yet there while the node is being built
+        if client is not None and not self._destroyed:
+            client.send_log(self.robot, name, level, text, file, function, line)
+
     def _on_robot_error(self, error: RobotError) -> None:
+        parsed = self.robot_client.topics.parse(error.topic)
+        if parsed is not None and parsed.verb is Verb.LOG:
+            return  # a refused log line is not logged again (it would be sent, and refused, again)
         if not error.robot:  # the connection itself: the broker refused our login (spin raises it too)
             self._logger.error(error.error)
             return

@@ -43,6 +43,8 @@ from ..connection_options import (
 from ..mqtt import BrokerUrl
 from ..protocol import ProtocolError, loads
 from ..protocol.control import AccessReport
+from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
+from ..protocol.rosout import LogLine
 from ..topics import DEFAULT_PREFIX, Kind, TopicTree, Verb, check_name, state_name
 from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
@@ -460,6 +462,28 @@ class RobotClient:
         handle = await asyncio.to_thread(self.send_goal, robot, action, goal, feedback_callback, goal_id=goal_id)
         await asyncio.wrap_future(handle.accepted_future)
         return handle
+
+    def send_log(self, robot: str, node: str, level: int, msg: str, file: str = "", function: str = "",
+                 line: int = 0) -> bool:
+        """One log line for ``robot``'s ``/rosout`` as ROS node ``node`` (what a Node's logger calls).
+
+        Never raises: a line is dropped (False) while disconnected, or when the robot's access report says we
+        are not an operator (the robot would refuse it). Lines longer than the protocol allows are cut.
+        """
+        if not self.connection.connected.is_set():
+            return False
+        with self._access_changed:
+            report = self._access.get(robot)
+        if report is not None and not report.operator:
+            return False
+        if len(msg) > MAX_LOG_MSG:
+            msg = msg[: MAX_LOG_MSG - 1] + "…"
+        try:
+            body = LogLine(level, msg, file[-512:], function[-256:], line, self.client_id)
+            self.connection.publish(self.topics.log(robot, self.username, node), body.to_json(), qos=LogLine.QOS)
+        except Exception:  # a log line must never break the program
+            return False
+        return True
 
     # -- parameters of the robot's ROS nodes -------------------------------------------------------------
     def _param(self, robot: str, node: str, op: str, timeout: float, **kwargs: Any) -> dict[str, Any]:

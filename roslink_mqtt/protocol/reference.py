@@ -31,6 +31,7 @@ from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
+from .rosout import ROSOUT_BODIES, LogLine
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
 END = "<!-- END GENERATED: message reference -->"
@@ -40,9 +41,10 @@ BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.refe
 END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
-DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES + PARAM_BODIES + DESCRIPTION_BODIES
+DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES + PARAM_BODIES + ROSOUT_BODIES + DESCRIPTION_BODIES
 
 _CONTROL_EXAMPLES: dict[type, object] = {
+    LogLine: LogLine(20, "gripper closed", "legacy_arm.py", "close", 42, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
     RobotDescription: DESCRIPTION_EXAMPLE,
     ParamRequest: ParamRequest("p-1", "set", values={"max_speed": 0.3}, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ParamReply: ParamReply("p-1", True, {"max_speed": {"successful": True, "reason": ""}},
@@ -172,7 +174,7 @@ def render_verbs() -> str:
     for verb in Verb:
         name = ("<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else
                 "<action>" if verb in (Verb.GOAL, Verb.CANCEL, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT) else
-                "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY) else
+                "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY, Verb.LOG) else
                 "<command>" if verb is Verb.CMD else "<rule>")
         topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
         out.append(f"| `{verb.value}` | `{topic}` | {'yes' if verb.retained_by_sender else 'no'} | {verb.meaning} |")
