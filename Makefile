@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 # MQTT.js (dashboard, starters) and Node-RED 4 (flow test), exactly as package-lock.json says.
 NODE_STAMP := node_modules/.installed
 
-.PHONY: install demo test lint bench clean
+.PHONY: install demo dashboard test lint bench clean
 
 install: $(STAMP) $(NODE_STAMP)
 
@@ -24,6 +24,10 @@ $(NODE_STAMP): package.json package-lock.json
 
 demo: install
 	$(BIN)/python -m roslink_mqtt.demo
+
+# The demo, then the web dashboard on http://127.0.0.1:8090/ with everything running until Ctrl-C.
+dashboard: install
+	$(BIN)/python -m roslink_mqtt.demo --dashboard
 
 test: install
 	$(BIN)/ruff check .

@@ -4,7 +4,10 @@ Starts the embedded broker, the simulated robot and the bridge as real
 processes (DDS kept on loopback, a fresh ROS domain), then plays a short
 scene with plain MQTT clients: a viewer watches live ROSLink messages, an
 operator drives the robot, a malformed command is refused, a ROS service is
-called over MQTT, and the operator's silence triggers the dead-man stop.
+called over MQTT, an action goal reports its progress, and the operator's silence triggers the dead-man stop.
+
+``--dashboard`` (``make dashboard``) also serves the web dashboard and keeps everything running until
+Ctrl-C, so a browser can log in and drive the simulated robot; everything stops cleanly either way.
 """
 
 from __future__ import annotations
@@ -24,9 +27,10 @@ from .fastdds_shm import remove_zombie_segments
 from .localproc import ChildExited, LocalProcess, free_port, port_free, start_child
 from .mqtt import make_client
 from .presence import operator_heartbeat
-from .protocol import MessageId, decode
+from .protocol import MessageId, ProtocolError, decode
 from .protocol.control import CallReply, CallRequest, ErrorReport
 from .protocol.goals import GoalRequest
+from .protocol.params import ParamRequest
 from .ros_env import local_ros_env
 from .topics import Kind, TopicTree, Verb
 
@@ -52,7 +56,8 @@ class Scene:
         # errors and service replies only (to/alice/ also carries the retained access report)
         self.operator.subscribe([(topics.error("turtle1", "alice"), 1),
                                  *((topics.verb_filter("turtle1", "alice", verb), 1)
-                                   for verb in (Verb.REPLY, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT))])
+                                   for verb in (Verb.REPLY, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT,
+                                                Verb.PARAM_REPLY))])
 
     @staticmethod
     def _client(user: str, client_id: str, port: int):
@@ -73,7 +78,10 @@ class Scene:
                 break
             parsed = self.topics.parse(topic)
             name = parsed.name if parsed.kind is Kind.STATE else parsed.kind.value  # "heartbeat"
-            env = decode(payload)
+            try:
+                env = decode(payload)
+            except ProtocolError:
+                continue  # not a ROSLink message: the robot description, parameter events (shown elsewhere)
             latest[name] = env.payload
             if name in show:
                 print(f"  bob sees {topic}: {_summary(name, env.payload)}")
@@ -120,12 +128,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
     parser.add_argument("--config", default="config/robots.yaml")
     parser.add_argument("--logs", default="run/demo", help="where the processes' logs go")
+    parser.add_argument("--dashboard", action="store_true",
+                        help="serve the web dashboard too and keep everything running until Ctrl-C")
+    parser.add_argument("--dashboard-port", type=int, default=8090, help="0: any free port (default %(default)s)")
     args = parser.parse_args(argv)
     fleet = load_fleet(args.config)
     topics = fleet.topics
     logs = Path(args.logs)
     logs.mkdir(parents=True, exist_ok=True)
     port = fleet.broker.port if port_free(fleet.broker.port) else free_port()
+    ws_port = fleet.broker.ws_port if fleet.broker.ws_port and port_free(fleet.broker.ws_port) else free_port()
     remove_zombie_segments()  # a killed earlier run must not leave this one stale DDS state
     env = local_ros_env()
     print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (DDS on loopback), "
@@ -142,8 +154,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"demo: {e}") from None
 
         start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
-                         "--port", str(port), "--ws-port", "0"], port=port)
-        print("1. embedded broker up (authentication + ROSLink-key ACLs)")
+                         "--port", str(port), "--ws-port", str(ws_port)], port=port)
+        print(f"1. embedded broker up (authentication + ROSLink-key ACLs; MQTT over WebSocket on {ws_port})")
+        dashboard = _start_dashboard(stack, args.dashboard_port, ws_port, fleet.prefix) if args.dashboard else None
         start("sim", ["-m", "roslink_mqtt.sim"])
         start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot", "turtle1",
                          "--url", f"mqtt://127.0.0.1:{port}"], {"ROSLINK_PASSWORD": "turtle1-demo"})
@@ -198,17 +211,64 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {parsed.verb.value}: {body.decode()}")
             if parsed.verb is Verb.RESULT:
                 break
-        print("8. alice drives again, then goes silent: the dead-man stops the robot")
-        for seq in range(21, 31):
+        print("8. alice lowers the robot's top speed: parameter max_speed of ROS node sim_robot := 0.2, over MQTT")
+        scene.beat()
+        set_speed = topics.param("turtle1", "alice", "sim_robot")
+        scene.operator.publish(set_speed, ParamRequest("demo-speed", "set", values={"max_speed": 0.2}).to_json(),
+                               qos=1)
+        try:
+            while (answer := scene.reply(timeout=10))[0] != topics.user_topic("turtle1", "alice", Verb.PARAM_REPLY,
+                                                                            "sim_robot"):
+                pass
+            print(f"  {answer[0]}: {answer[1].decode()}")
+        except queue.Empty:
+            print("  (no parameter reply seen)")
+        print("9. alice drives again at 0.3 m/s (the robot now tops out at 0.2), then goes silent: the dead-man "
+              "stops the robot")
+        for seq in range(21, 36):
+            if seq % 10 == 1:
+                scene.beat()  # presence lasts operator_timeout (1.5 s): keep it up while driving
             scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,
                                                       "payload": {"lx": 0.3}}))
             time.sleep(0.1)
+        motion = scene.newest("global_motion", settle=0.2)
+        if motion:
+            print(f"  the robot drives at vx={motion.get('vx', 0.0):.2f} m/s")
         scene.beat()
         latest = scene.watch(2.0, {"ack"})
         if "ack" not in latest:
             print("  (no failsafe notice seen)")
+        scene.operator.publish(set_speed, ParamRequest("demo-speed-back", "set", values={"max_speed": 1.0}).to_json(),
+                               qos=1)
+        if dashboard is None:
+            print("Web dashboard: run `make dashboard` to keep this scene running and drive turtle1 from a browser.")
+        else:
+            _wait_for_ctrl_c(dashboard.url)
         print("Done: stopping the bridge (its offline heartbeat is retained), robot and broker.")
     return 0
+
+
+def _start_dashboard(stack: ExitStack, port: int, ws_port: int, prefix: str):  # -> DashboardServer
+    from .dashboard import DashboardServer, MqttJsMissing
+
+    try:
+        server = DashboardServer("127.0.0.1", port, ws_port=ws_port, prefix=prefix).start()
+    except MqttJsMissing as e:
+        raise SystemExit(f"demo: {e} (run `make install`)") from None
+    except OSError as e:
+        raise SystemExit(f"demo: the dashboard cannot listen on 127.0.0.1:{port}: {e}") from None
+    stack.callback(server.stop)
+    print(f"   web dashboard on {server.url} (log in as alice / alice-demo to drive, bob / bob-demo to watch)")
+    return server
+
+
+def _wait_for_ctrl_c(url: str) -> None:
+    print(f"The scene keeps running: open {url} — Ctrl-C stops everything.", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print()
 
 
 if __name__ == "__main__":

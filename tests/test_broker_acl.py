@@ -78,10 +78,12 @@ def test_rules_per_login_follow_design() -> None:
         ("roslink/operators/alice/#", Access.WRITE), ("roslink/turtle1/heartbeat", Access.READ),
         ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/alice/#", Access.READ),
         ("roslink/turtle1/from/alice/#", Access.WRITE)}
-    # bob is a viewer and turtle1's only service (reset) is not read-only: no from/ access at all
+    # bob is a viewer; turtle1's only service (reset) is not read-only and its action is not open to viewers:
+    # his one from/ topic is the parameter node, which every granted user may read (the bridge refuses sets)
     assert table("bob") == {
         ("roslink/operators/bob/#", Access.WRITE), ("roslink/turtle1/heartbeat", Access.READ),
-        ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/bob/#", Access.READ)}
+        ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/bob/#", Access.READ),
+        ("roslink/turtle1/from/bob/param/sim_robot", Access.WRITE)}
     assert table("admin") == {("#", Access.READWRITE), ("$SYS/#", Access.READ)}
     assert ACL.entries("nobody") == () and ACL.entries(None) == ()
 

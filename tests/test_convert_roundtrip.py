@@ -89,7 +89,8 @@ def _member(slot, depth: int) -> st.SearchStrategy:
     inner = slot.value_type
     if isinstance(inner, d.BasicType) and inner.typename in ("uint8", "octet"):
         size = slot.size if isinstance(slot, d.Array) else None
-        return st.binary(min_size=size or 0, max_size=size or 6).map(
+        bound = getattr(slot, "maximum_size", None) if isinstance(slot, d.BoundedSequence) else None
+        return st.binary(min_size=size or 0, max_size=size or min(bound or 6, 6)).map(
             lambda b: __import__("base64").b64encode(b).decode())
     item = _member(inner, depth + 1)
     if isinstance(slot, d.Array):

@@ -140,9 +140,7 @@ def _build_to_dict(cls: type, numpy: bool) -> Callable[[Any], dict[str, Any]]:
             elif isinstance(inner, d.BasicType) and inner.typename in _FLOATS:
                 pre.append(f"v{i} = {attr}.tolist()\n    if not all(map(isfinite, v{i})): v{i} = _nf_list(v{i})")
                 items.append(f"{name!r}: v{i}")
-            elif isinstance(inner, d.BasicType) and isinstance(slot, d.Array):
-                items.append(f"{name!r}: {attr}.tolist()")  # numpy array
-            elif isinstance(inner, d.BasicType):
+            elif isinstance(inner, d.BasicType):  # numpy arrays for numbers; plain lists for bool[N]
                 items.append(f"{name!r}: ({attr}.tolist() if hasattr({attr}, 'tolist') else list({attr}))")
             elif isinstance(inner, d.NamespacedType):
                 env[f"c{i}"] = getattr(converter_for(_namespaced(inner)), nested)
