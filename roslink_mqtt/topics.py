@@ -105,6 +105,8 @@ class Verb(Enum):
     CANCEL = "cancel"  # cancel one of your goals: cancel/<action>
     PARAM = "param"  # get, set, list or describe a ROS node's parameters: param/<node>
     LOG = "log"  # a log line for the robot's /rosout, from an SDK node: log/<node>
+    PROVIDE_ACTION = "provide_action"  # serve a ROS action (retained; empty withdraws): provide_action/<action>
+    ACTION_UPDATE = "action_update"  # a provider's accepted/rejected/feedback/end of a goal: action_update/<action>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -114,6 +116,7 @@ class Verb(Enum):
     FEEDBACK = "feedback"  # a goal's progress (newest wins): feedback/<action>
     RESULT = "result"  # a goal's end: result/<action>
     PARAM_REPLY = "param_reply"  # the answer to a param request: param_reply/<node>
+    ACTION_REQUEST = "action_request"  # a ROS goal or cancel for a provider: action_request/<action>
 
     @property
     def meaning(self) -> str:
@@ -132,7 +135,7 @@ class Verb(Enum):
     @property
     def retained_by_sender(self) -> bool:
         """Whether the sender publishes it retained: state that holds until withdrawn, not an order."""
-        return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS)
+        return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS, Verb.PROVIDE_ACTION)
 
 
 _MEANINGS = {
@@ -153,10 +156,13 @@ _MEANINGS = {
     Verb.PARAM: "get, set, list or describe the parameters of one of the robot's ROS nodes",
     Verb.PARAM_REPLY: "the answer to your `param/<node>` request",
     Verb.LOG: "a log line of one of your programs, for the robot's `/rosout`",
+    Verb.PROVIDE_ACTION: "serve a ROS action from your program (an empty retained message withdraws)",
+    Verb.ACTION_UPDATE: "your answer on a goal you serve: accepted/rejected, feedback, its end and result",
+    Verb.ACTION_REQUEST: "a ROS client sent a goal to (or canceled one of) an action you serve",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
-                        Verb.PARAM, Verb.LOG})
+                        Verb.PARAM, Verb.LOG, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)

@@ -46,6 +46,10 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"cancel goals of '{name}'"
     if verb is Verb.PARAM:
         return f"set parameters of '{name}'"
+    if verb is Verb.PROVIDE_ACTION:
+        return f"provide actions on {robot}"
+    if verb is Verb.ACTION_UPDATE:
+        return f"answer goals of '{name}'"
     if verb is Verb.LOG:
         return f"write the robot's /rosout (as node '{name}')"
     return f"publish on '{name}'"

@@ -21,6 +21,7 @@ from ..protocol import AckResult, SystemStatus
 from ..topics import Verb
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
+from .action_provider import ProvidedActions
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
@@ -186,9 +187,13 @@ class Bridge:
         self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
                                           lambda user: self._is_live(user), self._refuse)
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
+        self.provided_actions = ProvidedActions(node, robot, self.topics, self._publish_reliable, role_of,
+                                                self._is_live, self._refuse)
         self.endpoint.handlers.update({
             Verb.PARAM: self.parameters.handle,
             Verb.LOG: self.rosout.handle,
+            Verb.PROVIDE_ACTION: self.provided_actions.offer,
+            Verb.ACTION_UPDATE: self.provided_actions.update,
             Verb.GOAL: self.actions.goal,
             Verb.CANCEL: self.actions.cancel,
             Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),
@@ -237,6 +242,7 @@ class Bridge:
         self.fleet = fleet
         for user in self.endpoint.set_fleet(fleet):
             self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
+            self.provided_actions.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
             self.on_demand.withdraw_user(user)
         self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
         for user in sorted(set(before) - set(after)):
@@ -328,5 +334,7 @@ class Bridge:
         self.actuators.expire(now)
         self.actions.supervise(now)
         self.parameters.expire(now)
+        self.provided_actions.expire(now)
+        self.provided_actions.refresh()
         self.provided.refresh()
         self.on_demand.refresh()

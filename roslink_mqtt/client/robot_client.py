@@ -46,6 +46,7 @@ from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
 from ..topics import DEFAULT_PREFIX, Kind, TopicTree, Verb, check_name, state_name
+from .action_servers import ActionServers, Execute, GoalCallback, ServedAction
 from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
 from .commands import CommandStreams, command_leaf, roslink_command
@@ -114,6 +115,7 @@ class RobotClient:
         self._calls = ServiceCalls(self.connection, self._scheduler, self.topics, username, client_id=self.client_id)
         self._providers = ServiceProviders(self.connection, self.topics, username)
         self._goals = ActionGoals(self.connection, self.callbacks, self.topics, username, client_id=self.client_id)
+        self._action_servers = ActionServers(self.connection, self.topics, username)
         self._params = ParameterRequests(self.connection, self._scheduler, self.topics, username,
                                          client_id=self.client_id)
         self._advertisements = Advertisements(self.connection, self.topics, username)
@@ -159,6 +161,7 @@ class RobotClient:
         self._closed = True
         if self.connection.connected.is_set():
             self._providers.withdraw_all()
+            self._action_servers.withdraw_all()
             self._advertisements.withdraw_all()
         self._calls.fail_all("the client was closed")
         self._goals.fail_all("the client was closed")
@@ -485,6 +488,26 @@ class RobotClient:
             return False
         return True
 
+    def serve_action(self, robot: str, action: str, action_type: str, execute: Execute, *,
+                     goal_callback: GoalCallback | None = None, accept_timeout: float = 5.0,
+                     result_timeout: float = 600.0) -> ServedAction:
+        """Serve the ROS action ``action`` (type ``pkg/action/Type``) on ``robot`` from this program.
+
+        While this client's presence is live the robot has a ROS action server ``action`` in its bridge's
+        namespace. Each ROS goal runs ``execute(goal)`` in its own thread: ``goal.goal`` is the goal as a dict,
+        ``goal.publish_feedback(dict)``, ``goal.is_cancel_requested`` / ``goal.wait_for_cancel(s)``; return the
+        result fields (succeeded), call ``goal.canceled()`` or ``goal.abort(reason)`` first to end otherwise,
+        or raise (aborted). ``goal_callback(goal_dict) -> bool`` may reject goals. Operators only.
+        """
+        self.connection.require(f"serving {action}", now=False)
+        self.watch(robot)
+        refusal = self._refusal(robot, "provide")
+        if refusal is not None:
+            raise CommandRefused(RobotError(robot, self.topics.user_topic(robot, self.username, Verb.PROVIDE_ACTION,
+                                                                          action), refusal, client_id=self.client_id))
+        return self._action_servers.serve(robot, action, action_type, execute, goal_callback=goal_callback,
+                                          accept_timeout=accept_timeout, result_timeout=result_timeout)
+
     # -- parameters of the robot's ROS nodes -------------------------------------------------------------
     def _param(self, robot: str, node: str, op: str, timeout: float, **kwargs: Any) -> dict[str, Any]:
         self.connection.require(f"parameter {op} on {node}")
@@ -583,6 +606,8 @@ class RobotClient:
             self._goals.on_result(robot, name, payload)
         elif verb is Verb.PARAM_REPLY:
             self._params.on_reply(robot, name, payload)
+        elif verb is Verb.ACTION_REQUEST:
+            self._action_servers.on_request(robot, name, payload)
 
     # -- what the broker lets us do ---------------------------------------------------------------
     def _on_access(self, robot: str, payload: bytes) -> None:

@@ -31,6 +31,7 @@ from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
+from .provided_actions import PROVIDED_ACTION_BODIES, ActionOffer, ActionRequest, ActionUpdate
 from .rosout import ROSOUT_BODIES, LogLine
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
@@ -41,9 +42,13 @@ BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.refe
 END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
-DOCUMENTED_BODIES = CONTROL_BODIES + GOAL_BODIES + PARAM_BODIES + ROSOUT_BODIES + DESCRIPTION_BODIES
+DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + ROSOUT_BODIES +
+                     DESCRIPTION_BODIES)
 
 _CONTROL_EXAMPLES: dict[type, object] = {
+    ActionOffer: ActionOffer("test_msgs/action/Fibonacci", client_id="alice-planner-5f2c9e0a1b3d4c6e"),
+    ActionRequest: ActionRequest("turtle1-g7", "goal", {"order": 5}, "alice-planner-5f2c9e0a1b3d4c6e"),
+    ActionUpdate: ActionUpdate("turtle1-g7", "succeeded", result={"sequence": [0, 1, 1, 2, 3, 5]}),
     LogLine: LogLine(20, "gripper closed", "legacy_arm.py", "close", 42, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
     RobotDescription: DESCRIPTION_EXAMPLE,
     ParamRequest: ParamRequest("p-1", "set", values={"max_speed": 0.3}, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
@@ -173,7 +178,8 @@ def render_verbs() -> str:
     out = [BEGIN_VERBS, "", "| verb | topic | retained by its sender | meaning |", "|---|---|---|---|"]
     for verb in Verb:
         name = ("<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else
-                "<action>" if verb in (Verb.GOAL, Verb.CANCEL, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT) else
+                "<action>" if verb in (Verb.GOAL, Verb.CANCEL, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT,
+                                       Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.ACTION_REQUEST) else
                 "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY, Verb.LOG) else
                 "<command>" if verb is Verb.CMD else "<rule>")
         topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
