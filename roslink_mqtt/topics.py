@@ -105,6 +105,8 @@ class Verb(Enum):
     CANCEL = "cancel"  # cancel one of your goals: cancel/<action>
     PARAM = "param"  # get, set, list or describe a ROS node's parameters: param/<node>
     LOG = "log"  # a log line for the robot's /rosout, from an SDK node: log/<node>
+    DECLARE = "declare"  # an SDK node's parameters, held by the robot as ROS ones (retained; empty withdraws)
+    PARAM_RESULT = "param_result"  # an SDK node's answer to a param_set: param_result/<node>
     PROVIDE_ACTION = "provide_action"  # serve a ROS action (retained; empty withdraws): provide_action/<action>
     ACTION_UPDATE = "action_update"  # a provider's accepted/rejected/feedback/end of a goal: action_update/<action>
     # sent by robots (to/<user>/…)
@@ -116,6 +118,7 @@ class Verb(Enum):
     FEEDBACK = "feedback"  # a goal's progress (newest wins): feedback/<action>
     RESULT = "result"  # a goal's end: result/<action>
     PARAM_REPLY = "param_reply"  # the answer to a param request: param_reply/<node>
+    PARAM_SET = "param_set"  # a ROS client sets parameters of an SDK node: param_set/<node>
     ACTION_REQUEST = "action_request"  # a ROS goal or cancel for a provider: action_request/<action>
 
     @property
@@ -135,7 +138,7 @@ class Verb(Enum):
     @property
     def retained_by_sender(self) -> bool:
         """Whether the sender publishes it retained: state that holds until withdrawn, not an order."""
-        return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS, Verb.PROVIDE_ACTION)
+        return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS, Verb.DECLARE, Verb.PROVIDE_ACTION)
 
 
 _MEANINGS = {
@@ -156,13 +159,16 @@ _MEANINGS = {
     Verb.PARAM: "get, set, list or describe the parameters of one of the robot's ROS nodes",
     Verb.PARAM_REPLY: "the answer to your `param/<node>` request",
     Verb.LOG: "a log line of one of your programs, for the robot's `/rosout`",
+    Verb.DECLARE: "the parameters of one of your SDK nodes, held by the robot as a ROS node's (empty withdraws)",
+    Verb.PARAM_SET: "a ROS client sets parameters of your SDK node; answer on `param_result/<node>`",
+    Verb.PARAM_RESULT: "your SDK node's answer to a `param_set/<node>`: accepted, or refused with a reason",
     Verb.PROVIDE_ACTION: "serve a ROS action from your program (an empty retained message withdraws)",
     Verb.ACTION_UPDATE: "your answer on a goal you serve: accepted/rejected, feedback, its end and result",
     Verb.ACTION_REQUEST: "a ROS client sent a goal to (or canceled one of) an action you serve",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
-                        Verb.PARAM, Verb.LOG, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE})
+                        Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
@@ -303,6 +309,16 @@ class TopicTree:
 
     def log(self, robot: str, user: str, node: str) -> str:
         return self.user_topic(robot, user, Verb.LOG, check_name(node, "node name"))
+
+    def declare(self, robot: str, user: str, node: str) -> str:
+        """Retained: the parameters SDK node ``node`` of ``user`` declares (empty withdraws them)."""
+        return self.user_topic(robot, user, Verb.DECLARE, check_name(node, "node name"))
+
+    def param_set(self, robot: str, user: str, node: str) -> str:
+        return self.user_topic(robot, user, Verb.PARAM_SET, check_name(node, "node name"))
+
+    def param_result(self, robot: str, user: str, node: str) -> str:
+        return self.user_topic(robot, user, Verb.PARAM_RESULT, check_name(node, "node name"))
 
     def param_events(self, robot: str, node: str) -> str:
         """Changes of ``node``'s parameters (from ROS ``/parameter_events``): a state topic, never retained."""

@@ -50,6 +50,10 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"provide actions on {robot}"
     if verb is Verb.ACTION_UPDATE:
         return f"answer goals of '{name}'"
+    if verb is Verb.DECLARE:
+        return f"declare parameters on {robot} (as node '{name}')"
+    if verb is Verb.PARAM_RESULT:
+        return f"answer parameter changes of '{name}'"
     if verb is Verb.LOG:
         return f"write the robot's /rosout (as node '{name}')"
     return f"publish on '{name}'"

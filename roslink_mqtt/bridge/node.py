@@ -33,6 +33,7 @@ from .rosout import RosoutForwarder
 from .routes import Inbound
 from .rules import Outbound, RuleError, compile_rules, ros_qos
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
+from .sdk_params import SdkParameterNodes
 from .service_caller import ServiceCaller
 from .service_provider import ProvidedServices
 from .systemd import SystemdNotifier
@@ -187,11 +188,15 @@ class Bridge:
         self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
                                           lambda user: self._is_live(user), self._refuse)
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
+        self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
+                                            self._refuse)
         self.provided_actions = ProvidedActions(node, robot, self.topics, self._publish_reliable, role_of,
                                                 self._is_live, self._refuse)
         self.endpoint.handlers.update({
             Verb.PARAM: self.parameters.handle,
             Verb.LOG: self.rosout.handle,
+            Verb.DECLARE: self.sdk_params.declare,
+            Verb.PARAM_RESULT: self.sdk_params.result,
             Verb.PROVIDE_ACTION: self.provided_actions.offer,
             Verb.ACTION_UPDATE: self.provided_actions.update,
             Verb.GOAL: self.actions.goal,
@@ -338,3 +343,4 @@ class Bridge:
         self.provided_actions.refresh()
         self.provided.refresh()
         self.on_demand.refresh()
+        self.sdk_params.refresh()

@@ -62,6 +62,14 @@ from .messages import (
     Takeoff,
     Twist,
 )
+from .node_params import (
+    InvalidParameterValueException,
+    Parameter,
+    ParameterAlreadyDeclaredException,
+    ParameterDescriptor,
+    ParameterNotDeclaredException,
+    SetParametersResult,
+)
 from .presence import OperatorPresence
 from .providers import ProvidedService
 from .robot_client import RobotClient
@@ -75,10 +83,13 @@ _FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription"
 __all__ = [
     "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
     "GeoTaggedImage", "GetMap", "GlobalMotion", "GoalError", "GoalHandle", "GoToWaypoint", "GpsRawInfo", "Heartbeat",
-    "Image", "InvalidArgument", "InvalidType", "Land", "LoginRefused", "Map", "Node", "NodeDestroyed",
-    "NotConnectedError", "OperatorPresence", "ParameterError",
+    "Image", "InvalidArgument", "InvalidParameterValueException", "InvalidType", "Land", "LoginRefused", "Map",
+    "Node", "NodeDestroyed",
+    "NotConnectedError", "OperatorPresence", "Parameter", "ParameterAlreadyDeclaredException",
+    "ParameterDescriptor", "ParameterError", "ParameterNotDeclaredException",
     "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo", "RobotStatus",
-    "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode", "StateSubscription",
+    "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode",
+    "SetParametersResult", "StateSubscription",
     "Subscription", "SubscriptionFailed", "Takeoff", "Timer", "Twist", "WaitTimeout", "create_node", "init", "ok",
     "shutdown", "spin", "spin_once", "spin_until_future_complete", "try_shutdown",
 ]

@@ -34,6 +34,7 @@ from .dispatch import CallbackQueue, Scheduler
 from .errors import CommandRefused, InvalidArgument, InvalidType, NodeDestroyed, NotConnectedError, RobotError
 from .logger import Logger
 from .messages import RoslinkMessage
+from .node_params import NodeParameters, OnSetCallback, Parameter, ParameterDescriptor, SetParametersResult
 from .qos import mqtt_qos
 from .robot_client import DEFAULT_CALL_TIMEOUT, RobotClient
 from .subscriptions import StateItem, StateSubscription
@@ -272,6 +273,9 @@ class Node:
                                   keepalive=keepalive, on_error=self._on_robot_error, callbacks=self._callbacks)
         self._entities: list[Publisher | Subscription | Service | Client | Timer] = []
         self._destroyed = False
+        self._parameters = NodeParameters(self._name, self.robot, self.robot_client, self._callbacks,
+                                          self._scheduler)
+        self.robot_client.on_param_set = self._parameters.on_param_set
         try:
             self.robot_client.connect(connect_timeout)
         except Exception:
@@ -364,11 +368,72 @@ class Node:
         for entity in list(self._entities):
             if isinstance(entity, Timer):
                 entity.cancel()
+        self._parameters.withdraw()  # the robot removes the ROS node holding our parameters
         self.robot_client.close()  # withdraws every provided service first
         self._scheduler.close()
         self._entities.clear()
         self._callbacks.wake()
         default_context().remove(self)
+
+    # -- parameters (held on the robot as a ROS node's while this node lives: node_params.py) ---------------
+    def declare_parameter(self, name: str, value: Any = None, descriptor: Any = None,
+                          ignore_override: bool = False) -> Parameter:
+        """Declare ``name`` with ``value`` (its type fixes the parameter's, unless ``descriptor.dynamic_typing``).
+
+        ``descriptor``: a :class:`ParameterDescriptor`, a dict (``description``, ``read_only``,
+        ``dynamic_typing``) or rclpy's message. The on-set callbacks see the value first, as in rclpy
+        (InvalidParameterValueException if one refuses). ROS clients see it on the robot shortly after:
+        ``ros2 param get /<node name> <name>``. ``ignore_override`` is accepted for rclpy's signature.
+        """
+        return self._parameters.declare(name, value, descriptor)
+
+    def declare_parameters(self, namespace: str, parameters: list[tuple], ignore_override: bool = False
+                           ) -> list[Parameter]:
+        """rclpy's form: ``[(name,), (name, value), (name, value, descriptor)]``, names under ``namespace.``."""
+        out = []
+        for entry in parameters:
+            name, *rest = entry
+            out.append(self._parameters.declare(f"{namespace}.{name}" if namespace else name, *rest))
+        return out
+
+    def undeclare_parameter(self, name: str) -> None:
+        self._parameters.undeclare(name)
+
+    def has_parameter(self, name: str) -> bool:
+        return self._parameters.has(name)
+
+    def get_parameter(self, name: str) -> Parameter:
+        """The parameter (``.name``, ``.value``, ``.type_``); ParameterNotDeclaredException if not declared."""
+        return self._parameters.get(name)
+
+    def get_parameters(self, names: list[str]) -> list[Parameter]:
+        return [self._parameters.get(name) for name in names]
+
+    def get_parameter_or(self, name: str, alternative_value: Parameter | None = None) -> Parameter | None:
+        return self._parameters.get(name) if self._parameters.has(name) else alternative_value
+
+    def describe_parameter(self, name: str) -> ParameterDescriptor:
+        return self._parameters.describe(name)
+
+    def set_parameters(self, parameter_list: list[Parameter] | dict[str, Any]) -> list[SetParametersResult]:
+        """Set each parameter (a list of :class:`Parameter`, or a dict name → value); one result each.
+
+        The declared type is checked (an integer is fine for a double), then the on-set callbacks decide,
+        as for a ROS client's set; accepted values reach the robot's ROS node too.
+        """
+        return self._parameters.set(parameter_list)
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter] | dict[str, Any]) -> SetParametersResult:
+        return self._parameters.set_atomically(parameter_list)
+
+    def add_on_set_parameters_callback(self, callback: OnSetCallback) -> OnSetCallback:
+        """``callback(list_of_parameters)`` returns a :class:`SetParametersResult`; it runs for local sets and
+        for ROS clients' sets (then inside ``spin``). A refusal's ``reason`` reaches the ROS client."""
+        self._parameters.add_on_set_callback(callback)
+        return callback
+
+    def remove_on_set_parameters_callback(self, callback: OnSetCallback) -> None:
+        self._parameters.remove_on_set_callback(callback)
 
     # -- internals ------------------------------------------------------------------------
     def _add(self, entity: Any) -> Any:

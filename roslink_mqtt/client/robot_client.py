@@ -119,6 +119,8 @@ class RobotClient:
         self._params = ParameterRequests(self.connection, self._scheduler, self.topics, username,
                                          client_id=self.client_id)
         self._advertisements = Advertisements(self.connection, self.topics, username)
+        # robot, node, payload of a ROS client's set of our SDK node's parameters (set by Node; network thread)
+        self.on_param_set: Callable[[str, str, bytes], None] | None = None
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
         self._initial_robots = [check_name(r, "robot") for r in robots]
@@ -606,6 +608,8 @@ class RobotClient:
             self._goals.on_result(robot, name, payload)
         elif verb is Verb.PARAM_REPLY:
             self._params.on_reply(robot, name, payload)
+        elif verb is Verb.PARAM_SET and self.on_param_set is not None:
+            self.on_param_set(robot, name, payload)
         elif verb is Verb.ACTION_REQUEST:
             self._action_servers.on_request(robot, name, payload)
 

@@ -30,6 +30,7 @@ from .description import DESCRIPTION_BODIES, RobotDescription
 from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
+from .node_params import NODE_PARAM_BODIES, DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
 from .provided_actions import PROVIDED_ACTION_BODIES, ActionOffer, ActionRequest, ActionUpdate
 from .rosout import ROSOUT_BODIES, LogLine
@@ -42,10 +43,16 @@ BEGIN_VERBS = "<!-- BEGIN GENERATED: verbs (python -m roslink_mqtt.protocol.refe
 END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
-DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + ROSOUT_BODIES +
-                     DESCRIPTION_BODIES)
+DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
+                     ROSOUT_BODIES + DESCRIPTION_BODIES)
 
 _CONTROL_EXAMPLES: dict[type, object] = {
+    ParamDeclaration: ParamDeclaration("alice-legacy_arm-5f2c9e0a1b3d4c6e", {
+        "max_force": DeclaredParameter(2.5, "double", "gripper force limit (N)"),
+        "serial_port": DeclaredParameter("/dev/ttyUSB0", "string", read_only=True)}),
+    ParamSetRequest: ParamSetRequest("turtle1-p3", {"max_force": 3.0}, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
+    ParamSetResult: ParamSetResult("turtle1-p3", False, "max_force must be at most 5 N",
+                                   "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
     ActionOffer: ActionOffer("test_msgs/action/Fibonacci", client_id="alice-planner-5f2c9e0a1b3d4c6e"),
     ActionRequest: ActionRequest("turtle1-g7", "goal", {"order": 5}, "alice-planner-5f2c9e0a1b3d4c6e"),
     ActionUpdate: ActionUpdate("turtle1-g7", "succeeded", result={"sequence": [0, 1, 1, 2, 3, 5]}),
@@ -180,7 +187,8 @@ def render_verbs() -> str:
         name = ("<service>" if verb in (Verb.CALL, Verb.REPLY, Verb.PROVIDE, Verb.REQUEST, Verb.RESPONSE) else
                 "<action>" if verb in (Verb.GOAL, Verb.CANCEL, Verb.GOAL_STATUS, Verb.FEEDBACK, Verb.RESULT,
                                        Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.ACTION_REQUEST) else
-                "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY, Verb.LOG) else
+                "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY, Verb.LOG, Verb.DECLARE, Verb.PARAM_SET,
+                                     Verb.PARAM_RESULT) else
                 "<command>" if verb is Verb.CMD else "<rule>")
         topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
         out.append(f"| `{verb.value}` | `{topic}` | {'yes' if verb.retained_by_sender else 'no'} | {verb.meaning} |")

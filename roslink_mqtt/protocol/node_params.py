@@ -1,0 +1,220 @@
+"""Control bodies for the parameters of SDK nodes (docs/protocol.md, "Parameters of SDK nodes").
+
+The helium design of ROSLink gives programs without ROS parameters "in exactly the same way as ROS": an SDK
+node declares parameters, and ROS tools (``ros2 param``, rqt, any parameter client) read and set them.
+
+* :class:`ParamDeclaration`, retained on ``from/<user>/declare/<node>``: every parameter the SDK node has
+  declared, with its value, type, description and read-only flag, and the node's presence ``client_id``. While
+  that client is live the bridge holds a ROS node named ``<node>`` (in the bridge's namespace) with these
+  parameters. An empty retained message withdraws it; so does the client's last-will.
+* :class:`ParamSetRequest`, on ``to/<user>/param_set/<node>``: a ROS client set parameters of that node; the
+  SDK runs its on-set callbacks and answers with
+* :class:`ParamSetResult`, on ``from/<user>/param_result/<node>``: accepted (the SDK now holds the values) or
+  refused with a reason, which the ROS client receives as its ``SetParametersResult``.
+
+Values and types follow :mod:`.params` (:func:`~.params.ros_type_of`, :func:`~.params.check_value`).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..topics import TopicTree
+from .codec import MAX_CLIENT_ID
+from .control import MAX_CALL_ID, BodyField, _dump, _no_unknown, _object, check_client_id
+from .errors import ProtocolError
+from .params import TYPE_CODES, check_value
+
+MAX_PARAMETERS = 256  # parameters one SDK node may declare
+MAX_DESCRIPTION = 1024  # characters of a description
+MAX_REASON = 1024  # characters of a refusal reason
+# ROS node names: a letter or underscore first, then letters, digits, underscores (rcl's rule)
+NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,254}")
+# ROS parameter names: tokens of letters, digits and underscores joined by dots (``pid.kp``)
+PARAMETER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+DECLARABLE_TYPES = tuple(name for name in TYPE_CODES if name != "byte_array")
+_DOC, _R, _U = TopicTree(), "<robot>", "<user>"
+
+
+def check_node_name(name: str) -> str:
+    """``name`` if it can name a ROS node (``legacy_arm``); ProtocolError otherwise."""
+    if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
+        raise ProtocolError(f"node name {name!r} cannot name a ROS node: letters, digits and underscores, "
+                            "not starting with a digit"[:300])
+    return name
+
+
+def check_parameter_name(name: str) -> str:
+    if not isinstance(name, str) or len(name) > 255 or not PARAMETER_NAME.fullmatch(name):
+        raise ProtocolError(f"parameter name {name!r} is not a ROS parameter name (letters, digits, underscores, "
+                            "dot-separated tokens, e.g. 'pid.kp')"[:300])
+    return name
+
+
+def _id(value: Any) -> str | int:
+    if isinstance(value, str) and 0 < len(value) <= MAX_CALL_ID or isinstance(value, int) and not isinstance(
+            value, bool):
+        return value
+    raise ProtocolError(f"id: expected a string of 1..{MAX_CALL_ID} characters or an integer")
+
+
+@dataclass(frozen=True, slots=True)
+class DeclaredParameter:
+    """One declared parameter: its value (None: not set yet), ROS type name, description, read-only flag."""
+
+    value: Any
+    type: str
+    description: str = ""
+    read_only: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"value": self.value, "type": self.type}
+        if self.description:
+            out["description"] = self.description
+        if self.read_only:
+            out["read_only"] = True
+        return out
+
+    @classmethod
+    def from_dict(cls, name: str, body: Any) -> DeclaredParameter:
+        where = f"parameters.{name}"
+        if not isinstance(body, dict):
+            raise ProtocolError(f'{where}: expected an object {{"value": …, "type": "double"}}')
+        unknown = sorted(set(body) - {"value", "type", "description", "read_only"})
+        if unknown:
+            raise ProtocolError(f"{where}: unknown field {unknown[0]!r} (fields: value, type, description, "
+                                "read_only)"[:300])
+        kind = body.get("type")
+        if kind not in DECLARABLE_TYPES:
+            raise ProtocolError(f"{where}.type: expected one of {', '.join(DECLARABLE_TYPES)}, got {kind!r}"[:300])
+        value = body.get("value")
+        if value is not None:
+            try:
+                value = check_value(value, kind)
+            except ProtocolError as err:
+                raise ProtocolError(f"{where}.value: {err}") from None
+        description, read_only = body.get("description", ""), body.get("read_only", False)
+        if not isinstance(description, str) or len(description) > MAX_DESCRIPTION:
+            raise ProtocolError(f"{where}.description: expected a string of at most {MAX_DESCRIPTION} characters")
+        if not isinstance(read_only, bool):
+            raise ProtocolError(f"{where}.read_only: expected a boolean")
+        return cls(value, kind, description, read_only)
+
+
+@dataclass(frozen=True, slots=True)
+class ParamDeclaration:
+    """The parameters of one SDK node, retained on ``from/<user>/declare/<node>`` (read by the bridge)."""
+
+    client_id: str
+    parameters: dict[str, DeclaredParameter] = field(default_factory=dict)
+
+    FIELDS = (
+        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", True,
+                  "the SDK node's presence client: the ROS node exists while it is live"),
+        BodyField("parameters", "object", True,
+                  f"name → `{{\"value\", \"type\", \"description\", \"read_only\"}}` (at most {MAX_PARAMETERS}): "
+                  "`type` is a ROS parameter type (`bool`, `integer`, `double`, `string`, `bool_array`, "
+                  "`integer_array`, `double_array`, `string_array`, or `not_set` for a dynamically typed "
+                  "parameter); `value` null: declared without a value"),
+    )
+    QOS = 1
+    RETAINED = True
+
+    def to_json(self) -> bytes:
+        return _dump({"parameters": {n: p.to_dict() for n, p in self.parameters.items()}}, self.client_id)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamDeclaration:
+        body = _object(data, 'expected a JSON object {"client_id": …, "parameters": {…}}')
+        _no_unknown(body, ("client_id", "parameters"))
+        if "client_id" not in body:
+            raise ProtocolError("client_id: required (the presence client the ROS node lives with)")
+        client_id = check_client_id(body["client_id"])
+        parameters = body.get("parameters")
+        if not isinstance(parameters, dict) or len(parameters) > MAX_PARAMETERS:
+            raise ProtocolError(f"parameters: expected an object of at most {MAX_PARAMETERS} parameters")
+        out = {}
+        for name, spec in parameters.items():
+            try:
+                check_parameter_name(name)
+            except ProtocolError as err:
+                raise ProtocolError(f"parameters: {err}") from None
+            out[name] = DeclaredParameter.from_dict(name, spec)
+        return cls(client_id, out)
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSetRequest:
+    """A ROS client sets parameters of an SDK node: ``to/<user>/param_set/<node>`` (read by the SDK)."""
+
+    id: str | int
+    parameters: dict[str, Any]
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", "string", True, "the bridge's, `<robot>-p<n>`: echo it in the result"),
+        BodyField("parameters", "object", True, "name → new value, as one ROS `set_parameters` call asked "
+                                                "(all or none: the SDK node accepts or refuses them together)"),
+        BodyField("client_id", "string", False, "the declaring program's presence id (other programs of the "
+                                                "user ignore the request)"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        return _dump({"id": self.id, "parameters": self.parameters}, self.client_id)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetRequest:
+        body = _object(data, "param_set: expected a JSON object")
+        parameters, cid = body.get("parameters"), body.get("client_id")
+        if not isinstance(parameters, dict):
+            raise ProtocolError("param_set: parameters: expected an object")
+        return cls(_id(body.get("id")), parameters, cid if isinstance(cid, str) else None)
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSetResult:
+    """The SDK node's answer to a :class:`ParamSetRequest`, on ``from/<user>/param_result/<node>``."""
+
+    id: str | int
+    successful: bool
+    reason: str = ""
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("id", "string or integer", True, "the request's id"),
+        BodyField("successful", "boolean", True, "true: the node took every value; false: none (see `reason`)"),
+        BodyField("reason", "string", False, f"why it refused (at most {MAX_REASON} characters); the ROS client "
+                                             "receives it"),
+        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False, "the sender's id"),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"id": self.id, "successful": self.successful}
+        if self.reason:
+            body["reason"] = self.reason
+        return _dump(body, self.client_id)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetResult:
+        body = _object(data, 'expected a JSON object {"id": …, "successful": true}')
+        _no_unknown(body, ("id", "successful", "reason", "client_id"))
+        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
+        successful, reason = body.get("successful"), body.get("reason", "")
+        if not isinstance(successful, bool):
+            raise ProtocolError("successful: expected a boolean")
+        if not isinstance(reason, str) or len(reason) > MAX_REASON:
+            raise ProtocolError(f"reason: expected a string of at most {MAX_REASON} characters")
+        return cls(_id(body.get("id")), successful, reason, client_id)
+
+
+NODE_PARAM_BODIES: tuple[tuple[str, str, type], ...] = (
+    ("SDK node parameter declaration", f"`{_DOC.declare(_R, _U, '<node>')}`", ParamDeclaration),
+    ("SDK node parameter set", f"`{_DOC.param_set(_R, _U, '<node>')}`", ParamSetRequest),
+    ("SDK node parameter result", f"`{_DOC.param_result(_R, _U, '<node>')}`", ParamSetResult),
+)
