@@ -73,7 +73,8 @@ def test_build_and_parse_every_topic(tree: TopicTree) -> None:
 def test_verbs_belong_to_one_direction() -> None:
     assert USER_VERBS | ROBOT_VERBS == set(Verb) and not USER_VERBS & ROBOT_VERBS
     assert {v for v in Verb if not v.named} == {Verb.ERROR, Verb.ACCESS}
-    assert {v for v in USER_VERBS if v.retained_by_sender} == {Verb.PROVIDE, Verb.ADVERTISE, Verb.PROVIDE_ACTION}
+    assert {v for v in USER_VERBS if v.retained_by_sender} == {Verb.PROVIDE, Verb.ADVERTISE, Verb.PROVIDE_ACTION,
+                                                              Verb.DECLARE}
     # a robot's verb under from/ (or a user's under to/) is no verb: "reply" would be a generic rule's name
     assert split_leaf("reply/reset") == (None, "reply/reset")
     assert split_leaf("cmd/twist", sent_by_user=False) == (None, "cmd/twist")
