@@ -13,7 +13,7 @@ import sys
 _CHECK = """
 import sys
 import roslink_mqtt.client.context
-loaded = sorted(m for m in sys.modules if m.startswith("roslink_mqtt.client.node"))
+loaded = sorted(m for m in sys.modules if m == "roslink_mqtt.client.node")
 assert not loaded, loaded
 from roslink_mqtt.client import Node, create_node
 from roslink_mqtt.client.node import Node as NodeFromModule

@@ -117,9 +117,10 @@ def test_service_timeout_does_not_block_topics(stack) -> None:
     call_id = uuid.uuid4().hex
     alice.publish("roslink/turtle1/from/alice/call/slow", {"id": call_id, "args": {}})
     alice.subscribe("roslink/turtle1/state/global_motion")
-    # state keeps flowing while the call is pending
-    alice.wait_for(lambda m: m.topic.endswith("/state/global_motion"), timeout=1.0)
+    # state keeps flowing while the call is pending: motion arrives before the call's (timeout) reply
+    motion = alice.wait_for(lambda m: m.topic.endswith("/state/global_motion"), timeout=5.0)
     reply = alice.wait_for(lambda m: m.topic.endswith("/reply/slow") and m.json()["id"] == call_id, timeout=10)
+    assert motion.at < reply.at
     assert reply.json() == {"id": call_id, "result": False, "error": "timeout: no answer within 1 s"}
     assert 0.9 <= time.monotonic() - t0 < 3.0
     stack["release"].set()
