@@ -13,7 +13,7 @@ from __future__ import annotations
 import itertools
 import threading
 import uuid
-from concurrent.futures import Future, InvalidStateError
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +23,7 @@ from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import Scheduler
 from .errors import InvalidType, ServiceError, ServiceTimeout
+from .futures import settle
 
 Values = dict[str, Any]
 
@@ -77,10 +78,10 @@ class ServiceCalls:
             return  # answered after its timeout, or another client's id
         self.scheduler.cancel(pending.timer)
         if reply.result:
-            _settle(pending.future, result=reply.values or {})
+            settle(pending.future, result=reply.values or {})
         else:
             reason = reply.error or "the robot reported a failure without a reason"
-            _settle(pending.future, error=ServiceError(robot, service, reason))
+            settle(pending.future, error=ServiceError(robot, service, reason))
 
     def pending(self) -> int:
         with self._lock:
@@ -90,7 +91,7 @@ class ServiceCalls:
         with self._lock:
             pending = self._pending.pop(call_id, None)
         if pending is not None:
-            _settle(pending.future, error=ServiceTimeout(
+            settle(pending.future, error=ServiceTimeout(
                 pending.robot, pending.service, f"no reply within {timeout:g} s (robot offline, or the broker "
                                                 "dropped the call?)"))
 
@@ -106,14 +107,5 @@ class ServiceCalls:
             pending, self._pending = list(self._pending.values()), {}
         for p in pending:
             self.scheduler.cancel(p.timer)
-            _settle(p.future, error=ServiceError(p.robot, p.service, reason))
+            settle(p.future, error=ServiceError(p.robot, p.service, reason))
 
-
-def _settle(future: Future[Values], *, result: Values | None = None, error: BaseException | None = None) -> None:
-    try:
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(result or {})
-    except InvalidStateError:  # the caller cancelled it meanwhile
-        pass

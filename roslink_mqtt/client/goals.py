@@ -13,7 +13,7 @@ import itertools
 import threading
 import uuid
 from collections.abc import Callable
-from concurrent.futures import Future, InvalidStateError
+from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
@@ -32,6 +32,7 @@ from ..topics import TopicTree, Verb, check_path
 from .connection import Connection
 from .dispatch import CallbackQueue
 from .errors import GoalError, InvalidType, RobotError, WaitTimeout
+from .futures import settle
 
 FeedbackCallback = Callable[[dict[str, Any]], None]
 
@@ -78,15 +79,6 @@ class GoalHandle:
     def __repr__(self) -> str:
         return f"GoalHandle({self.robot}/{self.action} id={self.id!r} status={self.status})"
 
-
-def _settle(future: Future[Any], *, result: Any = None, error: BaseException | None = None) -> None:
-    try:
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(result)
-    except InvalidStateError:
-        pass
 
 
 class ActionGoals:
@@ -139,11 +131,11 @@ class ActionGoals:
             return
         handle.status = status.status
         if status.status == ACCEPTED:
-            _settle(handle.accepted_future, result=True)
+            settle(handle.accepted_future, result=True)
         elif status.status == REJECTED:
             self._fail(handle, status.error or "rejected by the action server")
         elif status.status == CANCELING:
-            _settle(handle.accepted_future, result=True)
+            settle(handle.accepted_future, result=True)
 
     def on_feedback(self, robot: str, action: str, payload: bytes) -> None:
         try:
@@ -165,8 +157,8 @@ class ActionGoals:
             return
         handle.status = result.status
         self._end(handle)
-        _settle(handle.accepted_future, result=True)  # it ran (a result means the server had it)
-        _settle(handle.result_future, result=result)
+        settle(handle.accepted_future, result=True)  # it ran (a result means the server had it)
+        settle(handle.result_future, result=result)
 
     def on_error(self, error: RobotError) -> bool:
         """A refusal of one of our goals (or cancels); True if it was about one."""
@@ -183,16 +175,16 @@ class ActionGoals:
     def _fail(self, handle: GoalHandle, reason: str) -> None:
         self._end(handle)
         error = GoalError(handle.robot, handle.action, handle.id, reason)
-        _settle(handle.accepted_future, error=error)
-        _settle(handle.result_future, error=error)
+        settle(handle.accepted_future, error=error)
+        settle(handle.result_future, error=error)
 
     def fail_all(self, reason: str) -> None:
         with self._lock:
             handles, self._goals = list(self._goals.values()), {}
         for handle in handles:
             error = GoalError(handle.robot, handle.action, handle.id, reason)
-            _settle(handle.accepted_future, error=error)
-            _settle(handle.result_future, error=error)
+            settle(handle.accepted_future, error=error)
+            settle(handle.result_future, error=error)
 
     def pending(self) -> int:
         with self._lock:

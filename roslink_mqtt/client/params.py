@@ -11,7 +11,7 @@ from __future__ import annotations
 import itertools
 import threading
 import uuid
-from concurrent.futures import Future, InvalidStateError
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +21,7 @@ from ..topics import TopicTree, Verb, check_name
 from .connection import Connection
 from .dispatch import Scheduler
 from .errors import InvalidArgument, ParameterError, RobotError
+from .futures import settle
 
 
 @dataclass
@@ -69,9 +70,9 @@ class ParameterRequests:
         if pending is None:
             return
         if reply.result:
-            _settle(pending.future, result=reply.values or {})
+            settle(pending.future, result=reply.values or {})
         else:
-            _settle(pending.future, error=ParameterError(robot, node, reply.error or "failed without a reason"))
+            settle(pending.future, error=ParameterError(robot, node, reply.error or "failed without a reason"))
 
     def on_error(self, error: RobotError) -> bool:
         """A refusal of one of our requests; True if it was about one."""
@@ -81,7 +82,7 @@ class ParameterRequests:
         pending = self._take(error.request_id)
         if pending is None:
             return False
-        _settle(pending.future, error=ParameterError(pending.robot, pending.node, error.error))
+        settle(pending.future, error=ParameterError(pending.robot, pending.node, error.error))
         return True
 
     def _take(self, rid: Any) -> _Pending | None:
@@ -97,7 +98,7 @@ class ParameterRequests:
         with self._lock:
             pending = self._pending.pop(rid, None)
         if pending is not None:
-            _settle(pending.future, error=ParameterError(pending.robot, pending.node,
+            settle(pending.future, error=ParameterError(pending.robot, pending.node,
                                                          f"no reply within {timeout:g} s"))
 
     def fail_all(self, reason: str) -> None:
@@ -105,14 +106,5 @@ class ParameterRequests:
             pending, self._pending = list(self._pending.values()), {}
         for p in pending:
             self.scheduler.cancel(p.timer)
-            _settle(p.future, error=ParameterError(p.robot, p.node, reason))
+            settle(p.future, error=ParameterError(p.robot, p.node, reason))
 
-
-def _settle(future: Future[Any], *, result: Any = None, error: BaseException | None = None) -> None:
-    try:
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(result)
-    except InvalidStateError:
-        pass
