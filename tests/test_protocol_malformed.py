@@ -129,3 +129,12 @@ def test_error_reply_shape() -> None:
     assert body == {"topic": "roslink/t/from/a/cmd/twist", "error": "payload.lx: bad", "message_id": 100,
                     "sequence_number": 5}
     assert orjson.loads(error_reply("t", "x")) == {"topic": "t", "error": "x"}
+
+
+@pytest.mark.parametrize("data", [
+    b'{"payload": {"\\n": null}}',  # found by the property test above: a field name with a newline
+    b'{"message_id": 100, "payload": {"lx": 0}, "\\u2028\\n": 1}',
+    b'{"message_id": 100, "payload": {"lx": "fa\\nst"}}',
+])
+def test_reasons_stay_one_line_whatever_the_names_and_values(data: bytes) -> None:
+    check_decode(data, 100)

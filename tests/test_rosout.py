@@ -1,7 +1,8 @@
 """SDK log lines reach the robot's /rosout (rcl_interfaces/msg/Log) with the SDK node's name, filtered by its level.
 
-Real processes: embedded broker, simulated robot, bridge; an SDK node in this process; an rclpy probe
-reading /rosout. A viewer's lines are refused (never on /rosout) and the refusal is not logged in a loop.
+Real processes: a broker (embedded, and Mosquitto with the exported ACL), simulated robot, bridge; an SDK node
+in this process; an rclpy probe reading /rosout. A viewer's lines are refused (never on /rosout) and the refusal
+is not logged in a loop.
 """
 
 from __future__ import annotations
@@ -13,13 +14,14 @@ import pytest
 
 from roslink_mqtt import client as sdk
 
-from .support.robot_stack import turtle1_online
+from .support.robot_stack import BROKERS, turtle1_online
 from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_sdk_logger_reaches_rosout(tmp_path) -> None:
+@pytest.mark.parametrize("broker", BROKERS)
+def test_sdk_logger_reaches_rosout(tmp_path, broker: str) -> None:
     from rcl_interfaces.msg import Log
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -27,9 +29,10 @@ def test_sdk_logger_reaches_rosout(tmp_path) -> None:
     try:
         rosout = probe.watch(Log, "/rosout", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        with turtle1_online(tmp_path) as port:
+        with turtle1_online(tmp_path, broker) as port:
             url = f"mqtt://127.0.0.1:{port}"
-            node = sdk.create_node("legacy_arm", robot="turtle1", url=url, username="alice", password="alice-demo")
+            name = f"legacy_arm_{broker}"  # logger levels are per name for the whole process, as in rclpy
+            node = sdk.create_node(name, robot="turtle1", url=url, username="alice", password="alice-demo")
             try:
                 node.robot_client.wait_for_robot("turtle1", timeout=10)
                 deadline = time.monotonic() + 5  # the access report says we are an operator
@@ -39,7 +42,7 @@ def test_sdk_logger_reaches_rosout(tmp_path) -> None:
                 log.debug("not sent: below the default level")
                 log.info("gripper closed")
                 log.error("gripper jammed")
-                _, line = rosout.wait_for(lambda m: m.name == "legacy_arm" and m.msg == "gripper closed", timeout=10)
+                _, line = rosout.wait_for(lambda m: m.name == name and m.msg == "gripper closed", timeout=10)
                 assert line.level == Log.INFO and line.function == "test_sdk_logger_reaches_rosout"
                 assert line.file.endswith("test_rosout.py") and line.line > 0
                 _, jammed = rosout.wait_for(lambda m: m.msg == "gripper jammed", timeout=10)
@@ -49,7 +52,7 @@ def test_sdk_logger_reaches_rosout(tmp_path) -> None:
                 rosout.wait_for(lambda m: m.msg == "now sent" and m.level == Log.DEBUG, timeout=10)
                 log.get_child("wrist").warning("child logger")
                 _, child = rosout.wait_for(lambda m: m.msg == "child logger", timeout=10)
-                assert child.name == "legacy_arm.wrist" and child.level == Log.WARN
+                assert child.name == f"{name}.wrist" and child.level == Log.WARN
                 time.sleep(0.5)
                 assert not [m for _, m in rosout.since(0) if m.msg == "not sent: below the default level"]
             finally:

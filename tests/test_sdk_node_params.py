@@ -25,7 +25,7 @@ import pytest
 from roslink_mqtt import client as sdk
 
 from .support.mqtt_client import TestClient
-from .support.robot_stack import turtle1_online
+from .support.robot_stack import BROKERS, turtle1_online
 from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(180)
@@ -66,13 +66,14 @@ def _ready_node(url: str, name: str, user: str = "alice", password: str = "alice
     return node
 
 
-def test_ros_parameter_client_reaches_the_sdk_node(tmp_path) -> None:
+@pytest.mark.parametrize("broker", BROKERS)
+def test_ros_parameter_client_reaches_the_sdk_node(tmp_path, broker: str) -> None:
     from rclpy.parameter import Parameter as RosParameter
     from rclpy.parameter_client import AsyncParameterClient
 
     probe = RosProbe()
     try:
-        with turtle1_online(tmp_path) as port:
+        with turtle1_online(tmp_path, broker) as port:
             url = f"mqtt://127.0.0.1:{port}"
             node = _ready_node(url, "legacy_arm")
             seen: list[list[sdk.Parameter]] = []

@@ -39,6 +39,7 @@ from ..protocol.params import (
     check_value,
     ros_type_of,
 )
+from ..protocol.validate import show_key
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .pending import PendingCalls
@@ -230,7 +231,7 @@ class ParameterBridge:
                 if kind == "not_set":
                     kind = ros_type_of(value)  # undeclared: the node says whether it takes it
             except ProtocolError as err:
-                self.refuse(req.user, req.topic, f"values.{name}: {err} (node "
+                self.refuse(req.user, req.topic, f"values.{show_key(name)}: {err} (node "
                                                  f"{self.clients[req.rule.name].full_name})",
                             client_id=req.request.client_id, request_id=req.request.id)
                 return

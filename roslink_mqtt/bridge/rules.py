@@ -18,6 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ..config import Robot, RosQos, Rule
 from ..config.model import Direction
 from ..protocol import SPECS_BY_NAME, Envelope, encode
+from ..protocol.validate import show_key
 from ..topics import TopicTree, split_first
 from .convert import ConversionError, converter_for
 from .presets import COMMAND_PRESETS, STATE_PRESETS
@@ -193,7 +194,7 @@ def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
                 raise ConversionError("expected a JSON object")
             unknown = sorted(set(data) - set(rule.fields))
             if unknown:
-                raise ConversionError(f"unknown field '{unknown[0]}' (fields: {', '.join(rule.fields)})")
+                raise ConversionError(f"unknown field '{show_key(unknown[0])}' (fields: {', '.join(rule.fields)})")
             nested: dict[str, Any] = {}
             for mqtt_field, path in mapping:
                 if mqtt_field in data:

@@ -13,7 +13,7 @@ import orjson
 
 from .errors import ProtocolError
 from .messages import SPECS_BY_ID, MessageId, MessageSpec
-from .validate import describe, validate_payload
+from .validate import describe, show_key, validate_payload
 
 ROSLINK_VERSION = 2
 ROS_VERSION = 24  # ROS 2 Jazzy (2024)
@@ -167,7 +167,8 @@ def _check_header(obj: dict[str, Any]) -> dict[str, int]:
             if key == "key":
                 raise ProtocolError("field 'key' is not accepted: the ROSLink key lives in your broker "
                                     "credentials and grants, never in a message")
-            raise ProtocolError(f"unknown field '{key}' in envelope (fields: {', '.join(sorted(_ENVELOPE_KEYS))})")
+            raise ProtocolError(f"unknown field '{show_key(key)}' in envelope "
+                                f"(fields: {', '.join(sorted(_ENVELOPE_KEYS))})")
         if isinstance(value, bool) or not isinstance(value, int):
             raise ProtocolError(f"{key}: expected integer, got {describe(value)}")
         if not bounds[0] <= value <= bounds[1]:

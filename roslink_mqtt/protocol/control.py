@@ -43,7 +43,7 @@ import orjson
 from ..topics import TopicTree
 from .codec import MAX_CLIENT_ID, loads
 from .errors import ProtocolError
-from .validate import describe
+from .validate import describe, show_key
 
 _DOC = TopicTree()  # topics as docs/protocol.md shows them: placeholders in angle brackets
 _R, _U = "<robot>", "<user>"
@@ -261,7 +261,7 @@ def _no_unknown(body: dict[str, Any], known: tuple[str, ...]) -> None:
     """Refuse fields the receiver does not know: a misspelt optional field must not be silently ignored."""
     unknown = sorted(set(body) - set(known))
     if unknown:
-        raise ProtocolError(f"unknown field '{unknown[0]}' (fields: {', '.join(known)})")
+        raise ProtocolError(f"unknown field '{show_key(unknown[0])}' (fields: {', '.join(known)})")
 
 
 CallId = str | int | None  # a caller's id for its call: echoed, never interpreted

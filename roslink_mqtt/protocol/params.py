@@ -17,6 +17,7 @@ from ..topics import TopicTree, Verb
 from .codec import MAX_CLIENT_ID
 from .control import MAX_CALL_ID, BodyField, _dump, _no_unknown, _object, check_client_id
 from .errors import ProtocolError
+from .validate import show_key
 
 OPS = ("get", "set", "list", "describe")
 READ_OPS = ("get", "list", "describe")
@@ -129,7 +130,7 @@ class ParamRequest:
             try:
                 ros_type_of(value)
             except ProtocolError as err:
-                raise ProtocolError(f"values.{name}: {err}") from None
+                raise ProtocolError(f"values.{show_key(name)}: {err}") from None
         if op in ("get", "describe") and not names:
             raise ProtocolError(f"names: '{op}' needs the parameter names")
         if op == "set" and not values:

@@ -16,6 +16,19 @@ from .messages import Field, Kind, MessageSpec
 MAX_LIST_ITEMS = 1_000_000
 
 
+def printable(text: str) -> str:
+    """``text`` with control characters escaped (``\\n``): a refusal's reason stays one line, whatever was sent."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
+def show_key(key: Any, limit: int = 64) -> str:
+    """A field name from untrusted input, as error messages show it: one line, bounded."""
+    text = printable(str(key))
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def describe(value: Any) -> str:
     """Short, safe rendering of an offending value for error messages."""
     if value is None:
@@ -24,7 +37,7 @@ def describe(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, str):
         text = value if len(value) <= 32 else value[:29] + "..."
-        return '"' + text + '"'
+        return '"' + printable(text) + '"'
     if isinstance(value, (int, float)):
         return repr(value)
     if isinstance(value, list):
@@ -125,5 +138,5 @@ def validate_payload(spec: MessageSpec, payload: Any, path: str = "payload") -> 
     if matched != len(payload):
         unknown = sorted(k for k in payload if k not in out)
         known = ", ".join(f.name for f in spec.fields) or "none"
-        raise ProtocolError(f"{path}: unknown field '{unknown[0]}' for {spec.name} (fields: {known})")
+        raise ProtocolError(f"{path}: unknown field '{show_key(unknown[0])}' for {spec.name} (fields: {known})")
     return out
