@@ -28,7 +28,7 @@ import numpy as np
 import orjson
 from rosidl_parser import definition as d
 
-from ..protocol.validate import describe
+from ..protocol.validate import describe, show_key
 from .refusals import ConversionError
 from .ros_types import load_interface
 
@@ -185,7 +185,7 @@ class _Reader:
         for key, value in data.items():
             check = fields.get(key)
             if check is None:
-                raise ConversionError(f"unknown field for {self.cls.__name__} (fields: {self.names})", str(key))
+                raise ConversionError(f"unknown field for {self.cls.__name__} (fields: {self.names})", show_key(key))
             try:
                 if type(check) is _Nested:
                     check.reader().fill(getattr(msg, key), value)
