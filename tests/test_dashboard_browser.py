@@ -29,7 +29,7 @@ from roslink_mqtt.dashboard import DashboardServer
 
 from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.mqtt_client import TestClient
-from .support.procs import bridge_args, bridge_env, run
+from .support.procs import CONFIG, bridge_args, bridge_env, run
 from .support.ros import RosProbe, Watch
 
 pytestmark = [
@@ -43,6 +43,25 @@ FAILSAFE_BOUND = 2.0  # s: docs/safety.md, the worst case of an operator going a
 
 # -- the stack -------------------------------------------------------------------------------------------------
 
+# The demo fleet maps only `reset` (no arguments); the forms need a service with some. The sim's own ROS
+# parameter service `list_parameters` (rcl_interfaces/srv/ListParameters: `prefixes` string[], `depth` uint64)
+# is mapped for turtle1 as read-only, so viewers get it too (their access report lists it).
+LIST_PARAMETERS = {"name": "list_parameters", "ros_service": "/sim_robot/list_parameters",
+                   "ros_type": "rcl_interfaces/srv/ListParameters", "read_only": True, "timeout": 5.0}
+
+
+def _fleet_file(work: Path) -> Path:
+    """config/robots.yaml with LIST_PARAMETERS added to turtle1's services (broker and bridge read this copy)."""
+    import yaml
+
+    fleet = yaml.safe_load(CONFIG.read_text())
+    turtle1 = fleet["robots"]["turtle1"]
+    turtle1["services"] = [*turtle1["services"], LIST_PARAMETERS]
+    path = work / "robots.yaml"
+    path.write_text(yaml.safe_dump(fleet, sort_keys=False))
+    return path
+
+
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
     """Broker (TCP + WebSocket), sim, bridge, a ROS probe and the dashboard server; yielded once turtle1 is active."""
@@ -50,9 +69,11 @@ def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
     from nav_msgs.msg import Odometry
 
     work = tmp_path_factory.mktemp("dashboard")
-    with EmbeddedBrokerProcess(work, ws=True) as broker, \
+    config = _fleet_file(work)
+    with EmbeddedBrokerProcess(work, config, ws=True) as broker, \
             run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")) as bridge:
+            run(bridge_args("turtle1", broker.port, config=config), work / "bridge.log",
+                bridge_env("turtle1")) as bridge:
         probe = RosProbe()
         server = None
         try:
@@ -65,7 +86,7 @@ def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
                 bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
             server = DashboardServer("127.0.0.1", 0, ws_port=broker.ws_port).start()
             yield {"broker": broker, "bridge": bridge, "cmd_vel": cmd_vel, "odom": odom, "goals": goals,
-                   "url": server.url, "work": work}
+                   "url": server.url, "work": work, "probe": probe}
         finally:
             if server is not None:
                 server.stop()
@@ -442,8 +463,13 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         wait_until("turtle1 online", lambda: (robot_row(driver, "turtle1") or {}).get("presence") == "online")
         wait_until("bob's role", lambda: (robot_row(driver, "turtle1") or {}).get("role") == "viewer")
         wait_until("a position on the plot", lambda: pose(driver))
-        assert not visible(driver, "controls") and not visible(driver, "estop") and not visible(driver, "services-box")
+        assert not visible(driver, "controls") and not visible(driver, "estop")
         assert not visible(driver, "waypoint-label")
+        # of the services only the read-only one his access report lists: no `reset`
+        wait_until("bob's read-only service", lambda: driver.find_elements(
+            By.CSS_SELECTOR, '#services form[data-service="list_parameters"]'))
+        assert visible(driver, "services-box")
+        assert not driver.find_elements(By.CSS_SELECTOR, '#services [data-service="reset"]')
         assert "viewer of turtle1" in driver.find_element(By.ID, "viewer-note").text
         assert not any(b.is_displayed() for b in driver.find_elements(By.CSS_SELECTOR, ".pad button, #arm"))
         wait_still(cmd_vel)
@@ -612,3 +638,244 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         trail = driver.execute_script("return window.dashboard.robots.get('turtle1').trail.length")
         print(f"trail points kept: {trail}")
         assert 100 < trail <= 600
+
+
+# -- panels built from the robot description (services with arguments, actions, parameters) ------------------
+
+def goal_panel(driver: Any, action: str = "fibonacci") -> dict[str, Any] | None:
+    """What the page's action panel shows: status (data-status), goal id, feedback, result, progress, Cancel."""
+    return driver.execute_script("""
+        const p = document.querySelector(`.action[data-action="${arguments[0]}"]`);
+        if (!p) return null;
+        const s = p.querySelector('.goal-status'), f = p.querySelector('.goal-feedback');
+        const pr = p.querySelector('.goal-progress');
+        return {status: s.dataset.status, text: s.textContent, id: s.dataset.goalId || '',
+                feedback: f.textContent, feedbacks: +(f.dataset.count || 0),
+                result: p.querySelector('.goal-result').textContent,
+                fraction: pr.hidden ? null : +pr.dataset.fraction,
+                cancel: !p.querySelector('button.cancel').disabled};""", action)
+
+
+def send_goal(driver: Any, order: str, action: str = "fibonacci", sent: bool = True) -> str:
+    """Type ``order`` in the goal form and press Send; returns the new goal's id once the page shows it."""
+    from selenium.webdriver.common.by import By
+
+    before = (goal_panel(driver, action) or {}).get("id", "")
+    field = driver.find_element(By.CSS_SELECTOR, f'form[data-action="{action}"] input[data-field="order"]')
+    field.clear()
+    field.send_keys(order)
+    driver.find_element(By.CSS_SELECTOR, f'form[data-action="{action}"] button.submit').click()
+    if not sent:
+        return ""
+    return wait_until("the goal in the panel", lambda: (g := goal_panel(driver, action)) and g["id"] != before
+                      and g["id"], timeout=3)
+
+
+def param_row(driver: Any, name: str, node: str = "sim_robot") -> dict[str, Any] | None:
+    return driver.execute_script("""
+        const tr = document.querySelector(`.params[data-params="${arguments[1]}"] tr[data-param="${arguments[0]}"]`);
+        if (!tr) return null;
+        return {value: tr.querySelector('.value').textContent, type: tr.dataset.type || '',
+                edit: Boolean(tr.querySelector('input')), set: Boolean(tr.querySelector('button.set'))};""", name, node)
+
+
+def param_result(driver: Any, node: str = "sim_robot") -> tuple[str, str]:
+    r = driver.execute_script("""
+        const e = document.querySelector(`.params[data-params="${arguments[0]}"] .param-result`);
+        return e ? [e.dataset.result || '', e.textContent] : ['', ''];""", node)
+    return r[0], r[1]
+
+
+def ros_parameter(stack: dict[str, Any], name: str, node: str = "sim_robot") -> Any:
+    """``name``'s value as the ROS node itself answers (its get_parameters service, called from the probe)."""
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import GetParameters
+
+    client = stack.setdefault("get_parameters", stack["probe"].node.create_client(
+        GetParameters, f"/{node}/get_parameters"))
+    assert client.wait_for_service(timeout_sec=5), f"/{node}/get_parameters not available"
+    future = client.call_async(GetParameters.Request(names=[name]))
+    wait_until("the node's get_parameters answer", future.done, timeout=5, period=0.02)
+    value = future.result().values[0]
+    return {ParameterType.PARAMETER_DOUBLE: value.double_value, ParameterType.PARAMETER_INTEGER: value.integer_value,
+            ParameterType.PARAMETER_BOOL: value.bool_value, ParameterType.PARAMETER_STRING: value.string_value,
+            }.get(value.type)
+
+
+def set_max_speed_over_mqtt(stack: dict[str, Any], value: float) -> None:
+    """Put the sim's max_speed back (later tests drive it) without the page: alice's parameter set over MQTT."""
+    with TestClient(stack["broker"].port, "alice", "alice-demo", operator=True) as alice:
+        assert alice.connect() == 0
+        alice.subscribe("roslink/turtle1/to/alice/param_reply/sim_robot")
+        time.sleep(0.3)  # the presence heartbeat first: setting needs a live operator
+        alice.publish("roslink/turtle1/from/alice/param/sim_robot",
+                      {"id": "restore", "op": "set", "values": {"max_speed": value}})
+        reply = alice.wait_for(lambda m: m.json().get("id") == "restore", timeout=10).json()
+        assert reply["result"] and reply["values"]["max_speed"]["successful"], reply
+
+
+def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp_path) -> None:
+    """One page for every check of issue 16's operator side (a browser and a login cost ~3 s each)."""
+    from selenium.webdriver.common.by import By
+
+    t_test = time.monotonic()
+    with browser(tmp_path, "panels") as driver, \
+            TestClient(stack["broker"].port, "admin", "admin-demo") as wire:
+        assert wire.connect() == 0
+        wire.subscribe("roslink/turtle1/from/alice/#")  # what the page really publishes
+        alice_ready(driver, stack)
+        form = wait_until("the list_parameters form", lambda: driver.find_elements(
+            By.CSS_SELECTOR, '#services form[data-service="list_parameters"]'))[0]
+        # a service without arguments stays one click
+        assert driver.find_element(By.CSS_SELECTOR, '#services button[data-service="reset"]').is_displayed()
+
+        # -- a service form validates on the page: nothing is published for a bad number or bad JSON
+        depth = form.find_element(By.CSS_SELECTOR, 'input[data-field="depth"]')
+        prefixes = form.find_element(By.CSS_SELECTOR, 'textarea[data-field="prefixes"]')
+        assert depth.get_attribute("data-type") == "uint64" and prefixes.get_attribute("data-type") == "string[]"
+        error = form.find_element(By.CSS_SELECTOR, ".form-error")
+        wire.drain(0.3)
+        for bad_depth, bad_prefixes, why in (("-1", "", "out of range for uint64"),
+                                             ("2.5", "", "not an integer"),
+                                             ("fast", "", 'depth: "fast" is not a number'),
+                                             ("1", "sim", "prefixes: not JSON"),
+                                             ("1", '"sim"', "expected a JSON array")):
+            depth.clear()
+            depth.send_keys(bad_depth)
+            prefixes.clear()
+            prefixes.send_keys(bad_prefixes)
+            form.find_element(By.CSS_SELECTOR, "button.submit").click()
+            shown = wait_until(f"the message for depth={bad_depth!r} prefixes={bad_prefixes!r}",
+                               lambda: error.is_displayed() and error.text)
+            assert why in shown and shown.startswith("not sent:"), shown
+            assert form.get_attribute("data-state") == "invalid"
+        time.sleep(0.5)
+        calls = [m for m in wire.drain(0.3) if "/call/" in m.topic]
+        assert calls == [], f"an invalid form was published: {[(m.topic, m.payload) for m in calls]}"
+        print(f"\nservice form: refused on the page: {error.text!r}")
+        # the same form, valid: the call carries the typed arguments and the reply is shown
+        depth.clear()
+        depth.send_keys("0")
+        prefixes.clear()
+        prefixes.send_keys("[]")
+        t_call = time.monotonic()
+        form.find_element(By.CSS_SELECTOR, "button.submit").click()
+        call = wire.wait_for(lambda m: m.topic.endswith("/call/list_parameters"), timeout=5).json()
+        assert call["args"] == {"depth": 0, "prefixes": []}, call
+        wait_until("the list_parameters reply", lambda: driver.execute_script(
+            "return document.getElementById('service-result').dataset.result") == "ok")
+        reply = driver.find_element(By.ID, "service-result").text
+        assert "max_speed" in reply and "scan_beams" in reply, reply
+        assert not error.is_displayed()
+        print(f"service form: reply in {(time.monotonic() - t_call) * 1000:.0f} ms: {reply[:80]}…")
+
+        # -- an action goal from the form: feedback, then the result
+        panel = wait_until("the fibonacci panel", lambda: goal_panel(driver))
+        assert panel["status"] == "idle" and not panel["cancel"], panel
+        t_goal = time.monotonic()
+        goal_id = send_goal(driver, "10")
+        sent = wire.wait_for(lambda m: m.topic.endswith("/goal/fibonacci"), timeout=5).json()
+        assert sent["id"] == goal_id and sent["goal"] == {"order": 10}, sent
+        seen = wait_until("feedback in the panel", lambda: (g := goal_panel(driver))["feedbacks"] >= 1 and g)
+        assert seen["feedback"].startswith("feedback: {\"sequence\":[0,1,1"), seen
+        done = wait_until("the goal's result", lambda: (g := goal_panel(driver))["status"] not in (
+            "sending", "accepted") and g, timeout=10)
+        assert done["status"] == "succeeded", done
+        assert done["result"] == 'result: {"sequence":[0,1,1,2,3,5,8,13,21,34,55]}', done
+        assert done["fraction"] == 1.0 and not done["cancel"], done
+        print(f"goal order 10: {done['feedbacks']} feedbacks shown, succeeded {time.monotonic() - t_goal:.2f} s "
+              f"after Send")
+
+        # -- order 41: the sim's action server rejects it, and the page says so (panel, error list, notice)
+        send_goal(driver, "41")
+        rejected = wait_until("the rejection", lambda: (g := goal_panel(driver))["status"] == "rejected" and g)
+        assert "rejected" in rejected["text"] and not rejected["cancel"], rejected
+        assert "rejected goal fibonacci" in errors_text(driver), errors_text(driver)
+        assert "rejected goal fibonacci" in driver.find_element(By.ID, "notice").text
+        print(f"goal order 41: {rejected['text']!r}")
+        # an order that does not fit the form's int32 is refused on the page (nothing sent)
+        wire.drain(0.2)
+        send_goal(driver, "3000000000", sent=False)
+        assert "out of range for int32" in driver.find_element(
+            By.CSS_SELECTOR, 'form[data-action="fibonacci"] .form-error').text
+        time.sleep(0.3)
+        assert not [m for m in wire.drain(0.2) if "/goal/" in m.topic], "an out-of-range goal was published"
+
+        # -- a long goal (order 40: ~3.9 s at 0.1 s a term) canceled from the page
+        long_id = send_goal(driver, "40")
+        wait_until("the long goal's progress", lambda: (g := goal_panel(driver))["feedbacks"] >= 2 and g["cancel"]
+                   and g, timeout=5)
+        t_cancel = time.monotonic()
+        driver.find_element(By.CSS_SELECTOR, '.action[data-action="fibonacci"] button.cancel').click()
+        cancel = wire.wait_for(lambda m: m.topic.endswith("/cancel/fibonacci"), timeout=3).json()
+        assert cancel["id"] == long_id, cancel
+        canceled = wait_until("canceled", lambda: (g := goal_panel(driver))["status"] == "canceled" and g, timeout=5)
+        took = time.monotonic() - t_cancel
+        terms = len(canceled["result"].split(","))
+        assert 2 < terms < 41 and canceled["fraction"] < 1.0, canceled  # stopped before the end
+        print(f"goal order 40 canceled: result after {took * 1000:.0f} ms with {terms} of 41 terms")
+
+        # -- parameters: listed with values; a set from the panel reaches the ROS node
+        row = wait_until("max_speed in the parameter panel", lambda: (r := param_row(driver, "max_speed"))
+                         and r["value"] != "…" and r["type"] and r)
+        assert row == {"value": "1", "type": "double", "edit": True, "set": True}, row
+        assert (param_row(driver, "scan_beams") or {}).get("value") == "360"
+        edit = driver.find_element(By.CSS_SELECTOR, '.params input[data-param="max_speed"]')
+        set_button = driver.find_element(By.CSS_SELECTOR, '.params button.set[data-param="max_speed"]')
+        try:
+            wire.drain(0.2)
+            edit.send_keys("fast")  # not a double: said on the page, nothing sent
+            set_button.click()
+            assert param_result(driver)[0] == "invalid" and "not a number" in param_result(driver)[1]
+            time.sleep(0.3)
+            assert not [m for m in wire.drain(0.2) if "/param/" in m.topic and b'"set"' in m.payload]
+            edit.clear()
+            edit.send_keys("0.35")
+            t_set = time.monotonic()
+            set_button.click()
+            wait_until("the set's answer", lambda: param_result(driver)[0] == "ok", timeout=10)
+            assert ros_parameter(stack, "max_speed") == pytest.approx(0.35)
+            wait_until("the new value in the panel", lambda: param_row(driver, "max_speed")["value"] == "0.35")
+            print(f"parameter max_speed set to 0.35 from the page: ROS node reads it "
+                  f"{(time.monotonic() - t_set) * 1000:.0f} ms after Set ({param_result(driver)[1]!r})")
+            # the node's own validation (its range is 0..5) refuses, and the page shows its reason
+            edit.send_keys("9")
+            set_button.click()
+            result, text = wait_until("the node's refusal", lambda: (r := param_result(driver))[0] == "refused" and r,
+                                      timeout=10)
+            assert "max_speed not set:" in text and ros_parameter(stack, "max_speed") == pytest.approx(0.35), text
+            print(f"parameter max_speed = 9 refused: {text!r}")
+        finally:
+            set_max_speed_over_mqtt(stack, 1.0)
+        # someone else's change (the restore above) reaches the panel through state/parameter_events
+        wait_until("the restored value in the panel", lambda: param_row(driver, "max_speed")["value"] == "1")
+        no_console_errors(driver)
+    print(f"panels test: {time.monotonic() - t_test:.1f} s")
+
+
+def test_bob_reads_parameters_but_gets_no_set_button_and_no_goal_form(stack, tmp_path) -> None:
+    from selenium.webdriver.common.by import By
+
+    with browser(tmp_path, "bob-panels") as driver:
+        login(driver, stack["url"], "bob", "bob-demo")
+        logged_in(driver, "bob")
+        wait_until("bob's role", lambda: (robot_row(driver, "turtle1") or {}).get("role") == "viewer")
+        row = wait_until("max_speed's value", lambda: (r := param_row(driver, "max_speed")) and r["value"] != "…"
+                         and r, timeout=15)
+        assert row["value"] == "1" and not row["edit"] and not row["set"], row
+        assert not driver.find_elements(By.CSS_SELECTOR, ".params button.set, .params input")
+        assert driver.find_element(By.CSS_SELECTOR, '.params[data-params="sim_robot"]').get_attribute(
+            "data-can-set") == "no"
+        assert "read-only for you" in driver.find_element(By.ID, "params-box").text
+        # fibonacci is operators-only: bob's access report lists no action, so no panel and no goal form
+        assert not visible(driver, "actions-box")
+        assert not driver.find_elements(By.CSS_SELECTOR, "form[data-action], .action button")
+        assert driver.execute_script("return window.dashboard.robots.get('turtle1').access.actions") == []
+        # the read-only service's form works for him
+        form = driver.find_element(By.CSS_SELECTOR, '#services form[data-service="list_parameters"]')
+        form.find_element(By.CSS_SELECTOR, 'input[data-field="depth"]').send_keys("1")
+        form.find_element(By.CSS_SELECTOR, "button.submit").click()
+        wait_until("bob's list_parameters reply", lambda: driver.execute_script(
+            "return document.getElementById('service-result').dataset.result") == "ok")
+        assert "max_speed" in driver.find_element(By.ID, "service-result").text
+        no_console_errors(driver)

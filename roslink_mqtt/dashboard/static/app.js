@@ -37,6 +37,7 @@
                     "password", "connect", "login-error", "main", "fleet", "fleet-empty", "robot-view", "robot-title",
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
+                    "actions-box", "actions", "params-box", "params",
                     "rates", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks"]) {
     ui[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = $(id);
   }
@@ -48,6 +49,7 @@
     robots: new Map(), selected: null, operatorAnywhere: false, commanding: false,
     presenceSeq: 0, lastSeq: 0, presenceTimer: null, driveTimer: null, driveDir: null, driveRobot: null,
     heldKeys: new Set(), pendingCalls: new Map(), callCounter: 0, waypoint: null,
+    goals: new Map(), pendingParams: new Map(), builtFor: null,
   };
   window.dashboard = dash;
   let dirty = false;                         // the plot needs redrawing (at most once per animation frame)
@@ -55,7 +57,8 @@
 
   function newRobot(name) {
     return { name, hb: null, hbAt: 0, status: null, access: undefined, rates: new Map(), pose: null, recent: [],
-             trail: [], scan: null, gps: [], gpsFix: null, poses: 0, row: null, cells: null };
+             trail: [], scan: null, gps: [], gpsFix: null, poses: 0, row: null, cells: null,
+             description: null, descRaw: "", actionPanels: new Map(), paramPanels: new Map(), lastGoals: new Map() };
   }
 
   // ---------------------------------------------------------------------------------------------- helpers
@@ -222,6 +225,14 @@
     closeClient();
     dash.robots.clear();
     dash.selected = null;
+    dash.builtFor = null;
+    for (const g of dash.goals.values()) clearTimeout(g.timer);
+    dash.goals.clear();
+    for (const r of dash.pendingParams.values()) clearTimeout(r.timer);
+    dash.pendingParams.clear();
+    ui.services.replaceChildren();
+    ui.actions.replaceChildren();
+    ui.params.replaceChildren();
     dash.operatorAnywhere = false;
     dash.commanding = false;
     ui.fleet.tBodies[0].replaceChildren();
@@ -271,8 +282,13 @@
     const name = parts[0];
     if (name === "operators") return;
     if (parts[1] === "heartbeat") { onHeartbeat(name, payload); return; }
-    const robot = dash.robots.get(name);
+    let robot = dash.robots.get(name);
     if (parts[1] === "state" && parts.length >= 3) {
+      if (!robot && parts.length === 3 && parts[2] === "description" && payload.length) {
+        robot = newRobot(name);  // the retained description may come before the heartbeat: keep it
+        dash.robots.set(name, robot);
+        addFleetRow(robot);
+      }
       if (!robot) return;  // state before the first heartbeat: counted from the heartbeat on
       onState(robot, parts.slice(2).join("/"), payload);
     } else if (parts[1] === "to" && parts[2] === dash.user) {
@@ -314,6 +330,16 @@
 
   function onState(robot, name, payload) {
     count(robot, name);
+    if (name === "description") {
+      const raw = new TextDecoder().decode(payload);
+      if (raw === robot.descRaw) return;  // the same retained description again (a reconnect)
+      robot.descRaw = raw;
+      const d = raw ? parse(payload) : null;
+      robot.description = isLayout(d) ? d : null;
+      if (dash.selected === robot.name) buildControls(robot);
+      return;
+    }
+    if (name.startsWith("parameter_events/")) { onParamEvent(robot, name.slice("parameter_events/".length), payload); return; }
     if (name === "robot_status") {
       const env = parse(payload);
       if (env && env.payload) robot.status = env.payload;
@@ -415,6 +441,21 @@
       const where = String(e.topic || "").split("/from/" + dash.user + "/").pop();
       addLog(ui.errors, `${name} refused ${where}: ${e.error}`, { robot: name });
       notice(`${name} refused ${where}: ${e.error}`);
+      // a refused goal, cancel or parameter request: said in its panel too (by the request's id)
+      const goal = e.id !== undefined && dash.goals.get(e.id);
+      if (goal && goal.robot === name) {
+        if (/\/cancel\//.test(String(e.topic || ""))) {
+          goal.cancelSent = false;
+          goal.text = `cancel refused: ${e.error}`;
+          renderGoal(goal);
+        } else endGoal(goal, "refused", String(e.error));
+      }
+      const preq = e.id !== undefined && dash.pendingParams.get(e.id);
+      if (preq && preq.robot === name) {
+        clearTimeout(preq.timer);
+        dash.pendingParams.delete(e.id);
+        preq.onReply(null, `refused: ${e.error}`);
+      }
     } else if (kind === "reply" && rest.length >= 2) {
       const r = parse(payload);
       if (!r || !dash.pendingCalls.has(r.id)) return;
@@ -425,6 +466,10 @@
       ui.serviceResult.textContent = text;
       ui.serviceResult.dataset.result = r.result ? "ok" : "failed";
       if (!r.result) addLog(ui.errors, `${name} call ${call.service}: ${r.error}`, { robot: name });
+    } else if ((kind === "goal_status" || kind === "feedback" || kind === "result") && rest.length === 2) {
+      onGoalMessage(name, kind, rest[1], parse(payload));
+    } else if (kind === "param_reply" && rest.length === 2) {
+      onParamReply(name, parse(payload));
     }
     void packet;
   }
@@ -493,6 +538,7 @@
     show(ui.cameraBox, false);
     ui.serviceResult.textContent = "";
     dash.waypoint = null;
+    dash.builtFor = null;
     buildControls(robot);
     updatePose(robot);
     updateBanner(robot);
@@ -514,18 +560,20 @@
       : robot.access === null ? "You have no access report from this robot: no controls."
       : op ? "" : `You are a ${robot.access.role} of ${robot.name}: you may watch it, not command it.`;
     show(ui.viewerNote, !op);
+    // Forms, action and parameter panels: rebuilt only when the access report or the description changed
+    // (rebuilding would lose what the user typed and the parameter values read).
+    const key = `${JSON.stringify([robot.name, robot.access])}\n${robot.descRaw}`;
+    if (dash.builtFor === key) return;
+    dash.builtFor = key;
+    for (const r of dash.robots.values()) {  // panels of the robot shown before are gone from the page
+      if (r !== robot) { r.actionPanels = new Map(); r.paramPanels = new Map(); }
+    }
     const services = robot.access && Array.isArray(robot.access.services) ? robot.access.services : [];
     ui.services.replaceChildren();
-    for (const svc of services) {
-      const b = document.createElement("button");
-      b.type = "button";
-      b.textContent = svc;
-      b.dataset.service = svc;
-      b.title = `call ${svc} with empty arguments ({})`;
-      b.addEventListener("click", () => callService(robot.name, svc, {}));
-      ui.services.append(b);
-    }
+    for (const svc of services) if (typeof svc === "string") ui.services.append(serviceControl(robot, svc));
     show(ui.servicesBox, services.length > 0);
+    buildActions(robot);
+    buildParams(robot);
   }
 
   function updateBanner(robot) {
@@ -792,6 +840,534 @@
   }
   dash.callService = callService;
 
+  // ------------------------------------------------------------------- forms from the robot description
+  // The robot's description (retained on state/description) carries the field layout of every ROS type it
+  // maps: name → "float64" / "string" / "int32[]" …, or {type, fields} for a nested message. Forms are built
+  // from it with createElement/textContent only (the description comes from the robot: never innerHTML).
+  const INT_RANGE = {
+    int8: [-128, 127], uint8: [0, 255], byte: [0, 255], char: [0, 255], int16: [-32768, 32767], uint16: [0, 65535],
+    int32: [-2147483648, 2147483647], uint32: [0, 4294967295],
+    int64: [-Number.MAX_SAFE_INTEGER, Number.MAX_SAFE_INTEGER], uint64: [0, Number.MAX_SAFE_INTEGER],
+  };
+  const FLOATS = new Set(["float32", "float64", "float", "double"]);
+  const NUMBER_RE = /^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$/;
+  const MAX_FORM_DEPTH = 4;          // nested messages deeper than this are edited as JSON
+  const MAX_FIELDS = 200;            // inputs per form (a huge type gets a JSON box for the rest)
+  const SHOW_MAX = 2000;             // characters of a reply, feedback or result shown
+  const GOALS_MAX = 64;              // goals of this page tracked at once (the oldest is forgotten)
+  const PARAMS_MAX = 200;            // parameters listed per node
+  const PARAM_TIMEOUT_MS = 10000;
+
+  class FieldError extends Error {}
+
+  function short(value) {
+    let text;
+    try { text = JSON.stringify(value); } catch (e) { text = String(value); }
+    if (text === undefined) text = String(value);
+    return text.length > SHOW_MAX ? `${text.slice(0, SHOW_MAX)} … (${text.length} characters)` : text;
+  }
+  function el(tag, attrs, text) {
+    const e = document.createElement(tag);
+    if (attrs) for (const [k, v] of Object.entries(attrs)) {
+      if (k.startsWith("data-")) e.dataset[k.slice(5).replace(/-(\w)/g, (_, c) => c.toUpperCase())] = v;
+      else if (k === "class") e.className = v;
+      else e[k] = v;
+    }
+    if (text !== undefined) e.textContent = text;
+    return e;
+  }
+  function isLayout(v) { return Boolean(v) && typeof v === "object" && !Array.isArray(v); }
+  function typeLayout(robot, rosType) {
+    const d = robot.description;
+    const t = d && isLayout(d.types) && typeof rosType === "string" ? d.types[rosType] : undefined;
+    return isLayout(t) ? t : undefined;
+  }
+  function entryOf(robot, kind, name) {
+    const d = robot.description;
+    const list = d && Array.isArray(d[kind]) ? d[kind] : [];
+    return list.find((e) => isLayout(e) && e.name === name);
+  }
+
+  // One input per primitive field, a fieldset per nested message, a JSON box for arrays (and what is too deep).
+  // Returns a collector: () → the JSON object to send, or throws FieldError naming the field.
+  function buildFields(container, fields, path, depth, budget) {
+    const collectors = [];
+    for (const [name, spec] of Object.entries(fields)) {
+      const full = path ? `${path}.${name}` : name;
+      if (budget.n-- <= 0 || (isLayout(spec) && depth >= MAX_FORM_DEPTH) ||
+          (isLayout(spec) && !isLayout(spec.fields)) || (typeof spec !== "string" && !isLayout(spec))) {
+        collectors.push([name, jsonField(container, full, isLayout(spec) ? String(spec.type || "message") : "JSON", false)]);
+      } else if (isLayout(spec)) {
+        const fs = el("fieldset", { "data-field": full });
+        fs.append(el("legend", null, `${name} (${spec.type || "message"})`));
+        container.append(fs);
+        const inner = buildFields(fs, spec.fields, full, depth + 1, budget);
+        collectors.push([name, () => { const v = inner(); return Object.keys(v).length ? v : undefined; }]);
+      } else {
+        collectors.push([name, primitiveField(container, full, name, spec)]);
+      }
+    }
+    return () => {
+      const out = {};
+      for (const [name, get] of collectors) {
+        const v = get();
+        if (v !== undefined) out[name] = v;
+      }
+      return out;
+    };
+  }
+
+  function markInvalid(input, why) {
+    input.classList.add("invalid");
+    input.setAttribute("aria-invalid", "true");
+    throw new FieldError(why);
+  }
+
+  function primitiveField(container, full, name, type) {
+    const label = el("label", { class: "field" });
+    label.append(el("span", { class: "field-name" }, name), el("span", { class: "field-type" }, type));
+    container.append(label);
+    if (/\[.*\]$/.test(type)) return jsonField(label, full, type, true);
+    if (type === "bool" || type === "boolean") {
+      const box = el("input", { type: "checkbox", "data-field": full, "data-type": type });
+      label.prepend(box);
+      return () => box.checked;
+    }
+    const input = el("input", { type: "text", spellcheck: false, "data-field": full, "data-type": type });
+    input.addEventListener("input", () => { input.classList.remove("invalid"); input.removeAttribute("aria-invalid"); });
+    label.append(input);
+    const range = INT_RANGE[type];
+    if (range || FLOATS.has(type)) {
+      input.inputMode = range ? "numeric" : "decimal";
+      input.placeholder = "0";
+      return () => {
+        const raw = input.value.trim();
+        if (!raw) return undefined;  // the ROS default
+        if (!NUMBER_RE.test(raw)) markInvalid(input, `${full}: "${raw}" is not a number (${type})`);
+        const n = Number(raw);
+        if (!Number.isFinite(n)) markInvalid(input, `${full}: ${raw} is not a finite number (${type})`);
+        if (range) {
+          if (!Number.isInteger(n)) markInvalid(input, `${full}: ${raw} is not an integer (${type})`);
+          if (n < range[0] || n > range[1]) markInvalid(input, `${full}: ${raw} is out of range for ${type} ` +
+                                                        `(${range[0]}..${range[1]})`);
+        }
+        return n;
+      };
+    }
+    const bound = /^w?string<=(\d+)$/.exec(type);
+    if (bound) input.maxLength = Number(bound[1]);
+    return () => (input.value === "" ? undefined : input.value);
+  }
+
+  function jsonField(container, full, type, isArray) {
+    const area = el("textarea", { rows: 2, spellcheck: false, "data-field": full, "data-type": type,
+                                  placeholder: isArray ? "JSON array, e.g. [1, 2]" : "JSON object" });
+    area.addEventListener("input", () => { area.classList.remove("invalid"); area.removeAttribute("aria-invalid"); });
+    if (container.tagName === "LABEL") container.append(area);
+    else {
+      const label = el("label", { class: "field" });
+      label.append(el("span", { class: "field-name" }, full.split(".").pop()), el("span", { class: "field-type" }, type), area);
+      container.append(label);
+    }
+    return () => {
+      const raw = area.value.trim();
+      if (!raw) return undefined;
+      let v;
+      try { v = JSON.parse(raw); } catch (e) { markInvalid(area, `${full}: not JSON (${e.message})`); }
+      const bytes = /^(uint8|byte|char)\[/.test(type);  // byte arrays travel as base64 strings
+      if (isArray && !bytes && !Array.isArray(v)) markInvalid(area, `${full}: expected a JSON array (${type})`);
+      if (!isArray && !isLayout(v)) markInvalid(area, `${full}: expected a JSON object (${type})`);
+      return v;
+    };
+  }
+
+  // A form: fields, a submit button, a line for what is wrong. onSubmit(values) is called only when every
+  // field is valid; an invalid field is said so in the form and nothing is sent.
+  function rosForm(attrs, layout, buttonText, onSubmit) {
+    const form = el("form", { class: "ros-form", noValidate: true, ...attrs });
+    const collect = isLayout(layout) ? buildFields(form, layout, "", 0, { n: MAX_FIELDS })
+      : buildFields(form, { "(goal)": { type: "unknown type: JSON", fields: null } }, "", 0, { n: MAX_FIELDS });
+    const row = el("div", { class: "form-buttons" });
+    const submit = el("button", { type: "submit", class: "submit" }, buttonText);
+    row.append(submit);
+    const error = el("p", { class: "form-error", role: "alert", hidden: true });
+    form.append(row, error);
+    form.addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      let values;
+      try {
+        values = collect();
+        if (!isLayout(layout)) values = values["(goal)"] || {};
+      } catch (e) {
+        if (!(e instanceof FieldError)) throw e;
+        error.textContent = `not sent: ${e.message}`;
+        form.dataset.state = "invalid";
+        show(error, true);
+        return;
+      }
+      error.textContent = "";
+      show(error, false);
+      form.dataset.state = "sent";
+      onSubmit(values);
+    });
+    return { form, row, error };
+  }
+
+  // ----------------------------------------------------------------------------------------------- services
+  function serviceControl(robot, svc) {
+    const entry = entryOf(robot, "services", svc);
+    const t = entry && typeLayout(robot, entry.ros_type);
+    const request = t && isLayout(t.request) ? t.request : undefined;
+    if (!request || Object.keys(request).length === 0) {
+      const b = el("button", { type: "button", "data-service": svc, class: "service-button" }, svc);
+      b.title = request ? `call ${svc} (${entry.ros_type}: no arguments)` : `call ${svc} with empty arguments ({})`;
+      b.addEventListener("click", () => callService(robot.name, svc, {}));
+      return b;
+    }
+    const box = el("div", { class: "service-form" });
+    box.append(el("h4", null, `${svc} `));
+    box.firstChild.append(el("small", null, entry.ros_type));
+    const { form } = rosForm({ "data-service": svc }, request, `Call ${svc}`,
+                             (args) => callService(robot.name, svc, args));
+    box.append(form);
+    return box;
+  }
+
+  // ------------------------------------------------------------------------------------------------ actions
+  function buildActions(robot) {
+    const actions = robot.access && Array.isArray(robot.access.actions) ? robot.access.actions : [];
+    robot.actionPanels = new Map();
+    ui.actions.replaceChildren();
+    for (const name of actions) {
+      if (typeof name !== "string") continue;
+      const entry = entryOf(robot, "actions", name);
+      const t = entry && typeLayout(robot, entry.ros_type);
+      const panel = el("div", { class: "action", "data-action": name });
+      const h = el("h4", null, `${name} `);
+      h.append(el("small", null, entry ? entry.ros_type : "(not in the robot description: goal as JSON)"));
+      panel.append(h);
+      const { form, row } = rosForm({ "data-action": name }, t && isLayout(t.goal) ? t.goal : undefined, "Send goal",
+                                    (goal) => sendGoal(robot.name, name, goal));
+      const cancel = el("button", { type: "button", class: "cancel", disabled: true }, "Cancel");
+      cancel.addEventListener("click", () => cancelGoal(robot.name, name));
+      row.append(cancel);
+      const status = el("p", { class: "goal-status", "data-status": "idle" }, "no goal sent from this page");
+      const progress = el("progress", { class: "goal-progress", max: 1, value: 0, hidden: true });
+      const feedback = el("pre", { class: "goal-feedback" });
+      const result = el("pre", { class: "goal-result" });
+      panel.append(form, status, progress, feedback, result);
+      ui.actions.append(panel);
+      const p = { panel, form, cancel, status, progress, feedback, result, layout: t };
+      robot.actionPanels.set(name, p);
+      const last = robot.lastGoals && robot.lastGoals.get(name);
+      if (last) renderGoal(last);
+    }
+    show(ui.actionsBox, robot.actionPanels.size > 0);
+  }
+
+  const GOAL_ENDED = new Set(["succeeded", "aborted", "canceled", "timeout", "failed", "rejected", "refused",
+                              "no-answer"]);
+
+  function sendGoal(robotName, action, goal) {
+    const robot = dash.robots.get(robotName);
+    if (!robot) return;
+    if (!dash.client || !dash.connected) { notice(`not sent (goal ${action}): not connected to the broker`); return; }
+    const id = `${dash.clientId}-g${++dash.callCounter}`;
+    const g = { id, robot: robotName, action, goal, status: "sending", text: "sent, waiting for the robot …",
+                feedback: null, result: null, sentAt: performance.now(), timer: null };
+    g.timer = setTimeout(() => {
+      if (g.status !== "sending") return;
+      endGoal(g, "no-answer", `no answer within ${CALL_TIMEOUT_MS / 1000} s (robot offline, or the broker dropped ` +
+              "the goal: are you allowed to send it?)");
+      addLog(ui.errors, `${robotName} goal ${action}: ${g.text}`, { robot: robotName });
+    }, CALL_TIMEOUT_MS);
+    dash.goals.set(id, g);
+    while (dash.goals.size > GOALS_MAX) {  // forget the oldest (a goal whose result never came)
+      const [oldId, old] = dash.goals.entries().next().value;
+      clearTimeout(old.timer);
+      dash.goals.delete(oldId);
+    }
+    if (!robot.lastGoals) robot.lastGoals = new Map();
+    robot.lastGoals.set(action, g);
+    if (isOperator(robot) && !dash.commanding) { dash.commanding = true; beat(); }
+    dash.client.publish(topic(robotName, "from", dash.user, "goal", action),
+                        JSON.stringify({ id, goal, client_id: dash.clientId }), { qos: 1 });
+    renderGoal(g);
+  }
+
+  function cancelGoal(robotName, action) {
+    const robot = dash.robots.get(robotName);
+    const g = robot && robot.lastGoals && robot.lastGoals.get(action);
+    if (!g || GOAL_ENDED.has(g.status)) return;
+    if (!dash.client || !dash.connected) { notice(`not sent (cancel ${action}): not connected to the broker`); return; }
+    dash.client.publish(topic(robotName, "from", dash.user, "cancel", action),
+                        JSON.stringify({ id: g.id, client_id: dash.clientId }), { qos: 1 });
+    g.text = `${g.text}; cancel sent …`;
+    g.cancelSent = true;
+    renderGoal(g);
+  }
+
+  function endGoal(g, status, text) {
+    clearTimeout(g.timer);
+    g.status = status;
+    g.text = text;
+    dash.goals.delete(g.id);
+    renderGoal(g);
+  }
+
+  // A progress fraction, when the feedback says one: a numeric field named like progress/percent, or an
+  // array that grows towards the goal's only integer field (fibonacci: the sequence towards `order`).
+  function progressOf(g) {
+    const f = g.feedback;
+    if (!isLayout(f)) return null;
+    for (const [k, v] of Object.entries(f)) {
+      if (typeof v === "number" && /progress|percent|fraction/i.test(k) && v >= 0) return v > 1 ? Math.min(1, v / 100) : v;
+    }
+    const ints = isLayout(g.goal) ? Object.values(g.goal).filter((v) => Number.isInteger(v) && v > 0) : [];
+    const arrays = Object.values(f).filter(Array.isArray);
+    if (ints.length === 1 && arrays.length === 1) return Math.max(0, Math.min(1, (arrays[0].length - 1) / ints[0]));
+    return null;
+  }
+
+  function renderGoal(g) {
+    const robot = dash.robots.get(g.robot);
+    const p = robot && dash.selected === g.robot && robot.actionPanels && robot.actionPanels.get(g.action);
+    if (!p) return;
+    p.status.dataset.status = g.status;
+    p.status.dataset.goalId = g.id;
+    setText(p.status, `goal ${short(g.goal)}: ${g.status}${g.text ? " — " + g.text : ""}`);
+    p.cancel.disabled = GOAL_ENDED.has(g.status) || g.status === "canceling" || Boolean(g.cancelSent);
+    const frac = g.status === "succeeded" ? 1 : progressOf(g);
+    show(p.progress, frac !== null);
+    if (frac !== null) { p.progress.value = frac; p.progress.dataset.fraction = frac.toFixed(3); }
+    setText(p.feedback, g.feedback ? `feedback: ${short(g.feedback)}` : "");
+    p.feedback.dataset.count = String(g.feedbackCount || 0);
+    setText(p.result, g.result !== null ? `result: ${short(g.result)}` : "");
+  }
+
+  function onGoalMessage(name, kind, action, body) {
+    if (!isLayout(body) || (body.client_id && body.client_id !== dash.clientId)) return;  // another program's
+    const g = dash.goals.get(body.id);
+    if (!g || g.robot !== name || g.action !== action) return;
+    if (kind === "goal_status") {
+      clearTimeout(g.timer);
+      if (body.status === "rejected") {
+        const why = body.error ? String(body.error) : "the action server refused it";
+        endGoal(g, "rejected", why);
+        addLog(ui.errors, `${name} rejected goal ${action} ${short(g.goal)}: ${why}`, { robot: name });
+        notice(`${name} rejected goal ${action}: ${why}`);
+        return;
+      }
+      g.status = String(body.status);
+      g.text = body.status === "canceling" ? "cancel accepted, waiting for the result …" : "";
+    } else if (kind === "feedback") {
+      g.feedback = body.feedback;
+      g.feedbackCount = (g.feedbackCount || 0) + 1;
+      if (g.status === "sending") g.status = "accepted";
+    } else if (kind === "result") {
+      g.result = body.result === undefined ? null : body.result;
+      const status = String(body.status);
+      endGoal(g, status, body.error ? String(body.error) : "");
+      if (status !== "succeeded") {
+        addLog(ui.errors, `${name} goal ${action} ended ${status}${body.error ? ": " + body.error : ""}`, { robot: name });
+      }
+      return;
+    }
+    renderGoal(g);
+  }
+
+  // --------------------------------------------------------------------------------------------- parameters
+  function paramRequest(robotName, node, body, onReply) {
+    if (!dash.client || !dash.connected) { onReply(null, "not connected to the broker"); return; }
+    const id = `${dash.clientId}-p${++dash.callCounter}`;
+    const timer = setTimeout(() => {
+      dash.pendingParams.delete(id);
+      onReply(null, `no reply within ${PARAM_TIMEOUT_MS / 1000} s (robot offline, or the broker dropped the request)`);
+    }, PARAM_TIMEOUT_MS);
+    dash.pendingParams.set(id, { robot: robotName, node, onReply, timer });
+    dash.client.publish(topic(robotName, "from", dash.user, "param", node),
+                        JSON.stringify({ id, ...body, client_id: dash.clientId }), { qos: 1 });
+  }
+
+  function mayUse(robot, who) { return who === "viewers" ? Boolean(robot.access) : isOperator(robot); }
+
+  function buildParams(robot) {
+    const d = robot.description;
+    const entries = robot.access && d && Array.isArray(d.parameters) ? d.parameters.filter(
+      (e) => isLayout(e) && typeof e.name === "string" && mayUse(robot, e.who || "viewers")) : [];
+    robot.paramPanels = new Map();
+    ui.params.replaceChildren();
+    for (const entry of entries) {
+      const canSet = mayUse(robot, entry.set_by || "operators");
+      const panel = el("div", { class: "params", "data-params": entry.name, "data-can-set": canSet ? "yes" : "no" });
+      const h = el("h4", null, `${entry.name} `);
+      h.append(el("small", null, `node ${entry.node || entry.name}; set by ${entry.set_by || "operators"}`));
+      const refresh = el("button", { type: "button", class: "refresh", title: "read the values again" }, "↻");
+      h.append(refresh);
+      const table = el("table", { class: "param-table" });
+      table.append(el("tbody"));
+      const result = el("p", { class: "param-result" });
+      panel.append(h, table);
+      if (!canSet) panel.append(el("p", { class: "hint" }, `read-only for you: ${entry.set_by || "operators"} may set these`));
+      panel.append(result);
+      ui.params.append(panel);
+      const p = { entry, panel, table, result, canSet, rows: new Map(), types: new Map() };
+      robot.paramPanels.set(entry.name, p);
+      refresh.addEventListener("click", () => loadParams(robot, p));
+      loadParams(robot, p);
+    }
+    show(ui.paramsBox, entries.length > 0);
+  }
+
+  function paramNote(p, result, text) {
+    p.result.dataset.result = result;
+    setText(p.result, text);
+  }
+
+  function loadParams(robot, p) {
+    const node = p.entry.name;
+    paramNote(p, "pending", "reading …");
+    paramRequest(robot.name, node, { op: "list" }, (r, err) => {
+      if (!r) { paramNote(p, "failed", `list failed: ${err}`); return; }
+      const names = isLayout(r.values) && Array.isArray(r.values.names)
+        ? r.values.names.filter((n) => typeof n === "string").sort().slice(0, PARAMS_MAX) : [];
+      for (const [n, row] of p.rows) if (!names.includes(n)) { row.tr.remove(); p.rows.delete(n); }
+      for (const n of names) paramRow(robot, p, n);
+      if (!names.length) { paramNote(p, "ok", "no parameters"); return; }
+      paramRequest(robot.name, node, { op: "describe", names }, (rd) => {
+        if (!rd || !isLayout(rd.values)) return;
+        for (const [n, info] of Object.entries(rd.values)) {
+          const row = p.rows.get(n);
+          if (!row || !isLayout(info)) continue;
+          p.types.set(n, String(info.type || ""));
+          row.name.title = `${info.type || "?"}${info.description ? ": " + info.description : ""}`;
+          row.tr.dataset.type = String(info.type || "");
+          if (info.read_only && row.set) { row.set.disabled = true; row.input.disabled = true; row.set.title = "read-only parameter"; }
+        }
+      });
+      paramRequest(robot.name, node, { op: "get", names }, (rg, err2) => {
+        if (!rg) { paramNote(p, "failed", `get failed: ${err2}`); return; }
+        if (isLayout(rg.values)) for (const [n, v] of Object.entries(rg.values)) setParamValue(p, n, v);
+        paramNote(p, "ok", `${names.length} parameters read at ${stamp()}`);
+      });
+    });
+  }
+
+  function paramRow(robot, p, name) {
+    if (p.rows.has(name)) return p.rows.get(name);
+    const tr = el("tr", { "data-param": name });
+    const nameTd = el("td", { class: "name" }, name);
+    const valueTd = el("td", { class: "value" }, "…");
+    tr.append(nameTd, valueTd);
+    const row = { tr, name: nameTd, value: valueTd, input: null, set: null };
+    if (p.canSet) {
+      const td = el("td", { class: "edit" });
+      row.input = el("input", { type: "text", size: 8, spellcheck: false, "data-param": name, placeholder: "new value" });
+      row.set = el("button", { type: "button", class: "set", "data-param": name }, "Set");
+      const send = () => setParam(robot, p, name, row);
+      row.set.addEventListener("click", send);
+      row.input.addEventListener("keydown", (ev) => { if (ev.key === "Enter") { ev.preventDefault(); send(); } });
+      td.append(row.input, row.set);
+      tr.append(td);
+    }
+    p.table.tBodies[0].append(tr);
+    p.rows.set(name, row);
+    return row;
+  }
+
+  function setParamValue(p, name, value) {
+    const row = p.rows.get(name);
+    if (!row) return;
+    const text = value === null || value === undefined ? "(not set)" : typeof value === "string" ? value : short(value);
+    setText(row.value, text);
+    row.value.dataset.value = short(value === undefined ? null : value);
+  }
+
+  // The typed value of an edit box, from the parameter's described type (a double also takes "1"; a string
+  // takes the text as is); throws FieldError with the reason.
+  function parseParam(type, raw, name) {
+    const text = raw.trim();
+    const num = (int) => {
+      if (!NUMBER_RE.test(text) || !Number.isFinite(Number(text))) throw new FieldError(`${name}: "${raw}" is not a number (${type})`);
+      const n = Number(text);
+      if (int && !Number.isSafeInteger(n)) throw new FieldError(`${name}: "${raw}" is not an integer (${type})`);
+      return n;
+    };
+    if (type === "double") return num(false);
+    if (type === "integer") return num(true);
+    if (type === "bool") {
+      if (/^(true|false)$/i.test(text)) return text.toLowerCase() === "true";
+      throw new FieldError(`${name}: "${raw}" is not true or false (bool)`);
+    }
+    if (type === "string") return raw;
+    let v;
+    try { v = JSON.parse(text); } catch (e) {
+      if (!type || type === "not_set") return raw;  // an untyped parameter: the text as a string
+      throw new FieldError(`${name}: not a JSON array (${type})`);
+    }
+    if (type.endsWith("_array") && !Array.isArray(v)) throw new FieldError(`${name}: expected a JSON array (${type})`);
+    return v;
+  }
+
+  function setParam(robot, p, name, row) {
+    let value;
+    try {
+      if (row.input.value.trim() === "" && p.types.get(name) !== "string") throw new FieldError(`${name}: enter a value`);
+      value = parseParam(p.types.get(name) || "", row.input.value, name);
+    } catch (e) {
+      if (!(e instanceof FieldError)) throw e;
+      row.input.classList.add("invalid");
+      paramNote(p, "invalid", `not sent: ${e.message}`);
+      return;
+    }
+    row.input.classList.remove("invalid");
+    paramNote(p, "pending", `setting ${name} to ${short(value)} …`);
+    paramRequest(robot.name, p.entry.name, { op: "set", values: { [name]: value } }, (r, err) => {
+      if (!r) { paramNote(p, "failed", `set ${name} failed: ${err}`); return; }
+      const res = isLayout(r.values) ? r.values[name] : undefined;
+      if (res && res.successful) {
+        paramNote(p, "ok", `${name} set to ${short(value)}`);
+        row.input.value = "";
+      } else {
+        const why = res && res.reason ? res.reason : "the node refused it";
+        paramNote(p, "refused", `${name} not set: ${why}`);
+        addLog(ui.errors, `${robot.name} refused parameter ${name} = ${short(value)}: ${why}`, { robot: robot.name });
+      }
+      paramRequest(robot.name, p.entry.name, { op: "get", names: [name] }, (rg) => {
+        if (rg && isLayout(rg.values) && name in rg.values) setParamValue(p, name, rg.values[name]);
+      });
+    });
+  }
+
+  function onParamReply(name, body) {
+    if (!isLayout(body) || (body.client_id && body.client_id !== dash.clientId)) return;
+    const req = dash.pendingParams.get(body.id);
+    if (!req || req.robot !== name) return;
+    clearTimeout(req.timer);
+    dash.pendingParams.delete(body.id);
+    if (body.result) req.onReply(body, null);
+    else req.onReply(null, String(body.error || "failed"));
+  }
+
+  // state/parameter_events/<name>: values changed by anyone (MQTT, ros2 param set, the node itself)
+  function onParamEvent(robot, name, payload) {
+    const p = robot.paramPanels && robot.paramPanels.get(name);
+    if (!p) return;
+    const ev = parse(payload);
+    if (!isLayout(ev)) return;
+    for (const key of ["new", "changed"]) {
+      if (!isLayout(ev[key])) continue;
+      for (const [n, v] of Object.entries(ev[key])) {
+        if (key === "new" && p.rows.size < PARAMS_MAX) paramRow(robot, p, n);
+        setParamValue(p, n, v);
+      }
+    }
+    if (Array.isArray(ev.deleted)) for (const n of ev.deleted) {
+      const row = p.rows.get(n);
+      if (row) { row.tr.remove(); p.rows.delete(n); }
+    }
+  }
+
   function onPlotClick(ev) {
     if (!ui.waypointMode.checked || !dash.selected) return;
     const rect = ui.plot.getBoundingClientRect();
@@ -822,7 +1398,9 @@
   }
   document.addEventListener("keydown", (ev) => {
     const target = ev.target;
-    if (target && (target.tagName === "INPUT" && target.type !== "range" && target.type !== "checkbox")) return;
+    // typing in a form drives nothing (text boxes and JSON areas of the service, goal and parameter forms)
+    if (target && ((target.tagName === "INPUT" && target.type !== "range" && target.type !== "checkbox") ||
+                   target.tagName === "TEXTAREA" || target.tagName === "SELECT" || target.isContentEditable)) return;
     if (ui.controls.hidden) return;
     if (ev.key === " ") { ev.preventDefault(); dash.heldKeys.clear(); stopDriving(true); return; }
     const dir = KEYS[ev.key];
