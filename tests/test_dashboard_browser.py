@@ -642,6 +642,12 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
 
 # -- panels built from the robot description (services with arguments, actions, parameters) ------------------
 
+def click(driver: Any, element: Any) -> None:
+    """Scroll ``element`` to the middle first: the sticky header would take a click at the top edge."""
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", element)
+    element.click()
+
+
 def goal_panel(driver: Any, action: str = "fibonacci") -> dict[str, Any] | None:
     """What the page's action panel shows: status (data-status), goal id, feedback, result, progress, Cancel."""
     return driver.execute_script("""
@@ -664,7 +670,7 @@ def send_goal(driver: Any, order: str, action: str = "fibonacci", sent: bool = T
     field = driver.find_element(By.CSS_SELECTOR, f'form[data-action="{action}"] input[data-field="order"]')
     field.clear()
     field.send_keys(order)
-    driver.find_element(By.CSS_SELECTOR, f'form[data-action="{action}"] button.submit').click()
+    click(driver, driver.find_element(By.CSS_SELECTOR, f'form[data-action="{action}"] button.submit'))
     if not sent:
         return ""
     return wait_until("the goal in the panel", lambda: (g := goal_panel(driver, action)) and g["id"] != before
@@ -744,7 +750,7 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
             depth.send_keys(bad_depth)
             prefixes.clear()
             prefixes.send_keys(bad_prefixes)
-            form.find_element(By.CSS_SELECTOR, "button.submit").click()
+            click(driver, form.find_element(By.CSS_SELECTOR, "button.submit"))
             shown = wait_until(f"the message for depth={bad_depth!r} prefixes={bad_prefixes!r}",
                                lambda: error.is_displayed() and error.text)
             assert why in shown and shown.startswith("not sent:"), shown
@@ -759,7 +765,7 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         prefixes.clear()
         prefixes.send_keys("[]")
         t_call = time.monotonic()
-        form.find_element(By.CSS_SELECTOR, "button.submit").click()
+        click(driver, form.find_element(By.CSS_SELECTOR, "button.submit"))
         call = wire.wait_for(lambda m: m.topic.endswith("/call/list_parameters"), timeout=5).json()
         assert call["args"] == {"depth": 0, "prefixes": []}, call
         wait_until("the list_parameters reply", lambda: driver.execute_script(
@@ -779,7 +785,7 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         seen = wait_until("feedback in the panel", lambda: (g := goal_panel(driver))["feedbacks"] >= 1 and g)
         assert seen["feedback"].startswith("feedback: {\"sequence\":[0,1,1"), seen
         done = wait_until("the goal's result", lambda: (g := goal_panel(driver))["status"] not in (
-            "sending", "accepted") and g, timeout=10)
+            "sending", "accepted") and g, timeout=15)
         assert done["status"] == "succeeded", done
         assert done["result"] == 'result: {"sequence":[0,1,1,2,3,5,8,13,21,34,55]}', done
         assert done["fraction"] == 1.0 and not done["cancel"], done
@@ -806,7 +812,7 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         wait_until("the long goal's progress", lambda: (g := goal_panel(driver))["feedbacks"] >= 2 and g["cancel"]
                    and g, timeout=5)
         t_cancel = time.monotonic()
-        driver.find_element(By.CSS_SELECTOR, '.action[data-action="fibonacci"] button.cancel').click()
+        click(driver, driver.find_element(By.CSS_SELECTOR, '.action[data-action="fibonacci"] button.cancel'))
         cancel = wire.wait_for(lambda m: m.topic.endswith("/cancel/fibonacci"), timeout=3).json()
         assert cancel["id"] == long_id, cancel
         canceled = wait_until("canceled", lambda: (g := goal_panel(driver))["status"] == "canceled" and g, timeout=5)
@@ -814,6 +820,23 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         terms = len(canceled["result"].split(","))
         assert 2 < terms < 41 and canceled["fraction"] < 1.0, canceled  # stopped before the end
         print(f"goal order 40 canceled: result after {took * 1000:.0f} ms with {terms} of 41 terms")
+
+        # -- a goal the bridge refuses (motion blocked by the page's own emergency stop): the refusal comes on
+        #    to/alice/error with the goal's id, and the panel says so
+        try:
+            driver.find_element(By.ID, "estop").click()
+            wait_until("turtle1 stopped", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "emergency")
+            send_goal(driver, "5")
+            refused = wait_until("the bridge's refusal", lambda: (g := goal_panel(driver))["status"] != "sending"
+                                 and g, timeout=5)
+            assert refused["status"] == "refused" and "send cmd/arm to resume" in refused["text"], refused
+            assert "refused goal/fibonacci" in errors_text(driver), errors_text(driver)
+            print(f"goal while e-stopped: {refused['text']!r}")
+            click(driver, driver.find_element(By.ID, "arm"))
+            wait_until("turtle1 active again", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "active")
+        except BaseException:
+            arm_if_blocked(stack)
+            raise
 
         # -- parameters: listed with values; a set from the panel reaches the ROS node
         row = wait_until("max_speed in the parameter panel", lambda: (r := param_row(driver, "max_speed"))
@@ -825,14 +848,14 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         try:
             wire.drain(0.2)
             edit.send_keys("fast")  # not a double: said on the page, nothing sent
-            set_button.click()
+            click(driver, set_button)
             assert param_result(driver)[0] == "invalid" and "not a number" in param_result(driver)[1]
             time.sleep(0.3)
             assert not [m for m in wire.drain(0.2) if "/param/" in m.topic and b'"set"' in m.payload]
             edit.clear()
             edit.send_keys("0.35")
             t_set = time.monotonic()
-            set_button.click()
+            click(driver, set_button)
             wait_until("the set's answer", lambda: param_result(driver)[0] == "ok", timeout=10)
             assert ros_parameter(stack, "max_speed") == pytest.approx(0.35)
             wait_until("the new value in the panel", lambda: param_row(driver, "max_speed")["value"] == "0.35")
@@ -840,7 +863,7 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
                   f"{(time.monotonic() - t_set) * 1000:.0f} ms after Set ({param_result(driver)[1]!r})")
             # the node's own validation (its range is 0..5) refuses, and the page shows its reason
             edit.send_keys("9")
-            set_button.click()
+            click(driver, set_button)
             result, text = wait_until("the node's refusal", lambda: (r := param_result(driver))[0] == "refused" and r,
                                       timeout=10)
             assert "max_speed not set:" in text and ros_parameter(stack, "max_speed") == pytest.approx(0.35), text
@@ -874,7 +897,7 @@ def test_bob_reads_parameters_but_gets_no_set_button_and_no_goal_form(stack, tmp
         # the read-only service's form works for him
         form = driver.find_element(By.CSS_SELECTOR, '#services form[data-service="list_parameters"]')
         form.find_element(By.CSS_SELECTOR, 'input[data-field="depth"]').send_keys("1")
-        form.find_element(By.CSS_SELECTOR, "button.submit").click()
+        click(driver, form.find_element(By.CSS_SELECTOR, "button.submit"))
         wait_until("bob's list_parameters reply", lambda: driver.execute_script(
             "return document.getElementById('service-result').dataset.result") == "ok")
         assert "max_speed" in driver.find_element(By.ID, "service-result").text
