@@ -336,6 +336,7 @@
       robot.descRaw = raw;
       const d = raw ? parse(payload) : null;
       robot.description = isLayout(d) ? d : null;
+      presenceIfNeeded(robot);
       if (dash.selected === robot.name) buildControls(robot);
       return;
     }
@@ -427,10 +428,7 @@
       }
       const body = payload.length ? parse(payload) : null;
       robot.access = body && (body.role === "operator" || body.role === "viewer") ? body : null;
-      if (robot.access && robot.access.role === "operator" && !dash.operatorAnywhere) {
-        dash.operatorAnywhere = true;
-        startPresence();
-      }
+      presenceIfNeeded(robot);
       if (dash.selected === name) buildControls(robot);
       updateRow(robot, performance.now());
     } else if (kind === "error") {
@@ -544,6 +542,21 @@
     updateBanner(robot);
     for (const r of dash.robots.values()) updateRow(r, performance.now());
     dirty = true;
+  }
+
+  // Operator presence (heartbeat + last-will) is kept by operators, and by a viewer who may send goals (an action
+  // open to viewers in the access report) or set parameters (an entry with set_by viewers): the robot accepts
+  // goals and parameter sets only from users with a live presence, as commands.
+  function presenceIfNeeded(robot) {
+    if (dash.operatorAnywhere || !robot.access) return;
+    const d = robot.description;
+    const viewerSets = Boolean(d && Array.isArray(d.parameters) &&
+                               d.parameters.some((e) => isLayout(e) && e.set_by === "viewers"));
+    const actions = Array.isArray(robot.access.actions) && robot.access.actions.length > 0;
+    if (isOperator(robot) || actions || viewerSets) {
+      dash.operatorAnywhere = true;
+      startPresence();
+    }
   }
 
   function isOperator(robot) { return Boolean(robot && robot.access && robot.access.role === "operator"); }
