@@ -471,3 +471,21 @@ def test_goals_are_canceled_where_velocity_stops(h: Harness, end: str, whose: st
     assert (whose, why) in h.ros.canceled
     count = 2 if whose == "alice" else 3
     assert f"canceled {count} action goal(s){f' of {whose}' if whose else ''}: {why}" in _failsafe_acks(h)
+
+
+def test_a_flood_of_refused_input_is_reported_at_a_bounded_rate_and_summarised(h: Harness) -> None:
+    """A viewer's 500 twists are all refused, but the bridge does not answer each: burst, then a count."""
+    for _ in range(500):
+        h.command("twist", {"lx": 0.1}, user="bob")
+    said = _refused(h, "bob")
+    assert len(said) == 100  # the burst; the rest held back and counted
+    assert not [t for t in h.twists() if t != (0.0, 0.0)]
+    time.sleep(0.05)  # a token or two back
+    h.endpoint.supervise(time.monotonic())
+    summary = _refused(h, "bob")[-1]
+    assert summary.startswith("user 'bob' may not send 'cmd/twist'")
+    assert "[400 more of your inputs were refused and not reported one by one" in summary
+    h.present()
+    h.command("twist", {"lx": 0.1})  # alice's refusals are hers: bob used none of them
+    h.command("twist", {"lx": 0.1}, user="carol")
+    assert [e.error for e in h.link.errors("carol")] and h.twists()[-1] == (0.1, 0.0)

@@ -43,7 +43,7 @@ from ..protocol.control import ErrorReport, pop_generic_sender, request_id
 from ..topics import Kind, TopicTree, Verb
 from .authorize import refusal
 from .failsafe import Failsafe, late_motion
-from .refusals import INPUT_REFUSALS
+from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
 from .safety import is_standstill, make_safe_twist
 
@@ -108,6 +108,7 @@ class CommandEndpoint:
         self._stop_repeats_left = 0
         self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho thread only)
         self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
+        self.reports = RefusalReports()  # refusal reports per user are rate-limited, never silently dropped
 
     # -- grants --------------------------------------------------------------------------
     def role_of(self, user: str) -> Role | None:
@@ -379,6 +380,8 @@ class CommandEndpoint:
                 self.actuators.zero_velocity()
         for user in expired:
             self._cancel_goals(user, f"operator {user} went away (no heartbeat for {self.operators.timeout:g} s)")
+        for user, topic, reason in self.reports.summaries(now):
+            self.link.publish(self.topics.error(self.robot.name, user), error_reply(topic, reason), qos=ErrorReport.QOS)
 
     # -- MQTT out --------------------------------------------------------------------------------
     def heartbeat(self, status: SystemStatus) -> bytes:
@@ -410,9 +413,12 @@ class CommandEndpoint:
         (``client_id``), or read from the refused ``payload`` here, on the rare refusal path rather than for
         every accepted command. A request that names no sender gets a report without one (any program may show it).
         """
+        log.debug("refused %s: %s", topic, reason)
+        reason = self.reports.admit(user, topic, reason, time.monotonic())
+        if reason is None:
+            return  # held back and counted: the next report (or a summary) says how many
         if client_id is None and payload is not None:
             client_id = sender_id(payload)
-        log.debug("refused %s: %s", topic, reason)
         self.link.publish(self.topics.error(self.robot.name, user),
                           error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
                                       client_id=client_id, request_id=request_id), qos=ErrorReport.QOS)

@@ -21,15 +21,15 @@ from ..mqtt import BrokerUrl, make_client
 log = logging.getLogger("roslink_mqtt.bridge.link")
 
 
-def bridge_client_id(robot: str) -> str:
-    """``roslink-bridge-<robot>-<64 random bits>``, new at every start.
+def bridge_client_id(robot: str, purpose: str = "") -> str:
+    """``roslink-bridge-<robot>-<64 random bits>`` (``-<purpose>-`` before the bits), new at every start.
 
     On a broker where any login may take over any client id (Mosquitto, MQTT itself), a
     predictable id let a viewer keep the robot offline by connecting with it in a loop. The
     embedded broker scopes client ids by login anyway; the bridge uses a clean session, so
     nothing depends on the id staying the same across restarts.
     """
-    return f"roslink-bridge-{robot}-{secrets.token_hex(8)}"
+    return f"roslink-bridge-{robot}-{purpose + '-' if purpose else ''}{secrets.token_hex(8)}"
 
 
 class MqttLink:

@@ -16,12 +16,13 @@ from typing import Any
 
 from rclpy.node import Node
 
-from ..config import Fleet, Robot
+from ..config import Fleet, Robot, Role
 from ..protocol import AckResult, SystemStatus
 from ..topics import Verb
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
+from .budget import RequestBudget
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
@@ -164,6 +165,14 @@ class Bridge:
             client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
             on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file)
+        # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
+        # a viewer sends, it queues behind nothing of the operators', whose commands and stops keep their own
+        # TCP stream and paho thread. Everything the bridge publishes goes out on the command link.
+        self.viewer_link = MqttLink(
+            client_id=bridge_client_id(robot.name, "viewers"), username=robot.name, password=password,
+            url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
+            on_message=self._on_mqtt, ca_file=ca_file)
+        budget = RequestBudget(settings.max_requests_per_user)  # calls and parameter requests together
         role_of = self._role_of
         self.on_demand = OnDemandPublishers(node, {n: r for n, r in routes.items() if r.rule.on_demand},
                                             {n for n, r in routes.items() if not r.rule.on_demand},
@@ -173,7 +182,7 @@ class Bridge:
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         try:
-            self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of)
+            self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of, budget)
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
@@ -186,7 +195,7 @@ class Bridge:
             raise RuleError(str(err)) from None
         self.actuators.actions = self.actions
         self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
-                                          lambda user: self._is_live(user), self._refuse)
+                                          lambda user: self._is_live(user), self._refuse, budget)
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
@@ -243,23 +252,30 @@ class Bridge:
             log.warning("reload: the rules or bridge settings of %s changed; restart the bridge to apply them "
                         "(users and grants apply now)", self.robot.name)
         old_fleet = self.fleet
-        before, after = old_fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
+        after = fleet.users_of(self.robot.name)
         self.fleet = fleet
         for user in self.endpoint.set_fleet(fleet):
             self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
             self.provided_actions.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
             self.on_demand.withdraw_user(user)
         self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
-        for user in sorted(set(before) - set(after)):
-            self.link.unsubscribe(self.topics.operators_of(user))
-        for user in sorted(set(after) - set(before)):
-            self.link.subscribe(self.topics.operators_of(user), 1)
+        # a user who changes role moves between the links: leave the old one first (a gap of a few ms, never
+        # the same command arriving twice), then join the new one
+        links = {link: (self._subscriptions_of(link, old_fleet), self._subscriptions_of(link, fleet))
+                 for link in (self.link, self.viewer_link)}
+        for link, (old, new) in links.items():
+            for topic, _ in set(old) - set(new):
+                link.unsubscribe(topic)
+        for link, (old, new) in links.items():
+            for topic, qos in sorted(set(new) - set(old)):
+                link.subscribe(topic, qos)
         log.info("reloaded %s: %d users may see %s (%s)", fleet.file, len(after), self.robot.name,
                  ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
         self.link.start()
+        self.viewer_link.start()
         self.systemd.ready(f"connecting to {self.link.url}")
 
     def stop(self) -> None:
@@ -267,13 +283,39 @@ class Bridge:
         self.systemd.stopping()
         with self.endpoint.lock:
             self.actuators.zero_velocity()
+        self.viewer_link.stop()
         self.link.stop([(self.topics.heartbeat(self.robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
                          True)])
 
-    def mqtt_subscriptions(self) -> list[tuple[str, int]]:
-        subs = [(self.topics.all_from_users(self.robot.name), 1)]
-        subs += [(self.topics.operators_of(user), 1) for user in sorted(self.fleet.users_of(self.robot.name))]
+    def _link_for(self, role: Role | None) -> MqttLink:
+        """Which connection carries a user's traffic: operators' the command link, everyone else's their own."""
+        return self.link if role is Role.OPERATOR else self.viewer_link
+
+    def _subscriptions_of(self, link: MqttLink, fleet: Fleet | None = None) -> list[tuple[str, int]]:
+        """What ``link`` subscribes to: the inputs of each user it carries, and the presence of those granted.
+
+        Users of the fleet without a grant here are subscribed to as well (on the viewer link): a broker whose
+        ACL is older than the bridge's grants may still let them publish, and they must hear why nothing
+        happens (``not an operator``) instead of silence.
+        """
+        fleet = fleet or self.fleet
+        granted = fleet.users_of(self.robot.name)
+        subs = []
+        for user in sorted(fleet.users):
+            role = granted.get(user)
+            if self._link_for(role) is link:
+                subs.append((self.topics.from_user_filter(self.robot.name, user), 1))
+                if role is not None:
+                    subs.append((self.topics.operators_of(user), 1))
         return subs
+
+    def mqtt_subscriptions(self) -> list[tuple[str, int]]:
+        """The command link's: every operator's commands, requests and presence (re-read at each connect)."""
+        return self._subscriptions_of(self.link)
+
+    def viewer_subscriptions(self) -> list[tuple[str, int]]:
+        """The viewer link's: every other user's inputs, and viewers' presence."""
+        return self._subscriptions_of(self.viewer_link)
 
     def on_link_up(self) -> None:
         self.systemd.status(f"connected to {self.link.url}")

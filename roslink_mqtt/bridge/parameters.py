@@ -42,6 +42,7 @@ from ..protocol.params import (
 from ..protocol.validate import show_key
 from ..topics import TopicTree, Verb
 from .authorize import refusal
+from .budget import RequestBudget
 from .pending import PendingCalls
 
 log = logging.getLogger("roslink_mqtt.bridge.parameters")
@@ -92,6 +93,7 @@ class _Request:
     rule: ParameterRule
     request: ParamRequest
     topic: str  # where it came from (for error reports)
+    answered: bool = False  # its request slot is given back once, on the first answer
 
 
 @dataclass
@@ -108,9 +110,10 @@ class ParameterBridge:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Callable[[str, bytes, int], None],
                  role_of: Callable[[str], Role | None], is_live: Callable[[str], bool],
-                 refuse: Callable[..., None]) -> None:
+                 refuse: Callable[..., None], budget: RequestBudget | None = None) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.role_of, self.is_live, self.refuse = role_of, is_live, refuse
+        self.budget = budget or RequestBudget(robot.bridge.max_requests_per_user)
         group = ReentrantCallbackGroup()
         self.rules = {rule.name: rule for rule in robot.parameters}
         self.clients: dict[str, _NodeClients] = {}
@@ -124,7 +127,7 @@ class ParameterBridge:
                 node.resolve_topic_name(base))  # the node's full name, as /parameter_events gives it
         self._by_full_name = {c.full_name: name for name, c in self.clients.items()}
         self.pending: PendingCalls[tuple[_Request, Any]] = PendingCalls()
-        self._inbox: collections.deque[Callable[[], None]] = collections.deque()
+        self._inbox: collections.deque[_Request] = collections.deque()
         self._wake = node.create_guard_condition(self._drain, callback_group=group)
         if self.rules:
             node.create_subscription(ParameterEvent, "/parameter_events", self._on_event, 100,
@@ -153,16 +156,21 @@ class ParameterBridge:
             self.refuse(user, topic, f"no live operator heartbeat from '{user}': setting parameters needs your "
                                      f"presence, as commands do", **ids)
             return
-        self._inbox.append(lambda: self._start(_Request(user, rule, request, topic)))
+        if not self.budget.acquire(user):  # bounded: a flood of reads never queues unbounded ROS calls
+            self.refuse(user, topic, self.budget.refusal(user), **ids)
+            return
+        self._inbox.append(_Request(user, rule, request, topic))
         self._wake.trigger()
 
     # -- executor ----------------------------------------------------------------------------------------
     def _drain(self) -> None:
         while self._inbox:
+            req = self._inbox.popleft()
             try:
-                self._inbox.popleft()()
-            except Exception:  # one request's failure must not stop the others
+                self._start(req)
+            except Exception as err:  # one request's failure must not stop the others
                 log.exception("parameter request failed")
+                self._fail(req, f"the bridge failed to make the request: {err}")
 
     def _start(self, req: _Request) -> None:
         clients, op = self.clients[req.rule.name], req.request.op
@@ -231,6 +239,7 @@ class ParameterBridge:
                 if kind == "not_set":
                     kind = ros_type_of(value)  # undeclared: the node says whether it takes it
             except ProtocolError as err:
+                self._answered_once(req)
                 self.refuse(req.user, req.topic, f"values.{show_key(name)}: {err} (node "
                                                  f"{self.clients[req.rule.name].full_name})",
                             client_id=req.request.client_id, request_id=req.request.id)
@@ -256,12 +265,24 @@ class ParameterBridge:
         self.publish(self.topics.param_events(self.robot.name, name), body.to_json(), ParamEvent.QOS)
 
     # -- MQTT out ------------------------------------------------------------------------------------------
+    def _answered_once(self, req: _Request) -> bool:
+        """Give the request's slot back; False when it was already answered (nothing more to say)."""
+        if req.answered:
+            return False
+        req.answered = True
+        self.budget.release(req.user)
+        return True
+
     def _reply(self, req: _Request, values: dict[str, Any]) -> None:
+        if not self._answered_once(req):
+            return
         body = ParamReply(req.request.id, True, values, client_id=req.request.client_id)
         self.publish(self.topics.user_topic(self.robot.name, req.user, Verb.PARAM_REPLY, req.rule.name),
                      body.to_json(), ParamReply.QOS)
 
     def _fail(self, req: _Request, reason: str) -> None:
+        if not self._answered_once(req):
+            return
         body = ParamReply(req.request.id, False, error=reason, client_id=req.request.client_id)
         self.publish(self.topics.user_topic(self.robot.name, req.user, Verb.PARAM_REPLY, req.rule.name),
                      body.to_json(), ParamReply.QOS)

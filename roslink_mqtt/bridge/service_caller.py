@@ -24,6 +24,7 @@ from ..protocol import ProtocolError, sender_id
 from ..protocol.control import CallReply, CallRequest
 from ..topics import TopicTree, Verb
 from .authorize import refusal
+from .budget import RequestBudget
 from .convert import ConversionError, converter_for
 from .pending import PendingCalls
 from .ros_types import load_interface
@@ -48,14 +49,16 @@ class _Pending:
     client: Any
     srv: Any
     client_id: str | None = None  # the caller's, repeated in the reply
+    user: str = ""  # whose request slot it holds (bridge.max_requests_per_user)
 
 
 class ServiceCaller:
     """Calls the robot's configured ROS services on behalf of MQTT users."""
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None]) -> None:
+                 role_of: Callable[[str], Role | None], budget: RequestBudget | None = None) -> None:
         self.robot, self.topics, self.publish, self.role_of = robot, topics, publish, role_of
+        self.budget = budget or RequestBudget(robot.bridge.max_requests_per_user)
         self.pending: PendingCalls[_Pending] = PendingCalls()
         self.clients: dict[str, tuple[ServiceRule, Any, Any]] = {}
         group = ReentrantCallbackGroup()
@@ -92,8 +95,11 @@ class ServiceCaller:
             self.publish(reply_topic, _reply(call_id, error=f"service not available: {rule.ros_service} "
                                                             f"({rule.ros_type}) has no server", client_id=sender))
             return
+        if not self.budget.acquire(user):
+            self.publish(reply_topic, _reply(call_id, error=self.budget.refusal(user), client_id=sender))
+            return
         future = client.call_async(request)
-        key = self.pending.add(_Pending(call_id, reply_topic, rule.timeout, future, client, srv, sender),
+        key = self.pending.add(_Pending(call_id, reply_topic, rule.timeout, future, client, srv, sender, user),
                                time.monotonic() + rule.timeout)
         future.add_done_callback(lambda f, key=key: self._done(key, f))
 
@@ -101,6 +107,7 @@ class ServiceCaller:
         pending = self.pending.take(key)
         if pending is None:  # already answered as a timeout
             return
+        self.budget.release(pending.user)
         if future.cancelled() or future.exception() is not None:
             self.publish(pending.reply_topic, _reply(pending.call_id, error=f"service failed: {future.exception()}",
                                                      client_id=pending.client_id))
@@ -111,6 +118,7 @@ class ServiceCaller:
     def expire(self, now: float) -> None:
         """Answer calls past their timeout (called from the bridge's supervision timer)."""
         for p in self.pending.expire(now):
+            self.budget.release(p.user)
             p.client.remove_pending_request(p.future)
             self.publish(p.reply_topic, _reply(p.call_id, error=f"timeout: no answer within {p.timeout:g} s",
                                                client_id=p.client_id))

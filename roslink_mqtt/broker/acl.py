@@ -319,6 +319,14 @@ class TopicPolicy:
         return (f"retained '{what}' messages are refused: a command or call is executed when it arrives, "
                 "and a retained copy would run again whenever a bridge reconnects")
 
+    def paced(self, login: str | None) -> bool:
+        """Whether ``login``'s PUBLISH rate is bounded (``user_publish_rate``): users are, robots are not.
+
+        A robot's bridge streams whatever its rules say (and is the product); a user's program sends commands
+        at 10-20 Hz and presence at 1 Hz, so a bound far above that costs honest users nothing.
+        """
+        return login is not None and login not in self.live.fleet.robots
+
     def retained_limit(self, login: str | None) -> int | None:
         """Retained payload bytes ``login`` may keep (None = only the broker-wide total applies)."""
         fleet = self.live.fleet

@@ -109,7 +109,7 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.session import Session
 from amqtt.utils import gen_client_id
 
-from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, PacketGate, PacketRefused, SafeWebSocketsReader
+from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, Pacer, PacketGate, PacketRefused, SafeWebSocketsReader
 from .limits import BrokerLimits, RetainedIndex, RetainedQuota
 from .outbox import Outbox, Verdict
 
@@ -259,6 +259,18 @@ class HardenedBroker(Broker):
         self.policy = policy
         self.retained_index = RetainedIndex()
         self.retained_quota = RetainedQuota(self.limits)
+        self._pacers: dict[str, Pacer] = {}  # per login, kept for the broker's life (logins are the fleet's)
+
+    def _pacer_of(self, login: str | None) -> Pacer | None:
+        """The PUBLISH allowance shared by every connection of ``login`` (None: not paced)."""
+        rate = self.limits.user_publish_rate
+        if not rate or self.policy is None or not self.policy.paced(login):
+            return None
+        assert login is not None
+        pacer = self._pacers.get(login)
+        if pacer is None:
+            pacer = self._pacers[login] = Pacer(rate, max(1, self.limits.user_publish_burst))
+        return pacer
 
     def _packet_limit(self, packet_type: int) -> int:
         if packet_type == PUBLISH:
@@ -359,6 +371,8 @@ class HardenedBroker(Broker):
             # the handler's reader loop uses session.keep_alive as its read timeout
             session.keep_alive = session.keep_alive * KEEPALIVE_FACTOR  # type: ignore[assignment]
         session.attributes[ATTR_AUTH_OK] = True
+        if isinstance(reader, PacketGate):
+            reader.pacer = self._pacer_of(session.username)
         log.info("connected %s keepalive=%ss clean=%d%s", describe_session(session), session.attributes[ATTR_KEEPALIVE],
                  int(session.clean_session), " (session resumed)" if resumed else "")
         return handler, session

@@ -38,6 +38,8 @@ class BrokerLimits:
     retained_bytes_total: int = 256 * MIB  # retained payload bytes in the whole broker
     max_presence_bytes: int = 4 * KIB  # payload of an operator presence heartbeat
     acl_cache_bytes: int = 256 * KIB  # topic bytes one session's ACL verdict cache may hold
+    user_publish_rate: float = 100.0  # PUBLISH packets a second one user login may send, all its connections
+    user_publish_burst: int = 200  # ... after a quiet spell (0 rate = unlimited); robots' logins are not paced
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any]) -> BrokerLimits:

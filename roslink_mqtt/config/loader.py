@@ -273,7 +273,8 @@ class _FleetReader:
     def bridge(self, path: Path) -> BridgeSettings:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
-                            "on_failsafe", "provided_queue_depth", "provided_max_calls"))
+                            "on_failsafe", "provided_queue_depth", "provided_max_calls",
+                            "max_requests_per_user"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -297,6 +298,8 @@ class _FleetReader:
             provided_queue_depth=self.value(path, "provided_queue_depth", self.integer(1, 10000),
                                             d.provided_queue_depth),
             provided_max_calls=self.value(path, "provided_max_calls", self.integer(1, 10000), d.provided_max_calls),
+            max_requests_per_user=self.value(path, "max_requests_per_user", self.integer(1, 10000),
+                                             d.max_requests_per_user),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:

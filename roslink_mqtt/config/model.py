@@ -156,6 +156,9 @@ class BridgeSettings:
     # may wait for their providers at once (all services together); calls beyond that fail at once.
     provided_queue_depth: int = 100
     provided_max_calls: int = 64
+    # Service calls and parameter requests one user may have unanswered at once (goals have their own bound):
+    # a flood of requests never queues unbounded work on the robot's ROS nodes.
+    max_requests_per_user: int = 16
 
 
 @dataclass(frozen=True, slots=True)

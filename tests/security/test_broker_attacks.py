@@ -254,7 +254,8 @@ def test_a_client_that_never_reads_is_bounded_then_dropped(tmp_path, clients) ->
 
 
 def test_retained_quota_per_login(tmp_path, clients) -> None:
-    with _broker(tmp_path) as broker:
+    # unpaced: bob's 2,150 messages must all be stored before the replay is read (pacing has its own test)
+    with _broker(tmp_path, "--limit", "user_publish_rate=0") as broker:
         before = rss_bytes(broker.proc.pid)
         bob = clients(broker.port, "bob")
         for i in range(150):  # 150 x 1 MB on his own presence subtree: over the presence cap

@@ -1,0 +1,119 @@
+"""A viewer floods the requests viewers may make (parameter reads, read-only service calls).
+
+bob is a viewer of turtle1: the ACL lets him publish ``from/bob/param/<node>`` (reads are open to viewers)
+and ``from/bob/call/<read-only service>``. Each request becomes a ROS service call on the robot, so an
+unbounded stream of them would queue work on the robot without limit. While bob floods as fast as one
+client can publish, alice drives at 20 Hz: her commands must keep reaching ``/cmd_vel`` promptly, the robot
+must stay online (its link to the broker up), bob must be told why requests beyond his bound are refused,
+and the requests that reach ROS stay bounded. Real processes: a broker (embedded and exported Mosquitto),
+the simulated robot and its bridge.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from contextlib import ExitStack
+
+import orjson
+import pytest
+
+from ..conftest import record_measurement
+from ..support.mqtt_client import TestClient
+from ..support.procs import ROOT
+from ..support.robot_stack import BROKERS, turtle1_online
+from ..support.ros import RosProbe
+
+pytestmark = [pytest.mark.security, pytest.mark.timeout(120)]
+
+FLOOD_SECONDS, FLOOD_MAX = 4.0, 60_000  # bounded in time and count
+DELAY_BOUND = 0.5  # s: generous; idle p99 is a few ms
+TWIST = "roslink/turtle1/from/alice/cmd/twist"
+PARAM = "roslink/turtle1/from/bob/param/sim_robot"
+
+
+def _nonzero(m) -> bool:
+    return any((m.linear.x, m.angular.z))
+
+
+@pytest.mark.parametrize("broker", BROKERS)
+def test_a_viewer_flooding_parameter_reads_neither_delays_commands_nor_queues_work_on_the_robot(tmp_path,
+                                                                                                 broker) -> None:
+    from geometry_msgs.msg import Twist
+
+    probe = RosProbe()
+    with ExitStack() as exits:
+        exits.callback(probe.close)
+        cmd_vel = probe.watch(Twist, "/cmd_vel", 2000)
+        port = exits.enter_context(turtle1_online(tmp_path, broker))
+        alice = exits.enter_context(TestClient(port, "alice", "alice-demo", operator=True))
+        assert alice.connect() == 0
+        alice.subscribe("roslink/turtle1/state/ack")
+        alice.subscribe("roslink/turtle1/heartbeat")
+        bob = exits.enter_context(TestClient(port, "bob", "bob-demo", client_id="bob-reads"))
+        assert bob.connect() == 0
+        bob.subscribe("roslink/turtle1/to/bob/#")  # every program of bob's reads his replies and errors
+        time.sleep(0.3)
+
+        sent: dict[int, float] = {}
+        stop_driving = threading.Event()
+
+        def drive() -> None:
+            seq = 0
+            while not stop_driving.is_set():
+                seq += 1
+                sent[seq] = time.monotonic()
+                alice.client.publish(TWIST, orjson.dumps({"message_id": 100, "sequence_number": seq,
+                                                          "payload": {"lx": 0.1, "az": seq / 1000}}), qos=0)
+                stop_driving.wait(0.05)
+
+        driver = threading.Thread(target=drive, daemon=True)
+        driver.start()
+        exits.callback(stop_driving.set)
+        cmd_vel.wait_for(_nonzero, timeout=20)
+
+        flood_start = time.monotonic()
+        flood = subprocess.run([sys.executable, "-m", "tests.support.flood_proc", str(port), "bob", "bob-demo", PARAM,
+                                "--seconds", str(FLOOD_SECONDS), "--max", str(FLOOD_MAX)],
+                               capture_output=True, text=True, timeout=FLOOD_SECONDS + 30, cwd=ROOT)
+        flood_end = time.monotonic()
+        assert flood.returncode == 0, flood.stderr[-2000:]
+        n = orjson.loads(flood.stdout.strip().splitlines()[-1])["sent"]
+        time.sleep(1.0)
+        stop_driving.set()
+        driver.join()
+
+        delays = {}
+        for at, m in cmd_vel.since(flood_start):
+            seq = round(m.angular.z * 1000)
+            if _nonzero(m) and seq in sent and seq not in delays:
+                delays[seq] = at - sent[seq]
+        during = [s for s in sent if flood_start <= sent[s] <= flood_end]
+        delivered = sorted(delays[s] for s in during if s in delays)
+        worst = delivered[-1] if delivered else float("inf")
+        p50, p99 = ((delivered[int(q * (len(delivered) - 1))] for q in (0.5, 0.99)) if delivered
+                    else (float("inf"), float("inf")))
+        got = bob.drain(3.0)
+        replies = [m for m in got if "/param_reply/" in m.topic]
+        errors = [m.json() for m in got if m.topic.endswith("/error")]
+        busy = [e for e in errors if "in flight" in e.get("error", "")]
+        other = {e.get("error") for e in errors if e not in busy}
+        acks = [m.json()["payload"]["text"] for m in alice.drain(0.2) if m.topic.endswith("/state/ack")]
+        offline = [m for m in alice.drain(0.0) if m.topic.endswith("/heartbeat")
+                   and m.json()["payload"]["system_status"] != 4]
+        report = (f"[{broker}] bob sent {n} parameter reads in {flood_end - flood_start:.1f} s (until written); "
+                  f"answered {len(replies)}, refused as too many in flight {len(busy)} (other errors "
+                  f"{len(errors) - len(busy)}: {sorted(other)[:3]}); alice: {len(delivered)}/{len(during)} twists "
+                  f"during the flood, p50 {p50 * 1000:.0f} ms, p99 {p99 * 1000:.0f} ms, worst {worst * 1000:.0f} ms; "
+                  f"acks {acks}")
+        print(report, file=sys.stderr)
+        record_measurement(f"[{broker}] parameter-read flood: worst twist delay", worst, DELAY_BOUND)
+
+        assert not [t for t in acks if "lost the broker" in t], report  # the robot's link stayed up
+        assert not offline, report
+        assert len(delivered) >= 0.9 * len(during), report
+        assert worst <= DELAY_BOUND, report
+        assert busy, report  # told why, not silently dropped
+        assert "max_requests_per_user" in busy[0]["error"], busy[0]
