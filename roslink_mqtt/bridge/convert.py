@@ -11,6 +11,10 @@ JSON conventions (those rosbridge clients know): nested messages are objects,
 ``uint8[]``/``byte[]`` are base64 strings, time is ``{"sec", "nanosec"}``.
 JSON has no NaN or infinity, so non-finite floats travel as the strings
 ``"NaN"``, ``"Infinity"`` and ``"-Infinity"`` and round-trip exactly.
+
+``to_cbor`` (a rule's ``encoding: cbor``, docs/protocol.md "State encodings") builds the same object with
+numeric arrays kept binary: ``uint8[]``/``byte[]`` a CBOR byte string, other integer and float arrays an
+RFC 8746 typed array (a tag over their little-endian bytes), and non-finite floats as CBOR's own NaN/±∞.
 """
 
 from __future__ import annotations
@@ -77,6 +81,19 @@ class Converter:
     from_dict: Callable[[Any], Any]
     _to_obj: Callable[[Any], dict[str, Any]]  # float arrays stay numpy views (for orjson)
 
+    _cbor_obj: Callable[[Any], dict[str, Any]] | None = None  # built on first use: few types are sent as CBOR
+
+    def to_cbor_obj(self, msg: Any) -> dict[str, Any]:
+        """``msg`` as the object ``to_cbor`` encodes (bytes and ``CBORTag`` typed arrays inside)."""
+        build = self._cbor_obj
+        if build is None:
+            build = self._cbor_obj = _build_to_dict(self.ros_type, numpy=False, cbor=True)
+        return build(msg)
+
+    def to_cbor(self, msg: Any) -> bytes:
+        """CBOR bytes of ``msg``: the ``encoding: cbor`` path of ROS→MQTT rules."""
+        return cbor_dumps(self.to_cbor_obj(msg))
+
     def to_json(self, msg: Any) -> bytes:
         """JSON bytes of ``msg``: the hot path of ROS→MQTT rules.
 
@@ -108,11 +125,47 @@ def _float_view(values: Any) -> Any:
     return _nf_list(view.tolist())
 
 
+def raw_bytes(data: Any) -> bytes:
+    """The bytes of a ``uint8[]``/``byte[]`` field (array.array, numpy array, bytes or list of 1-byte bytes)."""
+    if isinstance(data, bytes):
+        return data
+    if isinstance(data, bytearray):
+        return bytes(data)
+    if isinstance(data, array.array) or hasattr(data, "tobytes"):
+        return data.tobytes()
+    return b"".join(x if isinstance(x, bytes) else bytes((x,)) for x in data)
+
+
+# RFC 8746 typed-array tags, little-endian (what x86 and ARM hold in memory, so no byte swapping anywhere):
+# ROS element type → (tag, numpy dtype). uint8/octet arrays are a plain byte string instead (no tag).
+TYPED_ARRAY_TAGS: dict[str, tuple[int, str]] = {
+    "int8": (72, "<i1"), "uint16": (69, "<u2"), "int16": (77, "<i2"), "uint32": (70, "<u4"),
+    "int32": (78, "<i4"), "uint64": (71, "<u8"), "int64": (79, "<i8"), "float": (85, "<f4"),
+    "double": (86, "<f8"),
+}
+
+
+def cbor_dumps(obj: Any) -> bytes:
+    import cbor2
+
+    return cbor2.dumps(obj)
+
+
+def _typed_array(tag: int, dtype: str) -> Callable[[Any], Any]:
+    from cbor2 import CBORTag
+
+    def typed(values: Any) -> Any:
+        return CBORTag(tag, np.asarray(values, dtype=dtype).tobytes())
+    return typed
+
+
 # -- ROS → dict: generated source ------------------------------------------------------
 
-def _build_to_dict(cls: type, numpy: bool) -> Callable[[Any], dict[str, Any]]:
+def _build_to_dict(cls: type, numpy: bool, cbor: bool = False) -> Callable[[Any], dict[str, Any]]:
     env: dict[str, Any] = {"_nf": _nf, "_nf_list": _nf_list, "_b64": _b64, "isfinite": math.isfinite,
-                           "all": all, "map": map, "_float_view": _float_view}
+                           "all": all, "map": map, "_float_view": _float_view, "_raw": raw_bytes}
+    if cbor:
+        return _build_to_cbor(cls, env)
     nested = "_to_obj" if numpy else "to_dict"
     items = []
     pre = []  # statements computing array values before the dict literal
@@ -153,6 +206,39 @@ def _build_to_dict(cls: type, numpy: bool) -> Callable[[Any], dict[str, Any]]:
     src = f"def to_dict(m):\n{body}    return {{{', '.join(items)}}}\n"
     exec(compile(src, f"<to_dict {cls.__module__}.{cls.__name__}>", "exec"), env)  # noqa: S102 - our own source
     return env["to_dict"]
+
+
+def _build_to_cbor(cls: type, env: dict[str, Any]) -> Callable[[Any], dict[str, Any]]:
+    """Like the JSON ``to_dict`` but for CBOR: floats as they are, numeric arrays as bytes or typed arrays."""
+    items = []
+    for i, (name, slot) in enumerate(zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)):
+        attr = f"m.{name}"
+        if isinstance(slot, d.BasicType):
+            items.append(f"{name!r}: {attr}[0]" if slot.typename == "octet" else f"{name!r}: {attr}")
+        elif isinstance(slot, d.AbstractGenericString):
+            items.append(f"{name!r}: {attr}")
+        elif isinstance(slot, d.NamespacedType):
+            env[f"c{i}"] = converter_for(_namespaced(slot)).to_cbor_obj
+            items.append(f"{name!r}: c{i}({attr})")
+        elif isinstance(slot, d.AbstractNestedType):
+            inner = slot.value_type
+            if isinstance(inner, d.BasicType) and inner.typename in _BYTE_LIKE:
+                items.append(f"{name!r}: _raw({attr})")
+            elif isinstance(inner, d.BasicType) and inner.typename in TYPED_ARRAY_TAGS:
+                env[f"t{i}"] = _typed_array(*TYPED_ARRAY_TAGS[inner.typename])
+                items.append(f"{name!r}: t{i}({attr})")
+            elif isinstance(inner, d.BasicType):  # bool, char, long double: a plain array
+                items.append(f"{name!r}: ({attr}.tolist() if hasattr({attr}, 'tolist') else list({attr}))")
+            elif isinstance(inner, d.NamespacedType):
+                env[f"c{i}"] = converter_for(_namespaced(inner)).to_cbor_obj
+                items.append(f"{name!r}: [c{i}(x) for x in {attr}]")
+            else:  # strings
+                items.append(f"{name!r}: list({attr})")
+        else:  # pragma: no cover - rosidl has no other member kinds
+            raise TypeError(f"{cls.__name__}.{name}: unsupported field type {slot!r}")
+    src = f"def to_cbor(m):\n    return {{{', '.join(items)}}}\n"
+    exec(compile(src, f"<to_cbor {cls.__module__}.{cls.__name__}>", "exec"), env)  # noqa: S102 - our own source
+    return env["to_cbor"]
 
 
 # -- dict → ROS: strict reader over a field table built once -------------------------------

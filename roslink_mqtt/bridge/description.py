@@ -23,6 +23,7 @@ from typing import Any
 
 from ..config import Direction, Robot, Role
 from ..config.interfaces import VELOCITY_TYPES
+from ..config.model import ENCODING_JSON
 from ..protocol.description import (
     DESCRIPTION,
     OPERATORS,
@@ -60,8 +61,9 @@ def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
     commands: list[CommandEntry] = []
     for rule in robot.rules:
         if rule.direction is Direction.ROS_TO_MQTT:
+            encoding = None if rule.encoding == ENCODING_JSON else rule.encoding  # JSON goes without saying
             state.append(StateEntry(state_name(rule.mqtt_topic), rule.preset, rule.ros_type, rule.retain,
-                                    rule.max_rate, dict(rule.fields), VIEWERS))
+                                    rule.max_rate, dict(rule.fields), VIEWERS, encoding))
         else:
             velocity = rule.ros_type in VELOCITY_TYPES
             limits = asdict(rule.limits or robot.bridge.limits) if velocity else {}

@@ -16,11 +16,11 @@ import orjson
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from ..config import Robot, RosQos, Rule
-from ..config.model import Direction
+from ..config.model import ENCODING_CBOR, ENCODING_JSON, ENCODING_RAW, RAW_TYPES, Direction
 from ..protocol import SPECS_BY_NAME, Envelope, encode
 from ..protocol.validate import show_key
 from ..topics import TopicTree, split_first
-from .convert import ConversionError, converter_for
+from .convert import ConversionError, converter_for, raw_bytes
 from .presets import COMMAND_PRESETS, STATE_PRESETS
 from .ros_types import UnknownTypeError, load_interface
 from .routes import Inbound
@@ -123,10 +123,31 @@ def _check_field_paths(rule: Rule, ros_cls: type) -> None:
                 raise RuleError(f"{rule.label}: fields.{mqtt_field}: {err}", rule) from None
 
 
+def _check_encoding(rule: Rule) -> None:
+    """What the loader checks, again (a Rule may be built in code): where each encoding makes sense."""
+    if rule.encoding == ENCODING_JSON:
+        return
+    if rule.encoding not in (ENCODING_CBOR, ENCODING_RAW):
+        raise RuleError(f"{rule.label}: unknown encoding '{rule.encoding}' (json, cbor or raw)", rule)
+    if rule.preset is not None:
+        raise RuleError(f"{rule.label}: encoding '{rule.encoding}' is for generic rules; preset '{rule.preset}' "
+                        "publishes a ROSLink message, which is always JSON", rule)
+    if rule.encoding == ENCODING_RAW and (rule.ros_type not in RAW_TYPES or rule.fields):
+        raise RuleError(f"{rule.label}: encoding 'raw' needs ros_type {' or '.join(RAW_TYPES)} and no fields, "
+                        f"not {rule.ros_type}", rule)
+    if rule.encoding == ENCODING_CBOR:
+        try:
+            import cbor2  # noqa: F401 - only checked for here
+        except ImportError:
+            raise RuleError(f"{rule.label}: encoding 'cbor' needs the cbor2 package "
+                            "(pip install 'roslink-mqtt[bridge]')", rule) from None
+
+
 def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
     ros_cls = _load(rule)
     topic = topics.state(robot.name, split_first(rule.mqtt_topic)[1])
     period = 1.0 / rule.max_rate if rule.max_rate else 0.0
+    _check_encoding(rule)
     if rule.preset is not None:
         preset = _preset(rule, STATE_PRESETS, "state")
         message_id, system_id, convert = SPECS_BY_NAME[rule.preset].message_id, robot.system_id, preset.convert
@@ -138,18 +159,31 @@ def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
             return encode(Envelope(message_id, convert(msg), system_id, sequence))
 
         return Outbound(rule, ros_cls, topic, serialize_preset, period)
+    if rule.encoding == ENCODING_RAW:  # the image file itself (JPEG, PNG): docs/protocol.md, "State encodings"
+        return Outbound(rule, ros_cls, topic, lambda msg: raw_bytes(msg.data), period)
     converter = converter_for(ros_cls)
-    to_dict = converter.to_dict
+    cbor = rule.encoding == ENCODING_CBOR
     if rule.fields:
         _check_field_paths(rule, ros_cls)
         selected = tuple(rule.fields.items())
+        if cbor:
+            from .convert import cbor_dumps
+
+            to_obj = converter.to_cbor_obj
+
+            def serialize_fields_cbor(msg: Any) -> bytes:
+                d = to_obj(msg)
+                return cbor_dumps({k: _get_path(d, path) for k, path in selected})
+
+            return Outbound(rule, ros_cls, topic, serialize_fields_cbor, period)
+        to_dict = converter.to_dict
 
         def serialize_fields(msg: Any) -> bytes:
             d = to_dict(msg)
             return orjson.dumps({k: _get_path(d, path) for k, path in selected})
 
         return Outbound(rule, ros_cls, topic, serialize_fields, period)
-    return Outbound(rule, ros_cls, topic, converter.to_json, period)
+    return Outbound(rule, ros_cls, topic, converter.to_cbor if cbor else converter.to_json, period)
 
 
 SERVICE_TARGETS = ("std_srvs/srv/Trigger", "std_srvs/srv/SetBool", "std_srvs/srv/Empty")

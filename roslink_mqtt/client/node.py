@@ -121,15 +121,18 @@ class Subscription:
     With a type name (``"nav_msgs/msg/Odometry"``) the callback gets the
     message as a dict — the ROSLink payload for preset topics, the ROS message
     for generic rules. With a ROSLink message class (``GlobalMotion``) it gets
-    the typed object.
+    the typed object. A rule with ``encoding: cbor`` or ``raw`` gives the dict
+    :mod:`.encodings` describes (bytes and arrays kept binary; a raw image as
+    ``{"format", "data"}``), told from the payload unless ``encoding`` is given.
     """
 
     def __init__(self, node: Node, msg_type: MsgType, topic: str, callback: Callable[[Any], None],
-                 qos_profile: Any) -> None:
+                 qos_profile: Any, encoding: str | None = None) -> None:
         self._node, self.msg_type, self.callback, self.qos_profile = node, msg_type, callback, qos_profile
         mqtt_qos(qos_profile)  # refuse a nonsense profile here too; state arrives at the robot's own MQTT QoS
         self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
-        self._sub: StateSubscription = node.robot_client.subscribe(node.robot, topic, self._deliver)
+        self._sub: StateSubscription = node.robot_client.subscribe(node.robot, topic, self._deliver,
+                                                                   encoding=encoding)
         self.topic_name = join("state", self._sub.name)
 
     def _deliver(self, item: StateItem) -> None:
@@ -311,9 +314,13 @@ class Node:
         return self._add(Publisher(self, msg_type, topic, qos_profile))
 
     def create_subscription(self, msg_type: MsgType, topic: str, callback: Callable[[Any], None],
-                            qos_profile: Any = 10, **_rclpy_options: Any) -> Subscription:
-        """``topic`` under ``state/``: ``"state/global_motion"`` or ``"global_motion"``."""
-        return self._add(Subscription(self, msg_type, topic, callback, qos_profile))
+                            qos_profile: Any = 10, *, encoding: str | None = None,
+                            **_rclpy_options: Any) -> Subscription:
+        """``topic`` under ``state/``: ``"state/global_motion"`` or ``"global_motion"``.
+
+        ``encoding`` (``json``, ``cbor``, ``raw``: the rule's) is told from each payload when not given.
+        """
+        return self._add(Subscription(self, msg_type, topic, callback, qos_profile, encoding))
 
     def create_service(self, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any], *,
                        timeout: float = 5.0, **_rclpy_options: Any) -> Service:

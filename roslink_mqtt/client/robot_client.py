@@ -53,6 +53,7 @@ from .commands import CommandStreams, command_leaf, roslink_command
 from .connection import Connection
 from .directory import DEFAULT_STALE_AFTER, RobotDirectory, RobotInfo
 from .dispatch import CallbackQueue, DispatchThread, Scheduler
+from .encodings import ENCODINGS
 from .errors import (
     CommandNotConfirmed,
     CommandRefused,
@@ -270,18 +271,22 @@ class RobotClient:
 
     # -- state --------------------------------------------------------------------------
     def subscribe(self, robot: str, name: str, callback: Callable[[StateItem], None] | None = None, *,
-                  maxsize: int = 100) -> StateSubscription:
+                  maxsize: int = 100, encoding: str | None = None) -> StateSubscription:
         """Messages from ``<prefix>/<robot>/state/<name>`` (``name`` with or without ``state/``).
 
-        ROSLink state arrives typed (``GlobalMotion``…), generic rules as dicts.
+        ROSLink state arrives typed (``GlobalMotion``…), generic rules as dicts: decoded from JSON, CBOR or a
+        raw image as the rule's ``encoding`` says (:mod:`.encodings`; told from the payload unless
+        ``encoding`` — ``json``, ``cbor``, ``raw``, what the description's entry says — is given).
         With ``callback`` it runs in the dispatcher thread; without, iterate the
         returned subscription (``for``/``async for``/``get(timeout)``).
         """
         self.watch(robot)
         name = state_name(name)
         topic = self.topics.state(robot, name)
+        if encoding is not None and encoding not in ENCODINGS:
+            raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, not {encoding!r}")
         sub = StateSubscription(robot, name, topic, callback, self.callbacks, maxsize,
-                                on_close=self._unsubscribe_state)
+                                on_close=self._unsubscribe_state, encoding=encoding)
         with self._watch_lock:
             self._subscriptions.append(sub)
         if self.connection.failure is not None:

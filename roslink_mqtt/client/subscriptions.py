@@ -1,10 +1,10 @@
 """A subscription to one robot state stream, consumed by callback, blocking iteration or ``async for``.
 
 ROSLink state (``state/global_motion`` …) arrives as typed message objects;
-generic rules (``state/<anything>`` carrying a plain ROS message as JSON)
-arrive as dicts. Without a callback, messages wait in a bounded queue that
-drops the *oldest* when full: for robot state the newest value matters, and a
-slow consumer must not grow memory without bound.
+generic rules (``state/<anything>`` carrying a plain ROS message as JSON, CBOR
+or, for a compressed image, its raw bytes: :mod:`.encodings`) arrive as dicts.
+Without a callback, messages wait in a bounded queue that drops the *oldest*
+when full: for robot state the newest value matters, and a slow consumer must not grow memory without bound.
 
 When the connection fails for good (the broker refused our login on a
 reconnect), :meth:`StateSubscription.fail` makes a waiting ``get`` or loop
@@ -22,6 +22,7 @@ from typing import Any
 
 from ..protocol import ProtocolError, loads
 from .dispatch import CallbackQueue
+from .encodings import JSON, decode_state, sniff
 from .errors import SubscriptionFailed, WaitTimeout
 from .messages import RoslinkMessage, parse_state
 
@@ -32,8 +33,20 @@ _FAILED: Any = object()  # queued by fail(): wakes a blocked get() or loop
 _CLOSED: Any = object()  # queued by close(): ends an ``async for`` blocked on an empty queue
 
 
-def parse_state_item(payload: bytes, robot: str, name: str) -> StateItem | None:
-    """Typed message for ROSLink payloads, a dict for generic JSON, None for anything else."""
+def parse_state_item(payload: bytes, robot: str, name: str, encoding: str | None = None) -> StateItem | None:
+    """Typed message for ROSLink payloads, a dict for generic state, None for anything else.
+
+    ``encoding`` (``json``, ``cbor``, ``raw``) is the rule's, from the robot description; None tells it from
+    the payload (:func:`.encodings.sniff`: the three cannot be confused).
+    """
+    encoding = encoding or sniff(payload)
+    if encoding != JSON:  # ROSLink messages are always JSON
+        try:
+            body = decode_state(payload, encoding)
+        except ProtocolError as err:
+            log.debug("ignoring malformed %s state message on %s/%s: %s", encoding, robot, name, err)
+            return None
+        return body if isinstance(body, dict) else None
     try:
         return parse_state(payload, robot=robot, state_name=name)
     except ProtocolError as err:
@@ -53,8 +66,8 @@ class StateSubscription:
 
     def __init__(self, robot: str, name: str, topic: str, callback: Callable[[StateItem], None] | None,
                  callbacks: CallbackQueue, maxsize: int = 100,
-                 on_close: Callable[[StateSubscription], None] | None = None) -> None:
-        self.robot, self.name, self.topic = robot, name, topic
+                 on_close: Callable[[StateSubscription], None] | None = None, encoding: str | None = None) -> None:
+        self.robot, self.name, self.topic, self.encoding = robot, name, topic, encoding
         self.callback, self._callbacks, self._on_close = callback, callbacks, on_close
         self.latest: StateItem | None = None
         self.received = 0
@@ -66,7 +79,7 @@ class StateSubscription:
 
     # network thread
     def deliver(self, topic: str, payload: bytes, _retained: bool) -> None:
-        item = parse_state_item(payload, self.robot, self.name)
+        item = parse_state_item(payload, self.robot, self.name, self.encoding)
         if item is None or self.closed:
             return
         self.latest = item

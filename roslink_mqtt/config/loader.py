@@ -26,7 +26,11 @@ from ..topics import (
 )
 from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
+    ENCODING_JSON,
+    ENCODING_RAW,
+    ENCODINGS,
     LIMIT_MODES,
+    RAW_TYPES,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -339,7 +343,7 @@ class _FleetReader:
 
     def rule(self, path: Path, index: int) -> Rule:
         self.mapping(path, ("direction", "ros_topic", "ros_type", "mqtt_topic", "preset", "mqtt_qos", "retain",
-                            "ros_qos", "max_rate", "fields", "limits", "on_demand"))
+                            "ros_qos", "max_rate", "fields", "limits", "on_demand", "encoding"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
         first, _ = split_first(mqtt_topic)
@@ -388,6 +392,7 @@ class _FleetReader:
                 fields[k] = self.string(fp + (k,), v)
                 if problem := self.types.field_path_problem(ros_type, fields[k]):
                     raise self.err(fp + (k,), problem)
+        encoding = self.encoding(path, direction, ros_type, preset, fields)
         return Rule(
             index=index,
             direction=direction,
@@ -403,7 +408,31 @@ class _FleetReader:
             limits=self.limits(path + ("limits",)) if self.get(path).get("limits") is not None else None,
             on_demand=on_demand,
             line=self.src.line_of(path),
+            encoding=encoding,
         )
+
+    def encoding(self, path: Path, direction: Direction, ros_type: str, preset: str | None,
+                 fields: dict[str, str]) -> str:
+        """A rule's ``encoding``: json (default), cbor or raw, where each makes sense (docs/config.md)."""
+        encoding = self.value(path, "encoding", self.choice(ENCODINGS), ENCODING_JSON)
+        if encoding == ENCODING_JSON:
+            return encoding
+        ep = path + ("encoding",)
+        where = f"the rule at line {self.src.line_of(path)}"
+        if direction is not Direction.ROS_TO_MQTT:
+            raise self.err(ep, f"{where}: encoding '{encoding}' applies to ros_to_mqtt rules only (commands "
+                               "arrive as JSON)")
+        if preset is not None:
+            raise self.err(ep, f"{where}: encoding '{encoding}' is for generic rules; preset '{preset}' publishes "
+                               "a ROSLink message, which is always JSON")
+        if encoding == ENCODING_RAW:
+            if ros_type not in RAW_TYPES:
+                raise self.err(ep, f"{where}: encoding 'raw' publishes the image bytes alone, so it needs ros_type "
+                                   f"{' or '.join(RAW_TYPES)}, not {ros_type} (use 'cbor' to keep arrays binary)")
+            if fields:
+                raise self.err(ep, f"{where}: encoding 'raw' publishes the image bytes alone; it cannot select "
+                                   "fields (drop 'fields' or use 'cbor')")
+        return encoding
 
     def services(self, path: Path) -> tuple[ServiceRule, ...]:
         out: list[ServiceRule] = []

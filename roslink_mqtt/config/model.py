@@ -24,6 +24,12 @@ class Direction(StrEnum):
     MQTT_TO_ROS = "mqtt_to_ros"
 
 
+# How a ros_to_mqtt rule's payload is encoded (docs/protocol.md, "State encodings").
+ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW = "json", "cbor", "raw"
+ENCODINGS = (ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW)
+RAW_TYPES = ("sensor_msgs/msg/CompressedImage",)  # the types whose payload can be their bytes alone
+
+
 @dataclass(frozen=True, slots=True)
 class TlsSettings:
     port: int
@@ -85,6 +91,7 @@ class Rule:
     limits: VelocityLimits | None = None
     on_demand: bool = False  # mqtt_to_ros: the ROS publisher exists only while a live operator advertises it
     line: int | None = None
+    encoding: str = ENCODING_JSON  # ros_to_mqtt: ENCODINGS
 
     @property
     def label(self) -> str:

@@ -85,6 +85,12 @@ def _fields(body: dict[str, Any], path: str) -> dict[str, str]:
     return dict(value)
 
 
+def _encoding(body: dict[str, Any], path: str) -> str | None:
+    """A state entry's payload encoding; "json" (the default, normally left out) reads as None."""
+    value = _str(body, "encoding", path, required=False)
+    return None if value == "json" else value
+
+
 def _drop_empty(body: dict[str, Any]) -> dict[str, Any]:
     """Leave out optional keys that say nothing (None, False, {}), so the body stays small."""
     return {k: v for k, v in body.items() if v is not None and v is not False and v != {}}
@@ -101,11 +107,12 @@ class StateEntry:
     max_rate: float | None = None  # Hz, newest wins
     fields: dict[str, str] = field(default_factory=dict)  # generic rules that select fields: MQTT → ROS path
     who: str = VIEWERS  # everyone granted the robot reads state
+    encoding: str | None = None  # generic rules: "cbor" or "raw" (docs/protocol.md, "State encodings"); None: JSON
 
     def to_body(self) -> dict[str, Any]:
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
-                            "who": self.who})
+                            "who": self.who, "encoding": self.encoding})
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> StateEntry:
@@ -113,7 +120,8 @@ class StateEntry:
             raise _where(path, "an object", body)
         return cls(_str(body, "name", path), _str(body, "message", path, required=False),
                    _str(body, "ros_type", path, required=False), _bool(body, "retained", path),
-                   _num(body, "max_rate", path), _fields(body, path), _who(body, path, VIEWERS))
+                   _num(body, "max_rate", path), _fields(body, path), _who(body, path, VIEWERS),
+                   _encoding(body, path))
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,8 +261,10 @@ class RobotDescription:
                                                      "`message` (the ROSLink message, for presets), `ros_type` "
                                                      "(the ROS type it comes from; without `message` the body is "
                                                      "that message as JSON), optional `retained`, `max_rate` "
-                                                     "(Hz), `fields` (MQTT field → ROS field path), and `who`: "
-                                                     "`viewers`. Includes the bridge's own `ack`"),
+                                                     "(Hz), `fields` (MQTT field → ROS field path), `encoding` "
+                                                     "(`cbor` or `raw`, see \"State encodings\"; left out for "
+                                                     "JSON), and `who`: `viewers`. Includes the bridge's own "
+                                                     "`ack`"),
         BodyField("commands", "array of objects", True, "what the robot takes on `from/<user>/<name>`: `name` "
                                                         "(`cmd/twist`, a generic rule's `lights`), `message` "
                                                         "(ROSLink command) or the ROS JSON of `ros_type`, optional "
@@ -332,7 +342,9 @@ class RobotDescription:
 # docs/protocol.md's example (protocol/reference.py renders it)
 EXAMPLE = RobotDescription(
     "turtle1", 1, "ground", limits={"linear": 0.5, "angular": 1.5, "mode": "norm"},
-    state=(StateEntry("battery_voltage", None, "std_msgs/msg/Float32", max_rate=1.0), StateEntry("ack", "ack")),
+    state=(StateEntry("battery_voltage", None, "std_msgs/msg/Float32", max_rate=1.0),
+           StateEntry("camera", None, "sensor_msgs/msg/CompressedImage", max_rate=10.0, encoding="raw"),
+           StateEntry("ack", "ack")),
     commands=(CommandEntry(join_leaf(Verb.CMD, "twist"), "twist", "geometry_msgs/msg/Twist",
                            limits={"linear": 0.5, "angular": 1.5, "mode": "norm"}),
               CommandEntry("lights", None, "std_msgs/msg/Bool", on_demand=True)),
@@ -340,6 +352,12 @@ EXAMPLE = RobotDescription(
     actions=(ActionEntry("fibonacci", "test_msgs/action/Fibonacci", False, 30.0, 5.0),),
     parameters=(ParameterEntry("sim_robot", "sim_robot", OPERATORS, 5.0),),
     types={"std_msgs/msg/Float32": {"data": "float32"},
+           "sensor_msgs/msg/CompressedImage": {
+               "header": {"type": "std_msgs/msg/Header",
+                          "fields": {"stamp": {"type": "builtin_interfaces/msg/Time",
+                                               "fields": {"sec": "int32", "nanosec": "uint32"}},
+                                     "frame_id": "string"}},
+               "format": "string", "data": "uint8[]"},
            "geometry_msgs/msg/Twist": {part: {"type": "geometry_msgs/msg/Vector3",
                                               "fields": {"x": "float64", "y": "float64", "z": "float64"}}
                                        for part in ("linear", "angular")},
