@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[broker,bridge,dev,cli]'
+	$(BIN)/pip install --quiet -e '.[broker,bridge,dev,cli,bench]'
 	touch $(STAMP)
 
 $(NODE_STAMP): package.json package-lock.json

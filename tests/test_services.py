@@ -41,11 +41,12 @@ def services_config(tmp: Path) -> Path:
     return path
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory):
+@pytest.fixture(scope="module", params=["single", "events"])
+def stack(tmp_path_factory, request):
+    """Services both ways through a bridge spun by each executor (bridge.executor): same behaviour expected."""
     from std_srvs.srv import Trigger
 
-    work = tmp_path_factory.mktemp("services")
+    work = tmp_path_factory.mktemp(f"services-{request.param}")
     config = services_config(work)
     probe = RosProbe()
     release = threading.Event()
@@ -69,7 +70,8 @@ def stack(tmp_path_factory):
     try:
         with mosquitto_with_logins(work) as port, \
                 run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-                run(bridge_args("turtle1", port, config=config), work / "bridge.log", bridge_env("turtle1")), \
+                run(bridge_args("turtle1", port, config=config), work / "bridge.log",
+                    {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": request.param}), \
                 TestClient(port, "alice", "alice-demo", operator=True) as alice:
             assert alice.connect() == 0
             alice.subscribe("roslink/turtle1/to/alice/#")

@@ -49,6 +49,7 @@ from ..protocol.goals import (
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .convert import ConversionError, converter_for
+from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
 
 log = logging.getLogger("roslink_mqtt.bridge.actions")
@@ -89,8 +90,9 @@ class ActionCaller:
     """One rclpy ActionClient per configured action, and the table of goals in flight."""
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None], refuse: Callable[..., None]) -> None:
+                 role_of: Callable[[str], Role | None], refuse: Callable[..., None], on_executor: OnExecutor) -> None:
         self.robot, self.topics, self.publish, self.role_of, self.refuse = robot, topics, publish, role_of, refuse
+        self.on_executor = on_executor
         group = ReentrantCallbackGroup()
         self.actions: dict[str, tuple[ActionRule, Any, ActionClient]] = {}
         for rule in robot.actions:
@@ -102,7 +104,6 @@ class ActionCaller:
         self._goals: dict[tuple[str, str, str], _Goal] = {}
         self._lock = threading.Lock()
         self._inbox: collections.deque[Callable[[], None]] = collections.deque()
-        self._wake = node.create_guard_condition(self._drain, callback_group=group)
 
     # -- MQTT thread: check, then queue for the executor ---------------------------------------------
     def goal(self, user: str, name: str, topic: str, payload: bytes) -> None:
@@ -176,7 +177,7 @@ class ActionCaller:
 
     def _queue(self, work: Callable[[], None]) -> None:
         self._inbox.append(work)
-        self._wake.trigger()
+        self.on_executor.run(self._drain)
 
     # -- executor ------------------------------------------------------------------------------
     def _drain(self) -> None:

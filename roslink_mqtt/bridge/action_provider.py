@@ -45,6 +45,7 @@ from ..protocol.provided_actions import (
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .convert import ConversionError, converter_for
+from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
 
 log = logging.getLogger("roslink_mqtt.bridge.action_provider")
@@ -78,8 +79,9 @@ class ProvidedActions:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Callable[[str, bytes], None],
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 refuse: Callable[..., None]) -> None:
+                 refuse: Callable[..., None], on_executor: OnExecutor) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
+        self.on_executor = on_executor
         self.role_of, self.is_live, self.refuse = role_of, is_live, refuse
         self.group = ReentrantCallbackGroup()
         self.offers: dict[tuple[str, str], _Offer] = {}
@@ -87,7 +89,6 @@ class ProvidedActions:
         self._lock = threading.RLock()
         self._ids = itertools.count(1)
         self._inbox: collections.deque[Callable[[], None]] = collections.deque()
-        self._wake = node.create_guard_condition(self._drain, callback_group=self.group)
 
     # -- MQTT thread ------------------------------------------------------------------------------------
     def offer(self, user: str, name: str, topic: str, payload: bytes) -> None:
@@ -96,6 +97,10 @@ class ProvidedActions:
             self._queue(lambda: self.withdraw(user, name, "withdrawn by the provider"))
             return
         why = refusal(user, self.role_of(user), Verb.PROVIDE_ACTION, name, robot=self.robot.name)
+        if not why and self.on_executor.events:
+            why = (f"{self.robot.name}'s bridge runs rclpy's EventsExecutor (bridge.executor: events), under which "
+                   "a ROS action served over MQTT would hold the robot's other callbacks while it waits for you; "
+                   "run that robot's bridge with bridge.executor: single to provide actions")
         if why:
             self.refuse(user, topic, why, payload=payload)
             return
@@ -124,7 +129,7 @@ class ProvidedActions:
 
     def _queue(self, work: Callable[[], None]) -> None:
         self._inbox.append(work)
-        self._wake.trigger()
+        self.on_executor.run(self._drain)
 
     # -- executor ------------------------------------------------------------------------------------------
     def _drain(self) -> None:
@@ -174,12 +179,7 @@ class ProvidedActions:
         self._wake_executor()
 
     def _wake_executor(self) -> None:
-        executor = self.node.executor
-        if executor is not None:
-            try:
-                executor.wake()
-            except Exception:  # shutting down: nobody is left to answer
-                pass
+        self.on_executor.wake()  # a goal's coroutine awaits the future just set
 
     def _on_update(self, user: str, name: str, topic: str, update: ActionUpdate) -> None:
         offer = self.offers.get((user, name))

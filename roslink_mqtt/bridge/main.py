@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
 from pathlib import Path
 from typing import Any
 
+from ..config.model import EXECUTORS
 from ..connection_options import (
     ENV_PASSWORD,
     OLD_BRIDGE_PASSWORD_ENV,
@@ -33,6 +35,7 @@ from ..connection_options import (
 from ..connection_options import resolve_password as resolve_login_password
 
 PROG = "roslink-mqtt-bridge"
+ENV_EXECUTOR = "ROSLINK_EXECUTOR"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -42,7 +45,27 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--robot", required=True, help="robot name in the fleet file (the bridge logs in as it)")
     add_connection_options(p, username=False, default_url=None, url_fallback="else bridge.broker in the config")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    p.add_argument("--executor", choices=EXECUTORS, default=None,
+                   help=f"rclpy executor: 'events' (rclpy.experimental.EventsExecutor, C++: least CPU; actions "
+                        f"provided by MQTT clients are refused) or 'single' (SingleThreadedExecutor); default: "
+                        f"${ENV_EXECUTOR}, else bridge.executor in the config, else single")
     return p.parse_args(argv)
+
+
+def make_executor(kind: str) -> Any:
+    """One thread either way: every callback is short and nothing blocks in one (a provided service's call
+    waits as a coroutine). rclpy 7.1's MultiThreadedExecutor stalled ~1 in 20 service replies by 0.2-0.8 s.
+
+    The SingleThreadedExecutor rebuilds its wait set in Python at every wake-up: at the demo robot's rates
+    that was most of the bridge's CPU (bench/bridge_cpu.py). The EventsExecutor dispatches from C++.
+    """
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor()
 
 
 def resolve_password(args: argparse.Namespace, bridge_password: str | None, bridge_password_file: str | None,
@@ -78,7 +101,7 @@ def reload_grants(bridge: Any, config: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import remove_ros_args
 
@@ -118,10 +141,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
         return 2
-    # One thread: every callback is short and nothing blocks in one (a provided service's call waits
-    # as a coroutine). rclpy 7.1's MultiThreadedExecutor stalled ~1 in 20 service replies by 0.2-0.8 s.
-    executor = SingleThreadedExecutor()
+    kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor
+    if kind not in EXECUTORS:
+        print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
+        return 2
+    executor = make_executor(kind)
     executor.add_node(node)
+    bridge.on_executor.executor = executor
     stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
 
     def on_signal(flag: threading.Event) -> None:
@@ -133,8 +159,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
 
     def spin() -> None:
+        # spin_once in a loop, not spin(): rclpy 7.1's EventsExecutor.spin() busy-waits (a full core with
+        # nothing to do), while its spin_once(timeout) sleeps until an event or the timeout
         try:
-            executor.spin()
+            while rclpy.ok() and not stopping.is_set():
+                executor.spin_once(timeout_sec=0.5)
         except ExternalShutdownException:
             pass
         finally:
@@ -152,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                 reload_grants(bridge, args.config)
     finally:
         bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
+        bridge.on_executor.executor = None  # nothing more is queued for an executor about to stop
         executor.shutdown(timeout_sec=2)
         spinner.join(timeout=2)
         node.destroy_node()

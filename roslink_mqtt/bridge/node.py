@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -27,6 +28,7 @@ from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
+from .on_executor import OnExecutor
 from .parameters import ParameterBridge
 from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
@@ -159,6 +161,7 @@ class Bridge:
         self.topics = fleet.topics
         settings = robot.bridge
         outbound, routes = compile_rules(robot, self.topics)
+        self._flushers: list[Callable[[], None]] = []  # throttled rules flushed by the supervision tick
         for rule in outbound:
             self._subscribe_ros(rule)
         self.link = MqttLink(
@@ -173,6 +176,7 @@ class Bridge:
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
             on_message=self._on_mqtt, ca_file=ca_file)
         budget = RequestBudget(settings.max_requests_per_user)  # calls and parameter requests together
+        self.on_executor = OnExecutor()  # main() hands it the executor before start()
         role_of = self._role_of
         self.on_demand = OnDemandPublishers(node, {n: r for n, r in routes.items() if r.rule.on_demand},
                                             {n for n, r in routes.items() if not r.rule.on_demand},
@@ -186,21 +190,23 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
-                                         self._is_live, self._refuse,
+                                         self._is_live, self._refuse, self.on_executor,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
         try:
-            self.actions = ActionCaller(node, robot, self.topics, self.link_publish_qos, role_of, self._refuse)
+            self.actions = ActionCaller(node, robot, self.topics, self.link_publish_qos, role_of, self._refuse,
+                                        self.on_executor)
         except UnknownTypeError as err:
             raise RuleError(str(err)) from None
         self.actuators.actions = self.actions
         self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
-                                          lambda user: self._is_live(user), self._refuse, budget)
+                                          lambda user: self._is_live(user), self._refuse, self.on_executor,
+                                          budget)
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
         self.provided_actions = ProvidedActions(node, robot, self.topics, self._publish_reliable, role_of,
-                                                self._is_live, self._refuse)
+                                                self._is_live, self._refuse, self.on_executor)
         self.endpoint.handlers.update({
             Verb.PARAM: self.parameters.handle,
             Verb.LOG: self.rosout.handle,
@@ -362,7 +368,13 @@ class Bridge:
                 if msg is not None:
                     link(topic, serialize(msg), qos, retain)
 
-            self.node.create_timer(out.period / 4, flush)
+            # A kept message must go out once its slot opens: checked at least twice per period. The
+            # supervision tick does that for rates up to half its own; only faster rules get a timer (every
+            # timer wake-up costs the executor, and at the demo's rates the flush timers were most of them).
+            if out.period >= 2.0 / SUPERVISION_RATE:
+                self._flushers.append(flush)
+            else:
+                self.node.create_timer(out.period / 4, flush)
         self.node.create_subscription(out.ros_cls, out.rule.ros_topic, forward, ros_qos(out.rule.ros_qos))
 
     def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
@@ -384,5 +396,7 @@ class Bridge:
         self.provided_actions.expire(now)
         self.provided_actions.refresh()
         self.provided.refresh()
+        for flush in self._flushers:
+            flush()
         self.on_demand.refresh()
         self.sdk_params.refresh()

@@ -43,6 +43,7 @@ from ..protocol.validate import show_key
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .budget import RequestBudget
+from .on_executor import OnExecutor
 from .pending import PendingCalls
 
 log = logging.getLogger("roslink_mqtt.bridge.parameters")
@@ -110,7 +111,7 @@ class ParameterBridge:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Callable[[str, bytes, int], None],
                  role_of: Callable[[str], Role | None], is_live: Callable[[str], bool],
-                 refuse: Callable[..., None], budget: RequestBudget | None = None) -> None:
+                 refuse: Callable[..., None], on_executor: OnExecutor, budget: RequestBudget | None = None) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.role_of, self.is_live, self.refuse = role_of, is_live, refuse
         self.budget = budget or RequestBudget(robot.bridge.max_requests_per_user)
@@ -128,7 +129,7 @@ class ParameterBridge:
         self._by_full_name = {c.full_name: name for name, c in self.clients.items()}
         self.pending: PendingCalls[tuple[_Request, Any]] = PendingCalls()
         self._inbox: collections.deque[_Request] = collections.deque()
-        self._wake = node.create_guard_condition(self._drain, callback_group=group)
+        self.on_executor = on_executor
         if self.rules:
             node.create_subscription(ParameterEvent, "/parameter_events", self._on_event, 100,
                                      callback_group=group)
@@ -160,7 +161,7 @@ class ParameterBridge:
             self.refuse(user, topic, self.budget.refusal(user), **ids)
             return
         self._inbox.append(_Request(user, rule, request, topic))
-        self._wake.trigger()
+        self.on_executor.run(self._drain)
 
     # -- executor ----------------------------------------------------------------------------------------
     def _drain(self) -> None:

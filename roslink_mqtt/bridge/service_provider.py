@@ -22,7 +22,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_services_default
-from rclpy.task import Future
+from rclpy.service import Service
 
 from ..config import Robot, Role
 from ..protocol import ProtocolError
@@ -30,6 +30,7 @@ from ..protocol.control import ProviderRequest, ProviderResponse, ServiceOffer
 from ..topics import TopicTree, Verb
 from .authorize import refusal
 from .convert import ConversionError, converter_for
+from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
 
 log = logging.getLogger("roslink_mqtt.bridge.services")
@@ -37,12 +38,21 @@ log = logging.getLogger("roslink_mqtt.bridge.services")
 Publish = Callable[[str, bytes], None]
 
 
-@dataclass
+@dataclass(eq=False)
 class _Waiting:
-    """A ROS call to a provided service, parked until the provider answers or time runs out."""
+    """A ROS call to a provided service, parked until the provider answers or time runs out.
 
-    future: Future  # result: ("ok", ProviderResponse) or ("error", reason)
+    Answered once both halves are here: the ``outcome`` (the provider's reply from the MQTT thread, or a failure
+    from the timeout or the provider leaving) and the ROS ``header`` to answer (from the executor, right after the
+    service callback returned this very object). Whichever arrives second sends the response.
+    """
+
+    offer: Any  # the _Provided it belongs to
     deadline: float
+    response: Any  # the service type's empty response, filled in from the outcome
+    outcome: tuple[str, Any] | None = None  # ("ok", ProviderResponse) or ("error", reason)
+    header: Any = None
+    sent: bool = False
 
 
 @dataclass
@@ -62,11 +72,13 @@ class ProvidedServices:
 
     MQTT messages only edit the table of offers; :meth:`refresh`, run by the
     executor, creates and destroys the rclpy services to match, so ROS
-    entities are never touched from paho's thread. A ROS call is served by a
-    coroutine that parks on a future until the provider's reply (MQTT thread)
-    or its deadline (supervision timer) resolves it: a waiting call holds no
-    thread, so the bridge runs on a single-threaded executor and a slow
-    provider can never starve the failsafe checks.
+    entities are never touched from paho's thread. A ROS call's callback
+    publishes the request and returns at once; the response goes out later,
+    when the provider's reply (MQTT thread) or the call's deadline (supervision
+    timer) arrives (:class:`_Waiting`). A waiting call holds no thread and no
+    coroutine, so either executor can run the bridge (the EventsExecutor has
+    no asynchronous service callbacks) and a slow provider can never starve
+    the failsafe checks.
 
     Every ROS caller gets an answer: ``max_concurrent`` bounds how many calls
     may wait at once (all services together), and a call beyond it is
@@ -78,8 +90,10 @@ class ProvidedServices:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[..., None], max_concurrent: int = 64, queue_depth: int = 100) -> None:
+                 error: Callable[..., None], on_executor: OnExecutor, max_concurrent: int = 64,
+                 queue_depth: int = 100) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
+        self.on_executor = on_executor
         self.role_of, self.is_live, self.error = role_of, is_live, error
         self.group = ReentrantCallbackGroup()
         self._lock = threading.RLock()
@@ -155,13 +169,35 @@ class ProvidedServices:
 
     def _resolve(self, call: _Waiting, outcome: tuple[str, Any]) -> None:
         """Hand a parked call its outcome (any thread; the caller has removed it from ``waiting``)."""
-        call.future.set_result(outcome)
-        executor = self.node.executor
-        if executor is not None:
-            try:
-                executor.wake()  # the coroutine awaiting it resumes on the executor's next turn
-            except InvalidHandle:  # the executor is shutting down: nobody is left to answer
-                pass
+        with self._lock:
+            if call.outcome is not None:
+                return
+            call.outcome = outcome
+            ready = call.header is not None
+        if ready:
+            self.on_executor.run(lambda: self._send(call))
+
+    def _park_header(self, call: _Waiting, header: Any) -> None:
+        """The executor hands over the ROS header to answer (right after the callback returned ``call``)."""
+        with self._lock:
+            call.header = header
+            ready = call.outcome is not None
+        if ready:
+            self._send(call)
+
+    def _send(self, call: _Waiting) -> None:
+        """Answer the ROS caller from the outcome (executor thread, exactly once)."""
+        with self._lock:
+            if call.sent:
+                return
+            call.sent = True
+        service = call.offer.service
+        if service is None:
+            return  # destroyed meanwhile: its callers see the service vanish
+        try:
+            _SEND_RESPONSE(service, self._response_for(call), call.header)
+        except InvalidHandle:
+            pass  # destroyed meanwhile
 
     def expire(self, now: float) -> None:
         """Fail calls whose provider did not answer in time (called from the supervision timer)."""
@@ -181,8 +217,7 @@ class ProvidedServices:
                 live = self.is_live(offer.user, offer.client_id)
                 if live and offer.service is None:
                     offer.ending = None
-                    offer.service = self.node.create_service(offer.srv, offer.name, self._server_for(offer),
-                                                             qos_profile=self.qos, callback_group=self.group)
+                    offer.service = self._create_service(offer)
                     log.info("providing ROS service %s for %s", offer.service.srv_name, offer.user)
                 elif live and offer.ending is not None:
                     offer.ending = None  # the provider came back before its service was removed
@@ -215,14 +250,40 @@ class ProvidedServices:
             return
         self._resolve(call, ("ok", answer))
 
-    # -- ROS side (a coroutine on the executor) --------------------------------------------
-    def _server_for(self, offer: _Provided) -> Callable[[Any, Any], Any]:
-        # rclpy awaits the callback only if it is a coroutine *function* (a lambda returning one is not)
-        async def serve(request: Any, response: Any) -> Any:
-            return await self._serve(offer, request, response)
-        return serve
+    # -- ROS side (executor thread) --------------------------------------------------------
+    def _create_service(self, offer: _Provided) -> Any:
+        """The rclpy service for ``offer``, its ``send_response`` taught to park deferred answers.
 
-    async def _serve(self, offer: _Provided, request: Any, response: Any) -> Any:
+        Both executors answer a call with ``service.send_response(callback(request, response), header)``. Our
+        callback returns a :class:`_Waiting` when the answer comes later; the instance's ``send_response`` then
+        keeps the header with it instead of sending, and :meth:`_send` sends the real response once it is known.
+        """
+        service = self.node.create_service(offer.srv, offer.name,
+                                           lambda request, response: self._serve(offer, request, response),
+                                           qos_profile=self.qos, callback_group=self.group)
+
+        def send_response(response: Any, header: Any) -> None:
+            if isinstance(response, _Waiting):
+                self._park_header(response, header)
+            else:
+                _SEND_RESPONSE(service, response, header)
+
+        service.send_response = send_response
+        return service
+
+    def _response_for(self, call: _Waiting) -> Any:
+        status, reply = call.outcome if call.outcome is not None else ("error", "no outcome")
+        response = call.response
+        if status == "error":
+            return _failed(response, reply)
+        if not reply.result:
+            return _failed(response, reply.failure)
+        try:
+            return converter_for(type(response)).from_dict(reply.values or {})
+        except ConversionError as err:
+            return _failed(response, f"provider sent a bad response: {err}")
+
+    def _serve(self, offer: _Provided, request: Any, response: Any) -> Any:
         with self._lock:
             if offer.ending is not None:
                 return _failed(response, offer.ending[1])
@@ -235,23 +296,14 @@ class ProvidedServices:
                                          f"(limit {self.max_concurrent})", quiet=True)
             self._refusing = False
             call_id = f"{self.robot.name}-{next(self._ids)}"
-            call = offer.waiting[call_id] = _Waiting(Future(), time.monotonic() + offer.timeout)
-        try:
-            # client_id: several clients of one user may listen; it names the provider
-            body = ProviderRequest(call_id, converter_for(type(request)).to_dict(request), offer.client_id)
-            self.publish(self.topics.request(self.robot.name, offer.user, offer.name), body.to_json())
-            status, reply = await call.future
-        finally:
-            with self._lock:
-                offer.waiting.pop(call_id, None)
-        if status == "error":
-            return _failed(response, reply)
-        if not reply.result:
-            return _failed(response, reply.failure)
-        try:
-            return converter_for(type(response)).from_dict(reply.values or {})
-        except ConversionError as err:
-            return _failed(response, f"provider sent a bad response: {err}")
+            call = offer.waiting[call_id] = _Waiting(offer, time.monotonic() + offer.timeout, response)
+        # client_id: several clients of one user may listen; it names the provider
+        body = ProviderRequest(call_id, converter_for(type(request)).to_dict(request), offer.client_id)
+        self.publish(self.topics.request(self.robot.name, offer.user, offer.name), body.to_json())
+        return call  # answered by _send once the reply (or the timeout) and the header are both here
+
+
+_SEND_RESPONSE = Service.send_response  # the class's own, which the instances' deferring wrapper calls
 
 
 def _failed(response: Any, reason: str, *, quiet: bool = False) -> Any:

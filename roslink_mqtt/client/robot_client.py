@@ -284,7 +284,7 @@ class RobotClient:
         name = state_name(name)
         topic = self.topics.state(robot, name)
         if encoding is not None and encoding not in ENCODINGS:
-            raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, not {encoding!r}")
+            raise InvalidArgument(f"encoding must be one of {', '.join(ENCODINGS)}, not {encoding!r}")
         sub = StateSubscription(robot, name, topic, callback, self.callbacks, maxsize,
                                 on_close=self._unsubscribe_state, encoding=encoding)
         with self._watch_lock:

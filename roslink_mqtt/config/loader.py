@@ -29,6 +29,7 @@ from .model import (
     ENCODING_JSON,
     ENCODING_RAW,
     ENCODINGS,
+    EXECUTORS,
     LIMIT_MODES,
     RAW_TYPES,
     ActionRule,
@@ -278,7 +279,7 @@ class _FleetReader:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
-                            "max_requests_per_user"))
+                            "max_requests_per_user", "executor"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -304,6 +305,7 @@ class _FleetReader:
             provided_max_calls=self.value(path, "provided_max_calls", self.integer(1, 10000), d.provided_max_calls),
             max_requests_per_user=self.value(path, "max_requests_per_user", self.integer(1, 10000),
                                              d.max_requests_per_user),
+            executor=self.value(path, "executor", self.choice(EXECUTORS), d.executor),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:

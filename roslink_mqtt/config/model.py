@@ -49,6 +49,7 @@ class BrokerSettings:
 
 LIMIT_NORM, LIMIT_PER_AXIS = "norm", "per_axis"
 LIMIT_MODES = (LIMIT_NORM, LIMIT_PER_AXIS)
+EXECUTORS = ("single", "events")  # bridge.executor: rclpy's SingleThreadedExecutor, or its EventsExecutor
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,6 +167,9 @@ class BridgeSettings:
     # Service calls and parameter requests one user may have unanswered at once (goals have their own bound):
     # a flood of requests never queues unbounded work on the robot's ROS nodes.
     max_requests_per_user: int = 16
+    # The rclpy executor: "single" (SingleThreadedExecutor) or "events" (rclpy.experimental.EventsExecutor: a
+    # fifth of the CPU at the demo's rates, but actions provided by MQTT clients are refused under it).
+    executor: str = "single"
 
 
 @dataclass(frozen=True, slots=True)
