@@ -1,11 +1,10 @@
-"""The bridge under rclpy's EventsExecutor (bridge.executor: events): everything but provided actions works.
+"""The bridge under rclpy's EventsExecutor (bridge.executor: events): goals, parameters, motion and stops.
 
 Real processes: the embedded broker, the simulated robot and turtle1's bridge started with
 ``ROSLINK_EXECUTOR=events``. A goal to the robot's own action server (an rclpy ActionClient in the bridge), a
-parameter read and set (rclpy service clients), a twist and the dead-man stop all go through; an action
-offered by an MQTT client is refused with the reason, because that executor would run its callbacks to
-completion ahead of the failsafe checks. Services both ways run under both executors in tests/test_services.py;
-bench/bridge_cpu.py measures what the executor saves.
+parameter read and set (rclpy service clients), a twist and the dead-man stop all go through. Services both
+ways run under both executors in tests/test_services.py, actions provided by MQTT clients (on their own node
+and executor under this one) in tests/test_provided_actions.py; bench/bridge_cpu.py measures what it saves.
 """
 
 from __future__ import annotations
@@ -29,7 +28,7 @@ pytestmark = pytest.mark.timeout(90)
 T = "roslink/turtle1"
 
 
-def test_the_events_executor_serves_goals_parameters_and_motion_and_refuses_provided_actions(tmp_path) -> None:
+def test_the_events_executor_serves_goals_parameters_motion_and_the_dead_man(tmp_path) -> None:
     from geometry_msgs.msg import Twist
 
     probe = RosProbe()
@@ -76,11 +75,4 @@ def test_the_events_executor_serves_goals_parameters_and_motion_and_refuses_prov
         stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0, after=moved_at + 0.5, timeout=5)
         assert stopped_at - moved_at < 3.0
 
-        # an action offered by an MQTT client: refused with the reason, no ROS action server appears
-        alice.publish(f"{T}/from/alice/provide_action/plan",
-                      {"type": "test_msgs/action/Fibonacci", "client_id": "alice-ev"}, retain=True)
-        refused = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error")
-                                 and "provide_action/plan" in m.json().get("topic", ""), timeout=10).json()
-        assert "EventsExecutor" in refused["error"] and "bridge.executor: single" in refused["error"], refused
-        alice.publish(f"{T}/from/alice/provide_action/plan", b"", retain=True)
         assert bridge.popen.poll() is None, bridge.output()[-3000:]

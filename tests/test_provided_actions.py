@@ -32,24 +32,27 @@ def _wait(future, timeout: float = 15.0):
     return future.result()
 
 
-@pytest.fixture(scope="module", params=["embedded", "mosquitto"])
+@pytest.fixture(scope="module", params=["embedded", "mosquitto", "embedded-events"])
 def stack(request, tmp_path_factory):
+    """``-events``: the bridge runs rclpy's EventsExecutor, which moves provided actions to a node and a
+    single-threaded executor of their own (bridge/main.py): the same behaviour is expected."""
     from rclpy.action import ActionClient
     from test_msgs.action import Fibonacci
 
     work = tmp_path_factory.mktemp(f"provided-actions-{request.param}")
     fleet = write_fleet(work)
-    broker = EmbeddedBrokerProcess(work, fleet) if request.param == "embedded" else ExportedMosquitto(work, fleet)
+    backend, _, executor = request.param.partition("-")
+    broker = EmbeddedBrokerProcess(work, fleet) if backend == "embedded" else ExportedMosquitto(work, fleet)
     probe = RosProbe()
     try:
         with broker, run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log",
-                         bridge_env("turtle1")):
+                         {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": executor or "single"}):
             with TestClient(broker.port, "bob", "bob-demo") as bob:
                 assert bob.connect() == 0
                 bob.subscribe("roslink/turtle1/heartbeat")
                 bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
             client = ActionClient(probe.node, Fibonacci, "/plan")
-            yield SimpleNamespace(backend=request.param, port=broker.port, work=work, client=client,
+            yield SimpleNamespace(backend=backend, port=broker.port, work=work, client=client,
                                   Goal=Fibonacci.Goal, url=f"mqtt://127.0.0.1:{broker.port}")
     finally:
         probe.close()

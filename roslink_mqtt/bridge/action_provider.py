@@ -97,10 +97,6 @@ class ProvidedActions:
             self._queue(lambda: self.withdraw(user, name, "withdrawn by the provider"))
             return
         why = refusal(user, self.role_of(user), Verb.PROVIDE_ACTION, name, robot=self.robot.name)
-        if not why and self.on_executor.events:
-            why = (f"{self.robot.name}'s bridge runs rclpy's EventsExecutor (bridge.executor: events), under which "
-                   "a ROS action served over MQTT would hold the robot's other callbacks while it waits for you; "
-                   "run that robot's bridge with bridge.executor: single to provide actions")
         if why:
             self.refuse(user, topic, why, payload=payload)
             return
@@ -154,6 +150,11 @@ class ProvidedActions:
             offer = self.offers.pop((user, name), None)
             if offer is not None:
                 self._retire(offer, reason)
+
+    def busy(self) -> bool:
+        """Whether any offer or retiring server needs the periodic expire/refresh (any thread)."""
+        with self._lock:
+            return bool(self.offers or self._retired or self._inbox)
 
     def withdraw_user(self, user: str, reason: str) -> None:
         with self._lock:

@@ -47,6 +47,8 @@ class MqttLink:
         self.url, self.keepalive = url, keepalive
         self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
         self.connected = threading.Event()
+        self.subscribed = threading.Event()  # the broker acknowledged this connection's subscriptions
+        self._subscribe_mid: int | None = None
         self.client = make_client(client_id, username=username, password=password, url=url, ca_file=ca_file,
                                   max_reconnect_delay=max_reconnect_delay)
         if will is not None:
@@ -55,6 +57,7 @@ class MqttLink:
         self.client.on_disconnect = self._handle_disconnect
         self.client.on_message = self._handle_message
         self.client.on_connect_fail = self._handle_connect_fail
+        self.client.on_subscribe = self._handle_subscribe
         self._refused_logged = False
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
 
@@ -111,7 +114,9 @@ class MqttLink:
         self._refused_logged = False
         subs = self._subscriptions()
         if subs:
-            client.subscribe(subs)
+            _, self._subscribe_mid = client.subscribe(subs)
+        else:
+            self.subscribed.set()
         self.connected.set()
         log.info("connected to %s", self.url)
         self._on_up()
@@ -119,12 +124,17 @@ class MqttLink:
     def _handle_disconnect(self, _client, _userdata, _flags, reason, _props) -> None:
         was_up = self.connected.is_set()
         self.connected.clear()
+        self.subscribed.clear()
         if was_up:
             if self.closing:
                 log.info("disconnected from %s (shutting down)", self.url)
             else:
                 log.warning("lost the broker %s (%s); reconnecting", self.url, reason)
             self._on_down(str(reason))
+
+    def _handle_subscribe(self, _client, _userdata, mid, _reason_codes, _props) -> None:
+        if mid == self._subscribe_mid:
+            self.subscribed.set()
 
     def _handle_connect_fail(self, _client, _userdata) -> None:
         log.debug("broker %s not reachable yet; retrying", self.url)

@@ -46,9 +46,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     add_connection_options(p, username=False, default_url=None, url_fallback="else bridge.broker in the config")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--executor", choices=EXECUTORS, default=None,
-                   help=f"rclpy executor: 'events' (rclpy.experimental.EventsExecutor, C++: least CPU; actions "
-                        f"provided by MQTT clients are refused) or 'single' (SingleThreadedExecutor); default: "
-                        f"${ENV_EXECUTOR}, else bridge.executor in the config, else single")
+                   help=f"rclpy executor: 'events' (rclpy.experimental.EventsExecutor, C++: least CPU) or 'single' "
+                        f"(SingleThreadedExecutor); default: ${ENV_EXECUTOR}, else bridge.executor in the config, "
+                        f"else events")
     return p.parse_args(argv)
 
 
@@ -131,23 +131,29 @@ def main(argv: list[str] | None = None) -> int:
                                 Path(args.config).resolve().parent)
     # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
     # could publish the final zero velocity and the offline heartbeat.
+    kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor
+    if kind not in EXECUTORS:
+        print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
+        return 2
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = rclpy.create_node("roslink_mqtt_bridge")
+        # Under the EventsExecutor, actions provided by MQTT clients get a node and a single-threaded executor
+        # of their own (Bridge says why); the main node keeps the cheap one.
+        action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if kind == "events" else None
         bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
-                        ca_file=resolve_ca_file(args))
+                        ca_file=resolve_ca_file(args), action_node=action_node)
     except RuleError as err:
         line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
         return 2
-    kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor
-    if kind not in EXECUTORS:
-        print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
-        return 2
-    executor = make_executor(kind)
-    executor.add_node(node)
-    bridge.on_executor.executor = executor
+    spun = [(make_executor(kind), node, bridge.on_executor)]
+    if action_node is not None:
+        spun.append((make_executor("single"), action_node, bridge.action_on_executor))
+    for executor, spun_node, handoff in spun:
+        executor.add_node(spun_node)
+        handoff.executor = executor
     stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
 
     def on_signal(flag: threading.Event) -> None:
@@ -158,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
     signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
 
-    def spin() -> None:
+    def spin(executor: Any) -> None:
         # spin_once in a loop, not spin(): rclpy 7.1's EventsExecutor.spin() busy-waits (a full core with
         # nothing to do), while its spin_once(timeout) sleeps until an event or the timeout
         try:
@@ -169,8 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             stopping.set()
 
-    spinner = threading.Thread(target=spin, name="ros-executor", daemon=True)
-    spinner.start()
+    spinners = [threading.Thread(target=spin, args=(executor,), name=f"ros-executor-{i}", daemon=True)
+                for i, (executor, _, _) in enumerate(spun)]
+    for spinner in spinners:
+        spinner.start()
     bridge.start()
     try:
         while not stopping.is_set():
@@ -181,10 +189,13 @@ def main(argv: list[str] | None = None) -> int:
                 reload_grants(bridge, args.config)
     finally:
         bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
-        bridge.on_executor.executor = None  # nothing more is queued for an executor about to stop
-        executor.shutdown(timeout_sec=2)
-        spinner.join(timeout=2)
-        node.destroy_node()
+        for executor, _, handoff in spun:
+            handoff.executor = None  # nothing more is queued for an executor about to stop
+            executor.shutdown(timeout_sec=2)
+        for spinner in spinners:
+            spinner.join(timeout=2)
+        for _, spun_node, _ in spun:
+            spun_node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
     return 0

@@ -45,6 +45,7 @@ from .throttle import Throttle
 log = logging.getLogger("roslink_mqtt.bridge")
 
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
+VIEWER_LINK_HEAD_START = 3.0  # s the command link waits at start for the viewer link's subscriptions
 
 
 def _static_part(robot: Robot) -> tuple:
@@ -156,7 +157,10 @@ class Bridge:
     """
 
     def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
-                 ca_file: str | None = None) -> None:
+                 ca_file: str | None = None, action_node: Node | None = None) -> None:
+        """``action_node``: a second node, spun by a SingleThreadedExecutor of its own, for the action servers of
+        actions provided by MQTT clients (when ``node``'s executor is the EventsExecutor, which runs an action
+        server's callbacks to completion ahead of everything else); None: they live on ``node``."""
         self.node, self.fleet, self.robot = node, fleet, robot
         self.topics = fleet.topics
         settings = robot.bridge
@@ -177,6 +181,8 @@ class Bridge:
             on_message=self._on_mqtt, ca_file=ca_file)
         budget = RequestBudget(settings.max_requests_per_user)  # calls and parameter requests together
         self.on_executor = OnExecutor()  # main() hands it the executor before start()
+        self.action_on_executor = OnExecutor() if action_node is not None else self.on_executor
+        self._ticks = 0
         role_of = self._role_of
         self.on_demand = OnDemandPublishers(node, {n: r for n, r in routes.items() if r.rule.on_demand},
                                             {n for n, r in routes.items() if not r.rule.on_demand},
@@ -205,8 +211,8 @@ class Bridge:
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
-        self.provided_actions = ProvidedActions(node, robot, self.topics, self._publish_reliable, role_of,
-                                                self._is_live, self._refuse, self.on_executor)
+        self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
+                                                role_of, self._is_live, self._refuse, self.action_on_executor)
         self.endpoint.handlers.update({
             Verb.PARAM: self.parameters.handle,
             Verb.LOG: self.rosout.handle,
@@ -280,8 +286,13 @@ class Bridge:
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
-        self.link.start()
+        """Connect; the viewer link first, so that once the robot's heartbeat says it is up (command link),
+        a viewer's first request finds the bridge subscribed (the two connections are not ordered otherwise)."""
         self.viewer_link.start()
+        if not self.viewer_link.subscribed.wait(VIEWER_LINK_HEAD_START):
+            log.info("viewer link not subscribed after %g s; connecting the command link anyway",
+                     VIEWER_LINK_HEAD_START)
+        self.link.start()
         self.systemd.ready(f"connecting to {self.link.url}")
 
     def stop(self) -> None:
@@ -383,6 +394,18 @@ class Bridge:
     def link_publish_qos(self, topic: str, payload: bytes, qos: int) -> None:
         self.link.publish(topic, payload, qos)
 
+    def _tick_provided_actions(self, now: float) -> None:
+        """Their timeouts and servers: here, or on their own executor (10 Hz, and only while any exist: every
+        wake-up of a Python executor costs, and the point of the split is a bridge that costs little)."""
+        actions = self.provided_actions
+        if self.action_on_executor is self.on_executor:
+            actions.expire(now)
+            actions.refresh()
+            return
+        self._ticks += 1
+        if self._ticks % 2 == 0 and actions.busy():
+            self.action_on_executor.run(lambda: (actions.expire(time.monotonic()), actions.refresh()))
+
     # -- supervision (executor, 20 Hz) -------------------------------------------------
     def supervise(self) -> None:
         now = time.monotonic()
@@ -393,8 +416,7 @@ class Bridge:
         self.actuators.expire(now)
         self.actions.supervise(now)
         self.parameters.expire(now)
-        self.provided_actions.expire(now)
-        self.provided_actions.refresh()
+        self._tick_provided_actions(now)
         self.provided.refresh()
         for flush in self._flushers:
             flush()

@@ -33,16 +33,6 @@ class OnExecutor:
         except Exception:  # noqa: BLE001 - shutting down
             pass
 
-    @property
-    def events(self) -> bool:
-        """Whether rclpy's EventsExecutor spins the bridge.
-
-        It runs an action server's goal and cancel callbacks to completion with ``asyncio.run`` before anything
-        else, and re-runs a waiting coroutine in a busy loop: an action whose answers come from an MQTT client
-        would hold every other callback (failsafe checks included) while it waits. Such actions are refused.
-        """
-        return type(self.executor).__name__ == "EventsExecutor"
-
     def wake(self) -> None:
         executor = self.executor
         if executor is None:

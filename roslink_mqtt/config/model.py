@@ -167,9 +167,10 @@ class BridgeSettings:
     # Service calls and parameter requests one user may have unanswered at once (goals have their own bound):
     # a flood of requests never queues unbounded work on the robot's ROS nodes.
     max_requests_per_user: int = 16
-    # The rclpy executor: "single" (SingleThreadedExecutor) or "events" (rclpy.experimental.EventsExecutor: a
-    # fifth of the CPU at the demo's rates, but actions provided by MQTT clients are refused under it).
-    executor: str = "single"
+    # The rclpy executor: "events" (rclpy.experimental.EventsExecutor: about a third of the CPU of the other at
+    # the demo's rates; actions provided by MQTT clients then get a small single-threaded executor of their own)
+    # or "single" (SingleThreadedExecutor for everything).
+    executor: str = "events"
 
 
 @dataclass(frozen=True, slots=True)
