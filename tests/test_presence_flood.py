@@ -11,7 +11,6 @@ command it was and how long it took. Figures go to the run's closing summary.
 from __future__ import annotations
 
 import sys
-import threading
 import time
 from contextlib import ExitStack
 
@@ -21,6 +20,7 @@ import pytest
 from .conftest import record_measurement
 from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.fleet_brokers import fleet_password_file
+from .support.marked_twists import MarkedTwists, nonzero
 from .support.mosquitto import MosquittoProcess
 from .support.mqtt_client import TestClient
 from .support.procs import bridge_args, bridge_env, run
@@ -40,10 +40,6 @@ def _flood_body() -> bytes:
     body = orjson.dumps([{"a": 1}] * (FLOOD_BYTES // 8))
     assert len(body) <= FLOOD_BYTES + 8
     return body
-
-
-def _nonzero(m) -> bool:
-    return any((m.linear.x, m.linear.y, m.linear.z, m.angular.x, m.angular.y, m.angular.z))
 
 
 @pytest.mark.parametrize("broker_kind", ["mosquitto", "embedded"])
@@ -73,32 +69,16 @@ def test_presence_flood_neither_delays_commands_nor_lets_stale_motion_follow_a_s
         bob = exits.enter_context(TestClient(broker.port, "bob", "bob-demo", client_id="bob-flood"))
         assert bob.connect() == 0
 
-        sent: dict[int, float] = {}
-        stop_driving = threading.Event()
-
-        def drive() -> None:
-            seq = 0
-            while not stop_driving.is_set():
-                seq += 1
-                sent[seq] = time.monotonic()
-                alice.client.publish(TWIST, orjson.dumps({"message_id": 100, "sequence_number": seq,
-                                                          "payload": {"lx": 0.2, "az": seq / 1000}}), qos=0)
-                stop_driving.wait(0.1)
-
-        driver = threading.Thread(target=drive, daemon=True)
-        driver.start()
-        exits.callback(stop_driving.set)
-        cmd_vel.wait_for(_nonzero, timeout=20)  # the robot moves before the flood starts
+        twists = MarkedTwists(alice, TWIST, lx=0.2, period=0.1).start()
+        exits.callback(twists.stop)
+        cmd_vel.wait_for(nonzero, timeout=20)  # the robot moves before the flood starts
 
         body = _flood_body()
         flood_start = time.monotonic()
         for _ in range(FLOOD_COUNT):
             bob.client.publish("roslink/operators/bob/bob-flood", body, qos=0)
             time.sleep(1 / FLOOD_RATE)
-        stop_driving.set()
-        driver.join()
-        last_seq = max(sent)
-        stop_seq = last_seq + 1
+        stop_seq = twists.stop() + 1
         zero_sent = time.monotonic()
         alice.client.publish(TWIST, orjson.dumps({"message_id": 100, "sequence_number": stop_seq, "payload": {}}),
                              qos=0)
@@ -106,18 +86,12 @@ def test_presence_flood_neither_delays_commands_nor_lets_stale_motion_follow_a_s
         assert bridge.popen.poll() is None, bridge.output()[-3000:]
 
         seen = cmd_vel.since(flood_start)
-        delays = {}
-        for at, m in seen:
-            seq = round(m.angular.z * 1000)
-            if _nonzero(m) and seq in sent and seq not in delays:
-                delays[seq] = at - sent[seq]
-        during = [s for s in sent if sent[s] >= flood_start]
-        delivered = [s for s in during if s in delays]
-        worst = max((delays[s] for s in delivered), default=float("inf"))
-        after_stop = [at - zero_sent for at, m in seen if at > zero_sent and _nonzero(m)]
+        delays = twists.delays(seen, flood_start, zero_sent)
+        worst = delays.worst
+        after_stop = [at - zero_sent for at, m in seen if at > zero_sent and nonzero(m)]
         last_motion = max(after_stop, default=0.0)
         stops = [m.json()["payload"]["text"] for m in alice.drain(0.2) if m.topic.endswith("/state/ack")]
-        report = (f"[{broker_kind}] {len(delivered)}/{len(during)} twists delivered during the flood, "
+        report = (f"[{broker_kind}] {len(delays.delivered)}/{delays.sent} twists delivered during the flood, "
                   f"worst delay {worst:.3f} s; "
                   f"last non-zero twist {last_motion:.3f} s after the zero twist was sent; "
                   f"failsafe acks: {stops}")
@@ -126,7 +100,7 @@ def test_presence_flood_neither_delays_commands_nor_lets_stale_motion_follow_a_s
         record_measurement(f"[{broker_kind}] presence flood: motion after zero twist", last_motion, COMMAND_TIMEOUT)
 
         assert worst <= DELAY_BOUND, report
-        assert len(delivered) >= 0.8 * len(during), report  # commands keep flowing, not merely dropped
+        assert len(delays.delivered) >= 0.8 * delays.sent, report  # commands keep flowing, not merely dropped
         assert last_motion <= COMMAND_TIMEOUT, report
         assert not [text for text in stops if "lost the broker" in text], report  # the link stayed up
         if broker_kind == "mosquitto":  # it forwards the bodies: the bridge must have seen and ignored them

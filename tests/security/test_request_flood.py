@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import threading
 import time
 from contextlib import ExitStack
 
@@ -21,6 +20,7 @@ import orjson
 import pytest
 
 from ..conftest import record_measurement
+from ..support.marked_twists import MarkedTwists, nonzero
 from ..support.mqtt_client import TestClient
 from ..support.procs import ROOT
 from ..support.robot_stack import BROKERS, turtle1_online
@@ -32,10 +32,6 @@ FLOOD_SECONDS, FLOOD_MAX = 4.0, 60_000  # bounded in time and count
 DELAY_BOUND = 0.5  # s: generous; idle p99 is a few ms
 TWIST = "roslink/turtle1/from/alice/cmd/twist"
 PARAM = "roslink/turtle1/from/bob/param/sim_robot"
-
-
-def _nonzero(m) -> bool:
-    return any((m.linear.x, m.angular.z))
 
 
 @pytest.mark.parametrize("broker", BROKERS)
@@ -57,22 +53,9 @@ def test_a_viewer_flooding_parameter_reads_neither_delays_commands_nor_queues_wo
         bob.subscribe("roslink/turtle1/to/bob/#")  # every program of bob's reads his replies and errors
         time.sleep(0.3)
 
-        sent: dict[int, float] = {}
-        stop_driving = threading.Event()
-
-        def drive() -> None:
-            seq = 0
-            while not stop_driving.is_set():
-                seq += 1
-                sent[seq] = time.monotonic()
-                alice.client.publish(TWIST, orjson.dumps({"message_id": 100, "sequence_number": seq,
-                                                          "payload": {"lx": 0.1, "az": seq / 1000}}), qos=0)
-                stop_driving.wait(0.05)
-
-        driver = threading.Thread(target=drive, daemon=True)
-        driver.start()
-        exits.callback(stop_driving.set)
-        cmd_vel.wait_for(_nonzero, timeout=20)
+        twists = MarkedTwists(alice, TWIST, lx=0.1, period=0.05).start()
+        exits.callback(twists.stop)
+        cmd_vel.wait_for(nonzero, timeout=20)
 
         flood_start = time.monotonic()
         flood = subprocess.run([sys.executable, "-m", "tests.support.flood_proc", str(port), "bob", "bob-demo", PARAM,
@@ -82,19 +65,9 @@ def test_a_viewer_flooding_parameter_reads_neither_delays_commands_nor_queues_wo
         assert flood.returncode == 0, flood.stderr[-2000:]
         n = orjson.loads(flood.stdout.strip().splitlines()[-1])["sent"]
         time.sleep(1.0)
-        stop_driving.set()
-        driver.join()
-
-        delays = {}
-        for at, m in cmd_vel.since(flood_start):
-            seq = round(m.angular.z * 1000)
-            if _nonzero(m) and seq in sent and seq not in delays:
-                delays[seq] = at - sent[seq]
-        during = [s for s in sent if flood_start <= sent[s] <= flood_end]
-        delivered = sorted(delays[s] for s in during if s in delays)
-        worst = delivered[-1] if delivered else float("inf")
-        p50, p99 = ((delivered[int(q * (len(delivered) - 1))] for q in (0.5, 0.99)) if delivered
-                    else (float("inf"), float("inf")))
+        twists.stop()
+        delays = twists.delays(cmd_vel.since(flood_start), flood_start, flood_end)
+        worst, p50, p99 = delays.worst, delays.quantile(0.5), delays.quantile(0.99)
         got = bob.drain(3.0)
         replies = [m for m in got if "/param_reply/" in m.topic]
         errors = [m.json() for m in got if m.topic.endswith("/error")]
@@ -105,15 +78,15 @@ def test_a_viewer_flooding_parameter_reads_neither_delays_commands_nor_queues_wo
                    and m.json()["payload"]["system_status"] != 4]
         report = (f"[{broker}] bob sent {n} parameter reads in {flood_end - flood_start:.1f} s (until written); "
                   f"answered {len(replies)}, refused as too many in flight {len(busy)} (other errors "
-                  f"{len(errors) - len(busy)}: {sorted(other)[:3]}); alice: {len(delivered)}/{len(during)} twists "
-                  f"during the flood, p50 {p50 * 1000:.0f} ms, p99 {p99 * 1000:.0f} ms, worst {worst * 1000:.0f} ms; "
-                  f"acks {acks}")
+                  f"{len(errors) - len(busy)}: {sorted(other)[:3]}); alice: {len(delays.delivered)}/{delays.sent} "
+                  f"twists during the flood, p50 {p50 * 1000:.0f} ms, p99 {p99 * 1000:.0f} ms, "
+                  f"worst {worst * 1000:.0f} ms; acks {acks}")
         print(report, file=sys.stderr)
         record_measurement(f"[{broker}] parameter-read flood: worst twist delay", worst, DELAY_BOUND)
 
         assert not [t for t in acks if "lost the broker" in t], report  # the robot's link stayed up
         assert not offline, report
-        assert len(delivered) >= 0.9 * len(during), report
+        assert len(delays.delivered) >= 0.9 * delays.sent, report
         assert worst <= DELAY_BOUND, report
         assert busy, report  # told why, not silently dropped
         assert "max_requests_per_user" in busy[0]["error"], busy[0]
