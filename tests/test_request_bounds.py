@@ -66,3 +66,23 @@ def test_a_pacer_needs_a_rate_and_a_burst() -> None:
         Pacer(0, 10)
     with pytest.raises(ValueError):
         Pacer(10, 0)
+
+
+def test_the_bridge_never_publishes_what_the_broker_would_disconnect_it_for(caplog) -> None:
+    """Over the broker's max_payload a message is dropped and logged once per topic (sent, both brokers close
+    the connection, and the robot loses its link once per message)."""
+    from roslink_mqtt.bridge.link import MqttLink
+    from roslink_mqtt.mqtt import parse_broker_url
+
+    link = MqttLink(client_id="t", username="turtle1", password="x", url=parse_broker_url("mqtt://127.0.0.1:9"),
+                    keepalive=5, will=None, subscriptions=list, on_message=lambda *a: None, max_payload=1000)
+    link.connected.set()  # as if connected: only the size may stop it
+    published = []
+    link.client.publish = lambda *a, **k: published.append(a)
+    with caplog.at_level("WARNING"):
+        assert link.publish("roslink/turtle1/state/map", b"x" * 1001) is None
+        assert link.publish("roslink/turtle1/state/map", b"x" * 5000) is None
+        link.publish("roslink/turtle1/state/map", b"x" * 1000)
+    assert len(published) == 1
+    warned = [r.getMessage() for r in caplog.records if "max_payload" in r.getMessage()]
+    assert len(warned) == 1 and "1001 bytes > the broker's max_payload 1000" in warned[0]

@@ -43,8 +43,10 @@ class MqttLink:
                  keepalive: int, will: tuple[str, bytes] | None, subscriptions: Callable[[], list[tuple[str, int]]],
                  on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
-                 ca_file: str | None = None, max_reconnect_delay: float = 2.0) -> None:
-        self.url, self.keepalive = url, keepalive
+                 ca_file: str | None = None, max_reconnect_delay: float = 2.0, max_payload: int = 0) -> None:
+        """``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none)."""
+        self.url, self.keepalive, self.max_payload = url, keepalive, max_payload
+        self._oversized: set[str] = set()  # topics already logged for an oversized message
         self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
         self.connected = threading.Event()
         self.subscribed = threading.Event()  # the broker acknowledged this connection's subscriptions
@@ -90,7 +92,19 @@ class MqttLink:
 
     # -- traffic ----------------------------------------------------------------
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> mqtt.MQTTMessageInfo | None:
-        """Queue a message; dropped (not queued) while disconnected, so stale state is never replayed."""
+        """Queue a message; dropped (not queued) while disconnected, so stale state is never replayed.
+
+        A message larger than the broker accepts is dropped here and logged once per topic: sent, it would make
+        the broker close the connection (both brokers do), and the robot would lose its link — commands, stops
+        and heartbeats with it — once per message.
+        """
+        if self.max_payload and len(payload) > self.max_payload:
+            if topic not in self._oversized and len(self._oversized) < 256:
+                self._oversized.add(topic)
+                log.warning("not publishing %s: %d bytes > the broker's max_payload %d (robots.yaml broker."
+                            "max_payload); a smaller encoding (cbor), a lower max_rate upstream or a larger limit "
+                            "would let it through", topic, len(payload), self.max_payload)
+            return None
         if self.connected.is_set():
             return self.client.publish(topic, payload, qos=qos, retain=retain)
         return None

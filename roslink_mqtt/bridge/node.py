@@ -171,7 +171,8 @@ class Bridge:
         self.link = MqttLink(
             client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
-            on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file)
+            on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file,
+            max_payload=fleet.broker.max_payload)
         # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
         # a viewer sends, it queues behind nothing of the operators', whose commands and stops keep their own
         # TCP stream and paho thread. Everything the bridge publishes goes out on the command link.

@@ -110,3 +110,17 @@ def test_every_limit_is_documented(doc: str) -> None:
     missing = [name for name in BrokerLimits.names()
                if not re.search(rf"`{name}`|`{name.rsplit('_', 1)[0]}_", text)]
     assert not missing, f"{doc} does not list {missing}"
+
+
+def test_a_client_with_nothing_waiting_takes_one_message_larger_than_its_queue() -> None:
+    """A 4 MB map under max_payload but over max_queued_bytes (2 MiB) must still reach an idle client."""
+    limits, box = BrokerLimits(), Outbox()
+    big = 4_000_000
+    assert big > limits.max_queued_bytes
+    assert box.admit(big, 0, 0.0, limits) is Verdict.SEND
+    assert box.admit(big, 0, 0.1, limits) is Verdict.DROP  # the next waits for the first to be written
+    assert box.admit(1000, 500, 0.1, limits) is Verdict.DROP  # over the limit while the big one waits
+    box.done(big)
+    assert box.admit(big, 0, 0.2, limits) is Verdict.SEND
+    box.done(big)
+    assert box.admit(big, 100, 0.3, limits) is Verdict.DROP  # something still in the socket: the limit holds
