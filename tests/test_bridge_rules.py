@@ -9,28 +9,13 @@ from dataclasses import replace
 import orjson
 import pytest
 
-from roslink_mqtt.config import parse_fleet
-from roslink_mqtt.config.passwords import hash_password
 from roslink_mqtt.topics import TopicTree
+
+from .support.one_robot import HASH, one_robot_fleet
 
 pytest.importorskip("rclpy")
 
 from roslink_mqtt.bridge.rules import RuleError, compile_rules  # noqa: E402
-
-HASH = hash_password("pw", iterations=1)
-
-
-def fleet_with(rule: str):
-    return parse_fleet(f"""
-robots:
-  r1:
-    system_id: 1
-    key: k1
-    password: "{HASH}"
-    rules:
-      - {rule}
-""", "robots.yaml")
-
 
 OUT = "{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom}"
 IN = "{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist}"
@@ -39,7 +24,7 @@ IN = "{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/T
 def robot_with(base: str, **changes):
     """A robot whose one rule is ``base`` changed past the loader (which refuses most of these itself, without
     ROS: tests/test_fleet_types.py): the bridge must still refuse each on its own."""
-    robot = fleet_with(base).robots["r1"]
+    robot = one_robot_fleet(base).robots["r1"]
     return replace(robot, rules=(replace(robot.rules[0], **changes),))
 
 
@@ -68,7 +53,7 @@ def test_bad_rules_are_refused_at_start(base: str, changes: dict, fragment: str)
 
 
 def test_good_generic_rule_with_fields_compiles() -> None:
-    fleet = fleet_with("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry,"
+    fleet = one_robot_fleet("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry,"
                        " mqtt_topic: state/pos, fields: {x: pose.pose.position.x, frame: header.frame_id}}")
     outbound, inbound = compile_rules(fleet.robots["r1"], TopicTree())
     from nav_msgs.msg import Odometry

@@ -17,10 +17,11 @@ import pytest
 
 from roslink_mqtt.client.encodings import decode_state, image_format, sniff, to_json_form
 from roslink_mqtt.client.subscriptions import parse_state_item
-from roslink_mqtt.config import ConfigError, parse_fleet
-from roslink_mqtt.config.passwords import hash_password
+from roslink_mqtt.config import ConfigError
 from roslink_mqtt.protocol.description import RobotDescription
 from roslink_mqtt.topics import TopicTree
+
+from .support.one_robot import one_robot_fleet
 
 pytest.importorskip("rclpy")
 cbor2 = pytest.importorskip("cbor2")
@@ -34,21 +35,10 @@ from roslink_mqtt.bridge.description import build_description, ros_fields_of  # 
 from roslink_mqtt.bridge.rules import RuleError, compile_rules  # noqa: E402
 
 pytestmark = pytest.mark.unit
-HASH = hash_password("pw", iterations=1)
 JPEG = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(range(256)) * 4 + b"\xff\xd9"
 PNG = b"\x89PNG\r\n\x1a\n" + bytes(200)
 
 
-def fleet(*rules: str):
-    body = "".join(f"\n      - {r}" for r in rules)
-    return parse_fleet(f"""
-robots:
-  r1:
-    system_id: 1
-    key: k1
-    password: "{HASH}"
-    rules:{body}
-""", "robots.yaml")
 
 
 def rule(ros_type: str, encoding: str | None, topic: str = "state/x", extra: str = "") -> str:
@@ -57,7 +47,7 @@ def rule(ros_type: str, encoding: str | None, topic: str = "state/x", extra: str
 
 
 def serializer(ros_type: str, encoding: str | None, extra: str = ""):
-    outbound, _ = compile_rules(fleet(rule(ros_type, encoding, extra=extra)).robots["r1"], TopicTree())
+    outbound, _ = compile_rules(one_robot_fleet(rule(ros_type, encoding, extra=extra)).robots["r1"], TopicTree())
     return outbound[0].serialize
 
 
@@ -218,7 +208,7 @@ def test_raw_is_the_image_itself(data: bytes, fmt: str) -> None:
 # -- description -----------------------------------------------------------------------------------------------
 
 def test_description_names_each_entry_encoding() -> None:
-    f = fleet(rule("sensor_msgs/msg/CompressedImage", "raw", "state/camera"),
+    f = one_robot_fleet(rule("sensor_msgs/msg/CompressedImage", "raw", "state/camera"),
               rule("sensor_msgs/msg/PointCloud2", "cbor", "state/cloud").replace("/x", "/cloud"),
               rule("nav_msgs/msg/Odometry", "json", "state/odom").replace("/x", "/odom"))
     desc = build_description(f.robots["r1"], ros_fields_of)
@@ -247,19 +237,19 @@ def test_description_names_each_entry_encoding() -> None:
 ])
 def test_config_refuses_encodings_where_they_make_no_sense(text: str, fragment: str) -> None:
     with pytest.raises(ConfigError) as info:
-        fleet(text)
+        one_robot_fleet(text)
     assert fragment in str(info.value)
     assert "robots.yaml:" in str(info.value)
 
 
 def test_config_accepts_json_on_a_command_and_defaults_to_json() -> None:
-    f = fleet("{direction: mqtt_to_ros, ros_topic: /l, ros_type: std_msgs/msg/Bool, mqtt_topic: lights, "
+    f = one_robot_fleet("{direction: mqtt_to_ros, ros_topic: /l, ros_type: std_msgs/msg/Bool, mqtt_topic: lights, "
               "encoding: json}", rule("nav_msgs/msg/Odometry", None))
     assert [r.encoding for r in f.robots["r1"].rules] == ["json", "json"]
 
 
 def test_bridge_refuses_a_raw_rule_built_past_the_loader() -> None:
-    robot = fleet(rule("sensor_msgs/msg/Image", None)).robots["r1"]
+    robot = one_robot_fleet(rule("sensor_msgs/msg/Image", None)).robots["r1"]
     robot = replace(robot, rules=(replace(robot.rules[0], encoding="raw"),))
     with pytest.raises(RuleError, match=r"rules\[0\] \(/x → state/x\): encoding 'raw' needs ros_type"):
         compile_rules(robot, TopicTree())
