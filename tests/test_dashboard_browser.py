@@ -13,6 +13,7 @@ Set ``DASHBOARD_SCREENSHOT=path.png`` to also save the page at the end of the me
 
 from __future__ import annotations
 
+import base64
 import math
 import os
 import shutil
@@ -48,6 +49,12 @@ FAILSAFE_BOUND = 2.0  # s: docs/safety.md, the worst case of an operator going a
 # is mapped for turtle1 as read-only, so viewers get it too (their access report lists it).
 LIST_PARAMETERS = {"name": "list_parameters", "ros_service": "/sim_robot/list_parameters",
                    "ros_type": "rcl_interfaces/srv/ListParameters", "read_only": True, "timeout": 5.0}
+# A camera whose rule sends the image file itself (encoding: raw), and a scan sent as CBOR, which the page
+# cannot decode and must say so: nothing here publishes them on ROS; the test plays turtle1's MQTT side.
+RAW_CAMERA = {"direction": "ros_to_mqtt", "ros_topic": "camera/compressed",
+              "ros_type": "sensor_msgs/msg/CompressedImage", "mqtt_topic": "state/camera", "encoding": "raw"}
+CBOR_SCAN = {"direction": "ros_to_mqtt", "ros_topic": "scan_cbor", "ros_type": "sensor_msgs/msg/LaserScan",
+             "mqtt_topic": "state/scan_cbor", "encoding": "cbor"}
 
 
 def _fleet_file(work: Path) -> Path:
@@ -57,6 +64,7 @@ def _fleet_file(work: Path) -> Path:
     fleet = yaml.safe_load(CONFIG.read_text())
     turtle1 = fleet["robots"]["turtle1"]
     turtle1["services"] = [*turtle1["services"], LIST_PARAMETERS]
+    turtle1["rules"] = [*turtle1["rules"], RAW_CAMERA, CBOR_SCAN]
     path = work / "robots.yaml"
     path.write_text(yaml.safe_dump(fleet, sort_keys=False))
     return path
@@ -503,6 +511,14 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
                 "time_usec": 0, "width": 1, "height": 1, "format": "png", "data": png}})
             wait_until("the camera image", lambda: visible(driver, "camera-box") and driver.execute_script(
                 "const i = document.getElementById('camera'); return i.complete && i.naturalWidth === 1"))
+            # the same PNG as a raw-encoded camera (the file itself), then a CBOR scan the page cannot show
+            robot.publish("roslink/turtle1/state/camera", base64.b64decode(png))
+            wait_until("the raw camera image", lambda: driver.execute_script(
+                "const i = document.getElementById('camera'); return i.dataset.state === 'camera' && "
+                "i.src.startsWith('blob:') && i.complete && i.naturalWidth === 1"))
+            robot.publish("roslink/turtle1/state/scan_cbor", b"\xa1\x61a\x01")
+            wait_until("the undecodable CBOR state said so", lambda: "state/scan_cbor is cbor" in driver.find_element(
+                By.ID, "errors").text)
         no_console_errors(driver)
         driver.execute_script("window.dashboard.client.publish(`roslink/operators/bob/${window.dashboard.clientId}`,"
                               " '', {retain: true, qos: 1})")

@@ -29,7 +29,7 @@ DEFAULT_PREFIX = "roslink"
 # The page talks to nothing but this server (its files) and a broker's WebSocket (ws: or wss:, any host: the user
 # may type another broker's URL). No inline script, no framing (an e-stop button must not be clickjacked). MQTT.js
 # runs its keep-alive timer in a worker made from a blob: URL (timers in workers are not throttled in background tabs).
-CSP = ("default-src 'none'; script-src 'self'; worker-src blob:; style-src 'self'; img-src 'self' data:; "
+CSP = ("default-src 'none'; script-src 'self'; worker-src blob:; style-src 'self'; img-src 'self' data: blob:; "
        "connect-src 'self' ws: wss:; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
 
 

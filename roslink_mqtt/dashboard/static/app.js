@@ -50,6 +50,7 @@
     presenceSeq: 0, lastSeq: 0, presenceTimer: null, driveTimer: null, driveDir: null, driveRobot: null,
     heldKeys: new Set(), pendingCalls: new Map(), callCounter: 0, waypoint: null,
     goals: new Map(), pendingParams: new Map(), builtFor: null,
+    cameraUrl: null, undecoded: new Set(),  // the shown raw image's blob URL; states said to be undecodable
   };
   window.dashboard = dash;
   let dirty = false;                         // the plot needs redrawing (at most once per animation frame)
@@ -347,6 +348,9 @@
       return;
     }
     if (dash.selected !== robot.name) return;  // other robots: counted, not parsed
+    const encoding = (entryOf(robot, "state", name) || {}).encoding;
+    if (encoding === "raw") { showImageBytes(robot, name, payload); return; }
+    if (encoding && encoding !== "json") { notDecoded(robot, name, encoding); return; }
     if (name === "global_motion") {
       const m = parse(payload);
       const p = m && (m.payload || m);
@@ -888,6 +892,27 @@
     }
     if (text !== undefined) e.textContent = text;
     return e;
+  }
+  // A rule with `encoding: raw` sends a CompressedImage's JPEG or PNG itself (docs/protocol.md, "State encodings"):
+  // shown from a blob URL, the previous one released. What the page cannot decode (CBOR) is said once, not hidden.
+  function showImageBytes(robot, name, payload) {
+    const b = payload;
+    const type = b.length > 3 && b[0] === 0xff && b[1] === 0xd8 && b[2] === 0xff ? "image/jpeg"
+      : b.length > 4 && b[0] === 0x89 && b[1] === 0x50 && b[2] === 0x4e && b[3] === 0x47 ? "image/png" : null;
+    if (!type) { notDecoded(robot, name, "raw bytes that are neither JPEG nor PNG"); return; }
+    const url = URL.createObjectURL(new Blob([b], { type }));
+    if (dash.cameraUrl) URL.revokeObjectURL(dash.cameraUrl);
+    dash.cameraUrl = url;
+    ui.camera.src = url;
+    ui.camera.dataset.state = name;
+    show(ui.cameraBox, true);
+  }
+  function notDecoded(robot, name, what) {
+    const key = `${robot.name}/${name}`;
+    if (dash.undecoded.has(key)) return;
+    dash.undecoded.add(key);
+    addLog(ui.errors, `${robot.name} state/${name} is ${what}: this page does not show it (the SDK decodes it)`,
+           { robot: robot.name });
   }
   function isLayout(v) { return Boolean(v) && typeof v === "object" && !Array.isArray(v); }
   function typeLayout(robot, rosType) {
