@@ -191,7 +191,8 @@ def bench_fleet(work: Path, port: int) -> Path:
         for stream in STREAMS.values():
             for encoding in stream.encodings:
                 rules.append({"direction": "ros_to_mqtt", "ros_topic": ROS_TOPIC.format(stream=stream.name),
-                              "ros_type": stream.ros_type, "mqtt_topic": f"state/{rule_name(stream.name, encoding)}",
+                              "ros_type": stream.ros_type,
+                              "mqtt_topic": lat.join("state", rule_name(stream.name, encoding)),
                               "encoding": encoding})
 
     return lat.fleet_copy(work / f"robots-large-{port}.yaml", CONFIG, port=port, ws_port=0, edit=add_rules)

@@ -63,13 +63,18 @@ behaviour.
     until the same client id connects again).
 20. **Offline queues** of persistent sessions hold at most ``max_offline_messages``.
 21. **Connections per login** are bounded (``max_connections_per_login``).
+22. **Finished deliveries are released** wherever they are in amqtt's queue of them, not only at its front:
+    one delivery stuck on a client that stopped reading kept every later delivery, with its message, alive.
+23. **User logins are paced** (``user_publish_rate``/``user_publish_burst``, :class:`~.guard.Pacer`): over the
+    rate, the broker stops reading the login's connections until its allowance refills.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
 * ``Broker``: ``_initialize_client_session`` (replaced; the part after authentication
   mirrors stock), ``_authenticate`` (replaced), ``_client_connected`` (wrapped),
   ``_handle_message_delivery`` (wrapped), ``_broadcast_message`` and ``_run_broadcast``
-  (replaced), ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped),
+  (replaced; the queue of delivery tasks it is given is swept),
+  ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped),
   ``_publish_retained_messages_for_subscription`` and ``_publish_session_retained_messages``
   (replaced), ``_topic_filtering`` (replaced), ``_handle_disconnect`` (wrapped), ``start``
   (wrapped), ``ws_connected`` (replaced), ``retain_message`` and ``_retain_broadcast_message``
@@ -148,6 +153,28 @@ def abort_transport(writer: WriterAdapter | None) -> None:
     transport = _transport(writer)
     if transport is not None:
         transport.abort()
+
+
+SWEEP_AT = 64  # finished deliveries amqtt's broadcast loop may hold before we sweep them out
+
+
+def _sweep_finished(running_tasks: Any) -> None:
+    """Drop finished deliveries from anywhere in amqtt's queue of them (fix 22).
+
+    amqtt's broadcast loop removes finished delivery tasks only from the front of that queue. A delivery to a
+    client that stopped reading never finishes (it waits for the client's socket), so every later one — to
+    every client, each holding its message — stayed referenced behind it: the broker's memory grew at the rate
+    of everything it sent (+24 MB in 14 s behind one stalled viewer of a 2 MB/s camera) until the slow client
+    was dropped. Sweeping once the queue is long keeps it to the deliveries actually under way.
+    """
+    if len(running_tasks) < SWEEP_AT:
+        return
+    pending = [task for task in running_tasks if not task.done()]
+    for task in running_tasks:
+        if task.done() and not task.cancelled() and (error := task.exception()) is not None:
+            log.warning("delivery failed: %s", error)
+    running_tasks.clear()
+    running_tasks.extend(pending)
 
 
 def write_buffer_size(writer: WriterAdapter | None) -> int:
@@ -490,6 +517,7 @@ class HardenedBroker(Broker):
 
     # -- fixes 3, 8, 17: fan-out --------------------------------------------------------------
     async def _run_broadcast(self, running_tasks: Any) -> None:
+        _sweep_finished(running_tasks)
         broadcast = await self._broadcast_queue.get()
         topic: str = broadcast["topic"]
         pub_qos = broadcast.get("qos", broadcast.get("pub_qos"))
