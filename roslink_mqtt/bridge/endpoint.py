@@ -106,7 +106,7 @@ class CommandEndpoint:
         self._heartbeat_seq = self._ack_seq = 0
         self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
         self._stop_repeats_left = 0
-        self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho thread only)
+        self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho threads; set.add is atomic)
         self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
         self.reports = RefusalReports()  # refusal reports per user are rate-limited, never silently dropped
 
