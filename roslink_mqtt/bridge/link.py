@@ -17,6 +17,7 @@ from collections.abc import Callable
 import paho.mqtt.client as mqtt
 
 from ..mqtt import BrokerUrl, make_client
+from . import trace
 
 log = logging.getLogger("roslink_mqtt.bridge.link")
 
@@ -106,6 +107,8 @@ class MqttLink:
                             "would let it through", topic, len(payload), self.max_payload)
             return None
         if self.connected.is_set():
+            if trace.TRACE is not None:
+                trace.TRACE.mark("mqtt_out", topic)
             return self.client.publish(topic, payload, qos=qos, retain=retain)
         return None
 
@@ -157,6 +160,8 @@ class MqttLink:
         # Taken first thing: the command path compares it with the time of publication to ROS, so a command
         # that waited too long inside the bridge (lock, backlog) is never executed late.
         arrived = time.monotonic()
+        if trace.TRACE is not None:
+            trace.TRACE.mark("mqtt_in", message.topic)
         try:
             self._on_message(message.topic, message.payload, bool(message.retain), arrived)
         except Exception:  # a bug in one handler must not kill the network thread

@@ -20,6 +20,7 @@ from rclpy.node import Node
 from ..config import Fleet, Robot, Role
 from ..protocol import AckResult, SystemStatus
 from ..topics import Verb
+from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
@@ -98,6 +99,8 @@ class RosActuators:
 
     # -- Actuators ---------------------------------------------------------------------------
     def publish(self, user: str, route: Inbound, msg: Any) -> None:
+        if trace.TRACE is not None:
+            trace.TRACE.mark("ros_out", route.rule.ros_topic)
         if route.rule.on_demand:
             self.on_demand.publish(user, route.name, msg)
         else:
@@ -387,6 +390,13 @@ class Bridge:
                 self._flushers.append(flush)
             else:
                 self.node.create_timer(out.period / 4, flush)
+        if trace.TRACE is not None:
+            untraced, ros_topic = forward, out.rule.ros_topic
+
+            def forward(msg: Any) -> None:
+                trace.TRACE.mark("ros_in", ros_topic)
+                untraced(msg)
+
         self.node.create_subscription(out.ros_cls, out.rule.ros_topic, forward, ros_qos(out.rule.ros_qos))
 
     def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
