@@ -118,7 +118,7 @@ def run_once(port: int, pid: int, messages: int, qos: int, tag: str) -> tuple[fl
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--messages", type=int, default=20000, help="messages per run (default: %(default)s)")
-    ap.add_argument("--repeats", type=int, default=5, help="runs per broker and QoS (default: %(default)s)")
+    ap.add_argument("--repeats", type=int, default=3, help="runs per broker and QoS (default: %(default)s)")
     ap.add_argument("--qos", type=int, nargs="+", default=[0, 1], choices=(0, 1, 2))
     args = ap.parse_args()
 

@@ -1,6 +1,6 @@
 """Benchmark: ROS message ↔ JSON bytes, per-type converters vs a naive recursive walk.
 
-    .venv/bin/python bench/convert.py [--iterations 20000]
+    .venv/bin/python bench/convert.py [--iterations 10000]
 
 Goals (issue 4): ≤ 15 µs nav_msgs/Odometry → JSON, ≤ 40 µs 720-beam LaserScan → JSON.
 The baseline is what a bridge without per-type converters does: walk
@@ -93,7 +93,7 @@ def measure(fn, iterations: int, repeats: int = 5) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--iterations", type=int, default=20000)
+    parser.add_argument("--iterations", type=int, default=10000)
     args = parser.parse_args()
     n = args.iterations
     odom, scan, twist = sample_odometry(), sample_scan(), Twist()

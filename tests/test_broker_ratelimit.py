@@ -83,7 +83,7 @@ def test_a_robot_behind_a_guessing_nat_gets_in_at_once() -> None:
     t, _ = make_login()
     t.succeeded("nat", "turtle1")
     for _ in range(10):
-        t.reserve("nat", "alice")  # counted as failed until it succeeds
+        t.failed("nat", "alice")
     assert t.reserve("nat", "mallory") != 0.0  # the address is throttled (or refused) for everyone else
     assert t.reserve("nat", "turtle1") == 0.0
 
@@ -92,7 +92,7 @@ def test_a_robot_gets_in_while_another_address_sprays_its_login() -> None:
     t, _ = make_login()
     t.succeeded("robot-ip", "turtle1")
     for i in range(100):
-        t.reserve(f"attacker-{i}", "turtle1")
+        t.failed(f"attacker-{i}", "turtle1")
     assert t.reserve("robot-ip", "turtle1") == 0.0
     assert t.reserve("new-ip", "turtle1") != 0.0  # unknown pairs wait for the login's schedule
 
@@ -100,24 +100,61 @@ def test_a_robot_gets_in_while_another_address_sprays_its_login() -> None:
 def test_guesses_spread_over_many_addresses_are_bounded_per_login() -> None:
     """40 guesses at alice from 40 addresses in one instant: only the free ones are checked at once."""
     t, _ = make_login()
+    admitted = [t.try_begin(f"10.0.0.{i}", "alice") for i in range(40)]  # all at once, none answered yet
+    assert sum(1 for a in admitted if a is not None) == PARAMS["free_failures"]
+    for i, slot in enumerate(admitted):  # the first ones were wrong
+        if slot is not None:
+            t.failed(f"10.0.0.{i}", "alice")
+            t.end(slot)
     waits = []
-    for i in range(40):
-        waits.append(t.reserve(f"10.0.0.{i}", "alice"))  # all at the same instant, none answered yet
-    immediate = sum(1 for w in waits if w == 0.0)
-    assert immediate == PARAMS["free_failures"]
-    assert all(w == REFUSE or w <= PARAMS["max_wait"] for w in waits)
-    # within max_wait, at most max_wait / base_delay further guesses get a slot
+    for i in range(40):  # the rest, as places free up: every one now waits for its slot, or is refused
+        slot = t.try_begin(f"10.1.0.{i}", "alice")
+        assert slot is not None
+        waits.append(t.reserve(f"10.1.0.{i}", "alice"))
+        t.failed(f"10.1.0.{i}", "alice")
+        t.end(slot)
+    assert all(w == REFUSE or 0 < w <= PARAMS["max_wait"] for w in waits)
     assert sum(1 for w in waits if w > 0) <= PARAMS["max_wait"] / PARAMS["base_delay"]
 
 
-def test_a_right_password_takes_its_provisional_failure_back() -> None:
+def test_a_fleet_reconnecting_at_once_from_one_address_is_never_refused() -> None:
+    """400 robots behind one address after a broker restart (no pair known good): a few checked at a time,
+    each gets in once the ones before it are answered; nobody is refused or slowed."""
+    t, _ = make_login()
+    waiting = [f"r{i:04d}" for i in range(400)]
+    in_check: list[tuple[str, tuple[tuple[str, str], ...]]] = []
+    rounds = 0
+    while waiting or in_check:
+        rounds += 1
+        still = []
+        for login in waiting:
+            slot = t.try_begin("gateway", login)
+            if slot is None:
+                still.append(login)
+            else:
+                assert t.reserve("gateway", login) == 0.0
+                in_check.append((login, slot))
+        waiting = still
+        for login, slot in in_check:  # their passwords were right
+            t.succeeded("gateway", login)
+            t.end(slot)
+        in_check = []
+    assert rounds <= 400 // PARAMS["free_failures"] + 1
+    assert t.reserve("gateway", "intruder") == 0.0  # right passwords are no failures
+
+
+def test_right_passwords_never_count_as_failures() -> None:
     t, _ = make_login()
     for _ in range(20):
-        assert t.reserve("office", "alice") == 0.0
+        slot = t.try_begin("office", "alice")
+        assert slot is not None and t.reserve("office", "alice") == 0.0
         t.succeeded("office", "alice")
+        t.end(slot)
     for i in range(20):  # a new address of hers: not slowed by her own successful logins
-        assert t.reserve(f"cafe-{i}", "alice") == 0.0
+        slot = t.try_begin(f"cafe-{i}", "alice")
+        assert slot is not None and t.reserve(f"cafe-{i}", "alice") == 0.0
         t.succeeded(f"cafe-{i}", "alice")
+        t.end(slot)
 
 
 def test_known_good_pairs_are_forgotten_and_bounded() -> None:

@@ -67,13 +67,17 @@ behaviour.
     one delivery stuck on a client that stopped reading kept every later delivery, with its message, alive.
 23. **User logins are paced** (``user_publish_rate``/``user_publish_burst``, :class:`~.guard.Pacer`): over the
     rate, the broker stops reading the login's connections until its allowance refills.
+24. **Subscription matching in a tree** (:class:`~.subscriptions.SubscriptionIndex`): stock matches every
+    PUBLISH against every filter in the broker, so a message cost grows with the fleet (a 200-robot fleet
+    collapsed); the index visits only the levels a topic can match.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
 * ``Broker``: ``_initialize_client_session`` (replaced; the part after authentication
   mirrors stock), ``_authenticate`` (replaced), ``_client_connected`` (wrapped),
   ``_handle_message_delivery`` (wrapped), ``_broadcast_message`` and ``_run_broadcast``
-  (replaced; the queue of delivery tasks it is given is swept),
+  (replaced; the queue of delivery tasks it is given is swept), ``add_subscription`` (wrapped: the filter
+  index follows it; a filter amqtt dropped is pruned from the index when it next matches),
   ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped),
   ``_publish_retained_messages_for_subscription`` and ``_publish_session_retained_messages``
   (replaced), ``_topic_filtering`` (replaced), ``_handle_disconnect`` (wrapped), ``start``
@@ -117,6 +121,7 @@ from amqtt.utils import gen_client_id
 from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, Pacer, PacketGate, PacketRefused, SafeWebSocketsReader
 from .limits import BrokerLimits, RetainedIndex, RetainedQuota
 from .outbox import Outbox, Verdict
+from .subscriptions import SubscriptionIndex
 
 log = logging.getLogger("roslink_mqtt.broker")
 
@@ -158,23 +163,23 @@ def abort_transport(writer: WriterAdapter | None) -> None:
 SWEEP_AT = 64  # finished deliveries amqtt's broadcast loop may hold before we sweep them out
 
 
-def _sweep_finished(running_tasks: Any) -> None:
-    """Drop finished deliveries from anywhere in amqtt's queue of them (fix 22).
+def _sweep_finished(running_tasks: Any) -> int:
+    """Drop finished deliveries from anywhere in amqtt's queue of them (fix 22); returns how many are left.
 
     amqtt's broadcast loop removes finished delivery tasks only from the front of that queue. A delivery to a
     client that stopped reading never finishes (it waits for the client's socket), so every later one — to
     every client, each holding its message — stayed referenced behind it: the broker's memory grew at the rate
     of everything it sent (+24 MB in 14 s behind one stalled viewer of a 2 MB/s camera) until the slow client
-    was dropped. Sweeping once the queue is long keeps it to the deliveries actually under way.
+    was dropped. The caller sweeps when the queue has doubled since the last sweep, so a queue that stays long
+    (a slow client's deliveries under way) is not rescanned for every message.
     """
-    if len(running_tasks) < SWEEP_AT:
-        return
     pending = [task for task in running_tasks if not task.done()]
     for task in running_tasks:
         if task.done() and not task.cancelled() and (error := task.exception()) is not None:
             log.warning("delivery failed: %s", error)
     running_tasks.clear()
     running_tasks.extend(pending)
+    return len(pending)
 
 
 def write_buffer_size(writer: WriterAdapter | None) -> int:
@@ -285,6 +290,7 @@ class HardenedBroker(Broker):
         self.limits = limits or BrokerLimits()
         self.policy = policy
         self.retained_index = RetainedIndex()
+        self.filter_index = SubscriptionIndex()  # fix 24: the keys of amqtt's _subscriptions, as a tree
         self.retained_quota = RetainedQuota(self.limits)
         self._pacers: dict[str, Pacer] = {}  # per login, kept for the broker's life (logins are the fleet's)
 
@@ -516,16 +522,22 @@ class HardenedBroker(Broker):
         await self._broadcast_queue.put(broadcast)
 
     # -- fixes 3, 8, 17: fan-out --------------------------------------------------------------
+    _sweep_at = SWEEP_AT  # sweep when amqtt's queue of deliveries reaches this length (amortized: see fix 22)
+
     async def _run_broadcast(self, running_tasks: Any) -> None:
-        _sweep_finished(running_tasks)
+        if len(running_tasks) >= self._sweep_at:
+            self._sweep_at = max(SWEEP_AT, 2 * _sweep_finished(running_tasks))
         broadcast = await self._broadcast_queue.get()
         topic: str = broadcast["topic"]
         pub_qos = broadcast.get("qos", broadcast.get("pub_qos"))
 
-        # Snapshot first: awaiting the ACL while iterating _subscriptions races SUBSCRIBE.
+        # Snapshot first: awaiting the ACL while iterating _subscriptions races SUBSCRIBE. The filters that
+        # match come from the index (fix 24), not from matching every filter in the broker.
         targets: dict[str, tuple[Session, int]] = {}
-        for topic_filter, subscribers in self._subscriptions.items():
-            if not self._matches(topic, topic_filter):
+        for topic_filter in self.filter_index.matches(topic):
+            subscribers = self._subscriptions.get(topic_filter)
+            if not subscribers:  # its last subscriber left (amqtt removed it): forget it here too
+                self.filter_index.discard(topic_filter)
                 continue
             for target, sub_qos in subscribers:
                 previous = targets.get(target.client_id)
@@ -613,7 +625,13 @@ class HardenedBroker(Broker):
             self.retained_index.discard(topic_name)
         await super().retain_message(source_session, topic_name, data, qos)
 
-    # -- fixes 2, 14: SUBSCRIBE ------------------------------------------------------------------
+    # -- fixes 2, 14, 24: SUBSCRIBE --------------------------------------------------------------
+    async def add_subscription(self, subscription: tuple[str, int], session: Session) -> int:
+        code = await super().add_subscription(subscription, session)
+        if code != 0x80:
+            self.filter_index.add(subscription[0])
+        return code
+
     async def _handle_subscription(self, client_session: Session, handler: BrokerProtocolHandler,
                                    subscribe_waiter: asyncio.Future[Any]) -> None:
         # Replaces stock: bounded filters per session, the loop yields between filters, and retained

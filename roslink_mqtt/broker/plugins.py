@@ -32,6 +32,7 @@ from .ratelimit import REFUSE, LoginThrottle
 log = logging.getLogger("roslink_mqtt.broker")
 
 ATTR_ACL_CACHE = "roslink.acl"
+ADMISSION_POLL = 0.005  # s between tries for a place among the logins being checked (LoginThrottle.try_begin)
 # Verified against when the login is unknown, so a wrong name costs as long as a wrong password.
 _DUMMY_HASH = "$7$1000$AAAAAAAAAAAAAAAA$" + "A" * 86 + "=="
 
@@ -58,6 +59,24 @@ class FleetAuthPlugin(BaseAuthPlugin):
         live: LiveFleet = self.config.fleet
         throttle: LoginThrottle | None = self.config.throttle
         address = session.remote_address or "?"
+        username = session.username
+        admitted: tuple[tuple[str, str], ...] = ()
+        if throttle is not None:
+            login = username or ""
+            deadline = time.monotonic() + throttle.max_wait
+            while (slot := throttle.try_begin(address, login)) is None:  # others of this address/login in check
+                if time.monotonic() > deadline:
+                    session.attributes[ATTR_DENY_REASON] = "too many logins in progress for this login or address"
+                    return False
+                await asyncio.sleep(ADMISSION_POLL)
+            admitted = slot
+        try:
+            return await self._check(session, live, throttle, address)
+        finally:
+            if throttle is not None:
+                throttle.end(admitted)
+
+    async def _check(self, session: Session, live: LiveFleet, throttle: LoginThrottle | None, address: str) -> bool:
         username, password = session.username, session.password
         if throttle is not None:
             wait = throttle.reserve(address, username or "")
@@ -81,7 +100,9 @@ class FleetAuthPlugin(BaseAuthPlugin):
                 reason = "wrong password"
         if reason is not None:
             session.attributes[ATTR_DENY_REASON] = reason
-            return False  # the throttle counted the attempt as failed when it reserved its slot
+            if throttle is not None:
+                throttle.failed(address, username or "")
+            return False
         if throttle is not None:
             throttle.succeeded(address, username)
         return True

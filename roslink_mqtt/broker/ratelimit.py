@@ -20,6 +20,12 @@ password, so the broker does not hold thousands of sockets for one attacker.
   seconds. A known-good pair waits only for its own failures, so a robot reconnecting from
   its usual address gets in at once however much others guess, from anywhere.
 
+Attempts that arrive together are checked a few at a time (``free_failures`` unanswered per address and per
+login, :meth:`LoginThrottle.try_begin`), so 40 simultaneous guesses cannot all be checked before the first
+failures slow the rest. They used to count as failures until answered, which refused a fleet of ten robots
+reconnecting at once from one address (a NAT, a gateway, every robot of a loopback benchmark) after a
+broker restart, when no pair is known good yet: now they wait their turn, a millisecond or two each.
+
 What cannot be told apart is not: wrong passwords for the robot's own login from the
 robot's own address slow the robot too (bounded by ``max_wait``). Nothing is blocked for
 good: failures older than ``forget_after`` are forgotten.
@@ -73,13 +79,18 @@ class KeyThrottle:
             return 0.0
         return min(self.base_delay * 2 ** over, self.max_delay)
 
-    def reserve(self, address: str) -> float:
-        """Seconds this attempt must wait before its password is checked, or :data:`REFUSE`."""
+    def reserve(self, address: str, pending: int = 0) -> float:
+        """Seconds this attempt must wait before its password is checked, or :data:`REFUSE`.
+
+        ``pending``: other attempts of this key let in and not answered yet; once the key has failed, they count
+        as failures for the spacing (they may all be wrong), so answers arriving one by one cannot let more
+        than the free failures through at once.
+        """
         now = self.clock()
         record = self._record(address, now)
         if record is None:
             return 0.0
-        spacing = self.delay_for(len(record.failures))
+        spacing = self.delay_for(len(record.failures) + pending)
         if spacing <= 0:
             return 0.0
         slot = max(now, record.next_slot) + spacing
@@ -130,6 +141,8 @@ class LoginThrottle:
         self.by_address, self.by_login, self.by_pair = make(), make(), make()
         self.remember_good, self.max_good, self.clock = remember_good, max_addresses, clock
         self._good: dict[str, float] = {}  # pair -> when it last succeeded (insertion order = age)
+        self._in_flight: dict[tuple[str, str], int] = {}  # (kind, address or login) -> unanswered attempts
+        self.max_wait = max_wait
 
     @staticmethod
     def _pair(address: str, login: str) -> str:
@@ -140,32 +153,56 @@ class LoginThrottle:
         return when is not None and self.clock() - when <= self.remember_good
 
     def reserve(self, address: str, login: str) -> float:
-        """Seconds this attempt must wait before its password is checked, or :data:`REFUSE`.
+        """Seconds this attempt must wait before its password is checked (spacing after failures), or REFUSE.
 
-        An attempt that gets a slot counts as a failure at once, until :meth:`succeeded` takes
-        it back: attempts that arrive together (40 connections in the same millisecond) must
-        not all find a clean record and be checked at once.
+        Only answered attempts count: a wrong password is recorded by :meth:`failed`. Attempts that arrive
+        together are bounded by :meth:`try_begin` instead, so a fleet behind one address (or one NAT) that
+        reconnects at once after a broker restart is checked a few at a time, never refused for being many.
         """
         pair = self._pair(address, login)
         if self.is_known_good(address, login):
-            wait = self.by_pair.reserve(pair)
-            if wait != REFUSE:
-                self.by_pair.failed(pair)
-            return wait
-        waits = [self.by_pair.reserve(pair), self.by_address.reserve(address), self.by_login.reserve(login)]
-        if REFUSE in waits:
-            return REFUSE
-        self.by_pair.failed(pair)
-        self.by_address.failed(address)
-        self.by_login.failed(login)
-        return max(waits)
+            return self.by_pair.reserve(pair)
+        pending = [self._in_flight.get(("address", address), 1) - 1, self._in_flight.get(("login", login), 1) - 1]
+        waits = [self.by_pair.reserve(pair), self.by_address.reserve(address, max(0, pending[0])),
+                 self.by_login.reserve(login, max(0, pending[1]))]
+        return REFUSE if REFUSE in waits else max(waits)
+
+    def try_begin(self, address: str, login: str) -> tuple[tuple[str, str], ...] | None:
+        """Let this attempt be checked now, or None (not yet): at most ``free_failures`` unanswered attempts per
+        address and per login are checked at once; a known-good pair always is. 40 guesses in the same
+        millisecond therefore cannot all be checked before the first failures slow the rest, and a fleet
+        reconnecting at once waits a moment instead of being refused. The caller retries within ``max_wait``
+        and hands what this returned to :meth:`end` once the attempt is answered."""
+        if self.is_known_good(address, login):
+            return ()
+        keys = (("address", address), ("login", login))
+        cap = max(1, self.by_address.free_failures)
+        if any(self._in_flight.get(key, 0) >= cap for key in keys):
+            return None
+        for key in keys:
+            self._in_flight[key] = self._in_flight.get(key, 0) + 1
+        return keys
+
+    def end(self, admitted: tuple[tuple[str, str], ...]) -> None:
+        """The attempt :meth:`try_begin` let in has been answered: free its places."""
+        for key in admitted:
+            left = self._in_flight.get(key, 0) - 1
+            if left > 0:
+                self._in_flight[key] = left
+            else:
+                self._in_flight.pop(key, None)
+
+    def failed(self, address: str, login: str) -> None:
+        """A wrong password (or unknown login): counted for the pair, and for the address and the login unless
+        the pair is known good (a robot's own typo must not slow everyone behind its NAT)."""
+        self.by_pair.failed(self._pair(address, login))
+        if not self.is_known_good(address, login):
+            self.by_address.failed(address)
+            self.by_login.failed(login)
 
     def succeeded(self, address: str, login: str) -> None:
-        """The attempt's password was right: take back its provisional failure, remember the pair as good."""
+        """The attempt's password was right: remember the pair as good."""
         pair = self._pair(address, login)
-        if not self.is_known_good(address, login):
-            self.by_address.retract(address)
-            self.by_login.retract(login)
         self.by_pair.forget(pair)
         self._good.pop(pair, None)
         self._good[pair] = self.clock()
