@@ -97,7 +97,8 @@ class Tally:
     received: int = 0  # of messages sent inside the window
 
 
-async def generator(role: str, first: int, count: int, port: int, start_at: float, seconds: float) -> dict[str, Any]:
+async def generator(role: str, first: int, count: int, port: int, start_at: float, seconds: float,
+                    with_presence: bool = True) -> dict[str, Any]:
     """One worker: robots and operators ``first .. first+count-1`` (role "fleet"), or the monitor (role "monitor")."""
     import gmqtt
     from gmqtt.mqtt.constants import MQTTv311
@@ -192,7 +193,9 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
                 c.publish(t, operator_heartbeat(user, f"{user}-bench"), qos=1, retain=True)
 
             tasks += [periodic(0.1, phase, motion, state), periodic(0.1, phase + 0.05, twist, cmd),
-                      periodic(1.0, phase, beat, None), periodic(1.0, phase + 0.5, present, None)]
+                      periodic(1.0, phase, beat, None)]
+            if with_presence:
+                tasks.append(periodic(1.0, phase + 0.5, present, None))
     connect_seconds = time.monotonic() - began
     await asyncio.gather(*tasks)
     await asyncio.sleep(max(0.0, window[1] + SETTLE - time.monotonic()))
@@ -210,7 +213,8 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
 def worker_main(args: argparse.Namespace) -> int:
     import uvloop
 
-    result = uvloop.run(generator(args.role, args.first, args.count, args.port, args.start_at, args.seconds))
+    result = uvloop.run(generator(args.role, args.first, args.count, args.port, args.start_at, args.seconds,
+                                  not args.no_presence))
     args.out.write_bytes(orjson.dumps(result))
     return 0
 
@@ -260,8 +264,8 @@ class Step:
         return bool(complete) and max(self.pct(self.state_ms, 99), self.pct(self.cmd_ms, 99)) < BAR_P99_MS
 
 
-def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: float, loop: str = "auto"
-             ) -> Step | None:
+def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: float, loop: str = "auto",
+             presence: bool = True) -> Step | None:
     step = Step(f"embedded ({loop})" if kind == "embedded" and loop != "auto" else
                 "embedded" if kind == "embedded" else "Mosquitto", robots, seconds)
     with ExitStack() as phase:
@@ -291,7 +295,8 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
             children.append(lat.start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--worker",
                                                     "--role", role, "--first", str(first), "--count", str(count),
                                                     "--port", str(port), "--start-at", repr(start_at), "--seconds",
-                                                    str(seconds), "--out", str(out)],
+                                                    str(seconds), "--out", str(out)]
+                                            + (["--no-presence"] if not presence else []),
                                             work / f"gen-{kind}-{robots}-{n}.log", env))
         # idle connections: everyone is connected before the warm-up starts sending
         if (delay := start_at - WARMUP - 0.2 - time.monotonic()) > 0:
@@ -383,6 +388,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="(default: %(default)s)")
     p.add_argument("--loops", default="auto", help="event loops of the embedded broker to run, comma-separated: "
                                                    "auto, uvloop, asyncio (default: %(default)s)")
+    p.add_argument("--no-presence", action="store_true",
+                   help="operators send no presence heartbeats (what presence costs a broker; robots then refuse "
+                        "their commands on a real bridge)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)  # the bench's own generator processes
     p.add_argument("--role", default="fleet", help=argparse.SUPPRESS)
     p.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)
@@ -420,7 +428,7 @@ def main(argv: list[str] | None = None) -> int:
                 if args.quick and not args.counts:
                     counts = counts[::2]
                 for robots in counts:
-                    step = run_step(kind, robots, Path(tmp), env, args.seconds, loop)
+                    step = run_step(kind, robots, Path(tmp), env, args.seconds, loop, not args.no_presence)
                     if step is None:
                         print(f"{kind}: Mosquitto not installed, skipped")
                         break

@@ -68,3 +68,17 @@ def test_discard_forgets_the_filter_and_prunes_its_branch() -> None:
     assert index.matches("roslink/turtle1/from/alice/cmd/twist") == ["roslink/turtle1/from/alice/#"]
     index.discard("roslink/turtle1/from/alice/#")
     assert len(index) == 0 and index._root == {}  # nothing left behind
+
+
+@pytest.mark.parametrize("size", [0, 5, 127 - 12, 200, 20_000, 3_000_000])
+@pytest.mark.parametrize("retain", [False, True])
+def test_the_direct_qos0_publish_is_byte_for_byte_what_amqtt_sends(size: int, retain: bool) -> None:
+    """hardened fix 25 writes QoS 0 deliveries itself: the bytes must equal amqtt's own PUBLISH packet."""
+    from amqtt.mqtt.publish import PublishPacket
+
+    from roslink_mqtt.broker.hardened import publish_packet_qos0
+
+    payload = bytes(i % 251 for i in range(size))
+    topic = "roslink/turtle1/state/global_motion"
+    assert publish_packet_qos0(topic, payload, retain) == PublishPacket.build(topic, payload, None, False, 0,
+                                                                               retain).to_bytes()

@@ -70,6 +70,9 @@ behaviour.
 24. **Subscription matching in a tree** (:class:`~.subscriptions.SubscriptionIndex`): stock matches every
     PUBLISH against every filter in the broker, so a message cost grows with the fleet (a 200-robot fleet
     collapsed); the index visits only the levels a topic can match.
+25. **QoS 0 deliveries are written straight to a TCP client's transport**, whole packets in broadcast order,
+    bounded by the outbox (17); stock runs a Task per delivery (packet objects, write lock, ``drain()``, a timer
+    and a plugin event each). WebSocket clients and QoS 1/2 keep amqtt's path.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -180,6 +183,37 @@ def _sweep_finished(running_tasks: Any) -> int:
     running_tasks.clear()
     running_tasks.extend(pending)
     return len(pending)
+
+
+def publish_packet_qos0(topic: str, data: bytes | bytearray, retain: bool) -> bytes:
+    """An MQTT 3.1.1 PUBLISH at QoS 0 (§3.3): fixed header, remaining length, topic, payload — no packet id."""
+    name = topic.encode()
+    remaining = 2 + len(name) + len(data)
+    header = bytearray([0x31 if retain else 0x30])
+    while True:  # remaining length: 7 bits per byte, high bit = more (§2.2.3)
+        byte, remaining = remaining % 128, remaining // 128
+        header.append(byte | 0x80 if remaining else byte)
+        if not remaining:
+            break
+    return b"".join((header, len(name).to_bytes(2, "big"), name, data))
+
+
+def _write_qos0(writer: WriterAdapter | None, topic: str, data: bytes | bytearray | None, retain: bool) -> bool:
+    """Write a QoS 0 delivery straight to a TCP client's transport (fix 25); False: take amqtt's path.
+
+    amqtt sends every delivery through a Task of its own that builds packet objects, takes the connection's write
+    lock, awaits ``drain()``, re-arms a timer and fires a plugin event: most of the broker's CPU per message in a
+    fleet (bench/fleet.py). A QoS 0 PUBLISH needs none of it: its bytes go into the transport's buffer in one
+    ``write`` (whole packets, in broadcast order), and the outbox bounds that buffer (fix 17). Only for plain TCP
+    connections whose transport is open; WebSocket writers frame in ``drain()`` and keep amqtt's path.
+    """
+    if data is None or not isinstance(writer, StreamWriterAdapter) or writer.is_closed:
+        return False
+    transport = _transport(writer)
+    if transport is None or transport.is_closing():
+        return False
+    transport.write(publish_packet_qos0(topic, data, retain))
+    return True
 
 
 def write_buffer_size(writer: WriterAdapter | None) -> int:
@@ -576,6 +610,9 @@ class HardenedBroker(Broker):
         if verdict is Verdict.DISCONNECT:
             _drop_connection(handler, f"slow consumer: over its queue limit for "
                                       f"{self.limits.slow_consumer_timeout:.0f} s ({outbox.dropped} messages dropped)")
+            return None
+        if qos == 0 and _write_qos0(handler.writer, topic, data, retain):  # fix 25: no task per delivery
+            outbox.done(size)
             return None
         task = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))
         task.add_done_callback(lambda _t: outbox.done(size))
