@@ -23,6 +23,7 @@ import pytest
 
 from roslink_mqtt.bridge.endpoint import CommandEndpoint
 from roslink_mqtt.bridge.presets import COMMAND_PRESETS
+from roslink_mqtt.bridge.refusals import REPORT_RATE
 from roslink_mqtt.bridge.routes import Inbound
 from roslink_mqtt.config import load_fleet
 from roslink_mqtt.presence import operator_heartbeat, operator_signoff
@@ -475,16 +476,18 @@ def test_goals_are_canceled_where_velocity_stops(h: Harness, end: str, whose: st
 
 def test_a_flood_of_refused_input_is_reported_at_a_bounded_rate_and_summarised(h: Harness) -> None:
     """A viewer's 500 twists are all refused, but the bridge does not answer each: burst, then a count."""
+    began = time.monotonic()
     for _ in range(500):
         h.command("twist", {"lx": 0.1}, user="bob")
+    refill = int((time.monotonic() - began) * REPORT_RATE)  # tokens back while the loop ran (a loaded machine)
     said = _refused(h, "bob")
-    assert len(said) == 100  # the burst; the rest held back and counted
+    assert 100 <= len(said) <= 100 + refill + 1  # the burst; the rest held back and counted
     assert not [t for t in h.twists() if t != (0.0, 0.0)]
     time.sleep(0.05)  # a token or two back
     h.endpoint.supervise(time.monotonic())
     summary = _refused(h, "bob")[-1]
     assert summary.startswith("user 'bob' may not send 'cmd/twist'")
-    assert "[400 more of your inputs were refused and not reported one by one" in summary
+    assert f"[{500 - len(said)} more of your inputs were refused and not reported one by one" in summary
     h.present()
     h.command("twist", {"lx": 0.1})  # alice's refusals are hers: bob used none of them
     h.command("twist", {"lx": 0.1}, user="carol")
