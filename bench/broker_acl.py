@@ -1,6 +1,6 @@
 """Benchmark: what the ACL costs the embedded broker, next to Mosquitto running the exported ACL.
 
-    .venv/bin/python bench/broker_acl.py [--messages 20000] [--repeats 3] [--qos 0 1]
+    .venv/bin/python bench/broker_acl.py [--messages 10000] [--repeats 3] [--qos 0 1]
 
 One publisher (robot turtle1) sends small JSON state messages to
 ``roslink/turtle1/state/robot_status``; one subscriber (user alice, granted turtle1) counts
@@ -117,7 +117,7 @@ def run_once(port: int, pid: int, messages: int, qos: int, tag: str) -> tuple[fl
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--messages", type=int, default=20000, help="messages per run (default: %(default)s)")
+    ap.add_argument("--messages", type=int, default=10000, help="messages per run (default: %(default)s)")
     ap.add_argument("--repeats", type=int, default=3, help="runs per broker and QoS (default: %(default)s)")
     ap.add_argument("--qos", type=int, nargs="+", default=[0, 1], choices=(0, 1, 2))
     args = ap.parse_args()

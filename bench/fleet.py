@@ -382,7 +382,7 @@ def plot(steps: list[Step], path: Path) -> None:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="4 s windows and fewer counts")
-    p.add_argument("--seconds", type=float, default=8.0, help="measured window per count (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=6.0, help="measured window per count (default: %(default)s)")
     p.add_argument("--brokers", default="embedded,mosquitto", help="comma-separated (default: %(default)s)")
     p.add_argument("--robots", help="comma-separated robot counts for every broker (default: per broker)")
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="(default: %(default)s)")

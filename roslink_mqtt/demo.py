@@ -67,11 +67,12 @@ class Scene:
         self.operator.publish(self.topics.operator("alice", "demo-alice"), operator_heartbeat("alice", "demo-alice"),
                               qos=1, retain=True)
 
-    def watch(self, seconds: float, show: set[str]) -> dict[str, dict]:
-        """Print the state messages named in ``show`` for ``seconds``; return the latest of each."""
+    def watch(self, seconds: float, show: set[str], *, until_shown: bool = False) -> dict[str, dict]:
+        """Print the state messages named in ``show`` for ``seconds`` (or, ``until_shown``, until each has been
+        printed once); return the latest of each."""
         latest: dict[str, dict] = {}
         end = time.monotonic() + seconds
-        while (left := end - time.monotonic()) > 0:
+        while (left := end - time.monotonic()) > 0 and not (until_shown and not show):
             try:
                 topic, payload = self.inbox.get(timeout=left)
             except queue.Empty:
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         stack.callback(scene.close)
         print(f"3. bob (viewer) subscribes to {topics.heartbeat('turtle1')} and {topics.state_filter('turtle1')} :")
         latest = scene.watch(8.0, {"heartbeat", "global_motion", "robot_status", "range_finder_data",
-                                   "gps_raw_info"})
+                                   "gps_raw_info"}, until_shown=True)
         if "heartbeat" not in latest:
             print("  the robot did not come online; see the logs")
             return 1
@@ -235,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         if motion:
             print(f"  the robot drives at vx={motion.get('vx', 0.0):.2f} m/s")
         scene.beat()
-        latest = scene.watch(2.0, {"ack"})
+        latest = scene.watch(2.0, {"ack"}, until_shown=True)
         if "ack" not in latest:
             print("  (no failsafe notice seen)")
         scene.operator.publish(set_speed, ParamRequest("demo-speed-back", "set", values={"max_speed": 1.0}).to_json(),

@@ -12,7 +12,7 @@ language):
   ``serve=N``: the first N commands are servers (one terminal each in the docs); they are started in
   the background, the rest runs once they are up, then the servers get SIGINT.
 * ```` ```python run ```` -- ``.venv/bin/python`` with the snippet on stdin, against the live fleet;
-  ``serve``: a program that runs until stopped must still be running after 5 s; ``fragment``: a
+  ``serve``: a program that runs until stopped must still be running after 3 s; ``fragment``: a
   fragment of docs/sdk.md that uses the ``client`` of its *Connecting* example (and a ``driver`` of
   the reader's own): :data:`FRAGMENT_PRELUDE` makes them, and the client is closed after it.
 * ```` ```sh norun <reason> ```` -- not run; the reason is required (an interactive terminal, a
@@ -49,6 +49,7 @@ FENCE = re.compile(r"^```([A-Za-z]+)([^\n]*)\n(.*?)^```[ \t]*$", re.M | re.S)
 SHELLS = {"sh", "bash", "shell", "console"}
 LANGUAGES = SHELLS | {"python"}
 STEP_TIMEOUT = 90.0
+SERVE_CHECK = 3.0  # s a `serve` program must keep running (a program that fails does so while starting: < 2 s)
 DEMO_PORTS = (1883, 8083)
 FRAGMENT_PRELUDE = """\
 from roslink_mqtt.client import RobotClient
@@ -130,11 +131,15 @@ def demo_fleet(tmp_path_factory) -> Iterator[None]:
     broker.port, broker.ws_port = DEMO_PORTS
     with broker, run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
             run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "bob", "bob-demo") as bob:
-            assert bob.connect() == 0
-            bob.subscribe("roslink/turtle1/heartbeat")
-            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
+        _wait_online("turtle1", broker.port)
         yield
+
+
+def _wait_online(robot: str, port: int, timeout: float = 30.0) -> None:
+    with TestClient(port, "bob", "bob-demo") as bob:
+        assert bob.connect() == 0
+        bob.subscribe(f"roslink/{robot}/heartbeat")
+        bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=timeout)
 
 
 def _listening(port: int) -> bool:
@@ -224,7 +229,10 @@ def _run_servers(snippet: Snippet, tmp_path: Path) -> None:
             procs.append(proc)
             if "roslink-mqtt-broker" in command or "roslink_mqtt.broker" in command:
                 wait_for_port(DEMO_PORTS[0], timeout=20)
-        time.sleep(5.0 if len(servers) > 1 else 2.0)  # sim and bridge come up; the bridge dials the broker
+        if any("roslink-mqtt-bridge" in c or "roslink_mqtt.bridge" in c for c in servers):
+            _wait_online("turtle1", DEMO_PORTS[0])  # sim and bridge are up: the robot's heartbeat says ACTIVE
+        else:
+            time.sleep(2.0)
         for i, proc in enumerate(procs):
             assert proc.poll() is None, f"{servers[i]!r} exited:\n{(tmp_path / f'server{i}.log').read_text()[-2000:]}"
         if after:
@@ -252,7 +260,7 @@ def test_with_demo_fleet(snippet: Snippet, demo_fleet, tmp_path: Path) -> None:
     if snippet.language == "python":
         if snippet.serve:
             proc = _start(snippet.code, tmp_path / "program.log", python=True)
-            time.sleep(5.0)
+            time.sleep(SERVE_CHECK)
             alive = proc.poll() is None
             _stop(proc)
             log = (tmp_path / "program.log").read_text(errors="replace")

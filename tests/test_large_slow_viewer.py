@@ -40,7 +40,7 @@ RULES = f"""    rules: &rules
 """
 RATE = 30.0
 BASELINE_S = 3.0  # the normal viewer alone
-SLOW_S = 10.0  # with the slow viewer subscribed (well past its queue limit, short of slow_consumer_timeout 30 s)
+SLOW_S = 8.0  # with the slow viewer subscribed (well past its queue limit, short of slow_consumer_timeout 30 s)
 MARK = b"idx:"
 COMMENT = b"\xff\xfe" + struct.pack(">H", 2 + len(MARK) + 8)  # JPEG COM segment carrying the frame index
 
