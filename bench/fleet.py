@@ -110,7 +110,6 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
     window = (start_at, start_at + seconds)
     state, cmd = Tally(), Tally()
     clients: list[Any] = []
-    loop = asyncio.get_running_loop()
 
     def in_window(ns: int) -> bool:
         return window[0] <= ns / 1e9 < window[1]
@@ -204,7 +203,6 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
             await asyncio.wait_for(client.disconnect(), 2)
         except (TimeoutError, OSError):
             pass
-    del loop
     return {"connect_s": connect_seconds, "state_sent": state.sent, "cmd_sent": cmd.sent,
             "state_received": state.received, "cmd_received": cmd.received,
             "state_ms": state.latencies, "cmd_ms": cmd.latencies, "cpu_s": time.process_time()}

@@ -1,4 +1,4 @@
-"""``make demo``: the whole system on this machine, in about 20 seconds.
+"""``make demo``: the whole system on this machine, in about 10 seconds.
 
 Starts the embedded broker, the simulated robot and the bridge as real
 processes (DDS kept on loopback, a fresh ROS domain), then plays a short

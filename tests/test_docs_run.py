@@ -229,7 +229,8 @@ def _run_servers(snippet: Snippet, tmp_path: Path) -> None:
             procs.append(proc)
             if "roslink-mqtt-broker" in command or "roslink_mqtt.broker" in command:
                 wait_for_port(DEMO_PORTS[0], timeout=20)
-        if any("roslink-mqtt-bridge" in c or "roslink_mqtt.bridge" in c for c in servers):
+        with_broker = any("roslink-mqtt-broker" in c or "roslink_mqtt.broker" in c for c in servers)
+        if with_broker and any("roslink-mqtt-bridge" in c or "roslink_mqtt.bridge" in c for c in servers):
             _wait_online("turtle1", DEMO_PORTS[0])  # sim and bridge are up: the robot's heartbeat says ACTIVE
         else:
             time.sleep(2.0)

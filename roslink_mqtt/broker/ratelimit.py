@@ -115,12 +115,6 @@ class KeyThrottle:
     def forget(self, address: str) -> None:
         self._records.pop(address, None)
 
-    def retract(self, address: str) -> None:
-        """Take back the newest failure (an attempt counted as failed before its check, then correct)."""
-        record = self._records.get(address)
-        if record is not None and record.failures:
-            record.failures.pop()
-
     def _prune(self, now: float) -> None:
         for address in list(self._records):
             self._record(address, now)
