@@ -78,6 +78,7 @@ def stack(tmp_path_factory, request):
             alice.subscribe("roslink/turtle1/heartbeat")
             alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
                            timeout=20)
+            _wait_until_served(alice, "peek")  # the probe's services discovered by the bridge (they share a node)
             yield {"port": port, "alice": alice, "probe": probe, "work": work, "release": release}
     finally:
         release.set()
@@ -90,6 +91,14 @@ def call(client: TestClient, user: str, service: str, args: dict | None = None, 
     reply = client.wait_for(lambda m: m.topic == f"roslink/turtle1/to/{user}/reply/{service}"
                             and m.json().get("id") == call_id, timeout=timeout)
     return reply.json()
+
+
+def _wait_until_served(client: TestClient, service: str, timeout: float = 20.0) -> None:
+    """Until the bridge sees the ROS server of ``service``: before that it answers "service not available"."""
+    deadline = time.monotonic() + timeout
+    while not call(client, "alice", service)["result"]:
+        assert time.monotonic() < deadline, f"the bridge never saw a server for '{service}'"
+        time.sleep(0.2)
 
 
 def test_ros_service_called_from_mqtt(stack) -> None:
@@ -120,9 +129,10 @@ def test_service_timeout_does_not_block_topics(stack) -> None:
     alice.publish("roslink/turtle1/from/alice/call/slow", {"id": call_id, "args": {}})
     alice.subscribe("roslink/turtle1/state/global_motion")
     # state keeps flowing while the call is pending: motion arrives before the call's (timeout) reply
-    motion = alice.wait_for(lambda m: m.topic.endswith("/state/global_motion"), timeout=5.0)
-    reply = alice.wait_for(lambda m: m.topic.endswith("/reply/slow") and m.json()["id"] == call_id, timeout=10)
-    assert motion.at < reply.at
+    motions = []
+    reply = alice.wait_for(lambda m: (motions.append(m) if m.topic.endswith("/state/global_motion") else None)
+                           or (m.topic.endswith("/reply/slow") and m.json()["id"] == call_id), timeout=10)
+    assert motions and motions[0].at < reply.at
     assert reply.json() == {"id": call_id, "result": False, "error": "timeout: no answer within 1 s"}
     assert 0.9 <= time.monotonic() - t0 < 3.0
     stack["release"].set()
