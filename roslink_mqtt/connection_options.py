@@ -57,7 +57,8 @@ def add_connection_options(parser: argparse.ArgumentParser, *, username: bool = 
     """
     g = parser.add_argument_group("connection")
     fallback = url_fallback or (f"default {default_url}" if default_url else "")
-    g.add_argument("--url", metavar="URL", help=f"broker URL: mqtt://, mqtts://, ws://, wss:// (env {ENV_URL}"
+    g.add_argument("--url", metavar="URL", help=f"broker URL: mqtt://, mqtts://, ws://, wss://; a cluster's nodes "
+                   f"comma-separated (failover) (env {ENV_URL}"
                    + (f"; {fallback}" if fallback else "") + ")")
     g.add_argument("--broker", dest="old_broker", metavar="URL", help=argparse.SUPPRESS)
     if username:

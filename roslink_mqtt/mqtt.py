@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import socket
 import ssl
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
@@ -55,6 +56,59 @@ def parse_broker_url(url: str) -> BrokerUrl:
     return BrokerUrl(parts.scheme, parts.hostname, port, parts.path or "/mqtt")
 
 
+def parse_broker_urls(urls: str | Sequence[str | BrokerUrl] | BrokerUrl) -> tuple[BrokerUrl, ...]:
+    """One broker URL, or the nodes of one cluster: comma-separated (``mqtt://a:1883,mqtt://b:1883``) or a list.
+
+    The nodes of a list must be reached the same way (one scheme): a client moves between them without being
+    rebuilt, and a list that mixed TLS and plain TCP would silently drop encryption when one node failed.
+    """
+    if isinstance(urls, BrokerUrl):
+        return (urls,)
+    parts = [p.strip() for p in urls.split(",")] if isinstance(urls, str) else list(urls)
+    parsed = tuple(p if isinstance(p, BrokerUrl) else parse_broker_url(p) for p in parts if p)
+    if not parsed:
+        raise ValueError("no broker URL given")
+    schemes = sorted({u.scheme for u in parsed})
+    if len(schemes) > 1:
+        raise ValueError(f"broker URLs {', '.join(map(str, parsed))} mix schemes ({', '.join(schemes)}): the "
+                         "nodes of one list are reached one way (all mqtts://, say)")
+    return parsed
+
+
+class BrokerRing:
+    """The brokers a client may use, and the one it (re)connects to next: failover across a cluster's nodes.
+
+    Every node of a cluster serves the same topics and logins, so when a connection fails or is lost the
+    client simply moves on to the next node (round robin) instead of waiting for the dead one to return.
+    With one URL nothing moves.
+    """
+
+    def __init__(self, client: mqtt.Client, urls: Sequence[BrokerUrl]) -> None:
+        self.client, self.urls, self.index = client, tuple(urls), 0
+
+    @property
+    def url(self) -> BrokerUrl:
+        """The broker of the current (or next) connection attempt."""
+        return self.urls[self.index]
+
+    def advance(self) -> BrokerUrl | None:
+        """Point the client's next (re)connect at the next node; None with a single broker (nothing to move)."""
+        if len(self.urls) < 2:
+            return None
+        self.index = (self.index + 1) % len(self.urls)
+        nxt = self.url
+        # paho reconnects to the address it keeps in these; its public setters refuse to change it until a lost
+        # connection is fully torn down, which is exactly when failover must act (tests/test_failover.py proves
+        # it against real brokers, so a paho release that renames them fails there, not in the field).
+        self.client._host, self.client._port = nxt.host, nxt.port
+        if nxt.transport == "websockets":
+            self.client.ws_set_options(path=nxt.path)
+        return nxt
+
+    def __str__(self) -> str:
+        return str(self.url) if len(self.urls) == 1 else f"{self.url} (of {len(self.urls)} brokers)"
+
+
 def set_nodelay(sock: Any) -> None:
     """Disable Nagle on a paho socket (plain, TLS or the websocket wrapper's inner socket)."""
     raw = getattr(sock, "_socket", sock)
@@ -65,14 +119,14 @@ def set_nodelay(sock: Any) -> None:
 
 
 def make_client(client_id: str, *, username: str | None = None, password: str | None = None,
-                url: BrokerUrl | str | None = None, ca_file: str | None = None,
+                url: BrokerUrl | str | Sequence[BrokerUrl] | None = None, ca_file: str | None = None,
                 insecure_tls: bool = False, max_reconnect_delay: float = 3.0) -> mqtt.Client:
-    """A configured paho client (not yet connected).
+    """A configured paho client (not yet connected); for a list of brokers, configured for the first.
 
     ``max_reconnect_delay`` caps the backoff so a robot is back within a few
     seconds of its broker returning.
     """
-    broker = parse_broker_url(url) if isinstance(url, str) else url
+    broker = parse_broker_urls(url)[0] if url is not None else None
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=True,
                          protocol=mqtt.MQTTv311,
                          transport=broker.transport if broker else "tcp")

@@ -61,3 +61,16 @@ def test_errors_name_file_line_and_key(old: str, new: str, expected: str) -> Non
     with pytest.raises(ConfigError) as info:
         _fleet(old, new)
     assert str(info.value).startswith(expected), str(info.value)
+
+
+def test_broker_may_list_a_clusters_nodes() -> None:
+    """Failover (issue 18): a list, or comma-separated; one scheme for all; each must be a broker URL."""
+    limits = "limits: {linear: 0.5, angular: 1.5}"
+    listed = _fleet(limits, limits + "\n      broker: [mqtt://10.0.0.1:1883, 'mqtt://10.0.0.2:1883']")
+    assert listed.robots["turtle1"].bridge.broker_url == "mqtt://10.0.0.1:1883,mqtt://10.0.0.2:1883"
+    joined = _fleet(limits, limits + "\n      broker: 'mqtt://a:1883, mqtt://b'")
+    assert joined.robots["turtle1"].bridge.broker_url == "mqtt://a:1883,mqtt://b"
+    with pytest.raises(ConfigError, match="mix schemes"):
+        _fleet(limits, limits + "\n      broker: [mqtts://a, mqtt://b]")
+    with pytest.raises(ConfigError, match=r"robots\.yaml:\d+.*a list of them"):
+        _fleet(limits, limits + "\n      broker: [mqtt://a, 42]")

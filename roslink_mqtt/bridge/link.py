@@ -12,11 +12,11 @@ import logging
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import paho.mqtt.client as mqtt
 
-from ..mqtt import BrokerUrl, make_client
+from ..mqtt import BrokerRing, BrokerUrl, make_client, parse_broker_urls
 from . import trace
 
 log = logging.getLogger("roslink_mqtt.bridge.link")
@@ -40,20 +40,23 @@ class MqttLink:
     a command waited inside the bridge before reaching ROS.
     """
 
-    def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl,
+    def __init__(self, *, client_id: str, username: str, password: str | None, url: BrokerUrl | Sequence[BrokerUrl],
                  keepalive: int, will: tuple[str, bytes] | None, subscriptions: Callable[[], list[tuple[str, int]]],
                  on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
                  ca_file: str | None = None, max_reconnect_delay: float = 2.0, max_payload: int = 0) -> None:
-        """``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none)."""
-        self.url, self.keepalive, self.max_payload = url, keepalive, max_payload
+        """``url``: one broker or a cluster's nodes (failover: a failed or lost connection moves to the next).
+        ``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none)."""
+        urls = parse_broker_urls(url)
+        self.keepalive, self.max_payload = keepalive, max_payload
         self._oversized: set[str] = set()  # topics already logged for an oversized message
         self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
         self.connected = threading.Event()
         self.subscribed = threading.Event()  # the broker acknowledged this connection's subscriptions
         self._subscribe_mid: int | None = None
-        self.client = make_client(client_id, username=username, password=password, url=url, ca_file=ca_file,
+        self.client = make_client(client_id, username=username, password=password, url=urls, ca_file=ca_file,
                                   max_reconnect_delay=max_reconnect_delay)
+        self.brokers = BrokerRing(self.client, urls)
         if will is not None:
             self.set_will(*will)
         self.client.on_connect = self._handle_connect
@@ -63,6 +66,11 @@ class MqttLink:
         self.client.on_subscribe = self._handle_subscribe
         self._refused_logged = False
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
+
+    @property
+    def url(self) -> BrokerUrl:
+        """The broker we are connected to (or trying next)."""
+        return self.brokers.url
 
     def set_will(self, topic: str, payload: bytes) -> None:
         """The retained last-will the broker publishes if we vanish; before :meth:`start` (it goes with CONNECT)."""
@@ -127,6 +135,7 @@ class MqttLink:
             if not self._refused_logged:
                 log.error("broker %s refused the connection: %s", self.url, reason)
                 self._refused_logged = True
+            self._move_on()
             return
         self._refused_logged = False
         subs = self._subscriptions()
@@ -146,7 +155,9 @@ class MqttLink:
             if self.closing:
                 log.info("disconnected from %s (shutting down)", self.url)
             else:
-                log.warning("lost the broker %s (%s); reconnecting", self.url, reason)
+                lost = self.url
+                nxt = self._move_on()
+                log.warning("lost the broker %s (%s); reconnecting%s", lost, reason, f" to {nxt}" if nxt else "")
             self._on_down(str(reason))
 
     def _handle_subscribe(self, _client, _userdata, mid, _reason_codes, _props) -> None:
@@ -154,7 +165,13 @@ class MqttLink:
             self.subscribed.set()
 
     def _handle_connect_fail(self, _client, _userdata) -> None:
-        log.debug("broker %s not reachable yet; retrying", self.url)
+        failed = self.url
+        nxt = self._move_on()
+        log.debug("broker %s not reachable; retrying%s", failed, f" with {nxt}" if nxt else "")
+
+    def _move_on(self) -> BrokerUrl | None:
+        """Failover: the next connection attempt goes to the next broker of the list (None: only one)."""
+        return None if self.closing else self.brokers.advance()
 
     def _handle_message(self, _client, _userdata, message: mqtt.MQTTMessage) -> None:
         # Taken first thing: the command path compares it with the time of publication to ROS, so a command

@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.utilities import remove_ros_args
 
     from ..config import ConfigError, load_fleet
-    from ..mqtt import parse_broker_url
+    from ..mqtt import parse_broker_urls
     from .node import Bridge
     from .rules import RuleError
 
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
               f"(robots: {', '.join(fleet.robots)})", file=sys.stderr)
         return 2
     try:
-        url = parse_broker_url(resolve_url(args, PROG, default=robot.bridge.broker_url))
+        url = parse_broker_urls(resolve_url(args, PROG, default=robot.bridge.broker_url))
     except ValueError as err:
         print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
         return 2

@@ -21,13 +21,13 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import paho.mqtt.client as mqtt
 
-from ..mqtt import BrokerUrl, make_client, parse_broker_url
+from ..mqtt import BrokerRing, BrokerUrl, make_client, parse_broker_urls
 from ..topics import TopicTree
 from .errors import ConnectError, LoginRefused, NotConnectedError
 from .presence import OperatorPresence
@@ -54,14 +54,16 @@ class Connection:
     work to a :class:`~roslink_mqtt.client.dispatch.CallbackQueue`.
     """
 
-    def __init__(self, *, username: str, password: str | None, url: str | BrokerUrl, client_id: str,
+    def __init__(self, *, username: str, password: str | None, url: str | BrokerUrl | Sequence[str | BrokerUrl],
+                 client_id: str,
                  topics: TopicTree, presence: bool = True, ca_file: str | None = None,
                  insecure_tls: bool = False, keepalive: int = 5) -> None:
         self.username, self.client_id, self.topics = username, client_id, topics
-        self.url = parse_broker_url(url) if isinstance(url, str) else url
+        urls = parse_broker_urls(url)
         self.keepalive = keepalive
-        self.client = make_client(client_id, username=username, password=password, url=self.url,
+        self.client = make_client(client_id, username=username, password=password, url=urls,
                                   ca_file=ca_file, insecure_tls=insecure_tls)
+        self.brokers = BrokerRing(self.client, urls)  # failover: a lost connection moves on to the next node
         # Created before CONNECT: the presence last-will must be part of the CONNECT packet.
         self.presence = (OperatorPresence(self.client, username, client_id, topics=topics, commanding=False)
                          if presence else None)
@@ -83,14 +85,29 @@ class Connection:
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
         self.client.on_subscribe = self._on_subscribe
+        self.client.on_connect_fail = lambda _client, _userdata: self._move_on()
+
+    @property
+    def url(self) -> BrokerUrl:
+        """The broker we are connected to (or trying next)."""
+        return self.brokers.url
+
+    def _move_on(self) -> BrokerUrl | None:
+        return None if self._closing else self.brokers.advance()
 
     # -- lifecycle --------------------------------------------------------------------
     def connect(self, timeout: float = 10.0) -> None:
         """Connect and wait for the broker to accept the login; raise ConnectError otherwise."""
-        try:
-            self.client.connect(self.url.host, self.url.port, keepalive=self.keepalive)
-        except (OSError, ValueError) as err:
-            raise ConnectError(f"cannot reach the broker at {self.url}: {err}") from None
+        unreachable: list[str] = []
+        for _ in self.brokers.urls:  # the first node that answers; each refused one moves the ring on
+            try:
+                self.client.connect(self.url.host, self.url.port, keepalive=self.keepalive)
+                break
+            except (OSError, ValueError) as err:
+                unreachable.append(f"{self.url}: {err}")
+                self.brokers.advance()
+        else:
+            raise ConnectError(f"cannot reach the broker at {'; '.join(unreachable)}") from None
         self.client.loop_start()
         if not self._connack.wait(timeout) or self._connack_failure is not None:
             reason = self._connack_failure or f"no answer within {timeout:g} s"
@@ -142,6 +159,8 @@ class Connection:
                 self._connack.set()
             elif reason.value in PERMANENT_REFUSALS and self.failure is None:
                 self._give_up(client, reason)
+            else:
+                self._move_on()  # e.g. "server unavailable": a node shutting down; another may serve
             return
         with self._lock:
             for topic, sub in self._subs.items():
@@ -176,7 +195,10 @@ class Connection:
 
     def _on_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         if self.connected.is_set() and not self._closing:
-            log.warning("%s: disconnected from %s (%s); reconnecting", self.client_id, self.url, reason)
+            lost = self.url
+            nxt = self._move_on()
+            log.warning("%s: disconnected from %s (%s); reconnecting%s", self.client_id, lost, reason,
+                        f" to {nxt}" if nxt else "")
         if self.connected.is_set():
             self.down_since = time.monotonic()
         self.connected.clear()

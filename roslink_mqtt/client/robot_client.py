@@ -25,7 +25,7 @@ import logging
 import secrets
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future
 from typing import Any
 
@@ -80,14 +80,16 @@ ACCESS_WAIT = 0.5  # s after subscribing to a robot's to/<user>/# that a first c
 class RobotClient:
     """A connection to the fleet's broker as one user.
 
-    ``url``, ``username`` and ``password`` default to the environment
+    ``url`` is one broker, or a cluster's nodes (comma-separated or a list): a lost connection moves on to the
+    next node. ``url``, ``username`` and ``password`` default to the environment
     (``ROSLINK_URL``, ``ROSLINK_USERNAME``, ``ROSLINK_PASSWORD``, ``ROSLINK_CA_FILE``),
     then to the local demo broker. ``robots`` names robots to watch from the start;
     the client also tries the wildcard ``<prefix>/+/heartbeat`` (brokers that
     refuse it leave you with the named robots and those you talk to).
     """
 
-    def __init__(self, username: str | None = None, password: str | None = None, *, url: str | BrokerUrl | None = None,
+    def __init__(self, username: str | None = None, password: str | None = None, *,
+                 url: str | BrokerUrl | Sequence[str] | None = None,
                  robots: Iterable[str] = (), client_id: str | None = None, presence: bool = True,
                  ca_file: str | None = None, insecure_tls: bool = False, prefix: str = DEFAULT_PREFIX,
                  keepalive: int = 5, stale_after: float = DEFAULT_STALE_AFTER,

@@ -284,9 +284,16 @@ class _FleetReader:
         positive = self.number(0, 3600, open_low=True)
 
         def url(p: Path, v: Any) -> str:
-            if not isinstance(v, str) or not _MQTT_URL.match(v):
-                raise self.err(p, f"expected a broker URL like mqtt://host:1883 or mqtts://host:8883, got {_show(v)}")
-            return v
+            """One URL, or a cluster's nodes (a list, or comma-separated): the bridge fails over between them."""
+            items = v if isinstance(v, list) else v.split(",") if isinstance(v, str) else [v]
+            items = [i.strip() if isinstance(i, str) else i for i in items]
+            if not items or any(not isinstance(i, str) or not _MQTT_URL.match(i) for i in items):
+                raise self.err(p, "expected a broker URL like mqtt://host:1883 or mqtts://host:8883 (or a list of "
+                                  f"them: a cluster's nodes), got {_show(v)}")
+            if len({i.split(":", 1)[0] for i in items}) > 1:
+                raise self.err(p, f"the broker URLs {_show(v)} mix schemes: the nodes of one list are reached one "
+                                  "way (all mqtts://, say)")
+            return ",".join(items)
 
         return BridgeSettings(
             broker_url=self.value(path, "broker", url, d.broker_url),

@@ -1,0 +1,107 @@
+"""Failover across several brokers, with real processes: the bridge and an SDK operator both get two URLs.
+
+Two Mosquitto brokers with the fleet's logins stand in for two nodes of a cluster (tests/test_rabbitmq_cluster.py
+does the same against a real RabbitMQ cluster). Killing the broker everyone is on must stop the robot (the
+failsafe), and within 5 s the bridge and the operator are on the other broker and the robot moves again.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from contextlib import ExitStack
+
+import pytest
+
+from roslink_mqtt.client import RobotClient
+from roslink_mqtt.client.errors import NotConnectedError
+from roslink_mqtt.mqtt import parse_broker_urls
+
+from .conftest import record_measurement
+from .support.fleet_brokers import fleet_password_file
+from .support.mosquitto import MosquittoProcess
+from .support.procs import CONFIG, bridge_env, run
+from .support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(120)
+
+BACK_WITHIN = 5.0  # issue 18: commands flow again within 5 s of losing a node
+
+
+def _moving(m) -> bool:
+    return m.linear.x > 0
+
+
+def _zero(m) -> bool:
+    return m.linear.x == 0 and m.angular.z == 0
+
+
+def drive(client: RobotClient, robot: str, stop: threading.Event) -> threading.Thread:
+    """A 10 Hz twist stream that keeps going through an outage (an operator holding the stick)."""
+    def loop() -> None:
+        while not stop.wait(0.1):
+            try:
+                client.twist(robot, lx=0.2)
+            except NotConnectedError:  # down: NotConnectedError until the client is on the other broker
+                pass
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_bridge_and_sdk_fail_over_to_the_next_broker(tmp_path) -> None:
+    from geometry_msgs.msg import Twist
+
+    probe = RosProbe()
+    cmd_vel = probe.watch(Twist, "/cmd_vel")
+    stop = threading.Event()
+    with ExitStack() as exits:
+        exits.callback(probe.close)
+        passwd = fleet_password_file(tmp_path)
+        brokers = []
+        for name in ("a", "b"):
+            work = tmp_path / name
+            work.mkdir()
+            broker = MosquittoProcess(work, f"allow_anonymous false\npassword_file {passwd}\n")
+            exits.callback(broker.stop)
+            broker.start()
+            brokers.append(broker)
+        urls = ",".join(f"mqtt://127.0.0.1:{b.port}" for b in brokers)
+        exits.enter_context(run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"))
+        exits.enter_context(run(["-m", "roslink_mqtt.bridge.main", "--config", str(CONFIG), "--robot", "turtle1",
+                                 "--url", urls], tmp_path / "bridge.log", bridge_env("turtle1")))
+        alice = exits.enter_context(RobotClient("alice", "alice-demo", url=urls, robots=["turtle1"]))
+        assert alice.wait_for_robot("turtle1", timeout=30), "the robot never came online"
+        exits.callback(stop.set)
+        drive(alice, "turtle1", stop)
+        cmd_vel.wait_for(_moving, timeout=20)
+        first = alice.connection.url
+        assert first.port == brokers[0].port  # everyone starts on the first node of the list
+
+        fault = time.monotonic()
+        brokers[0].kill()
+        stopped_at, _ = cmd_vel.wait_for(_zero, timeout=5, after=fault)
+        moving_at, _ = cmd_vel.wait_for(_moving, timeout=BACK_WITHIN + 5, after=stopped_at)
+        stopped, back = stopped_at - fault, moving_at - fault
+        record_measurement("failover: broker killed → robot stopped", stopped, 1.0)
+        record_measurement("failover: broker killed → moving again via the next broker", back, BACK_WITHIN)
+        print(f"failover (Mosquitto pair): stopped {stopped * 1000:.0f} ms after the kill, moving again after "
+              f"{back * 1000:.0f} ms", file=sys.stderr)
+        assert stopped <= 1.0
+        assert back <= BACK_WITHIN, f"commands flowed again only {back:.1f} s after the broker died"
+        assert alice.connection.url.port == brokers[1].port
+        log = (tmp_path / "bridge.log").read_text()
+        assert f"lost the broker mqtt://127.0.0.1:{brokers[0].port}" in log
+        assert f"reconnecting to mqtt://127.0.0.1:{brokers[1].port}" in log
+
+
+@pytest.mark.unit
+def test_a_list_of_brokers_parses_and_refuses_mixed_schemes() -> None:
+    urls = parse_broker_urls("mqtt://a:1883, mqtt://b:1884,mqtt://c")
+    assert [(u.host, u.port) for u in urls] == [("a", 1883), ("b", 1884), ("c", 1883)]
+    assert parse_broker_urls(["mqtts://a", "mqtts://b:9883"])[1].port == 9883
+    with pytest.raises(ValueError, match="mix schemes"):
+        parse_broker_urls("mqtts://a,mqtt://b")
+    with pytest.raises(ValueError, match="no broker URL"):
+        parse_broker_urls(" , ")
