@@ -8,17 +8,24 @@ import sys
 from ..broker.export import ExportError, default_owner, export_mosquitto, unreadable_parent
 from ..config import load_fleet
 
-FORMATS = ("mosquitto",)
+FORMATS = ("mosquitto", "rabbitmq")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("acl", help="export the fleet's logins and ACLs for an external broker",
                        description="Access rules derived from robots.yaml (the ones the embedded broker enforces).")
     acl_sub = p.add_subparsers(dest="acl_command", required=True, metavar="ACTION")
-    e = acl_sub.add_parser("export", help="write a Mosquitto password file, ACL file and mosquitto.conf",
-                           description="Write passwd, acl and mosquitto.conf into DIR. Run Mosquitto with "
-                                       "`mosquitto -c DIR/mosquitto.conf`; send it SIGHUP after exporting again.")
+    e = acl_sub.add_parser("export", help="write a broker's logins and access rules (Mosquitto, RabbitMQ)",
+                           description="mosquitto: write passwd, acl and mosquitto.conf into DIR; run Mosquitto with "
+                                       "`mosquitto -c DIR/mosquitto.conf`, send it SIGHUP after exporting again. "
+                                       "rabbitmq: write definitions.json and rabbitmq.conf (MQTT plugin) into DIR; "
+                                       "load them with `rabbitmqctl import_definitions DIR/definitions.json` on "
+                                       "any node of the cluster (docs/scaling.md).")
     e.add_argument("--format", choices=FORMATS, default="mosquitto", help="target broker (default: %(default)s)")
+    e.add_argument("--passwords", metavar="FILE",
+                   help="rabbitmq only: YAML 'login: password' for every login (RabbitMQ cannot use robots.yaml's "
+                        "hashes; each password is checked against them)")
+    e.add_argument("--vhost", default="roslink", help="rabbitmq only: the fleet's vhost (default: %(default)s)")
     e.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     e.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     e.add_argument("--owner", metavar="USER", default=None,
@@ -29,6 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     fleet = load_fleet(args.config)
+    if args.format == "rabbitmq":
+        return _export_rabbitmq(args, fleet)
+    if args.passwords:
+        print("roslink-mqtt acl export: --passwords is for --format rabbitmq (Mosquitto uses robots.yaml's hashes "
+              "as they are)", file=sys.stderr)
+        return 2
     owner = args.owner if args.owner is not None else default_owner()
     try:
         files = export_mosquitto(fleet, args.out, owner=owner)
@@ -42,4 +55,23 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"roslink-mqtt acl export: warning: user {owner!r} cannot enter {blocked}, so Mosquitto cannot read "
               f"these files; export to a directory it can reach (e.g. /etc/mosquitto/roslink)", file=sys.stderr)
     print(f"run: mosquitto -c {files.conf}     reload after exporting again: kill -HUP <mosquitto pid>")
+    return 0
+
+
+def _export_rabbitmq(args: argparse.Namespace, fleet) -> int:
+    from ..broker.export_rabbitmq import export_rabbitmq, read_passwords
+
+    if not args.passwords:
+        print("roslink-mqtt acl export: --format rabbitmq needs --passwords FILE ('login: password' for every "
+              "login): RabbitMQ keeps its own hashes and cannot use robots.yaml's", file=sys.stderr)
+        return 2
+    try:
+        files = export_rabbitmq(fleet, args.out, read_passwords(args.passwords), vhost=args.vhost)
+    except (ExportError, OSError) as err:
+        print(f"roslink-mqtt acl export: {err}", file=sys.stderr)
+        return 2
+    logins = len(fleet.robots) + len(fleet.users)
+    print(f"wrote {files.definitions} ({logins} logins, vhost {args.vhost}), {files.conf} (mode 600)")
+    print(f"load: rabbitmqctl import_definitions {files.definitions}     (once per cluster; again after editing "
+          "robots.yaml)")
     return 0
