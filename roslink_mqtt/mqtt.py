@@ -84,7 +84,8 @@ class BrokerRing:
     """
 
     def __init__(self, client: mqtt.Client, urls: Sequence[BrokerUrl]) -> None:
-        self.client, self.urls, self.index = client, tuple(urls), 0
+        self.client, self.urls, self.index, self.moves = client, tuple(urls), 0, 0
+        self._client_id: bytes = client._client_id
 
     @property
     def url(self) -> BrokerUrl:
@@ -103,6 +104,11 @@ class BrokerRing:
         self.client._host, self.client._port = nxt.host, nxt.port
         if nxt.transport == "websockets":
             self.client.ws_set_options(path=nxt.path)
+        # A fresh MQTT client id on the new node: RabbitMQ keeps a QoS 1 subscription in a durable queue named
+        # after the client id and homed on the node it was made on; with that node dead, the same id is refused
+        # everywhere until it returns. Our sessions are clean, so nothing depends on the id staying the same.
+        self.moves += 1
+        self.client._client_id = self._client_id + f"-{self.moves}".encode()
         return nxt
 
     def __str__(self) -> str:

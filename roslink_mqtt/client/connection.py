@@ -70,6 +70,10 @@ class Connection:
         self._lock = threading.RLock()
         self._subs: dict[str, _Subscription] = {}
         self._pending_suback: dict[int, tuple[str, threading.Event, list[bool]]] = {}
+        # Filters whose SUBACK a lost connection took along, with their waiters: RabbitMQ answers a filter outside
+        # the login's grant by closing the connection (no SUBACK 0x80). Asked once more alone after reconnecting;
+        # a second loss means refused (a network blip in the same moment twice is not the likely story).
+        self._unanswered: dict[str, tuple[threading.Event, list[bool], int]] = {}
         self._connack = threading.Event()
         self._connack_failure: str | None = None
         self._connack_permanent = False
@@ -163,10 +167,14 @@ class Connection:
                 self._move_on()  # e.g. "server unavailable": a node shutting down; another may serve
             return
         with self._lock:
-            for topic, sub in self._subs.items():
+            # the filters a closed connection left unanswered go last, each in a SUBSCRIBE of its own: if the
+            # broker closes the connection over one again, the others have their SUBACKs already
+            subs = sorted(self._subs.items(), key=lambda item: item[0] in self._unanswered)
+            for topic, sub in subs:
                 result, mid = client.subscribe(topic, sub.qos)
                 if result == mqtt.MQTT_ERR_SUCCESS:
-                    self._pending_suback[mid] = (topic, threading.Event(), [])
+                    event, box, _ = self._unanswered.get(topic, (threading.Event(), [], 0))
+                    self._pending_suback[mid] = (topic, event, box)
         if self.presence is not None:
             self.presence.beat()
         for hook in list(self.on_connected):
@@ -196,12 +204,33 @@ class Connection:
     def _on_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         if self.connected.is_set() and not self._closing:
             lost = self.url
-            nxt = self._move_on()
+            # closed over an unanswered SUBSCRIBE: the broker is alive and said no its way; stay on this node
+            nxt = None if self._pending_suback else self._move_on()
             log.warning("%s: disconnected from %s (%s); reconnecting%s", self.client_id, lost, reason,
                         f" to {nxt}" if nxt else "")
         if self.connected.is_set():
             self.down_since = time.monotonic()
         self.connected.clear()
+        self._suback_lost()
+
+    def _suback_lost(self) -> None:
+        """The connection ended with SUBSCRIBEs unanswered: keep their waiters for one more try, then refuse."""
+        with self._lock:
+            pending, self._pending_suback = self._pending_suback, {}
+            for topic, event, box in pending.values():
+                _, _, tries = self._unanswered.get(topic, (event, box, 0))
+                if len(pending) > 1:  # several unanswered: nothing says which (if any) the broker objected to
+                    self._unanswered[topic] = (event, box, tries)
+                elif tries >= 1:
+                    self._unanswered.pop(topic, None)
+                    self._subs.pop(topic, None)
+                    log.warning("%s: the broker closed the connection twice instead of answering SUBSCRIBE %s; "
+                                "taken as refused (RabbitMQ does this for a filter outside the login's grant)",
+                                self.client_id, topic)
+                    box.append(False)
+                    event.set()
+                else:
+                    self._unanswered[topic] = (event, box, tries + 1)
 
     def _on_subscribe(self, _client: mqtt.Client, _userdata: Any, mid: int, reasons: list[Any], _props: Any) -> None:
         with self._lock:
@@ -209,6 +238,7 @@ class Connection:
             if pending is None:
                 return
             topic, event, box = pending
+            self._unanswered.pop(topic, None)
             granted = bool(reasons) and not any(r.is_failure for r in reasons)
             if not granted:
                 self._subs.pop(topic, None)  # refused: do not ask again on every reconnect
