@@ -8,7 +8,7 @@ import sys
 from ..broker.export import ExportError, default_owner, export_mosquitto, unreadable_parent
 from ..config import load_fleet
 
-FORMATS = ("mosquitto", "rabbitmq")
+FORMATS = ("mosquitto", "rabbitmq", "emqx")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,10 +20,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                                        "`mosquitto -c DIR/mosquitto.conf`, send it SIGHUP after exporting again. "
                                        "rabbitmq: write definitions.json and rabbitmq.conf (MQTT plugin) into DIR; "
                                        "load them with `rabbitmqctl import_definitions DIR/definitions.json` on "
-                                       "any node of the cluster (docs/scaling.md).")
+                                       "any node of the cluster. emqx: write acl.conf (file authorization) and "
+                                       "users.csv (built-in database import) into DIR (docs/scaling.md).")
     e.add_argument("--format", choices=FORMATS, default="mosquitto", help="target broker (default: %(default)s)")
     e.add_argument("--passwords", metavar="FILE",
-                   help="rabbitmq only: YAML 'login: password' for every login (RabbitMQ cannot use robots.yaml's "
+                   help="rabbitmq and emqx: YAML 'login: password' for every login (they cannot use robots.yaml's "
                         "hashes; each password is checked against them)")
     e.add_argument("--vhost", default="roslink", help="rabbitmq only: the fleet's vhost (default: %(default)s)")
     e.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
@@ -36,11 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     fleet = load_fleet(args.config)
-    if args.format == "rabbitmq":
-        return _export_rabbitmq(args, fleet)
+    if args.format in ("rabbitmq", "emqx"):
+        return _export_with_passwords(args, fleet)
     if args.passwords:
-        print("roslink-mqtt acl export: --passwords is for --format rabbitmq (Mosquitto uses robots.yaml's hashes "
-              "as they are)", file=sys.stderr)
+        print("roslink-mqtt acl export: --passwords is for --format rabbitmq or emqx (Mosquitto uses robots.yaml's "
+              "hashes as they are)", file=sys.stderr)
         return 2
     owner = args.owner if args.owner is not None else default_owner()
     try:
@@ -58,19 +59,27 @@ def run_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export_rabbitmq(args: argparse.Namespace, fleet) -> int:
+def _export_with_passwords(args: argparse.Namespace, fleet) -> int:
+    from ..broker.export_emqx import export_emqx
     from ..broker.export_rabbitmq import export_rabbitmq, read_passwords
 
     if not args.passwords:
-        print("roslink-mqtt acl export: --format rabbitmq needs --passwords FILE ('login: password' for every "
-              "login): RabbitMQ keeps its own hashes and cannot use robots.yaml's", file=sys.stderr)
+        print(f"roslink-mqtt acl export: --format {args.format} needs --passwords FILE ('login: password' for every "
+              f"login): {args.format} keeps its own hashes and cannot use robots.yaml's", file=sys.stderr)
         return 2
+    logins = len(fleet.robots) + len(fleet.users)
     try:
-        files = export_rabbitmq(fleet, args.out, read_passwords(args.passwords), vhost=args.vhost)
+        passwords = read_passwords(args.passwords)
+        if args.format == "emqx":
+            emqx = export_emqx(fleet, args.out, passwords)
+            print(f"wrote {emqx.acl} and {emqx.users} ({logins} logins, mode 600)")
+            print("load: authorization source `type = file, path = <acl.conf>`; import users.csv into the "
+                  "built-in database authenticator (sha256, salt suffix) — docs/scaling.md")
+            return 0
+        files = export_rabbitmq(fleet, args.out, passwords, vhost=args.vhost)
     except (ExportError, OSError) as err:
         print(f"roslink-mqtt acl export: {err}", file=sys.stderr)
         return 2
-    logins = len(fleet.robots) + len(fleet.users)
     print(f"wrote {files.definitions} ({logins} logins, vhost {args.vhost}), {files.conf} (mode 600)")
     print(f"load: rabbitmqctl import_definitions {files.definitions}     (once per cluster; again after editing "
           "robots.yaml)")
