@@ -1,6 +1,6 @@
 """Benchmark: a whole fleet on one broker — how many robots each broker carries before latency or loss gives.
 
-    .venv/bin/python bench/fleet.py [--quick] [--brokers embedded,mosquitto] [--robots 10,50,...] [--plot PATH]
+    .venv/bin/python bench/fleet.py [--quick] [--brokers embedded,mosquitto,rabbitmq] [--robots 10,50,...] [--plot PATH]
 
 Every simulated robot behaves like turtle1's bridge on the wire, without ROS: one MQTT connection of its own
 (its login, a last-will that marks it offline), a retained ROSLink heartbeat at 1 Hz, ``state/global_motion``
@@ -16,8 +16,10 @@ generator, not the broker, was the limit says so. For each robot count: whole-fl
 commands (operator -> robot); broker CPU (% of one core) and RSS, and its memory per idle connection. A
 broker's series stops at the first count that misses the bar (p99 < 50 ms, nothing lost).
 
-Brokers: the embedded one (as deployed) and Mosquitto running ``roslink-mqtt acl export``'s files. Fleet
-files are generated (one password for every login, hashed once). Never asserts on timing.
+Brokers: the embedded one (as deployed), Mosquitto running ``roslink-mqtt acl export``'s files, and a three-node
+RabbitMQ cluster from ``acl export --format rabbitmq`` (robot i on node i mod 3, its operator on the next node,
+the monitor on the third: state and commands cross nodes; CPU and RSS are the three nodes' sum). Fleet files are
+generated (one password for every login, hashed once). Never asserts on timing.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ SETTLE = 2.0
 WORKERS = 2
 TICKS = os.sysconf("SC_CLK_TCK")
 PAGE = os.sysconf("SC_PAGE_SIZE")
-DEFAULT_COUNTS = {"embedded": (10, 50, 100, 200), "mosquitto": (10, 100, 300, 1000)}
+DEFAULT_COUNTS = {"embedded": (10, 50, 100, 200), "mosquitto": (10, 100, 300, 1000), "rabbitmq": (10, 100, 300)}
 
 
 def robot_name(i: int) -> str:
@@ -97,9 +99,13 @@ class Tally:
     received: int = 0  # of messages sent inside the window
 
 
-async def generator(role: str, first: int, count: int, port: int, start_at: float, seconds: float,
+async def generator(role: str, first: int, count: int, ports: list[int], start_at: float, seconds: float,
                     with_presence: bool = True) -> dict[str, Any]:
-    """One worker: robots and operators ``first .. first+count-1`` (role "fleet"), or the monitor (role "monitor")."""
+    """One worker: robots and operators ``first .. first+count-1`` (role "fleet"), or the monitor (role "monitor").
+
+    ``ports``: the broker's, or a cluster's nodes: robot i on node i, its operator on the next, the monitor on the
+    last (so state and commands cross nodes).
+    """
     import gmqtt
     from gmqtt.mqtt.constants import MQTTv311
 
@@ -125,13 +131,13 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
             return 0
         return on_message
 
-    async def connect(client_id: str, login: str, will: Any = None, on_message: Any = None) -> Any:
+    async def connect(client_id: str, login: str, will: Any = None, on_message: Any = None, node: int = 0) -> Any:
         client = gmqtt.Client(client_id, will_message=will, clean_session=True)
         client.set_auth_credentials(login, PASSWORD)
         client.set_config({"reconnect_retries": 0})
         if on_message is not None:
             client.on_message = on_message
-        await client.connect("127.0.0.1", port, keepalive=30, version=MQTTv311)
+        await client.connect("127.0.0.1", ports[node % len(ports)], keepalive=30, version=MQTTv311)
         clients.append(client)
         return client
 
@@ -153,7 +159,7 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
     began = time.monotonic()
     tasks = []
     if role == "monitor":
-        client = await connect(f"{MONITOR}-{os.getpid()}", MONITOR, on_message=timed(state))
+        client = await connect(f"{MONITOR}-{os.getpid()}", MONITOR, on_message=timed(state), node=len(ports) - 1)
         client.subscribe(topics.state_filter(name="global_motion"), qos=0)
     else:
         connected = []
@@ -162,10 +168,10 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
             heartbeat_topic = topics.heartbeat(robot)
             offline = envelope(MessageId.HEARTBEAT, i + 1, {"type": 1, "name": robot, "system_status": 0})
             will = gmqtt.Message(heartbeat_topic, offline, qos=1, retain=True)
-            connected.append(connect(f"roslink-bridge-{robot}", robot, will, timed(cmd)))
+            connected.append(connect(f"roslink-bridge-{robot}", robot, will, timed(cmd), node=i))
             presence_topic = topics.operator(operator, f"{operator}-bench")
             clear = gmqtt.Message(presence_topic, b"", qos=1, retain=True)
-            connected.append(connect(f"{operator}-bench", operator, clear))
+            connected.append(connect(f"{operator}-bench", operator, clear, node=i + 1))
         done = await asyncio.gather(*connected)
         for j, i in enumerate(range(first, first + count)):
             robot, operator = robot_name(i), operator_name(i)
@@ -211,7 +217,8 @@ async def generator(role: str, first: int, count: int, port: int, start_at: floa
 def worker_main(args: argparse.Namespace) -> int:
     import uvloop
 
-    result = uvloop.run(generator(args.role, args.first, args.count, args.port, args.start_at, args.seconds,
+    ports = [int(p) for p in args.ports.split(",")]
+    result = uvloop.run(generator(args.role, args.first, args.count, ports, args.start_at, args.seconds,
                                   not args.no_presence))
     args.out.write_bytes(orjson.dumps(result))
     return 0
@@ -263,25 +270,34 @@ class Step:
 
 
 def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: float, loop: str = "auto",
-             presence: bool = True) -> Step | None:
-    step = Step(f"embedded ({loop})" if kind == "embedded" and loop != "auto" else
-                "embedded" if kind == "embedded" else "Mosquitto", robots, seconds)
+             presence: bool = True, cluster: Any = None) -> Step | None:
+    """One count on one broker; ``cluster`` (kind "rabbitmq"): a running RabbitCluster whose fleet covers it."""
+    names = {"embedded": "embedded", "mosquitto": "Mosquitto", "rabbitmq": "RabbitMQ ×3"}
+    step = Step(f"embedded ({loop})" if kind == "embedded" and loop != "auto" else names[kind], robots, seconds)
     with ExitStack() as phase:
         port = lat.free_port()
-        fleet = fleet_file(work / f"fleet-{kind}-{robots}.yaml", robots, port)
-        if kind == "embedded":
-            broker_pid = lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet),
-                                                 "--host", "127.0.0.1", "--port", str(port), "--ws-port", "0",
-                                                 "--log-level", "WARNING", "--loop", loop],
-                                         work / f"embedded-{robots}.log", env, port=port, what="embedded broker").pid
+        ports = [port]
+        if kind == "rabbitmq":
+            ports = [n.mqtt_port for n in cluster.nodes]
+            broker_pids = [n.beam_pid() for n in cluster.nodes]
+        else:
+            fleet = fleet_file(work / f"fleet-{kind}-{robots}.yaml", robots, port)
+        if kind == "rabbitmq":
+            pass
+        elif kind == "embedded":
+            broker_pids = [lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.broker", "--config",
+                                                   str(fleet), "--host", "127.0.0.1", "--port", str(port),
+                                                   "--ws-port", "0", "--log-level", "WARNING", "--loop", loop],
+                                           work / f"embedded-{robots}.log", env, port=port,
+                                           what="embedded broker").pid]
         else:
             if lat.mosquitto_exe() is None:
                 return None
             mosquitto = lat.Mosquitto.exported(work, fleet, export_dir=f"mosquitto-{robots}")
             phase.callback(mosquitto.stop)
             mosquitto.start()
-            broker_pid = mosquitto.pid
-        rss_idle = rss_bytes(broker_pid)
+            broker_pids = [mosquitto.pid]
+        rss_idle = sum(map(rss_bytes, broker_pids))
         connect_budget = 5.0 + robots * 0.02
         start_at = time.monotonic() + connect_budget + WARMUP
         outs, children = [], []
@@ -292,20 +308,21 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
             outs.append(out)
             children.append(lat.start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--worker",
                                                     "--role", role, "--first", str(first), "--count", str(count),
-                                                    "--port", str(port), "--start-at", repr(start_at), "--seconds",
+                                                    "--ports", ",".join(map(str, ports)), "--start-at",
+                                                    repr(start_at), "--seconds",
                                                     str(seconds), "--out", str(out)]
                                             + (["--no-presence"] if not presence else []),
                                             work / f"gen-{kind}-{robots}-{n}.log", env))
         # idle connections: everyone is connected before the warm-up starts sending
         if (delay := start_at - WARMUP - 0.2 - time.monotonic()) > 0:
             time.sleep(delay)
-        rss_connected = rss_bytes(broker_pid)
+        rss_connected = sum(map(rss_bytes, broker_pids))
         step.per_connection = (rss_connected - rss_idle) / (2 * robots + 1)
         time.sleep(max(0.0, start_at - time.monotonic()))
-        cpu0 = cpu_seconds(broker_pid)
+        cpu0 = sum(map(cpu_seconds, broker_pids))
         time.sleep(max(0.0, start_at + seconds - time.monotonic()))
-        step.broker_cpu = 100 * (cpu_seconds(broker_pid) - cpu0) / seconds
-        step.broker_rss = rss_bytes(broker_pid)
+        step.broker_cpu = 100 * (sum(map(cpu_seconds, broker_pids)) - cpu0) / seconds
+        step.broker_rss = sum(map(rss_bytes, broker_pids))
         for child in children:
             try:
                 child.popen.wait(timeout=SETTLE + 30)
@@ -328,6 +345,24 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
     wall = seconds + WARMUP + SETTLE + connect_budget
     step.generator_cpu = 100 * sum(r["cpu_s"] for r in reports) / wall
     return step
+
+
+def start_cluster(work: Path, robots: int) -> Any:
+    """Three RabbitMQ nodes with the largest count's fleet (``acl export --format rabbitmq``), or None."""
+    from roslink_mqtt.broker.export_rabbitmq import export_rabbitmq
+    from roslink_mqtt.config import load_fleet
+    from roslink_mqtt.rabbit_cluster import RabbitCluster, rabbitmq_available
+
+    if not rabbitmq_available():
+        return None
+    fleet = load_fleet(fleet_file(work / f"fleet-rabbitmq-{robots}.yaml", robots, 1883))
+    export_rabbitmq(fleet, work / "rabbitmq-export", {login: PASSWORD for login in [*fleet.robots, *fleet.users]})
+    cluster = RabbitCluster(work / "rabbitmq", work / "rabbitmq-export")
+    took = cluster.start()
+    time.sleep(2.0)  # the definitions are imported asynchronously at boot
+    print(f"(RabbitMQ: three nodes clustered in {took:.0f} s; robot i on node i mod 3, its operator on the next, "
+          "the monitor on node 3)", flush=True)
+    return cluster
 
 
 # -- report ----------------------------------------------------------------------------------------------------
@@ -381,7 +416,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="4 s windows and fewer counts")
     p.add_argument("--seconds", type=float, default=6.0, help="measured window per count (default: %(default)s)")
-    p.add_argument("--brokers", default="embedded,mosquitto", help="comma-separated (default: %(default)s)")
+    p.add_argument("--brokers", default="embedded,mosquitto,rabbitmq", help="comma-separated (default: %(default)s)")
     p.add_argument("--robots", help="comma-separated robot counts for every broker (default: per broker)")
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="(default: %(default)s)")
     p.add_argument("--loops", default="auto", help="event loops of the embedded broker to run, comma-separated: "
@@ -393,15 +428,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--role", default="fleet", help=argparse.SUPPRESS)
     p.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--count", type=int, default=0, help=argparse.SUPPRESS)
-    p.add_argument("--port", type=int, default=0, help=argparse.SUPPRESS)
+    p.add_argument("--ports", default="0", help=argparse.SUPPRESS)
     p.add_argument("--start-at", type=float, default=0.0, help=argparse.SUPPRESS)
     p.add_argument("--out", type=Path, default=Path("fleet-worker.json"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.quick:
         args.seconds = 4.0
     args.brokers = [b.strip() for b in args.brokers.split(",") if b.strip()]
-    if set(args.brokers) - {"embedded", "mosquitto"}:
-        p.error("--brokers from embedded, mosquitto")
+    if set(args.brokers) - set(DEFAULT_COUNTS):
+        p.error(f"--brokers from {', '.join(DEFAULT_COUNTS)}")
     try:
         args.counts = [int(n) for n in args.robots.split(",")] if args.robots else None
     except ValueError:
@@ -425,15 +460,26 @@ def main(argv: list[str] | None = None) -> int:
                 counts = args.counts or DEFAULT_COUNTS[kind]
                 if args.quick and not args.counts:
                     counts = counts[::2]
-                for robots in counts:
-                    step = run_step(kind, robots, Path(tmp), env, args.seconds, loop, not args.no_presence)
-                    if step is None:
-                        print(f"{kind}: Mosquitto not installed, skipped")
-                        break
-                    steps.append(step)
-                    print(fmt(step), flush=True)
-                    if not step.passed:
-                        break
+                cluster = None
+                if kind == "rabbitmq":
+                    cluster = start_cluster(Path(tmp), max(counts))
+                    if cluster is None:
+                        print("rabbitmq: rabbitmq-server not installed, skipped")
+                        continue
+                try:
+                    for robots in counts:
+                        step = run_step(kind, robots, Path(tmp), env, args.seconds, loop, not args.no_presence,
+                                        cluster)
+                        if step is None:
+                            print(f"{kind}: Mosquitto not installed, skipped")
+                            break
+                        steps.append(step)
+                        print(fmt(step), flush=True)
+                        if not step.passed:
+                            break
+                finally:
+                    if cluster is not None:
+                        cluster.stop()
     except KeyboardInterrupt:
         print("fleet bench: interrupted", file=sys.stderr)
         return 130

@@ -65,7 +65,9 @@ def cluster(tmp_path_factory):
     if not rabbitmq_available():
         pytest.fail("rabbitmq-server is not installed: `apt-get install rabbitmq-server` (.ci/run does it)")
     work = tmp_path_factory.mktemp("rabbit")
-    fleet = write_fleet(work)
+    # the description and access reports re-published every 2 s: clients on other nodes than the bridge's get them
+    period = "      heartbeat_period: 1.0\n"
+    fleet = write_fleet(work, edit=lambda text: text.replace(period, period + "      retained_refresh: 2\n", 1))
     passwords = work / "passwords.yaml"
     passwords.write_text("".join(f"{k}: {v}\n" for k, v in DEMO_PASSWORDS.items()))
     export = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "acl", "export", "--format", "rabbitmq",
@@ -135,6 +137,8 @@ def test_state_commands_and_stops_across_three_nodes(cluster, probe, tmp_path) -
         assert bob.wildcard_heartbeats is False  # RabbitMQ refuses roslink/+/heartbeat to a viewer: coped with
         motion = bob.subscribe("turtle1", "global_motion")
         assert motion.get(timeout=10) is not None  # state from node 1 reached node 3
+        # retained on node 1 only; re-published every retained_refresh (2 s), so node 3 has it within that
+        assert bob.description("turtle1", timeout=2 + 1.5).robot == "turtle1"
 
         exits.callback(stop.set)
         t0 = time.monotonic()

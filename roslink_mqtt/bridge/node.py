@@ -169,6 +169,7 @@ class Bridge:
         settings = robot.bridge
         outbound, routes = compile_rules(robot, self.topics)
         self._flushers: list[Callable[[], None]] = []  # throttled rules flushed by the supervision tick
+        self._retained_at = 0.0  # monotonic: the retained description and access reports last went out
         for rule in outbound:
             self._subscribe_ros(rule)
         self.link = MqttLink(
@@ -339,6 +340,7 @@ class Bridge:
         return self._subscriptions_of(self.viewer_link)
 
     def on_link_up(self) -> None:
+        self._retained_at = time.monotonic()
         self.systemd.status(f"connected to {self.link.url}")
         self.endpoint.link_up()
         self.endpoint.publish_heartbeat()
@@ -420,6 +422,11 @@ class Bridge:
     # -- supervision (executor, 20 Hz) -------------------------------------------------
     def supervise(self) -> None:
         now = time.monotonic()
+        refresh = self.robot.bridge.retained_refresh
+        if refresh and now - self._retained_at >= refresh and self.link.connected.is_set():
+            self._retained_at = now
+            self.publish_access()
+            self.publish_description()
         self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
         self.endpoint.supervise(now)
         self.caller.expire(now)

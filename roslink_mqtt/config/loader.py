@@ -279,7 +279,7 @@ class _FleetReader:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
-                            "max_requests_per_user", "executor"))
+                            "max_requests_per_user", "executor", "retained_refresh"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -313,6 +313,7 @@ class _FleetReader:
             max_requests_per_user=self.value(path, "max_requests_per_user", self.integer(1, 10000),
                                              d.max_requests_per_user),
             executor=self.value(path, "executor", self.choice(EXECUTORS), d.executor),
+            retained_refresh=self.value(path, "retained_refresh", self.number(0, 3600), d.retained_refresh),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:

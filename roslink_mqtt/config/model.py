@@ -171,6 +171,10 @@ class BridgeSettings:
     # the demo's rates; actions provided by MQTT clients then get a small single-threaded executor of their own)
     # or "single" (SingleThreadedExecutor for everything).
     executor: str = "events"
+    # s between re-publications of the retained description and access reports (0: only on connecting). A broker
+    # cluster that keeps retained messages per node (RabbitMQ 3.10) gives them only to clients on the bridge's
+    # node: with this set, clients on every node have them within that time (docs/scaling.md).
+    retained_refresh: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
