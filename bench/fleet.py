@@ -180,6 +180,7 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
             robot_client.subscribe(topics.operators_of(operator), qos=1)
             phase = (i % 100) / 1000  # spread the fleet's messages over the 100 ms period
             heartbeat = envelope(MessageId.HEARTBEAT, i + 1, {"type": 1, "name": robot, "system_status": 4})
+            heartbeat_topic = topics.heartbeat(robot)  # (this robot's: a heartbeat to another's topic is refused)
             motion_topic, twist_topic = topics.state(robot, "global_motion"), topics.command(robot, operator, "twist")
             presence_topic = topics.operator(operator, f"{operator}-bench")
 
@@ -317,7 +318,9 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
         if (delay := start_at - WARMUP - 0.2 - time.monotonic()) > 0:
             time.sleep(delay)
         rss_connected = sum(map(rss_bytes, broker_pids))
-        step.per_connection = (rss_connected - rss_idle) / (2 * robots + 1)
+        # (an Erlang VM's heap moves by more than a small fleet's connections: not shown when it shrank)
+        grown = rss_connected - rss_idle
+        step.per_connection = grown / (2 * robots + 1) if grown > 0 else float("nan")
         time.sleep(max(0.0, start_at - time.monotonic()))
         cpu0 = sum(map(cpu_seconds, broker_pids))
         time.sleep(max(0.0, start_at + seconds - time.monotonic()))
@@ -359,7 +362,10 @@ def start_cluster(work: Path, robots: int) -> Any:
     export_rabbitmq(fleet, work / "rabbitmq-export", {login: PASSWORD for login in [*fleet.robots, *fleet.users]})
     cluster = RabbitCluster(work / "rabbitmq", work / "rabbitmq-export")
     took = cluster.start()
-    time.sleep(2.0)  # the definitions are imported asynchronously at boot
+    cluster.wait_for_login(MONITOR, PASSWORD)
+    for i in range(0, robots, max(1, robots // 5)):  # the last users of the definitions too, not just the first
+        cluster.wait_for_login(operator_name(i), PASSWORD)
+    cluster.wait_for_login(operator_name(robots - 1), PASSWORD)
     print(f"(RabbitMQ: three nodes clustered in {took:.0f} s; robot i on node i mod 3, its operator on the next, "
           "the monitor on node 3)", flush=True)
     return cluster

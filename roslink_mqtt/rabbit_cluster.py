@@ -19,7 +19,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import time
 from pathlib import Path
@@ -151,6 +150,15 @@ class RabbitCluster:
             node.wait_up()
         return time.monotonic() - t0
 
+    def wait_for_login(self, username: str, password: str, timeout: float = 30.0) -> None:
+        """Until ``username`` may log in on every node: node 1 imports the definitions asynchronously at boot."""
+        deadline = time.monotonic() + timeout
+        while not all(login_works(n.mqtt_port, username, password) for n in self.nodes):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{username} cannot log in on every node {timeout:g} s after the cluster started "
+                                   f"(were the definitions imported?):\n{self.nodes[0].log_tail()}")
+            time.sleep(0.3)
+
     def ctl(self, *args: str, node: int = 0, timeout: float = 60.0) -> str:
         """``rabbitmqctl`` against a node (index from 0); raises with its output when it fails."""
         target = self.nodes[node]
@@ -186,9 +194,22 @@ class RabbitCluster:
         self.stop()
 
 
-def mqtt_port_open(port: int) -> bool:
+def login_works(port: int, username: str, password: str) -> bool:
+    """Whether an MQTT login is accepted on ``port`` now (CONNACK 0)."""
+    import queue
+
+    from .mqtt import make_client
+
+    client = make_client(f"login-probe-{time.monotonic_ns()}", username=username, password=password,
+                         url=f"mqtt://{LOOPBACK}:{port}")
+    codes: queue.Queue[int] = queue.Queue()
+    client.on_connect = lambda _c, _u, _f, rc, _p: codes.put(rc.value)
     try:
-        with socket.create_connection((LOOPBACK, port), timeout=0.2):
-            return True
-    except OSError:
+        client.connect(LOOPBACK, port, keepalive=10)
+        client.loop_start()
+        return codes.get(timeout=5) == 0
+    except (OSError, queue.Empty):
         return False
+    finally:
+        client.disconnect()
+        client.loop_stop()

@@ -21,7 +21,6 @@ import pytest
 
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.client.errors import NotConnectedError
-from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.rabbit_cluster import RabbitCluster, rabbitmq_available
 from tests.support.broker_setup import write_fleet
 
@@ -44,22 +43,6 @@ def _zero(m) -> bool:
     return m.linear.x == 0 and m.angular.z == 0
 
 
-def _login_works(port: int, user: str = "admin") -> bool:
-    client = make_client(f"probe-{time.monotonic_ns()}", username=user, password=DEMO_PASSWORDS[user],
-                         url=f"mqtt://127.0.0.1:{port}")
-    codes: queue.Queue[int] = queue.Queue()
-    client.on_connect = lambda c, u, f, rc, p: codes.put(rc.value)
-    try:
-        client.connect("127.0.0.1", port, keepalive=10)
-        client.loop_start()
-        return codes.get(timeout=5) == 0
-    except (OSError, queue.Empty):
-        return False
-    finally:
-        client.disconnect()
-        client.loop_stop()
-
-
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     if not rabbitmq_available():
@@ -78,10 +61,7 @@ def cluster(tmp_path_factory):
     with ExitStack() as exits:
         exits.callback(rabbit.stop)
         took = rabbit.start()
-        deadline = time.monotonic() + 30  # the definitions are imported asynchronously at boot
-        while not all(_login_works(n.mqtt_port) for n in rabbit.nodes):
-            assert time.monotonic() < deadline, "the exported logins never worked on every node"
-            time.sleep(0.3)
+        rabbit.wait_for_login("admin", DEMO_PASSWORDS["admin"])
         print(f"three RabbitMQ nodes up and clustered in {took:.1f} s", file=sys.stderr)
         assert len(rabbit.running_nodes()) == 3
         rabbit.fleet = fleet
