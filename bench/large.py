@@ -1,6 +1,6 @@
 """Benchmark: large messages (camera image, point cloud, map) through the bridge, per encoding and broker.
 
-    .venv/bin/python bench/large.py [--seconds 5] [--quick] [--plot PATH]
+    .venv/bin/python bench/large.py [--seconds 4] [--quick] [--plot PATH]
 
 An rclpy publisher in this process publishes, one stream at a time:
 
@@ -612,7 +612,7 @@ def plot(rows: list[Row], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seconds", type=float, default=5.0, help="measurement window per row (maps: at least 5 s)")
+    p.add_argument("--seconds", type=float, default=4.0, help="measurement window per row (maps: at least 5 s)")
     p.add_argument("--quick", action="store_true", help="4 s windows (a smoke run, noisier numbers)")
     p.add_argument("--brokers", default="embedded,mosquitto", help="comma-separated: embedded, mosquitto")
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="where to write the chart (default: %(default)s)")

@@ -1,4 +1,4 @@
-"""Failover across several brokers, with real processes: the bridge and an SDK operator both get two URLs.
+"""Failover across several brokers, with real processes: the bridge, an SDK operator and the CLI get two URLs.
 
 Two Mosquitto brokers with the fleet's logins stand in for two nodes of a cluster (tests/test_rabbitmq_cluster.py
 does the same against a real RabbitMQ cluster). Killing the broker everyone is on must stop the robot (the
@@ -7,6 +7,8 @@ failsafe), and within 5 s the bridge and the operator are on the other broker an
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import threading
 import time
@@ -21,7 +23,7 @@ from roslink_mqtt.mqtt import parse_broker_urls
 from .conftest import record_measurement
 from .support.fleet_brokers import fleet_password_file
 from .support.mosquitto import MosquittoProcess
-from .support.procs import CONFIG, bridge_env, run
+from .support.procs import CONFIG, ROOT, bridge_env, run
 from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(120)
@@ -94,6 +96,12 @@ def test_bridge_and_sdk_fail_over_to_the_next_broker(tmp_path) -> None:
         log = (tmp_path / "bridge.log").read_text()
         assert f"lost the broker mqtt://127.0.0.1:{brokers[0].port}" in log
         assert f"reconnecting to mqtt://127.0.0.1:{brokers[1].port}" in log
+        # the CLI, given the same list with the first broker dead, connects to the next one
+        listed = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "robots", "--url", urls, "-u", "alice"],
+                                capture_output=True, text=True, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL,
+                                env={**os.environ, "ROSLINK_PASSWORD": "alice-demo"})
+        assert listed.returncode == 0, listed.stderr
+        assert "turtle1" in listed.stdout
 
 
 @pytest.mark.unit
