@@ -8,6 +8,8 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
+import os
+import pwd
 import re
 import subprocess
 import sys
@@ -15,7 +17,7 @@ import sys
 import pytest
 
 from roslink_mqtt.broker.acl import FleetAcl
-from roslink_mqtt.broker.export import ExportError
+from roslink_mqtt.broker.export import ExportError, default_owner
 from roslink_mqtt.broker.export_rabbitmq import definitions, rabbit_password_hash, rabbitmq_conf_text
 from roslink_mqtt.config import load_fleet
 from tests.support.broker_setup import write_fleet
@@ -113,4 +115,9 @@ def test_cli_writes_both_files_and_refuses_without_passwords(tmp_path) -> None:
     assert done.returncode == 0, done.stderr
     doc = json.loads((tmp_path / "out" / "definitions.json").read_text())
     assert len(doc["topic_permissions"]) == len(DEMO_PASSWORDS)
-    assert (tmp_path / "out" / "definitions.json").stat().st_mode & 0o777 == 0o600
+    written = (tmp_path / "out" / "definitions.json").stat()
+    assert written.st_mode & 0o777 == 0o600
+    # exported as root where Debian's RabbitMQ is installed: its user owns them (rabbitmqctl and the node run as it)
+    expected = default_owner("rabbitmq")
+    assert written.st_uid == (pwd.getpwnam(expected).pw_uid if expected else os.geteuid())
+    assert (f"owner {expected}" in done.stdout) == (expected is not None)

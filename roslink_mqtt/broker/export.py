@@ -130,19 +130,31 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
 MOSQUITTO_USER = "mosquitto"  # the account Debian's Mosquitto drops to when started as root
 
 
-def default_owner() -> str | None:
-    """Who must read the files: ``mosquitto`` when exporting as root on a host that has that user, else nobody else.
+def default_owner(service_user: str = MOSQUITTO_USER) -> str | None:
+    """Who must read the files: ``service_user`` when exporting as root on a host that has that user, else nobody.
 
     Mosquitto started as root drops to the user ``mosquitto`` before it reads the password and ACL
-    files -- at start and again on SIGHUP -- so files only root can read lock every login out.
+    files -- at start and again on SIGHUP -- so files only root can read lock every login out. Debian's
+    RabbitMQ (node and ``rabbitmqctl``) runs as ``rabbitmq`` the same way.
     """
     if os.geteuid() != 0:
         return None
     try:
-        pwd.getpwnam(MOSQUITTO_USER)
+        pwd.getpwnam(service_user)
     except KeyError:
         return None
-    return MOSQUITTO_USER
+    return service_user
+
+
+def owner_ids(owner: str | None) -> tuple[int, int] | None:
+    """``(uid, gid)`` of ``owner`` (None: the exporting user keeps the files)."""
+    if owner is None:
+        return None
+    try:
+        entry = pwd.getpwnam(owner)
+    except KeyError:
+        raise ExportError(f"--owner {owner!r}: no such user on this host") from None
+    return entry.pw_uid, entry.pw_gid
 
 
 def export_mosquitto(fleet: Fleet, out_dir: str | Path, owner: str | None = None) -> ExportedFiles:
@@ -153,13 +165,7 @@ def export_mosquitto(fleet: Fleet, out_dir: str | Path, owner: str | None = None
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True, mode=0o755)
-    ids = None
-    if owner is not None:
-        try:
-            entry = pwd.getpwnam(owner)
-        except KeyError:
-            raise ExportError(f"--owner {owner!r}: no such user on this host") from None
-        ids = (entry.pw_uid, entry.pw_gid)
+    ids = owner_ids(owner)
     files = ExportedFiles(out / "passwd", out / "acl", out / "mosquitto.conf")
     texts = {files.passwd: passwd_text(fleet), files.acl: acl_text(fleet)}
     texts[files.conf] = mosquitto_conf_text(fleet, files.passwd, files.acl)

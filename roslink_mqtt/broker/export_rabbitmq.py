@@ -38,7 +38,7 @@ from ..config import Fleet
 from ..config.passwords import verify_password
 from ..topics import levels
 from .acl import Access, AclEntry, FleetAcl
-from .export import HEADER, ExportError, _write_private
+from .export import HEADER, ExportError, _write_private, owner_ids
 
 VHOST = "roslink"  # one vhost per fleet: its logins see nothing of other vhosts' exchanges and queues
 EXCHANGE = "amq.topic"  # the MQTT plugin's default exchange
@@ -157,13 +157,20 @@ def rabbitmq_conf_text(fleet: Fleet, definitions_file: Path, *, vhost: str = VHO
     ])
 
 
+RABBITMQ_USER = "rabbitmq"  # the account Debian's RabbitMQ node and rabbitmqctl run as
+
+
 def export_rabbitmq(fleet: Fleet, out_dir: str | Path, passwords: Mapping[str, str], *,
-                    vhost: str = VHOST) -> RabbitFiles:
-    """Write ``definitions.json`` and ``rabbitmq.conf`` into ``out_dir`` (mode 600; definitions hold hashes)."""
+                    vhost: str = VHOST, owner: str | None = None) -> RabbitFiles:
+    """Write ``definitions.json`` and ``rabbitmq.conf`` into ``out_dir`` (mode 600; definitions hold hashes).
+
+    ``owner``: the user who must read them (Debian's ``rabbitmqctl`` and node run as ``rabbitmq``); None: you.
+    """
+    ids = owner_ids(owner)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True, mode=0o755)
     files = RabbitFiles(out / "definitions.json", out / "rabbitmq.conf")
     doc = definitions(fleet, passwords, vhost=vhost)
-    _write_private(files.definitions, json.dumps(doc, indent=2) + "\n", None)
-    _write_private(files.conf, rabbitmq_conf_text(fleet, files.definitions, vhost=vhost), None)
+    _write_private(files.definitions, json.dumps(doc, indent=2) + "\n", ids)
+    _write_private(files.conf, rabbitmq_conf_text(fleet, files.definitions, vhost=vhost), ids)
     return files

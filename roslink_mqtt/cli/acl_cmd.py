@@ -30,8 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     e.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     e.add_argument("--owner", metavar="USER", default=None,
-                   help="user who owns the files and must read them (default: 'mosquitto' when run as root "
-                        "and that user exists, which is who Mosquitto started as root runs as; else you)")
+                   help="user who owns the files and must read them (default when run as root and that user "
+                        "exists: 'mosquitto' for mosquitto, 'rabbitmq' for rabbitmq — who those brokers run as; "
+                        "else you)")
     e.set_defaults(run=run_export)
 
 
@@ -61,7 +62,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 def _export_with_passwords(args: argparse.Namespace, fleet) -> int:
     from ..broker.export_emqx import export_emqx
-    from ..broker.export_rabbitmq import export_rabbitmq, read_passwords
+    from ..broker.export_rabbitmq import RABBITMQ_USER, export_rabbitmq, read_passwords
 
     if not args.passwords:
         print(f"roslink-mqtt acl export: --format {args.format} needs --passwords FILE ('login: password' for every "
@@ -76,11 +77,13 @@ def _export_with_passwords(args: argparse.Namespace, fleet) -> int:
             print("load: authorization source `type = file, path = <acl.conf>`; import users.csv into the "
                   "built-in database authenticator (sha256, salt suffix) — docs/scaling.md")
             return 0
-        files = export_rabbitmq(fleet, args.out, passwords, vhost=args.vhost)
+        owner = args.owner if args.owner is not None else default_owner(RABBITMQ_USER)
+        files = export_rabbitmq(fleet, args.out, passwords, vhost=args.vhost, owner=owner)
     except (ExportError, OSError) as err:
         print(f"roslink-mqtt acl export: {err}", file=sys.stderr)
         return 2
-    print(f"wrote {files.definitions} ({logins} logins, vhost {args.vhost}), {files.conf} (mode 600)")
+    print(f"wrote {files.definitions} ({logins} logins, vhost {args.vhost}), {files.conf}"
+          + (f" (owner {owner}, mode 600)" if owner else " (mode 600)"))
     print(f"load: rabbitmqctl import_definitions {files.definitions}     (once per cluster; again after editing "
           "robots.yaml)")
     return 0
