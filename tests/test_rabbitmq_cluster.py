@@ -110,6 +110,21 @@ def test_state_commands_and_stops_across_three_nodes(cluster, probe, tmp_path) -
         t0 = time.monotonic()
         driver = drive(alice, "turtle1", stop)
         probe.cmd_vel.wait_for(moving, timeout=20, after=t0)  # commands from node 2 reached the robot
+        # the viewer as attacker, from every node: commands it may not send and another user's replies; RabbitMQ
+        # closes only the viewer's own connections, and the robot keeps obeying its operator
+        attack = time.monotonic()
+        for i in range(12):
+            rogue = Probe(cluster.nodes[i % 3].mqtt_port, LOGINS["bob"], "rogue")
+            assert rogue.connect() == 0
+            if i % 2:
+                assert rogue.publish("roslink/turtle1/from/bob/cmd/twist", b'{"lx": 1.0}') is False
+            else:
+                assert rogue.subscribe(["roslink/turtle1/to/alice/#"]) is False
+            rogue.close()
+        time.sleep(0.5)
+        assert not any(zero(m) for _, m in probe.cmd_vel.since(attack)), "the viewer's attempts stopped the robot"
+        assert alice.connection.connected.is_set()
+        assert "lost the broker" not in (tmp_path / "bridge.log").read_text()
         stop.set()
         driver.join()
         silent = time.monotonic()
