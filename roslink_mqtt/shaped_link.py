@@ -1,7 +1,7 @@
-"""A TCP proxy that makes a loopback connection behave like a long, uneven Internet link.
+"""A TCP proxy that makes a loopback connection behave like a long, uneven, thin Internet link.
 
     python -m roslink_mqtt.shaped_link --listen 127.0.0.1:18830 --to 127.0.0.1:1883 \
-        --delay-ms 60 --jitter-ms 20 --loss 0.01
+        --delay-ms 60 --jitter-ms 20 --loss 0.01 --up-kbit 256 --down-kbit 1024
 
 Why it exists: this machine's kernel has no ``netem``, yet the benchmarks (bench/spiral.py) and anyone
 trying a robot "over the cloud" need a link with delay, jitter and loss between the bridge and the
@@ -17,8 +17,17 @@ What it does to each direction of every connection, independently:
   retransmission timeout, so with probability ``loss`` a chunk is held back an extra ``--rto-ms``
   (200 ms, Linux's minimum RTO) and everything behind it with it.
 
-Chunks are what one ``read`` returned (up to 64 KiB), not IP packets: a good model for small MQTT
-messages, a coarse one for large transfers. Both sockets get TCP_NODELAY so the proxy adds no Nagle
+**Bandwidth** (``--up-kbit``, ``--down-kbit``; up = client to target, the robot's uplink when the bridge is the
+client): one link per direction, shared by every connection through the proxy, like a cellular modem. It carries
+one packet at a time, in the order the packets arrived from any connection (a FIFO), each taking
+``size / rate`` of link time; the delay starts when a packet has left. A connection's next packet is read only
+once its previous one is on the link, so what the link cannot carry yet waits in the *sender's* socket, where
+the sender sees it (``SIOCOUTQ``) as it would see a real modem's queue (unacknowledged bytes); the proxy's own
+receive buffers are kept small (``RCVBUF``) so that little waits unseen.
+
+Chunks are what one ``read`` returned (up to 64 KiB; one packet of at most ``packet_size`` on a rate-limited
+link), not IP packets: a good model for small MQTT messages, a coarse one for large transfers.
+Both sockets get TCP_NODELAY so the proxy adds no Nagle
 stall of its own. Pure asyncio, no ROS, no MQTT: it shapes any TCP service.
 """
 
@@ -35,6 +44,9 @@ from dataclasses import dataclass
 
 CHUNK = 65536
 QUEUED_CHUNKS = 1024  # per direction: a reader this far ahead of the writer waits (bounded memory)
+MTU_PAYLOAD = 1448  # bytes of one full TCP segment on an Ethernet-sized path: the unit a thin link carries
+RCVBUF = 1024  # SO_RCVBUF of the proxy's sockets on a rate-limited link (the kernel doubles it, to ~2 KiB)
+READ_AHEAD = 512  # asyncio's reader pauses its socket beyond twice this: little read ahead of the wire, unseen
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +82,32 @@ class Schedule:
         return self.last
 
 
+class Wire:
+    """One direction of a rate-limited link, shared by every connection: a FIFO of packets, one at a time.
+
+    ``reserve`` books link time for ``size`` bytes after everything booked before (virtual time, so no lock is
+    needed in one event loop) and returns the moment the last byte has left.
+    """
+
+    def __init__(self, rate: float) -> None:
+        if rate <= 0:
+            raise ValueError("a link's rate is a positive number of bytes per second")
+        self.rate = rate
+        self.free_at = 0.0  # when the link has sent everything booked so far
+        self.carried = 0  # bytes, for tests and the final report
+
+    @property
+    def packet_size(self) -> int:
+        """Bytes read and booked at once: a TCP segment on thin links, more on fast ones (≈1 ms of link time)."""
+        return max(MTU_PAYLOAD, min(CHUNK, int(self.rate / 1000)))
+
+    def reserve(self, size: int, now: float) -> float:
+        start = max(now, self.free_at)
+        self.free_at = start + size / self.rate
+        self.carried += size
+        return self.free_at
+
+
 def _nodelay(writer: asyncio.StreamWriter) -> None:
     sock = writer.get_extra_info("socket")
     if sock is not None:
@@ -77,15 +115,21 @@ def _nodelay(writer: asyncio.StreamWriter) -> None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
-async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, schedule: Schedule) -> None:
-    """Copy one direction through the schedule; end (and half-close) when the reader ends."""
+async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, schedule: Schedule,
+                wire: Wire | None = None) -> None:
+    """Copy one direction through the wire (if rate-limited) and the schedule; end (and half-close) with the reader."""
     queue: asyncio.Queue[tuple[float, bytes] | None] = asyncio.Queue(QUEUED_CHUNKS)
     loop = asyncio.get_running_loop()
 
     async def read() -> None:
         try:
-            while chunk := await reader.read(CHUNK):
-                await queue.put((schedule.release_time(loop.time()), chunk))
+            while chunk := await reader.read(wire.packet_size if wire is not None else CHUNK):
+                sent = loop.time()
+                if wire is not None:
+                    sent = wire.reserve(len(chunk), sent)
+                    # the next packet of this connection stays in its sender's socket until this one has left
+                    await asyncio.sleep(max(0.0, sent - loop.time()))
+                await queue.put((schedule.release_time(sent), chunk))
         except (ConnectionError, OSError):
             pass
         await queue.put(None)
@@ -111,18 +155,42 @@ async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, sche
             await reading
 
 
-class ShapedLink:
-    """The proxy: one listening socket, every accepted connection forwarded to ``target`` through two schedules."""
+def _small_rcvbuf(sock: socket.socket) -> None:
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF)
 
-    def __init__(self, target: tuple[str, int], shape: Shape, *, seed: int | None = None) -> None:
+
+class ShapedLink:
+    """The proxy: one listening socket, every accepted connection forwarded to ``target`` through two schedules.
+
+    ``up_rate`` / ``down_rate``: bytes per second from clients to the target and back (0: unlimited), each one
+    :class:`Wire` shared by every connection.
+    """
+
+    def __init__(self, target: tuple[str, int], shape: Shape, *, seed: int | None = None, up_rate: float = 0.0,
+                 down_rate: float = 0.0) -> None:
         self.target, self.shape = target, shape
         self.rng = random.Random(seed)
         self.connections = 0
+        self.up = Wire(up_rate) if up_rate else None
+        self.down = Wire(down_rate) if down_rate else None
+
+    async def _connect_upstream(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        if self.down is None:
+            return await asyncio.open_connection(*self.target)
+        sock = socket.socket(socket.AF_INET6 if ":" in self.target[0] else socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            _small_rcvbuf(sock)  # before connecting: the window the target may fill is set at the handshake
+            sock.setblocking(False)
+            await asyncio.get_running_loop().sock_connect(sock, self.target)
+        except OSError:
+            sock.close()
+            raise
+        return await asyncio.open_connection(sock=sock, limit=READ_AHEAD)
 
     async def _serve(self, client_reader: asyncio.StreamReader, client_writer: asyncio.StreamWriter) -> None:
         self.connections += 1
         try:
-            upstream_reader, upstream_writer = await asyncio.open_connection(*self.target)
+            upstream_reader, upstream_writer = await self._connect_upstream()
         except OSError:
             client_writer.close()  # the far end is down: the client sees a refused/closed connection
             return
@@ -130,15 +198,21 @@ class ShapedLink:
             _nodelay(w)
         try:
             await asyncio.gather(
-                _pump(client_reader, upstream_writer, Schedule(self.shape, self.rng)),
-                _pump(upstream_reader, client_writer, Schedule(self.shape, self.rng)),
+                _pump(client_reader, upstream_writer, Schedule(self.shape, self.rng), self.up),
+                _pump(upstream_reader, client_writer, Schedule(self.shape, self.rng), self.down),
             )
         finally:
             for w in (client_writer, upstream_writer):
                 w.close()
 
     async def start(self, host: str, port: int) -> asyncio.Server:
-        return await asyncio.start_server(self._serve, host, port, reuse_address=True)
+        if self.up is None:
+            return await asyncio.start_server(self._serve, host, port, reuse_address=True)
+        sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        _small_rcvbuf(sock)  # accepted sockets inherit it, window included
+        sock.bind((host, port))
+        return await asyncio.start_server(self._serve, sock=sock, limit=READ_AHEAD)
 
 
 def _address(text: str) -> tuple[str, int]:
@@ -156,22 +230,39 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--jitter-ms", type=float, default=5.0, help="its standard deviation (default: %(default)s)")
     p.add_argument("--loss", type=float, default=0.0, help="share of chunks lost and resent (default: 0)")
     p.add_argument("--rto-ms", type=float, default=200.0, help="what a loss costs (default: %(default)s)")
+    p.add_argument("--up-kbit", type=float, default=0.0,
+                   help="bandwidth from clients to the target in kbit/s, shared by all connections (default: 0, "
+                        "unlimited)")
+    p.add_argument("--down-kbit", type=float, default=0.0, help="bandwidth back to the clients (default: 0, unlimited)")
     p.add_argument("--seed", type=int, default=None, help="random seed, for repeatable runs")
     args = p.parse_args(argv)
     try:
         args.shape = Shape(args.delay_ms / 1000, args.jitter_ms / 1000, args.loss, args.rto_ms / 1000)
     except ValueError as e:
         p.error(str(e))
+    if args.up_kbit < 0 or args.down_kbit < 0:
+        p.error("--up-kbit and --down-kbit must not be negative (0: unlimited)")
     return args
 
 
+def kbit(rate: float) -> float:
+    """kbit/s → bytes/s (1 kbit = 1,000 bits, as links are sold)."""
+    return rate * 1000 / 8
+
+
+def _rate_text(rate: float) -> str:
+    return f"{rate * 8 / 1000:g} kbit/s" if rate else "unlimited"
+
+
 async def _run(args: argparse.Namespace) -> None:
-    link = ShapedLink(args.to, args.shape, seed=args.seed)
+    link = ShapedLink(args.to, args.shape, seed=args.seed, up_rate=kbit(args.up_kbit),
+                      down_rate=kbit(args.down_kbit))
     server = await link.start(*args.listen)
     shape = args.shape
     print(f"shaped link {args.listen[0]}:{args.listen[1]} -> {args.to[0]}:{args.to[1]}: "
           f"{shape.delay * 1000:g} ± {shape.jitter * 1000:g} ms each way, loss {shape.loss:g} "
-          f"(+{shape.rto * 1000:g} ms)", flush=True)
+          f"(+{shape.rto * 1000:g} ms), up {_rate_text(kbit(args.up_kbit))}, down {_rate_text(kbit(args.down_kbit))}",
+          flush=True)
     async with server:
         await server.serve_forever()
 

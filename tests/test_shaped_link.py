@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import random
+import socket
+import struct
+import termios
 import time
 
 import pytest
 
-from roslink_mqtt.shaped_link import Schedule, Shape, ShapedLink, parse_args
+from roslink_mqtt.shaped_link import MTU_PAYLOAD, Schedule, Shape, ShapedLink, Wire, kbit, parse_args
 
 
 @pytest.mark.unit
@@ -77,3 +81,78 @@ def test_a_round_trip_through_the_link_takes_twice_the_delay_and_keeps_every_byt
     mean = sum(rtts) / len(rtts)
     assert 0.04 < mean < 0.5, rtts  # ~60 ms: both directions delayed; generous upper bound for a loaded machine
     assert min(rtts) > 0.01
+
+
+@pytest.mark.unit
+def test_the_wire_carries_one_packet_at_a_time_in_arrival_order() -> None:
+    wire = Wire(kbit(256))  # 32,000 bytes/s
+    assert wire.packet_size == MTU_PAYLOAD
+    first = wire.reserve(1600, 0.0)  # 50 ms of link time
+    second = wire.reserve(3200, 0.01)  # arrived while the first was on the wire: waits for it
+    assert first == pytest.approx(0.05)
+    assert second == pytest.approx(0.15)
+    assert wire.reserve(320, 1.0) == pytest.approx(1.01)  # an idle wire starts at once
+    assert wire.carried == 5120
+    assert Wire(kbit(100_000)).packet_size == 12_500  # fast links move ~1 ms of data at once
+    with pytest.raises(ValueError):
+        Wire(0)
+
+
+@pytest.mark.unit
+def test_bad_rates_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        parse_args(["--listen", "127.0.0.1:1", "--to", "127.0.0.1:2", "--up-kbit", "-5"])
+    assert "must not be negative" in capsys.readouterr().err
+    args = parse_args(["--listen", "127.0.0.1:1", "--to", "127.0.0.1:2", "--up-kbit", "256"])
+    assert kbit(args.up_kbit) == 32_000 and args.down_kbit == 0
+
+
+def _unsent(sock: socket.socket) -> int:
+    """Bytes the kernel holds for ``sock`` not yet acknowledged by the peer (SIOCOUTQ)."""
+    return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0" * 4))[0]
+
+
+def test_a_rate_limited_link_is_shared_by_its_connections_and_its_queue_stays_in_the_senders_sockets() -> None:
+    """Two connections saturate one 256 kbit/s uplink: together they get its rate, each about half, and what the
+    link has not carried waits where the senders see it (their SIOCOUTQ), not inside the proxy."""
+    rate = kbit(256)
+
+    async def scenario() -> tuple[list[int], list[int], list[int], float]:
+        got = [0, 0]
+
+        async def sink(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            index = (await reader.readexactly(1))[0]
+            while data := await reader.read(65536):
+                got[index] += len(data)
+            writer.close()
+
+        upstream = await asyncio.start_server(sink, "127.0.0.1", 0)
+        link = ShapedLink(upstream.sockets[0].getsockname()[:2], Shape(delay=0.02), up_rate=rate)
+        proxy = await link.start("127.0.0.1", 0)
+        senders = [socket.create_connection(proxy.sockets[0].getsockname()[:2]) for _ in range(2)]
+        written = [0, 0]
+        for i, s in enumerate(senders):
+            s.setblocking(False)
+            written[i] += s.send(bytes([i]))
+        began = time.monotonic()
+        for _ in range(20):  # 2 s: each sender keeps 100 kB waiting
+            for i, s in enumerate(senders):
+                while written[i] - _unsent(s) - got[i] < 100_000 and _unsent(s) < 100_000:
+                    try:
+                        written[i] += s.send(b"x" * 4096)
+                    except BlockingIOError:
+                        break
+            await asyncio.sleep(0.1)
+        elapsed = time.monotonic() - began
+        unseen = [w - _unsent(s) - g for w, s, g in zip(written, senders, got, strict=True)]
+        for s in senders:
+            s.close()
+        proxy.close()
+        upstream.close()
+        return got, written, unseen, elapsed
+
+    got, _written, unseen, elapsed = asyncio.run(scenario())
+    total = sum(got) / elapsed
+    assert 0.6 * rate < total < 1.1 * rate, (got, elapsed)  # the link's rate (a loaded machine may lag it)
+    assert min(got) > 0.3 * sum(got), got  # shared, not one connection first
+    assert max(unseen) < 8192, unseen  # a packet, the delay line and a small read-ahead: the rest is visible
