@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from roslink_mqtt.config import ConfigError, Direction, Role, load_fleet, parse_fleet, verify_password
+from roslink_mqtt.config import ConfigError, Direction, Priority, Role, load_fleet, parse_fleet, verify_password
 from roslink_mqtt.config.passwords import hash_password
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,6 +142,29 @@ def test_on_demand_only_for_generic_commands() -> None:
                         "mqtt_topic: cmd/arm, preset: arm")
     assert "on_demand applies to generic mqtt_to_ros rules only" in _error(preset)
     assert "'advertise/' is reserved" in _error(ok.replace("mqtt_topic: lights", "mqtt_topic: advertise/x"))
+
+
+def test_uplink_priority_and_latest_only() -> None:
+    """The rule's class and latest-wins (docs/config.md, "Weak links"): defaults by preset and type, overrides,
+    clear errors for a bad class or for commands (what the robot receives is not scheduled on its uplink)."""
+    rule = parse_fleet(BASE, "robots.yaml").robots["turtle1"].rules[0]
+    assert rule.priority is Priority.MOTION and rule.latest_only  # odometry
+    custom = parse_fleet(BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, priority: bulk, "
+                                      "latest_only: false}"), "robots.yaml").robots["turtle1"].rules[0]
+    assert custom.priority is Priority.BULK and not custom.latest_only
+    retained = parse_fleet(BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, retain: true}"),
+                           "robots.yaml").robots["turtle1"].rules[0]
+    assert not retained.latest_only  # retained and QoS 1 streams are ordered unless they say otherwise
+    assert "robots.yaml:7 robots.turtle1.rules[0].priority: expected one of control, motion, state, bulk" in _error(
+        BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, priority: urgent}"))
+    command = BASE.replace("{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: "
+                           "state/odom}", "{direction: mqtt_to_ros, ros_topic: lights, ros_type: std_msgs/msg/Bool, "
+                                          "mqtt_topic: lights, latest_only: true}")
+    assert "rules[0].latest_only: latest_only applies to ros_to_mqtt rules only" in _error(command)
+    assert "'state/link' is written by the bridge itself" in _error(
+        BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/link}"))
+    assert "bridge.uplink: expected one of scheduled, fifo" in _error(
+        BASE.replace("    key: k1\n", "    key: k1\n    bridge: {uplink: lifo}\n"))
 
 
 def test_missing_and_unreadable_files(tmp_path: Path) -> None:

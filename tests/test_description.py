@@ -100,6 +100,12 @@ def test_sdk_reads_the_description(port, request) -> None:
         d = alice.description("turtle1", timeout=10)
         again = alice.description("turtle1", timeout=10)  # a second call subscribes afresh
     assert d == again and d.entry("fibonacci").ros_type == "test_msgs/action/Fibonacci"
+    with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as bob:
+        link = bob.link("turtle1", timeout=10)  # the bridge's uplink report, retained on state/link
+    assert link is not None and link.mode == "scheduled" and link.rate_kbit_s > 0
+    motion = link.streams["global_motion"]
+    assert motion.priority == "motion" and motion.max_rate == 10 and 0 < motion.offered_hz <= 11
+    assert link.streams["robot_status"].latest_only is False  # retained, QoS 1: ordered
     with RobotClient("carol", "carol-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as carol:
         # carol has no grant on turtle1: our broker refuses the subscription; Mosquitto grants it and sends nothing
         refused = SubscriptionFailed if request.node.callspec.params["port"] == "embedded" else WaitTimeout
@@ -114,6 +120,7 @@ def test_info_prints_the_description_and_marks_what_you_may_not_use(port) -> Non
     assert bob.returncode == 0, bob.stderr
     out = bob.stdout
     assert "turtle1: ground robot, system_id 1" in out and "you (bob): viewer" in out
+    assert "  uplink: link " in out and "kbit/s — " in out  # state/link, one line
     assert "global_motion" in out and "ROSLink twist (geometry_msgs/msg/Twist)" in out
     reset = next(line for line in out.splitlines() if line.strip().startswith("reset "))
     assert "operators" in reset and "(not you)" in reset

@@ -17,9 +17,10 @@ from typing import Any
 
 from rclpy.node import Node
 
-from ..config import Fleet, Robot, Role
+from ..config import Fleet, Priority, Robot, Role
 from ..protocol import AckResult, SystemStatus
-from ..topics import Verb
+from ..protocol.link import LINK
+from ..topics import Verb, split_first
 from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
@@ -42,6 +43,7 @@ from .service_caller import ServiceCaller
 from .service_provider import ProvidedServices
 from .systemd import SystemdNotifier
 from .throttle import Throttle
+from .uplink_sender import Uplink
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -170,13 +172,28 @@ class Bridge:
         outbound, routes = compile_rules(robot, self.topics)
         self._flushers: list[Callable[[], None]] = []  # throttled rules flushed by the supervision tick
         self._retained_at = 0.0  # monotonic: the retained description and access reports last went out
-        for rule in outbound:
-            self._subscribe_ros(rule)
         self.link = MqttLink(
             client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
             on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file,
             max_payload=fleet.broker.max_payload)
+        # State and bulk streams leave on connections of their own (lanes), so a scan or a map that takes long to
+        # cross a thin link never sits in front of a heartbeat, an acknowledgement or a pose (bridge/uplink_sender.py)
+        scheduled = settings.uplink == "scheduled"
+        classes = {o.rule.priority for o in outbound}
+
+        def lane(purpose: str) -> MqttLink:
+            return MqttLink(client_id=bridge_client_id(robot.name, purpose), username=robot.name, password=password,
+                            url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=list,
+                            on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload)
+
+        self.state_link = lane("state") if scheduled and Priority.STATE in classes else None
+        self.bulk_link = lane("bulk") if scheduled and Priority.BULK in classes else None
+        self.uplink = Uplink(self.link, self.state_link, self.bulk_link, fifo=not scheduled,
+                             target_delay=settings.uplink_target_delay,
+                             report_topic=self.topics.state(robot.name, LINK))
+        for rule in outbound:
+            self._subscribe_ros(rule)
         # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
         # a viewer sends, it queues behind nothing of the operators', whose commands and stops keep their own
         # TCP stream and paho thread. Everything the bridge publishes goes out on the command link.
@@ -297,6 +314,9 @@ class Bridge:
         if not self.viewer_link.subscribed.wait(VIEWER_LINK_HEAD_START):
             log.info("viewer link not subscribed after %g s; connecting the command link anyway",
                      VIEWER_LINK_HEAD_START)
+        self.uplink.start()
+        for lane in self.lanes:
+            lane.start()
         self.link.start()
         self.systemd.ready(f"connecting to {self.link.url}")
 
@@ -305,9 +325,17 @@ class Bridge:
         self.systemd.stopping()
         with self.endpoint.lock:
             self.actuators.zero_velocity()
+        self.uplink.stop()
+        for lane in self.lanes:
+            lane.stop()
         self.viewer_link.stop()
         self.link.stop([(self.topics.heartbeat(self.robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
                          True)])
+
+    @property
+    def lanes(self) -> list[MqttLink]:
+        """The uplink's extra connections (state, bulk), started and stopped with the bridge."""
+        return [link for link in (self.state_link, self.bulk_link) if link is not None]
 
     def _link_for(self, role: Role | None) -> MqttLink:
         """Which connection carries a user's traffic: operators' the command link, everyone else's their own."""
@@ -368,8 +396,15 @@ class Bridge:
 
     # -- ROS → MQTT ------------------------------------------------------------------
     def _subscribe_ros(self, out: Outbound) -> None:
-        link, topic, serialize = self.link_publish, out.topic, out.serialize
+        """Forward a ROS topic to its state topic: throttled to ``max_rate``, then through the uplink (its slot,
+        class and the link's budget decide when it leaves, and whether a newer message replaces it first)."""
+        offer, topic, serialize = self.uplink.offer, out.topic, out.serialize
         qos, retain = out.rule.mqtt_qos, out.rule.retain
+        stream = self.uplink.stream(topic, out.rule.priority, out.rule.latest_only,
+                                    label=split_first(out.rule.mqtt_topic)[1], max_rate=out.rule.max_rate)
+
+        def link(topic: str, payload: bytes, qos: int, retain: bool) -> None:
+            offer(stream, topic, payload, qos, retain)
         if not out.period:
             def forward(msg: Any) -> None:
                 link(topic, serialize(msg), qos, retain)
@@ -400,9 +435,6 @@ class Bridge:
                 untraced(msg)
 
         self.node.create_subscription(out.ros_cls, out.rule.ros_topic, forward, ros_qos(out.rule.ros_qos))
-
-    def link_publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
-        self.link.publish(topic, payload, qos, retain)
 
     def link_publish_qos(self, topic: str, payload: bytes, qos: int) -> None:
         self.link.publish(topic, payload, qos)

@@ -16,10 +16,12 @@ from typing import Any
 from ..client import RobotClient, RoslinkError
 from ..protocol.control import AccessReport
 from ..protocol.description import RobotDescription
+from ..protocol.link import LinkReport
 from ..topics import TopicError, check_name
 from .connect import add_connection_options, open_client
 
 ACCESS_WAIT = 1.0  # s for the retained access report (it follows the SUBACK at once)
+LINK_WAIT = 1.0  # s for the retained link report (an older bridge publishes none: info goes on without it)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,12 +58,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"roslink-mqtt info: {err}", file=sys.stderr)
             return 1
         report = _access(client, args.robot)
+        link = None if args.json else client.link(args.robot, timeout=LINK_WAIT)
     finally:
         client.close()
     if args.json:
         print(description.to_json().decode())
         return 0
-    print(summary(description, report, client.username, types=args.types))
+    print(summary(description, report, client.username, types=args.types, link=link))
     return 0
 
 
@@ -84,7 +87,8 @@ def _carries(message: str | None, ros_type: str | None) -> str:
     return f"{ros_type} as JSON" if ros_type else "-"
 
 
-def summary(d: RobotDescription, report: AccessReport | None, user: str, *, types: bool = False) -> str:
+def summary(d: RobotDescription, report: AccessReport | None, user: str, *, types: bool = False,
+            link: LinkReport | None = None) -> str:
     """The human-readable form: one line per entry, ``(not you)`` where ``report`` says you may not use it."""
     def mark(kind: str, name: str) -> str:
         if report is None or report.operator:
@@ -96,7 +100,10 @@ def summary(d: RobotDescription, report: AccessReport | None, user: str, *, type
     you = f"{report.role}" if report is not None else "unknown (no access report from its bridge)"
     out = [f"{d.robot}: {d.type} robot, system_id {d.system_id}, ROSLink protocol {d.protocol_version}",
            f"  limits: {_limits(d.limits) or 'none'}",
-           f"  you ({user}): {you}", "", f"state (every user granted {d.robot} reads it):"]
+           f"  you ({user}): {you}"]
+    if link is not None:
+        out.append(f"  uplink: {link.summary()}")
+    out += ["", f"state (every user granted {d.robot} reads it):"]
     for s in d.state:
         extra = [f"≤ {s.max_rate:g} Hz"] if s.max_rate else []
         extra += ["retained"] if s.retained else []

@@ -211,25 +211,41 @@ class RobotClient:
         (robot never connected, or an older bridge), SubscriptionFailed when the broker refuses to let us read it.
         """
         from ..protocol.description import DESCRIPTION, RobotDescription
+
+        payload = self._retained(robot, DESCRIPTION, "description", timeout)
+        if payload is None:
+            raise WaitTimeout(f"no description of {robot} within {timeout:g} s (is its bridge connected, and "
+                              "recent enough to publish one?)")
+        return RobotDescription.from_json(payload)
+
+    def link(self, robot: str, timeout: float = 2.0) -> Any:
+        """What ``robot``'s uplink carries (a :class:`~roslink_mqtt.protocol.link.LinkReport`: its measured rate,
+        per state stream the rate offered and sent, how many were superseded), from the bridge's retained
+        ``state/link``; None when none comes within ``timeout`` (an older bridge, or one not yet connected)."""
+        from ..protocol.link import LINK, LinkReport
+
+        payload = self._retained(robot, LINK, "link report", timeout)
+        return None if payload is None else LinkReport.from_json(payload)
+
+    def _retained(self, robot: str, name: str, what: str, timeout: float) -> bytes | None:
+        """The first non-empty message on ``state/<name>`` of ``robot`` within ``timeout`` (a retained snapshot)."""
         from .errors import SubscriptionFailed
 
-        self.connection.require(f"description of {robot}", now=False)
-        topic, box, arrived = self.topics.state(robot, DESCRIPTION), [], threading.Event()
+        self.connection.require(f"{what} of {robot}", now=False)
+        topic, box, arrived = self.topics.state(robot, name), [], threading.Event()
 
-        def on_description(_topic: str, payload: bytes, _retained: bool) -> None:
+        def on_message(_topic: str, payload: bytes, _retained: bool) -> None:
             if payload and not arrived.is_set():
                 box.append(payload)
                 arrived.set()
 
         try:
-            if not self.connection.subscribe(topic, on_description, timeout=timeout):
+            if not self.connection.subscribe(topic, on_message, timeout=timeout):
                 raise SubscriptionFailed(f"the broker refused {topic} to {self.username} (is {robot} granted?)")
-            if not arrived.wait(timeout):
-                raise WaitTimeout(f"no description of {robot} within {timeout:g} s (is its bridge connected, and "
-                                  "recent enough to publish one?)")
+            arrived.wait(timeout)
         finally:
-            self.connection.unsubscribe(topic, on_description)
-        return RobotDescription.from_json(box[0])
+            self.connection.unsubscribe(topic, on_message)
+        return box[0] if box else None
 
     # -- robots ---------------------------------------------------------------------------
     def watch(self, robot: str, *, timeout: float = 5.0) -> None:

@@ -13,6 +13,7 @@ from .model import (
     Fleet,
     Grant,
     ParameterRule,
+    Priority,
     Robot,
     Role,
     RosQos,
@@ -27,7 +28,7 @@ from .yamlsource import ConfigError
 
 __all__ = [
     "ActionRule", "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
-    "ParameterRule", "PasswordHashError",
+    "ParameterRule", "PasswordHashError", "Priority",
     "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",
 ]

@@ -12,6 +12,7 @@ from ..protocol.enums import RobotType
 from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
 from ..topics import (
+    BRIDGE_STATE_NAMES,
     OPERATORS,
     RESERVED_RULE_LEVELS,
     TopicError,
@@ -31,7 +32,9 @@ from .model import (
     ENCODINGS,
     EXECUTORS,
     LIMIT_MODES,
+    PRIORITY_NAMES,
     RAW_TYPES,
+    UPLINK_MODES,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -40,6 +43,7 @@ from .model import (
     Fleet,
     Grant,
     ParameterRule,
+    Priority,
     Robot,
     Role,
     RosQos,
@@ -279,7 +283,8 @@ class _FleetReader:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
-                            "max_requests_per_user", "executor", "retained_refresh"))
+                            "max_requests_per_user", "executor", "retained_refresh", "uplink",
+                            "uplink_target_delay"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -314,6 +319,9 @@ class _FleetReader:
                                              d.max_requests_per_user),
             executor=self.value(path, "executor", self.choice(EXECUTORS), d.executor),
             retained_refresh=self.value(path, "retained_refresh", self.number(0, 3600), d.retained_refresh),
+            uplink=self.value(path, "uplink", self.choice(UPLINK_MODES), d.uplink),
+            uplink_target_delay=self.value(path, "uplink_target_delay", self.number(0.01, 10),
+                                           d.uplink_target_delay),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:
@@ -353,13 +361,17 @@ class _FleetReader:
 
     def rule(self, path: Path, index: int) -> Rule:
         self.mapping(path, ("direction", "ros_topic", "ros_type", "mqtt_topic", "preset", "mqtt_qos", "retain",
-                            "ros_qos", "max_rate", "fields", "limits", "on_demand", "encoding"))
+                            "ros_qos", "max_rate", "fields", "limits", "on_demand", "encoding", "priority",
+                            "latest_only"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
         first, _ = split_first(mqtt_topic)
         if direction is Direction.ROS_TO_MQTT and (first != "state" or first == mqtt_topic):
             raise self.err(path + ("mqtt_topic",), f"a ros_to_mqtt rule publishes under state/, e.g. "
                                                    f"{join('state', last_level(mqtt_topic))}; got '{mqtt_topic}'")
+        if direction is Direction.ROS_TO_MQTT and split_first(mqtt_topic)[1] in BRIDGE_STATE_NAMES:
+            raise self.err(path + ("mqtt_topic",), f"'{mqtt_topic}' is written by the bridge itself (state/"
+                                                   f"{', state/'.join(BRIDGE_STATE_NAMES)}); choose another name")
         if direction is Direction.MQTT_TO_ROS and first in RESERVED_RULE_LEVELS:
             example = TopicTree().from_user("<robot>", "<user>", "<mqtt_topic>")
             raise self.err(path + ("mqtt_topic",), f"'{first}/' is reserved; an mqtt_to_ros rule reads {example}, "
@@ -403,6 +415,13 @@ class _FleetReader:
                 if problem := self.types.field_path_problem(ros_type, fields[k]):
                     raise self.err(fp + (k,), problem)
         encoding = self.encoding(path, direction, ros_type, preset, fields)
+        priority = self.value(path, "priority", self.choice(PRIORITY_NAMES), None)
+        latest_only = self.value(path, "latest_only", self.boolean, None)
+        if direction is Direction.MQTT_TO_ROS:
+            for key, value in (("priority", priority), ("latest_only", latest_only)):
+                if value is not None:
+                    raise self.err(path + (key,), f"{key} applies to ros_to_mqtt rules only (what the robot sends "
+                                                  "on its uplink); commands to the robot are checked for age instead")
         return Rule(
             index=index,
             direction=direction,
@@ -419,6 +438,8 @@ class _FleetReader:
             on_demand=on_demand,
             line=self.src.line_of(path),
             encoding=encoding,
+            priority_setting=Priority[priority.upper()] if priority is not None else None,
+            latest_only_setting=latest_only,
         )
 
     def encoding(self, path: Path, direction: Direction, ros_type: str, preset: str | None,

@@ -7,7 +7,7 @@ instead of editing one in place, so a half-applied reload cannot exist.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from functools import cached_property
 
 from ..protocol.enums import RobotType
@@ -28,6 +28,48 @@ class Direction(StrEnum):
 ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW = "json", "cbor", "raw"
 ENCODINGS = (ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW)
 RAW_TYPES = ("sensor_msgs/msg/CompressedImage",)  # the types whose payload can be their bytes alone
+UPLINK_MODES = ("scheduled", "fifo")
+
+
+class Priority(IntEnum):
+    """A ros_to_mqtt rule's class on the robot's uplink, in the order the link serves them (docs/config.md,
+    "Weak links"). The bridge's own control traffic (heartbeat, acks, replies, errors) is always ``control``."""
+
+    CONTROL = 0  # sent at once, never held back: alarms a rule must not delay
+    MOTION = 1  # where the robot is and how it moves
+    STATE = 2  # other telemetry
+    BULK = 3  # images, clouds, maps: what the link has left, on a connection of its own
+
+
+PRIORITY_NAMES = tuple(p.name.lower() for p in Priority)
+# Defaults by preset, then by ROS type; everything else is STATE.
+PRESET_PRIORITIES = {"global_motion": Priority.MOTION, "image": Priority.BULK, "map": Priority.BULK}
+TYPE_PRIORITIES = {
+    "nav_msgs/msg/Odometry": Priority.MOTION,
+    "geometry_msgs/msg/PoseStamped": Priority.MOTION,
+    "geometry_msgs/msg/PoseWithCovarianceStamped": Priority.MOTION,
+    "geometry_msgs/msg/Pose": Priority.MOTION,
+    "geometry_msgs/msg/Twist": Priority.MOTION,
+    "geometry_msgs/msg/TwistStamped": Priority.MOTION,
+    "tf2_msgs/msg/TFMessage": Priority.MOTION,
+    "sensor_msgs/msg/Image": Priority.BULK,
+    "sensor_msgs/msg/CompressedImage": Priority.BULK,
+    "sensor_msgs/msg/PointCloud2": Priority.BULK,
+    "nav_msgs/msg/OccupancyGrid": Priority.BULK,
+}
+
+
+def default_priority(preset: str | None, ros_type: str) -> Priority:
+    """A ros_to_mqtt rule's class when robots.yaml does not say: motion for poses and odometry, bulk for images,
+    clouds and maps, state for the rest."""
+    if preset is not None and preset in PRESET_PRIORITIES:
+        return PRESET_PRIORITIES[preset]
+    return TYPE_PRIORITIES.get(ros_type, Priority.STATE)
+
+
+def default_latest_only(retain: bool, mqtt_qos: int) -> bool:
+    """State streams are latest-wins unless retained or QoS 1/2, which are ordered and never silently dropped."""
+    return not retain and mqtt_qos == 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,6 +135,22 @@ class Rule:
     on_demand: bool = False  # mqtt_to_ros: the ROS publisher exists only while a live operator advertises it
     line: int | None = None
     encoding: str = ENCODING_JSON  # ros_to_mqtt: ENCODINGS
+    # ros_to_mqtt: the uplink class and latest-wins; None = the default for the preset/type (default_priority,
+    # default_latest_only), resolved by the properties below so a Rule built in code gets them too
+    priority_setting: Priority | None = None
+    latest_only_setting: bool | None = None
+
+    @property
+    def priority(self) -> Priority:
+        if self.priority_setting is not None:
+            return self.priority_setting
+        return default_priority(self.preset, self.ros_type)
+
+    @property
+    def latest_only(self) -> bool:
+        if self.latest_only_setting is not None:
+            return self.latest_only_setting
+        return default_latest_only(self.retain, self.mqtt_qos)
 
     @property
     def label(self) -> str:
@@ -175,6 +233,12 @@ class BridgeSettings:
     # cluster that keeps retained messages per node (RabbitMQ 3.10) gives them only to clients on the bridge's
     # node: with this set, clients on every node have them within that time (docs/scaling.md).
     retained_refresh: float = 0.0
+    # What the robot sends on its uplink (docs/config.md, "Weak links"): "scheduled" keeps state the link cannot
+    # carry yet in latest-wins slots served by priority, with at most uplink_target_delay s of data waiting in the
+    # network beyond one round trip; "fifo" hands every message to the network at once (the behaviour before,
+    # and every other ROS bridge's; for comparison: on a thin link its queue grows to seconds of stale data).
+    uplink: str = "scheduled"
+    uplink_target_delay: float = 0.1
 
 
 @dataclass(frozen=True, slots=True)

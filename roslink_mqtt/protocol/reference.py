@@ -29,6 +29,7 @@ from .control import (
 from .description import DESCRIPTION_BODIES, RobotDescription
 from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
+from .link import LINK_BODIES, LinkReport, StreamReport
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 from .node_params import NODE_PARAM_BODIES, DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
@@ -44,7 +45,7 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
-                     ROSOUT_BODIES + DESCRIPTION_BODIES)
+                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES)
 
 _CONTROL_EXAMPLES: dict[type, object] = {
     ParamDeclaration: ParamDeclaration("alice-legacy_arm-5f2c9e0a1b3d4c6e", {
@@ -57,6 +58,9 @@ _CONTROL_EXAMPLES: dict[type, object] = {
     ActionRequest: ActionRequest("turtle1-g7", "goal", {"order": 5}, "alice-planner-5f2c9e0a1b3d4c6e"),
     ActionUpdate: ActionUpdate("turtle1-g7", "succeeded", result={"sequence": [0, 1, 1, 2, 3, 5]}),
     LogLine: LogLine(20, "gripper closed", "legacy_arm.py", "close", 42, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
+    LinkReport: LinkReport("scheduled", 243.5, True, 3300, 81.2, 2.0, {
+        "global_motion": StreamReport("motion", True, 10.0, 10.0, 0, 0, 10.0, 39.2),
+        "range_finder_data": StreamReport("state", True, 5.0, 3.5, 3, 0, 5.0, 196.1)}),
     RobotDescription: DESCRIPTION_EXAMPLE,
     ParamRequest: ParamRequest("p-1", "set", values={"max_speed": 0.3}, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ParamReply: ParamReply("p-1", True, {"max_speed": {"successful": True, "reason": ""}},

@@ -1,0 +1,396 @@
+"""Benchmark: the demo robot on a thin uplink, the bridge's scheduled uplink next to plain FIFO.
+
+    .venv/bin/python bench/weak_link.py [--seconds 20] [--rates 1000,256,64] [--modes fifo,scheduled]
+
+The robot's bridge reaches the embedded broker through ``roslink_mqtt.shaped_link``: 40 ms each way, an uplink
+of 1 Mbit/s, 256 kbit/s or 64 kbit/s (one FIFO shared by the bridge's connections, like a modem; the downlink
+four times faster). The simulated robot publishes the demo's telemetry (odometry → 10 Hz global_motion, a 5 Hz
+360-beam scan, 1 Hz GPS and battery); the "+ camera + map" rows add a 30 Hz 640×480 JPEG (raw) and a 4 MB
+OccupancyGrid (CBOR) every 10 s. bob, a viewer on the broker's side, times what arrives; alice, an operator,
+calls the robot's ``reset`` service once a second and times each reply (the control round trip).
+
+Each row runs twice in one run, with the fleet file's ``bridge.uplink: fifo`` (every message handed to the
+network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's) and ``scheduled``.
+
+Columns: per stream the rate bob received and the age of what he received (arrival − the message's own
+timestamp, one clock: everything runs on this machine) at p50/p99; the largest gap between heartbeats; the reply
+round trip p50/p99. Never asserts: it prints a table (and writes a plot).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import orjson
+
+from roslink_mqtt.protocol import SystemStatus
+from roslink_mqtt.topics import Kind, TopicTree, join
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import latency as lat  # noqa: E402  (bench/latency.py: brokers, bridge, bookkeeping shared by the benches)
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "config" / "robots.yaml"
+PLOT_DIR = ROOT / "docs" / "performance"
+ROBOT, ROBOT_PASSWORD = "turtle1", "turtle1-demo"
+OPERATOR = ("alice", "alice-demo")
+VIEWER = ("bob", "bob-demo")
+DELAY_MS = 40
+DOWN_FACTOR = 4
+IMAGE_TOPIC, MAP_TOPIC = "camera/image/compressed", "map_grid"
+IMAGE_STATE, MAP_STATE = "image", "occupancy"
+IMAGE_RATE, MAP_PERIOD = 30.0, 10.0
+WARMUP = 4.0  # s after the robot is online before measuring
+MOTION_RATE = 10.0  # the demo fleet's max_rate for global_motion
+
+
+@dataclass(frozen=True, slots=True)
+class Case:
+    kbit: int
+    extras: bool  # camera + map
+
+    @property
+    def label(self) -> str:
+        return f"{self.kbit:g} kbit/s" + (" + camera + map" if self.extras else "")
+
+
+def cases(rates: list[int]) -> list[Case]:
+    out = [Case(rate, False) for rate in rates]
+    if 1000 in rates:
+        out.insert(1, Case(1000, True))
+    return out
+
+
+# -- the load child: camera and map on the robot ------------------------------------------------------------
+def stamp_index() -> int:
+    """Wall clock in 10 ms units (mod 1e8): the frame index the camera and map carry, read back as their age."""
+    return int(time.time() * 100) % 100_000_000
+
+
+def age_of_index(index: int, now: float) -> float:
+    return ((int(now * 100) - index) % 100_000_000) / 100
+
+
+def load(_url: str) -> int:
+    """Hidden ``--load`` mode: the 30 Hz camera and the 4 MB map every 10 s, until SIGINT."""
+    import large
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node("weak_link_load")
+    frames = large.Frames()
+    from nav_msgs.msg import OccupancyGrid
+    from sensor_msgs.msg import CompressedImage
+
+    image_pub = node.create_publisher(CompressedImage, IMAGE_TOPIC, 5)
+    map_pub = node.create_publisher(OccupancyGrid, MAP_TOPIC, 1)
+    start, period, n, next_map = time.monotonic(), 1.0 / IMAGE_RATE, 0, time.monotonic() + 1.0
+    while not stop.wait(max(0.0, start + n * period - time.monotonic())):
+        image_pub.publish(frames.stamp("image", stamp_index()))
+        n += 1
+        if time.monotonic() >= next_map:
+            map_pub.publish(frames.stamp("map", stamp_index()))
+            next_map += MAP_PERIOD
+    print(f"load: {n} images, jpeg {frames.jpeg_size} bytes", flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+# -- one run --------------------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    case: Case
+    mode: str
+    seconds: float = 0.0
+    ages: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))  # stream -> ages (s)
+    heartbeats: list[float] = field(default_factory=list)  # arrival times
+    replies: list[float] = field(default_factory=list)  # round trips (s)
+    failed_calls: int = 0
+    note: str = ""
+
+
+class Viewer:
+    """bob on the broker: records, per state stream, the age of every message while ``recording`` is set."""
+
+    def __init__(self, port: int, prefix: str) -> None:
+        import cbor2
+
+        self.cbor_loads = cbor2.loads
+        self.run: Run | None = None
+        self.online = threading.Event()
+        self.client = lat.make_client(f"bob-weak-{os.getpid()}", username=VIEWER[0], password=VIEWER[1],
+                                      url=f"mqtt://127.0.0.1:{port}")
+        topics = TopicTree(prefix)
+        self.topics = topics
+        self.heartbeat_topic = topics.heartbeat(ROBOT)
+        self.client.on_connect = lambda c, *_: c.subscribe([(self.heartbeat_topic, 0),
+                                                            (topics.state_filter(ROBOT), 0)])
+        self.client.on_message = self._on_message
+        self.client.connect("127.0.0.1", port, keepalive=30)
+        self.client.loop_start()
+
+    def _on_message(self, _c: Any, _u: Any, message: Any) -> None:
+        now = time.time()
+        topic, payload = message.topic, message.payload
+        if topic == self.heartbeat_topic:
+            if message.retain:
+                return
+            status = orjson.loads(payload)["payload"]["system_status"]
+            if status != SystemStatus.OFFLINE:
+                self.online.set()
+            if self.run is not None:
+                self.run.heartbeats.append(time.monotonic())
+            return
+        run = self.run
+        if run is None or message.retain:
+            return
+        parsed = self.topics.parse(topic)
+        if parsed is None or parsed.kind is not Kind.STATE:
+            return
+        name = parsed.name
+        try:
+            if name == "global_motion":
+                run.ages[name].append(now - orjson.loads(payload)["payload"]["time_boot_ms"] / 1000)
+            elif name == "range_finder_data":
+                run.ages[name].append(now - orjson.loads(payload)["payload"]["time_usec"] / 1e6)
+            elif name == IMAGE_STATE:
+                import large
+
+                index = large.index_of(payload, "raw")
+                if index is not None:
+                    run.ages[name].append(age_of_index(index, now))
+            elif name == MAP_STATE:
+                frame = self.cbor_loads(payload)["header"]["frame_id"]
+                run.ages[name].append(age_of_index(int(frame), now))
+        except (KeyError, ValueError, TypeError):
+            pass
+
+    def close(self) -> None:
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+def bench_fleet(work: Path, port: int, mode: str, extras: bool) -> Path:
+    def edit(data: dict[str, Any]) -> None:
+        robot = data["robots"][ROBOT]
+        robot["bridge"] = {**robot["bridge"], "uplink": mode}
+        if extras:
+            robot["rules"] = [*robot["rules"],
+                              {"direction": "ros_to_mqtt", "ros_topic": IMAGE_TOPIC,
+                               "ros_type": "sensor_msgs/msg/CompressedImage", "mqtt_topic": join("state", IMAGE_STATE),
+                               "encoding": "raw"},
+                              {"direction": "ros_to_mqtt", "ros_topic": MAP_TOPIC,
+                               "ros_type": "nav_msgs/msg/OccupancyGrid", "mqtt_topic": join("state", MAP_STATE),
+                               "encoding": "cbor", "ros_qos": {"durability": "volatile"}}]
+        data["broker"]["max_payload"] = 16 << 20
+
+    return lat.fleet_copy(work / f"robots-{mode}-{int(extras)}.yaml", CONFIG, port=port, ws_port=0, edit=edit)
+
+
+def caller(operator: Any, stop: threading.Event, run_: list[Run | None]) -> None:
+    """alice calls ``reset`` once a second; each reply's round trip goes to the current run."""
+    from roslink_mqtt.client import ServiceError, ServiceTimeout
+
+    while not stop.wait(1.0):
+        began = time.monotonic()
+        try:
+            operator.call(ROBOT, "reset", timeout=10.0)
+        except (ServiceError, ServiceTimeout, OSError):
+            if run_[0] is not None:
+                run_[0].failed_calls += 1
+            continue
+        if run_[0] is not None:
+            run_[0].replies.append(time.monotonic() - began)
+
+
+def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, str], port: int, viewer: Viewer,
+            current: list[Run | None]) -> Run:
+    run = Run(case, mode)
+    with ExitStack() as phase:
+        fleet = bench_fleet(work, port, mode, case.extras)
+        link_port = lat.free_port()
+        lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen",
+                                f"127.0.0.1:{link_port}", "--to", f"127.0.0.1:{port}", "--delay-ms", str(DELAY_MS),
+                                "--jitter-ms", "0", "--up-kbit", str(case.kbit), "--down-kbit",
+                                str(case.kbit * DOWN_FACTOR)],
+                        work / f"link-{link_port}.log", env, port=link_port, what="shaped link")
+        if case.extras:
+            lat.start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--load"],
+                            work / f"load-{link_port}.log", env)
+        viewer.online.clear()
+        bridge_log = work / f"bridge-{mode}-{link_port}.log"
+        lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
+                                ROBOT, "--url", f"mqtt://127.0.0.1:{link_port}", "--log-level", "WARNING"],
+                        bridge_log, {**env, "ROSLINK_PASSWORD": ROBOT_PASSWORD})
+        if not viewer.online.wait(30):
+            run.note = f"the robot did not come online: {lat.tail(bridge_log, 5)}"
+            return run
+        time.sleep(WARMUP)
+        began = time.monotonic()
+        viewer.run = current[0] = run
+        time.sleep(seconds)
+        viewer.run = current[0] = None
+        run.seconds = time.monotonic() - began
+    return run
+
+
+# -- report ---------------------------------------------------------------------------------------------------
+def pct(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def stream_cell(run: Run, name: str) -> str:
+    ages = run.ages.get(name, [])
+    if not ages:
+        return "none"
+    rate = len(ages) / run.seconds
+    return f"{rate:5.1f}/s {pct(ages, 0.5) * 1000:6.0f}/{pct(ages, 0.99) * 1000:6.0f} ms"
+
+
+def heartbeat_gap(run: Run) -> float:
+    beats = run.heartbeats
+    return max((b - a for a, b in zip(beats, beats[1:], strict=False)), default=float("nan"))
+
+
+def report(runs: list[Run]) -> None:
+    extras = any(r.case.extras for r in runs)
+    head = (f"{'uplink':<26} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
+            f" {'hb gap':>7} {'reply p50/p99':>15}")
+    if extras:
+        head += f"  {'image rate, age p50/p99':<30} {'map rate, age p50/p99':<30}"
+    print()
+    print(head)
+    print("-" * len(head))
+    for run in runs:
+        if run.note:
+            print(f"{run.case.label:<26} {run.mode:<10} failed: {run.note}")
+            continue
+        replies = f"{pct(run.replies, 0.5) * 1000:5.0f}/{pct(run.replies, 0.99) * 1000:5.0f} ms"
+        if run.failed_calls:
+            replies += f" ({run.failed_calls} failed)"
+        line = (f"{run.case.label:<26} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
+                f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {replies:>15}")
+        if extras:
+            line += f"  {stream_cell(run, IMAGE_STATE):<30} {stream_cell(run, MAP_STATE):<30}"
+        print(line)
+    print(f"\nrates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
+          "the scan is 5 Hz); age = arrival − the message's own timestamp")
+
+
+def plot(runs: list[Run], plot_dir: Path) -> Path | None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    shown = [r for r in runs if not r.note and r.ages.get("global_motion")]
+    if not shown:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    data = [[a * 1000 for a in r.ages["global_motion"]] for r in shown]
+    ax.boxplot(data, whis=(1, 99), showfliers=False)
+    ax.set_xticks(range(1, len(shown) + 1), [f"{r.case.label}\n{r.mode}" for r in shown], fontsize=7)
+    ax.set_yscale("log")
+    ax.set_ylabel("global_motion age at the viewer (ms, log)")
+    ax.set_title("Thin uplinks: FIFO vs the scheduled uplink (whiskers p1–p99)")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    path = plot_dir / "weak_link.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seconds", type=float, default=20.0, help="measured per row (default: %(default)s)")
+    p.add_argument("--rates", default="1000,256,64", help="uplinks in kbit/s (default: %(default)s; 1000 adds the "
+                                                          "camera + map row)")
+    p.add_argument("--modes", default="fifo,scheduled", help="bridge.uplink modes (default: %(default)s)")
+    p.add_argument("--plot-dir", type=Path, default=PLOT_DIR, help="where weak_link.png goes (default: %(default)s)")
+    p.add_argument("--load", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    try:
+        args.rate_list = [int(r) for r in args.rates.split(",") if r.strip()]
+    except ValueError:
+        p.error(f"--rates: expected kbit/s numbers, got {args.rates!r}")
+    args.mode_list = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not set(args.mode_list) <= {"fifo", "scheduled"}:
+        p.error("--modes: fifo and/or scheduled")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.load:
+        return load("")
+    began = time.monotonic()
+    from roslink_mqtt.ros_env import apply_local_ros_env
+
+    env = apply_local_ros_env()
+    env["ROS_LOG_DIR"] = env.get("ROS_LOG_DIR") or tempfile.mkdtemp(prefix="roslink-bench-roslog-")
+    os.environ["ROS_LOG_DIR"] = env["ROS_LOG_DIR"]
+    from roslink_mqtt.client import RobotClient
+
+    runs: list[Run] = []
+    current: list[Run | None] = [None]
+    stop = threading.Event()
+    with tempfile.TemporaryDirectory(prefix="roslink-weak-") as tmp, ExitStack() as stack:
+        work = Path(tmp)
+        port = lat.free_port()
+        fleet = bench_fleet(work, port, "scheduled", True)
+        lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
+                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
+                        work / "broker.log", env, port=port, what="embedded broker")
+        lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
+        viewer = Viewer(port, lat.load_fleet(fleet).prefix)
+        stack.callback(viewer.close)
+        operator = RobotClient(OPERATOR[0], OPERATOR[1], url=f"mqtt://127.0.0.1:{port}").connect()
+        stack.callback(operator.close)
+        calls = threading.Thread(target=caller, args=(operator, stop, current), daemon=True)
+        calls.start()
+        stack.callback(stop.set)
+        try:
+            for case in cases(args.rate_list):
+                for mode in args.mode_list:
+                    run = one_run(case, mode, args.seconds, work, env, port, viewer, current)
+                    runs.append(run)
+                    print(f"  {case.label:<26} {mode:<10} motion {stream_cell(run, 'global_motion')}, "
+                          f"hb gap {heartbeat_gap(run):.2f} s, {len(run.replies)} replies"
+                          + (f" [{run.note}]" if run.note else ""), flush=True)
+        except KeyboardInterrupt:
+            print("weak_link: interrupted", file=sys.stderr)
+            return 130
+        except (lat.ChildExited, TimeoutError) as e:
+            raise SystemExit(f"weak_link: {e}") from None
+    report(runs)
+    written = plot(runs, args.plot_dir)
+    if written is not None:
+        print(f"plot: {written}")
+    print(f"{lat.versions()}; {DELAY_MS} ms each way, downlink {DOWN_FACTOR}× the uplink; run took "
+          f"{time.monotonic() - began:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,294 @@
+"""The bridge's uplink: state streams through :mod:`.uplink`'s scheduler into the MQTT connections, never more
+than the link carries soon.
+
+The bytes the bridge has handed over and the link has not yet delivered are paho's unsent packets plus the
+socket's unacknowledged bytes (``SIOCOUTQ``: what waits in the send buffer and, on a real modem, in the modem's
+queue). While they stay under the budget a message goes straight to paho from the thread that offered it, as
+before this module existed (a fast link never notices it); otherwise it waits in its stream's slot and a sender
+thread hands the next one over as soon as the link has room, polling every :data:`POLL` while anything waits.
+
+State and bulk streams go out on connections of their own (lanes), each with a send buffer about the size of
+the budget, one message at a time: a 7 kB scan takes a quarter of a second on a 256 kbit/s link and a 4 MB map
+two minutes; on the main connection every heartbeat, acknowledgement and pose would wait behind them, while from
+small buffers on other connections the link interleaves their packets with the main connection's. Across lanes
+the order of classes holds at hand-over: nothing of a lower class is handed over while a higher one waits.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import logging
+import socket
+import struct
+import termios
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from ..config import Priority
+from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, StreamReport
+from .link import MqttLink
+from .uplink import TARGET_DELAY, LinkMeter, Outgoing, Stream, UplinkScheduler
+
+log = logging.getLogger("roslink_mqtt.bridge.uplink")
+
+POLL = 0.01  # s between looks at the socket while messages wait
+_TCP_INFO_BYTES_ACKED = 120  # offsets in Linux's struct tcp_info (stable ABI: fields are only ever appended)
+_TCP_INFO_MIN_RTT = 148
+
+
+def raw_socket(client: Any) -> socket.socket | None:
+    """The TCP socket under a paho client (plain, TLS, or inside the websocket wrapper); None while unconnected."""
+    sock = client.socket()
+    sock = getattr(sock, "_socket", sock)
+    return sock if sock is not None and hasattr(sock, "fileno") else None
+
+
+def kernel_unsent(sock: socket.socket | None) -> int:
+    """Bytes written to ``sock`` that the peer has not acknowledged yet (SIOCOUTQ)."""
+    if sock is None:
+        return 0
+    try:
+        return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+    except (OSError, ValueError):
+        return 0
+
+
+def delivered(sock: socket.socket | None) -> tuple[int, float | None] | None:
+    """(bytes the peer acknowledged since the connection began, the least round trip seen in s), or None."""
+    if sock is None:
+        return None
+    try:
+        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 160)
+    except (OSError, ValueError):
+        return None
+    if len(info) < _TCP_INFO_MIN_RTT + 4:
+        return None
+    acked = struct.unpack_from("Q", info, _TCP_INFO_BYTES_ACKED)[0]
+    min_rtt = struct.unpack_from("I", info, _TCP_INFO_MIN_RTT)[0]
+    return acked, (min_rtt / 1e6 if min_rtt else None)
+
+
+def paho_unsent(client: Any) -> int:
+    """Bytes queued inside paho and not yet written to the socket (paho 2.2's ``_out_packet``; pinned)."""
+    return sum(p["to_process"] for p in list(client._out_packet))
+
+
+@dataclass(eq=False)
+class Lane:
+    """One MQTT connection the uplink sends on, and the classes it carries."""
+
+    link: MqttLink
+    classes: frozenset[Priority]
+    index: int  # its place in the order of lanes (main first): the lanes before it are served first
+    paced: bool  # a small send buffer, one message at a time, and an allowance: never crowds the link for long
+    sndbuf: int = 0  # what SO_SNDBUF was last set to
+    credit: float = 0.0  # bytes it may still hand over (its allowance accrues here; a message may overdraw it)
+    refilled: float = 0.0  # monotonic: when credit last accrued
+
+
+class Uplink:
+    """Where the rules' state goes: ``offer`` from any thread; a sender thread drains what had to wait.
+
+    ``state_link`` / ``bulk_link``: the connections for state and bulk streams (None: those streams use the one
+    before). Each is paced: its send buffer is about the budget and it gets its next message only once paho has
+    written the last one, so a 7 kB scan or a 4 MB map never sits in front of a heartbeat or a pose; the link
+    interleaves their packets with the main connection's.
+    """
+
+    def __init__(self, main: MqttLink, state_link: MqttLink | None = None, bulk_link: MqttLink | None = None, *,
+                 fifo: bool = False, target_delay: float = TARGET_DELAY, report_topic: str | None = None) -> None:
+        """``fifo``: hand every message to paho at once, on the main connection (robots.yaml ``uplink: fifo``).
+        ``report_topic``: where the retained :class:`LinkReport` goes every LINK_REPORT_PERIOD (None: nowhere)."""
+        self.fifo, self.report_topic = fifo, report_topic
+        self.main = Lane(main, frozenset(Priority), 0, paced=False)
+        self.lanes = [self.main]
+        self._lane_of = {p: self.main for p in Priority}
+        if not fifo:
+            for link, classes in ((state_link, (Priority.STATE, Priority.BULK)), (bulk_link, (Priority.BULK,))):
+                if link is not None:
+                    lane = Lane(link, frozenset(classes), len(self.lanes), paced=True)
+                    self.lanes.append(lane)
+                    self._lane_of.update({p: lane for p in classes})
+                    self._watch_socket(lane)
+        self.scheduler = UplinkScheduler()
+        self.meter = LinkMeter(target_delay=target_delay)
+        self.lock = threading.Condition()
+        self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name="uplink", daemon=True)
+        self._labels: dict[str, tuple[str, float | None]] = {}  # stream → (state name, max_rate)
+        self._counts: dict[str, tuple[int, int, int, int, int]] = {}  # stream → its counters at the last report
+        self._reported = time.monotonic()
+
+    def _watch_socket(self, lane: Lane) -> None:
+        """Size a paced lane's send buffer as soon as its socket exists (TCP_NODELAY stays)."""
+        opened = lane.link.client.on_socket_open
+
+        def on_socket_open(client: Any, userdata: Any, sock: Any) -> None:
+            if opened is not None:
+                opened(client, userdata, sock)
+            lane.sndbuf = 0
+            self._size_buffer(lane, getattr(sock, "_socket", sock))
+
+        lane.link.client.on_socket_open = on_socket_open
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        with self.lock:
+            self._stopped = True
+            self.lock.notify()
+
+    def stream(self, name: str, priority: Priority, latest_only: bool, *, label: str | None = None,
+               max_rate: float | None = None) -> Stream:
+        """The stream of topic ``name``; ``label`` (its state name) and ``max_rate`` are for the link report."""
+        with self.lock:
+            self._labels[name] = (label or name, max_rate)
+            return self.scheduler.stream(name, priority, latest_only)
+
+    # -- the way in ------------------------------------------------------------------------------------------
+    def offer(self, stream: Stream, topic: str, payload: bytes, qos: int, retain: bool) -> None:
+        """Send now if the link has room and nothing of this class or above waits; else keep it in its slot."""
+        if stream.priority is Priority.CONTROL or self.fifo:
+            with self.lock:
+                stream.offered += 1
+                stream.sent += 1
+                stream.bytes_sent += len(payload) + len(topic) + 4
+            self.main.link.publish(topic, payload, qos, retain)
+            return
+        lane = self._lane_of[stream.priority]
+        message = Outgoing(topic, payload, qos, retain, time.monotonic())
+        with self.lock:
+            if not lane.link.connected.is_set():
+                stream.offered += 1
+                self.not_connected += 1
+                if not stream.latest_only:
+                    stream.dropped += 1  # an ordered stream lost one: counted (a pose is simply stale)
+                return
+            self._refill(lane, message.queued_at)
+            if not self.scheduler.has_waiting(below=stream.priority + 1) and self._blocked(lane, 0) is None:
+                stream.offered += 1
+                stream.sent += 1
+                stream.bytes_sent += message.size
+                if lane.paced:
+                    lane.credit -= message.size
+                lane.link.publish(topic, payload, qos, retain)
+                return
+            self.scheduler.offer(stream, message)
+            self.lock.notify()
+
+    def unsent(self, lane: Lane) -> int:
+        """Bytes of ``lane`` handed over and not yet delivered: inside paho, and in the socket."""
+        client = lane.link.client
+        return paho_unsent(client) + kernel_unsent(raw_socket(client))
+
+    def _blocked(self, lane: Lane, handed: int) -> str | None:
+        """Why ``lane`` may not take another message now (None: it may); ``handed``: bytes given to it in this
+        round already. "network": its bytes wait in the network; "allowance": a paced lane used its share."""
+        if not lane.paced:
+            return "network" if self.unsent(lane) + handed >= self.meter.budget else None
+        if handed or paho_unsent(lane.link.client) or kernel_unsent(raw_socket(lane.link.client)) >= self.meter.budget:
+            return "network"
+        return "allowance" if lane.credit < 0 else None
+
+    def _refill(self, lane: Lane, now: float) -> None:
+        if lane.paced:
+            lane.credit = min(float(self.meter.budget),
+                              lane.credit + self.meter.allowance(lane.index) * max(0.0, now - lane.refilled))
+            lane.refilled = now
+
+    # -- the sender thread ----------------------------------------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self.lock:
+                if self._stopped:
+                    return
+                self.lock.wait(POLL if self.scheduler else 0.25)
+                now = time.monotonic()
+                try:
+                    self._pump(now)
+                    report = self.report(now) if now - self._reported >= LINK_REPORT_PERIOD else None
+                except Exception:  # a bug here must not silence the robot's state for good
+                    log.exception("uplink sender")
+                    report = None
+            if report is not None and self.report_topic is not None:
+                self.main.link.publish(self.report_topic, report.to_json(), LinkReport.QOS, LinkReport.RETAINED)
+
+    def report(self, now: float) -> LinkReport:
+        """What the uplink carried since the last report (the lock is held)."""
+        period = max(1e-3, now - self._reported)
+        self._reported = now
+        streams = {}
+        for name, stream in self.scheduler.streams.items():
+            counts = (stream.offered, stream.sent, stream.superseded, stream.dropped, stream.bytes_sent)
+            last = self._counts.get(name, (0, 0, 0, 0, 0))
+            self._counts[name] = counts
+            offered, sent, superseded, dropped, sent_bytes = (a - b for a, b in zip(counts, last, strict=True))
+            label, max_rate = self._labels.get(name, (name, None))
+            streams[label] = StreamReport(stream.priority.name.lower(), stream.latest_only,
+                                          round(offered / period, 2), round(sent / period, 2), superseded, dropped,
+                                          max_rate, round(sent_bytes * 8 / 1000 / period, 1))
+        meter = self.meter
+        return LinkReport("fifo" if self.fifo else "scheduled", round(meter.rate * 8 / 1000, 1), meter.measured,
+                          meter.budget, round(meter.min_rtt * 1000, 2), round(period, 2), streams)
+
+    def _pump(self, now: float) -> None:
+        self._measure(now)
+        for lane in self.lanes:
+            self._refill(lane, now)
+        handed: dict[int, int] = {}
+        while (head := self.scheduler.head()) is not None:
+            lane = self._lane_of[head]
+            if not lane.link.connected.is_set():
+                self.not_connected += self.scheduler.drop_all(head)  # stale by the time it is back: never replayed
+                continue
+            if self._blocked(lane, handed.get(lane.index, 0)) is not None:
+                return  # strict priority: nothing of a lower class overtakes the head
+            taken = self.scheduler.take()
+            assert taken is not None
+            message = taken[1]
+            lane.link.publish(message.topic, message.payload, message.qos, message.retain)
+            handed[lane.index] = handed.get(lane.index, 0) + message.size
+            if lane.paced:
+                lane.credit -= message.size
+
+    def _measure(self, now: float) -> None:
+        """Feed the meter every lane's delivered bytes; resize the paced lanes' buffers when a window closes."""
+        if not self.main.link.connected.is_set():
+            self.meter.reset()
+            return
+        acked: list[int] = []
+        min_rtt, queued = None, 0
+        for lane in self.lanes:
+            sock = raw_socket(lane.link.client)
+            sample = delivered(sock)
+            acked.append(sample[0] if sample is not None else 0)
+            queued += kernel_unsent(sock)
+            if sample is not None and sample[1] is not None:
+                min_rtt = sample[1] if min_rtt is None else min(min_rtt, sample[1])
+        # The link was the limit if bytes waited in the network at every look of the window: it never idled.
+        if self.meter.sample(now, tuple(acked), queued > 0, min_rtt) is not None:
+            log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s", self.meter.rate,
+                      "measured" if self.meter.measured else "assumed", self.meter.budget,
+                      [round(r) for r in self.meter.lane_rates])
+            for lane in self.lanes:
+                if lane.paced:
+                    self._size_buffer(lane)
+
+    def _size_buffer(self, lane: Lane, sock: socket.socket | None = None) -> None:
+        """A paced lane's send buffer ≈ the budget (the kernel doubles what it is given)."""
+        size = max(2048, self.meter.budget // 2)
+        if sock is None:
+            if size == lane.sndbuf:
+                return
+            sock = raw_socket(lane.link.client)
+            if sock is None:
+                return
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, size)
+            lane.sndbuf = size
+        except OSError:
+            pass

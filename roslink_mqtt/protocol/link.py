@@ -1,0 +1,124 @@
+"""``state/link``: what the robot's uplink carries, so people see why a stream is slow (docs/protocol.md, "Link").
+
+The bridge publishes it retained every few seconds (:data:`LINK_REPORT_PERIOD`): the uplink's measured rate, and per
+state stream the rate it is offered (after ``max_rate``), the rate actually sent, and how many messages a newer one
+superseded (latest wins) or were dropped. ``roslink-mqtt info`` and ``monitor`` show it ("range_finder_data 1.2 Hz of
+5 — link 240 kbit/s"). A client reads it leniently (unknown fields ignored), so the bridge may grow it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import orjson
+
+from ..topics import TopicTree
+from .control import BodyField, _object
+from .errors import ProtocolError
+
+LINK = "link"  # the state name: roslink/<robot>/state/link
+LINK_REPORT_PERIOD = 2.0  # s between reports
+PRIORITY_NAMES = ("control", "motion", "state", "bulk")
+_DOC = TopicTree()
+
+
+@dataclass(frozen=True, slots=True)
+class StreamReport:
+    """One state stream over the last period."""
+
+    priority: str
+    latest_only: bool
+    offered_hz: float  # what the rule handed to the uplink (after max_rate)
+    sent_hz: float
+    superseded: int = 0  # in the period: replaced by a newer message before they could leave
+    dropped: int = 0  # in the period: ordered streams over their bound, or offered while the broker was away
+    max_rate: float | None = None  # the rule's max_rate (Hz), if any
+    kbit_s: float = 0.0  # sent
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"priority": self.priority, "latest_only": self.latest_only,
+                               "offered_hz": self.offered_hz, "sent_hz": self.sent_hz, "superseded": self.superseded,
+                               "dropped": self.dropped, "kbit_s": self.kbit_s}
+        if self.max_rate is not None:
+            out["max_rate"] = self.max_rate
+        return out
+
+    @classmethod
+    def from_dict(cls, name: str, body: Any) -> StreamReport:
+        if not isinstance(body, dict):
+            raise ProtocolError(f"streams.{name}: expected an object")
+        try:
+            priority = body["priority"]
+            if priority not in PRIORITY_NAMES:
+                raise ProtocolError(f"streams.{name}.priority: expected one of {', '.join(PRIORITY_NAMES)}")
+            max_rate = body.get("max_rate")
+            return cls(priority, bool(body["latest_only"]), float(body["offered_hz"]), float(body["sent_hz"]),
+                       int(body.get("superseded", 0)), int(body.get("dropped", 0)),
+                       None if max_rate is None else float(max_rate), float(body.get("kbit_s", 0.0)))
+        except (KeyError, TypeError, ValueError) as err:
+            raise ProtocolError(f"streams.{name}: missing or malformed field ({err})") from None
+
+
+@dataclass(frozen=True, slots=True)
+class LinkReport:
+    """Retained on ``state/link`` by the bridge: its uplink over the last period (read by every granted user)."""
+
+    mode: str  # bridge.uplink: scheduled or fifo
+    rate_kbit_s: float  # the uplink's estimated rate
+    measured: bool  # the estimate was measured on a full link (false: a lower bound, the link had room)
+    budget_bytes: int
+    rtt_ms: float
+    period: float  # s the rates and counts cover
+    streams: dict[str, StreamReport] = field(default_factory=dict)
+
+    FIELDS = (
+        BodyField("mode", '"scheduled" or "fifo"', True, "the bridge's `uplink` setting"),
+        BodyField("rate_kbit_s", "number", True, "the uplink's estimated rate, kbit/s (all the bridge's connections)"),
+        BodyField("measured", "boolean", True, "true: measured while the link was full (its capacity); false: the "
+                                               "link had room, so the rate is at least this"),
+        BodyField("budget_bytes", "integer", True, "bytes the bridge lets wait in the network (rate × (round trip "
+                                                   "+ `uplink_target_delay`))"),
+        BodyField("rtt_ms", "number", True, "the least round trip the kernel measured to the broker, ms"),
+        BodyField("period", "number", True, "seconds the rates and counts below cover"),
+        BodyField("streams", "object", True, "per state name: `priority`, `latest_only`, `offered_hz` (what the "
+                                             "rule produced, after `max_rate`), `sent_hz`, `superseded` and "
+                                             "`dropped` (counts in the period), `kbit_s` sent, and `max_rate` "
+                                             "when the rule has one"),
+    )
+    QOS = 0  # a snapshot, replaced every period
+    RETAINED = True
+
+    def to_json(self) -> bytes:
+        return orjson.dumps({"mode": self.mode, "rate_kbit_s": self.rate_kbit_s, "measured": self.measured,
+                             "budget_bytes": self.budget_bytes, "rtt_ms": self.rtt_ms, "period": self.period,
+                             "streams": {n: s.to_dict() for n, s in self.streams.items()}})
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> LinkReport:
+        body = _object(data, 'expected a JSON object {"mode": "scheduled", "rate_kbit_s": 240, …}')
+        streams = body.get("streams", {})
+        if not isinstance(streams, dict):
+            raise ProtocolError("streams: expected an object")
+        try:
+            return cls(str(body["mode"]), float(body["rate_kbit_s"]), bool(body["measured"]),
+                       int(body["budget_bytes"]), float(body["rtt_ms"]), float(body["period"]),
+                       {str(n): StreamReport.from_dict(str(n), s) for n, s in streams.items()})
+        except (KeyError, TypeError, ValueError) as err:
+            raise ProtocolError(f"missing or malformed field ({err})") from None
+
+    def summary(self) -> str:
+        """One line for people: ``link 240 kbit/s — range_finder_data 1.2 Hz of 5 (14 superseded)``."""
+        parts = []
+        for name, s in self.streams.items():
+            if s.sent_hz + 0.05 < s.offered_hz or s.dropped:
+                text = f"{name} {s.sent_hz:.1f} Hz of {s.offered_hz:.1f}"
+                losses = [f"{n} {what}" for n, what in ((s.superseded, "superseded"), (s.dropped, "dropped")) if n]
+                parts.append(text + (f" ({', '.join(losses)})" if losses else ""))
+        head = f"link {'' if self.measured else '≥ '}{self.rate_kbit_s:.0f} kbit/s"
+        return head + (" — " + ", ".join(parts) if parts else " — every stream at its rate")
+
+
+LINK_BODIES: tuple[tuple[str, str, type], ...] = (
+    ("link report", f"`{_DOC.state('<robot>', LINK)}`", LinkReport),
+)

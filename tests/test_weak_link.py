@@ -1,0 +1,166 @@
+"""A robot on a thin uplink (issue 25): the real bridge reaches the embedded broker through a 128 kbit/s shaped link
+(one FIFO shared by all its connections, like a modem) while ROS floods it with far more than the link carries:
+poses at 10 Hz, a 2 kB state blob at 10 Hz and 20 kB camera frames at 10 Hz (≈ 1.8 Mbit/s in all).
+
+With ``bridge.uplink: scheduled`` (the default) the viewer sees fresh poses (latest wins: a superseded pose is
+never sent), heartbeats on time and service replies within a second, while the camera gets what is left. The same
+scene with ``uplink: fifo`` is the control: poses pile up seconds old, which the same checks catch.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import orjson
+import pytest
+
+from roslink_mqtt.client import RobotClient
+from roslink_mqtt.localproc import free_port
+from roslink_mqtt.protocol.link import LinkReport
+
+from .support.broker_setup import write_fleet
+from .support.embedded_broker import EmbeddedBrokerProcess
+from .support.mqtt_client import TestClient
+from .support.procs import bridge_env, run
+from .support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(120)
+
+UPLINK_KBIT = 128
+RULES = """    rules: &rules
+      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,
+         mqtt_topic: state/pose, preset: global_motion}
+      - {direction: ros_to_mqtt, ros_topic: /wl/blob, ros_type: std_msgs/msg/String, mqtt_topic: state/blob}
+      - {direction: ros_to_mqtt, ros_topic: /wl/camera, ros_type: sensor_msgs/msg/CompressedImage,
+         mqtt_topic: state/camera, encoding: raw}
+"""
+MEASURE = 8.0  # s of flood measured, after the first pose arrived
+
+
+def _scene(tmp_path, mode: str) -> dict:
+    """Flood the robot for MEASURE s; what bob and a service caller saw."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CompressedImage
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", RULES, 1).replace(
+        "      keepalive: 2\n", f"      keepalive: 2\n      uplink: {mode}\n", 1))
+    seen: dict = {"poses": [], "blobs": [], "camera": 0, "heartbeats": [], "replies": [], "link": None}
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", str(UPLINK_KBIT),
+                  "--down-kbit", "1024"], tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(broker.port, "bob", "bob-demo") as bob:
+            probe = RosProbe()
+            probe.node.create_service(Trigger, "/status", lambda _req, resp: setattr(resp, "success", True) or resp)
+            recording = threading.Event()
+
+            def on_message(_c, _u, m) -> None:
+                now = time.time()
+                leaf = m.topic.rsplit("/", 1)[-1]
+                if leaf == "pose":
+                    body = orjson.loads(m.payload)["payload"]
+                    seen["poses"].append((now, body["x"], now - body["time_boot_ms"] / 1000))
+                if leaf == "link" and m.payload:
+                    seen["link"] = LinkReport.from_json(m.payload)
+                if not recording.is_set() or m.retain:
+                    return
+                if leaf == "blob":
+                    seen["blobs"].append(now - float(orjson.loads(m.payload)["data"][:20]))
+                elif leaf == "camera":
+                    seen["camera"] += 1
+                elif leaf == "heartbeat":
+                    seen["heartbeats"].append(time.monotonic())
+
+            try:
+                assert bob.connect() == 0
+                bob.client.on_message = on_message
+                bob.subscribe("roslink/turtle1/state/#", qos=0)
+                bob.subscribe("roslink/turtle1/heartbeat", qos=0)
+                odom = probe.publisher(Odometry, "/wl/odom")
+                blob = probe.publisher(String, "/wl/blob")
+                camera = probe.publisher(CompressedImage, "/wl/camera")
+                frame = CompressedImage(format="jpeg", data=bytes(20_000))
+                stop = threading.Event()
+
+                def flood() -> None:
+                    n = 0
+                    while not stop.wait(0.1):  # 10 Hz poses, blob and camera
+                        n += 1
+                        msg = Odometry()
+                        now = time.time()
+                        msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                        msg.pose.pose.position.x = float(n)
+                        odom.publish(msg)
+                        blob.publish(String(data=f"{time.time():<20.6f}" + "x" * 2000))
+                        camera.publish(frame)
+
+                flooder = threading.Thread(target=flood, daemon=True)
+                flooder.start()
+                deadline = time.monotonic() + 30
+                while not seen["poses"] and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                assert seen["poses"], f"no pose arrived: {(tmp_path / 'bridge.log').read_text()[-2000:]}"
+                recording.set()
+                began = len(seen["poses"])
+                with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{broker.port}") as caller:
+                    end = time.monotonic() + MEASURE
+                    while time.monotonic() < end:
+                        t0 = time.monotonic()
+                        try:
+                            caller.call("turtle1", "status", timeout=5.0)
+                            seen["replies"].append(time.monotonic() - t0)
+                        except Exception as err:  # noqa: BLE001 - a lost reply is what the check counts
+                            seen["replies"].append(float("inf"))
+                            print(f"call failed: {err}", file=sys.stderr)
+                        time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
+                recording.clear()
+                seen["poses"] = seen["poses"][began:]
+                stop.set()
+                flooder.join(2)
+            finally:
+                probe.close()
+    return seen
+
+
+def _quantile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def test_a_thin_uplink_keeps_poses_fresh_heartbeats_on_time_and_bulk_last(tmp_path) -> None:
+    seen = _scene(tmp_path, "scheduled")
+    poses = seen["poses"]
+    ages = [age for _, _, age in poses]
+    indices = [x for _, x, _ in poses]
+    assert indices == sorted(indices), "poses out of order"
+    assert len(set(indices)) == len(indices), "a pose arrived twice"
+    assert len(poses) >= 5 * MEASURE, f"only {len(poses)} poses in {MEASURE} s"  # ≥ 5 Hz of the 10 Hz offered
+    assert _quantile(ages, 0.9) < 1.5, f"poses arrive stale: p90 age {_quantile(ages, 0.9):.2f} s"
+    beats = seen["heartbeats"]
+    gaps = [b - a for a, b in zip(beats, beats[1:], strict=False)]
+    assert len(beats) >= MEASURE - 3 and max(gaps) < 2.5, f"heartbeat gaps {gaps}"
+    assert seen["replies"] and max(seen["replies"]) < 3.0, f"service replies waited: {seen['replies']}"
+    assert seen["blobs"] and max(seen["blobs"]) < 4.0, f"stale state blobs: {seen['blobs']}"
+    assert len(seen["blobs"]) < 0.6 * 10 * MEASURE  # most were superseded (latest wins), yet each is fresh
+    assert seen["camera"] < 10 * MEASURE / 2, "the camera was not held back"  # bulk gets what is left
+    link = seen["link"]  # the retained state/link report says why the streams are slow
+    assert link is not None and link.mode == "scheduled" and link.measured
+    assert 0.5 * UPLINK_KBIT < link.rate_kbit_s < 1.5 * UPLINK_KBIT, link
+    blob = link.streams["blob"]
+    assert blob.priority == "state" and blob.latest_only and blob.superseded > 0 and blob.sent_hz < blob.offered_hz
+    assert link.streams["camera"].priority == "bulk" and link.streams["pose"].priority == "motion"
+
+
+def test_the_same_scene_in_fifo_mode_piles_up_stale_poses(tmp_path) -> None:
+    """The control: what the checks above would see without the scheduler (today's other bridges)."""
+    seen = _scene(tmp_path, "fifo")
+    ages = [age for _, _, age in seen["poses"]]
+    assert ages and _quantile(ages, 0.9) > 1.5, f"FIFO poses p90 {_quantile(ages, 0.9) if ages else None}"
+    assert seen["link"] is None or seen["link"].mode == "fifo"  # its own report waits in the same queue
