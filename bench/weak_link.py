@@ -4,8 +4,8 @@
 
 The robot's bridge reaches the embedded broker through ``roslink_mqtt.shaped_link``: 40 ms each way, an uplink
 of 1 Mbit/s, 256 kbit/s or 64 kbit/s (one FIFO shared by the bridge's connections, like a modem; the downlink
-four times faster). The simulated robot publishes the demo's telemetry (odometry → 10 Hz global_motion, a 5 Hz
-360-beam scan, 1 Hz GPS and battery); the "+ camera + map" rows add a 30 Hz 640×480 JPEG (raw) and a 4 MB
+four times faster). The simulated robot publishes the demo's telemetry (20 Hz odometry → 10 Hz global_motion, a
+5 Hz 360-beam scan, 1 Hz GPS and battery); the "+ camera + map" rows add a 30 Hz 640×480 JPEG (raw) and a 4 MB
 OccupancyGrid (CBOR) every 10 s. bob, a viewer on the broker's side, times what arrives; alice, an operator,
 calls the robot's ``reset`` service once a second and times each reply (the control round trip).
 
@@ -13,7 +13,9 @@ Each row runs twice in one run, with the fleet file's ``bridge.uplink: fifo`` (e
 network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's) and ``scheduled``.
 
 Columns: per stream the rate bob received and the age of what he received (arrival − the message's own
-timestamp, one clock: everything runs on this machine) at p50/p99; the largest gap between heartbeats; the reply
+timestamp, one clock: everything runs on this machine) at p50/p99 — 50 to 150 ms of a pose's age is the robot's
+own (the 20 Hz odometry throttled to 10 Hz holds a pose up to 50 ms, in a phase that differs at each bridge
+start), as the 1 Mbit/s rows show; the largest gap between heartbeats; the reply
 round trip p50/p99. Never asserts: it prints a table (and writes a plot).
 """
 
@@ -35,6 +37,7 @@ from typing import Any
 import orjson
 
 from roslink_mqtt.protocol import SystemStatus
+from roslink_mqtt.protocol.link import LINK, LinkReport
 from roslink_mqtt.topics import Kind, TopicTree, join
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -121,6 +124,9 @@ class Run:
     heartbeats: list[float] = field(default_factory=list)  # arrival times
     replies: list[float] = field(default_factory=list)  # round trips (s)
     failed_calls: int = 0
+    failures: list[str] = field(default_factory=list)  # why calls failed
+    link: Any = None  # the bridge's last state/link report (a LinkReport)
+    silent: int = 0  # times the bridge found the broker silent (a heartbeat's PUBACK late): each one a stop
     note: str = ""
 
 
@@ -163,6 +169,9 @@ class Viewer:
         if parsed is None or parsed.kind is not Kind.STATE:
             return
         name = parsed.name
+        if name == LINK and payload:
+            run.link = LinkReport.from_json(payload)
+            return
         try:
             if name == "global_motion":
                 run.ages[name].append(now - orjson.loads(payload)["payload"]["time_boot_ms"] / 1000)
@@ -210,9 +219,10 @@ def caller(operator: Any, stop: threading.Event, run_: list[Run | None]) -> None
         began = time.monotonic()
         try:
             operator.call(ROBOT, "reset", timeout=10.0)
-        except (ServiceError, ServiceTimeout, OSError):
+        except (ServiceError, ServiceTimeout, OSError) as err:
             if run_[0] is not None:
                 run_[0].failed_calls += 1
+                run_[0].failures.append(str(err)[:120])
             continue
         if run_[0] is not None:
             run_[0].replies.append(time.monotonic() - began)
@@ -243,9 +253,11 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         time.sleep(WARMUP)
         began = time.monotonic()
         viewer.run = current[0] = run
+        before = bridge_log.read_text(errors="replace").count("broker silent")
         time.sleep(seconds)
         viewer.run = current[0] = None
         run.seconds = time.monotonic() - began
+        run.silent = bridge_log.read_text(errors="replace").count("broker silent") - before
     return run
 
 
@@ -273,7 +285,7 @@ def heartbeat_gap(run: Run) -> float:
 def report(runs: list[Run]) -> None:
     extras = any(r.case.extras for r in runs)
     head = (f"{'uplink':<26} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
-            f" {'hb gap':>7} {'reply p50/p99':>15}")
+            f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15}")
     if extras:
         head += f"  {'image rate, age p50/p99':<30} {'map rate, age p50/p99':<30}"
     print()
@@ -287,11 +299,12 @@ def report(runs: list[Run]) -> None:
         if run.failed_calls:
             replies += f" ({run.failed_calls} failed)"
         line = (f"{run.case.label:<26} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
-                f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {replies:>15}")
+                f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {run.silent:>6} {replies:>15}")
         if extras:
             line += f"  {stream_cell(run, IMAGE_STATE):<30} {stream_cell(run, MAP_STATE):<30}"
         print(line)
-    print(f"\nrates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
+    print("\nsilent: heartbeats the broker did not acknowledge in time (each one is a failsafe stop of a driven robot)")
+    print(f"rates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
           "the scan is 5 Hz); age = arrival − the message's own timestamp")
 
 
@@ -323,7 +336,7 @@ def plot(runs: list[Run], plot_dir: Path) -> Path | None:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seconds", type=float, default=20.0, help="measured per row (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=12.0, help="measured per row (default: %(default)s)")
     p.add_argument("--rates", default="1000,256,64", help="uplinks in kbit/s (default: %(default)s; 1000 adds the "
                                                           "camera + map row)")
     p.add_argument("--modes", default="fifo,scheduled", help="bridge.uplink modes (default: %(default)s)")
@@ -376,8 +389,10 @@ def main(argv: list[str] | None = None) -> int:
                     run = one_run(case, mode, args.seconds, work, env, port, viewer, current)
                     runs.append(run)
                     print(f"  {case.label:<26} {mode:<10} motion {stream_cell(run, 'global_motion')}, "
-                          f"hb gap {heartbeat_gap(run):.2f} s, {len(run.replies)} replies"
-                          + (f" [{run.note}]" if run.note else ""), flush=True)
+                          f"hb gap {heartbeat_gap(run):.2f} s, {run.silent} silent, {len(run.replies)} replies"
+                          + (f" [{run.note}]" if run.note else "")
+                          + (f"\n      bridge: {run.link.summary()}" if run.link is not None else "")
+                          + "".join(f"\n      call failed: {why}" for why in run.failures[:3]), flush=True)
         except KeyboardInterrupt:
             print("weak_link: interrupted", file=sys.stderr)
             return 130

@@ -22,7 +22,7 @@ from typing import Any
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.endpoint import MAX_QUEUE_ALLOWANCE, CommandEndpoint
 from roslink_mqtt.bridge.presets import COMMAND_PRESETS
 from roslink_mqtt.bridge.refusals import REPORT_RATE
 from roslink_mqtt.bridge.routes import Inbound
@@ -110,10 +110,15 @@ class RecordingLink:
         self.connected = threading.Event()
         self.connected.set()
         self.sent: list[Published] = []
+        self.acked = True  # the broker acknowledges what is published
+        self.delay = 0.0  # what the uplink says a message waits in the network
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> Any:
         self.sent.append(Published(topic, payload, qos, retain))
-        return SimpleNamespace(is_published=lambda: True)
+        return SimpleNamespace(is_published=lambda: self.acked)
+
+    def queue_delay(self) -> float:
+        return self.delay
 
     def errors(self, user: str) -> list[ErrorReport]:
         return [ErrorReport.from_json(p.payload) for p in self.sent if p.topic == T.error("turtle1", user)]
@@ -196,6 +201,22 @@ def test_the_endpoint_module_imports_no_ros(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=no_ros_env(tmp_path), capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+# -- the link check ----------------------------------------------------------------------------------
+@pytest.mark.parametrize(("delay", "allowed"), [(0.0, 0.0), (0.6, 0.6), (30.0, MAX_QUEUE_ALLOWANCE)])
+def test_a_busy_uplink_gives_the_heartbeat_its_queue_time_but_a_silent_broker_still_counts(
+        h: Harness, delay: float, allowed: float) -> None:
+    """A heartbeat held behind data already in the network (a thin uplink) is slow, not lost: its PUBACK may take
+    link_timeout + that time, capped, so a frozen broker still stops the robot within link_timeout + the cap."""
+    h.link.acked, h.link.delay = False, delay
+    sent = time.monotonic()
+    h.endpoint.publish_heartbeat()
+    timeout = ROBOT.bridge.link_timeout
+    h.endpoint.supervise(sent + timeout + allowed - 0.05)
+    assert h.endpoint.failsafe.link_up
+    h.endpoint.supervise(time.monotonic() + timeout + allowed + 0.05)
+    assert not h.endpoint.failsafe.link_up
 
 
 # -- commands that go through ----------------------------------------------------------------------

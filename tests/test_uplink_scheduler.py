@@ -169,6 +169,8 @@ def test_later_lanes_get_what_the_earlier_ones_leave_and_a_little_more_to_probe(
     assert meter.allowance(2) == pytest.approx(PROBE * 16_000 - 16_000, rel=0.1)
     meter.lane_rates = [30_000.0, 0.0, 0.0]
     assert meter.allowance(1) == MIN_RATE  # never shut out completely: the budget always reopens
+    meter.lane_rates, meter.lane_demand = [2_000.0, 3_000.0, 0.0], [2_000.0, 35_000.0, 90_000.0]
+    assert meter.allowance(2) == MIN_RATE  # what state asks for comes first, even while bulk holds it back
 
 
 def test_a_new_connection_starts_a_new_counter_and_keeps_the_rate() -> None:
@@ -179,3 +181,28 @@ def test_a_new_connection_starts_a_new_counter_and_keeps_the_rate() -> None:
     assert meter.sample(t + 0.02, (10, 0), True) is None  # a lane came: a new window
     meter.reset()
     assert meter.rate == rate
+
+
+def test_lanes_of_one_tier_share_what_the_tiers_before_them_leave() -> None:
+    meter = LinkMeter(rate=100_000.0)
+    meter.lane_rates, meter.lane_demand = [10_000.0, 20_000.0, 0.0, 0.0], [10_000.0, 20_000.0, 500_000.0, 4_000.0]
+    tiers = (0, 1, 2, 2)  # main, state, camera, map
+    assert meter.allowance(2, tiers) == pytest.approx((PROBE * 100_000 - 30_000) / 2)
+    assert meter.allowance(3, tiers) == meter.allowance(2, tiers)  # the map is not starved by the camera's demand
+    assert meter.allowance(1, tiers) == pytest.approx(PROBE * 100_000 - 10_000)
+
+
+def test_ready_streams_in_service_order_and_taking_from_one() -> None:
+    s = UplinkScheduler()
+    cam = s.stream("state/camera", Priority.BULK, latest_only=True)
+    log = s.stream("state/log", Priority.STATE, latest_only=False)
+    pose = s.stream("state/pose", Priority.MOTION, latest_only=True)
+    s.offer(cam, _msg(cam.name, 1))
+    s.offer(log, _msg(log.name, 2))
+    s.offer(log, _msg(log.name, 3))
+    s.offer(pose, _msg(pose.name, 4))
+    assert [x.name for x in s.ready()] == [pose.name, log.name, cam.name]
+    assert s.take_from(log).payload == b"2" and [x.name for x in s.ready()] == [pose.name, log.name, cam.name]
+    assert s.drop(log) == 1 and log.dropped == 1 and [x.name for x in s.ready()] == [pose.name, cam.name]
+    assert s.drop(cam) == 1 and cam.dropped == 0  # a latest-only stream's waiting message is simply stale
+    assert s.waiting_bytes == 1

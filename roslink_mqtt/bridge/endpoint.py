@@ -52,12 +52,17 @@ log = logging.getLogger("roslink_mqtt.bridge")
 SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
 ACK_QOS = 1  # state/ack: the outcome of a command (and every failsafe stop) must not be lost
+MAX_QUEUE_ALLOWANCE = 1.0  # s a heartbeat's PUBACK may take beyond link_timeout because of a busy uplink
 
 
 class Link(Protocol):
     """The MQTT side: :class:`~roslink_mqtt.bridge.link.MqttLink`, or a recording stand-in in tests."""
 
     connected: threading.Event
+
+    def queue_delay(self) -> float:
+        """Seconds a message handed over now waits in the network before the broker has it (0: unknown)."""
+        ...
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> Any: ...
 
@@ -104,7 +109,8 @@ class CommandEndpoint:
         self.failsafe = Failsafe(settings.command_timeout)
         self.lock = threading.RLock()
         self._heartbeat_seq = self._ack_seq = 0
-        self._pending_heartbeat: tuple[float, Any] | None = None  # (sent at, paho info) awaiting PUBACK
+        # (deadline for its PUBACK, sent at, paho info): link_timeout after it, plus what it waits behind
+        self._pending_heartbeat: tuple[float, float, Any] | None = None
         self._stop_repeats_left = 0
         self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho threads; set.add is atomic)
         self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
@@ -350,17 +356,17 @@ class CommandEndpoint:
         pending = self._pending_heartbeat
         if pending is None:
             return
-        sent_at, info = pending
+        deadline, sent_at, info = pending
         if info.is_published():
             self._pending_heartbeat = None
             if not self.failsafe.link_up and self.link.connected.is_set():
                 self.failsafe.link_up = True
                 log.info("broker answers again")
-        elif now - sent_at > self.robot.bridge.link_timeout and self.failsafe.link_up:
+        elif now > deadline and self.failsafe.link_up:
             why = self.failsafe.link_lost()
             log.warning("broker silent for %.2f s", now - sent_at)
             if why:
-                self.trigger_stop(f"{why} (no answer for {self.robot.bridge.link_timeout:g} s)")
+                self.trigger_stop(f"{why} (no answer for {now - sent_at:.2g} s)")
 
     # -- supervision (executor, SUPERVISION_RATE) ------------------------------------------------
     def supervise(self, now: float) -> None:
@@ -395,7 +401,12 @@ class CommandEndpoint:
         info = self.link.publish(self.topics.heartbeat(self.robot.name), self.heartbeat(status), qos=1, retain=True)
         with self.lock:
             if info is not None and self._pending_heartbeat is None:
-                self._pending_heartbeat = (time.monotonic(), info)
+                # A thin uplink may hold the heartbeat behind data already in the network (at most the uplink's
+                # budget, bridge/uplink.py): slow is not silent, so the wait for its PUBACK grows by that time,
+                # capped so that a frozen broker still stops the robot within link_timeout + MAX_QUEUE_ALLOWANCE.
+                now = time.monotonic()
+                allowance = min(MAX_QUEUE_ALLOWANCE, max(0.0, self.link.queue_delay()))
+                self._pending_heartbeat = (now + self.robot.bridge.link_timeout + allowance, now, info)
 
     def publish_ack(self, command: int, sequence: int | None, result: AckResult, text: str) -> None:
         self._ack_seq = (self._ack_seq + 1) & 0xFFFFFFFF

@@ -66,6 +66,8 @@ class MqttLink:
         self.client.on_subscribe = self._handle_subscribe
         self._refused_logged = False
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
+        # s a message handed over now waits in the network; the uplink (bridge/uplink_sender.py) replaces it
+        self.queue_delay: Callable[[], float] = lambda: 0.0
 
     @property
     def url(self) -> BrokerUrl:

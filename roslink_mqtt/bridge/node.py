@@ -177,19 +177,21 @@ class Bridge:
             keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
             on_message=self._on_mqtt, on_up=self.on_link_up, on_down=self.on_link_down, ca_file=ca_file,
             max_payload=fleet.broker.max_payload)
-        # State and bulk streams leave on connections of their own (lanes), so a scan or a map that takes long to
-        # cross a thin link never sits in front of a heartbeat, an acknowledgement or a pose (bridge/uplink_sender.py)
+        # State streams, and each bulk stream, leave on connections of their own (lanes), so a scan or a map that
+        # takes long to cross a thin link never sits in front of a heartbeat, an acknowledgement, a pose or another
+        # bulk stream (bridge/uplink_sender.py). None in fifo mode: everything then goes out on the command link.
         scheduled = settings.uplink == "scheduled"
-        classes = {o.rule.priority for o in outbound}
 
         def lane(purpose: str) -> MqttLink:
             return MqttLink(client_id=bridge_client_id(robot.name, purpose), username=robot.name, password=password,
                             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=list,
                             on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload)
 
-        self.state_link = lane("state") if scheduled and Priority.STATE in classes else None
-        self.bulk_link = lane("bulk") if scheduled and Priority.BULK in classes else None
-        self.uplink = Uplink(self.link, self.state_link, self.bulk_link, fifo=not scheduled,
+        state_rules = [o for o in outbound if o.rule.priority is Priority.STATE]
+        bulk_rules = [o for o in outbound if o.rule.priority is Priority.BULK]
+        self.state_link = lane("state") if scheduled and state_rules else None
+        self.bulk_links = {o.topic: lane(f"bulk{i}") for i, o in enumerate(bulk_rules)} if scheduled else {}
+        self.uplink = Uplink(self.link, self.state_link, self.bulk_links, fifo=not scheduled,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
         for rule in outbound:
@@ -335,7 +337,7 @@ class Bridge:
     @property
     def lanes(self) -> list[MqttLink]:
         """The uplink's extra connections (state, bulk), started and stopped with the bridge."""
-        return [link for link in (self.state_link, self.bulk_link) if link is not None]
+        return ([self.state_link] if self.state_link is not None else []) + list(self.bulk_links.values())
 
     def _link_for(self, role: Role | None) -> MqttLink:
         """Which connection carries a user's traffic: operators' the command link, everyone else's their own."""

@@ -22,6 +22,7 @@ handed to the network and not yet seen delivered fall below :attr:`LinkMeter.bud
 from __future__ import annotations
 
 from collections import OrderedDict, deque
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 
 from ..config import Priority
@@ -81,10 +82,10 @@ class UplinkScheduler:
     def __bool__(self) -> bool:
         return any(self._ready)
 
-    def head(self) -> Priority | None:
-        """The class of the message that must leave next (the highest class waiting), or None."""
+    def head(self, skip: Collection[Priority] = ()) -> Priority | None:
+        """The class of the message that must leave next (the highest class waiting, but none of ``skip``)."""
         for priority, ready in enumerate(self._ready):
-            if ready:
+            if ready and priority not in skip:
                 return Priority(priority)
         return None
 
@@ -115,13 +116,13 @@ class UplinkScheduler:
             ready[stream.name] = stream  # a replaced slot keeps its place in line
         return replaced
 
-    def take(self, below: Priority | None = None) -> tuple[Stream, Outgoing] | None:
+    def take(self, below: Priority | None = None, only: Priority | None = None) -> tuple[Stream, Outgoing] | None:
         """The next message for the link: the highest class first, streams of a class in turn (of a class served
-        before ``below``, when given)."""
+        before ``below``, or of class ``only``, when given)."""
         for priority, ready in enumerate(self._ready):
             if below is not None and priority >= below:
                 return None
-            if not ready:
+            if not ready or (only is not None and priority != only):
                 continue
             name, stream = next(iter(ready.items()))
             message = stream.waiting.popleft()
@@ -133,6 +134,33 @@ class UplinkScheduler:
             stream.bytes_sent += message.size
             return stream, message
         return None
+
+    def ready(self) -> list[Stream]:
+        """The streams with something waiting, in the order they are served: highest class first, then the one
+        waiting longest."""
+        return [stream for ready in self._ready for stream in ready.values()]
+
+    def take_from(self, stream: Stream) -> Outgoing:
+        """The oldest message of ``stream`` (which must have one); the stream goes behind the others of its class."""
+        ready = self._ready[stream.priority]
+        message = stream.waiting.popleft()
+        self.waiting_bytes -= len(message.payload)
+        del ready[stream.name]
+        if stream.waiting:
+            ready[stream.name] = stream
+        stream.sent += 1
+        stream.bytes_sent += message.size
+        return message
+
+    def drop(self, stream: Stream) -> int:
+        """Drop what ``stream`` has waiting (its connection went); ordered streams count it as dropped."""
+        count = len(stream.waiting)
+        if not stream.latest_only:
+            stream.dropped += count
+        self.waiting_bytes -= sum(len(m.payload) for m in stream.waiting)
+        stream.waiting.clear()
+        self._ready[stream.priority].pop(stream.name, None)
+        return count
 
     def drop_all(self, priority: Priority | None = None) -> int:
         """The broker is gone: waiting state is stale by the time it returns (never replayed). Returns how many.
@@ -173,9 +201,10 @@ class LinkMeter:
 
     * ``budget`` = rate × (round trip + ``target_delay``): enough to keep the link busy, little enough that a new
       message never waits long behind old ones.
-    * ``allowance(i)``: the rate lane ``i`` may hand over, = PROBE × rate − what the lanes before it delivered
-      (never below MIN_RATE). The lanes after the main one get what control and motion leave; offering a little
-      more than the estimate (PROBE) is what lets the estimate find a faster link.
+    * ``allowance(i)``: the rate lane ``i`` may hand over, = PROBE × rate − what the lanes before it need (the
+      larger of what they delivered and what was offered to them; never below MIN_RATE). The state lane gets what
+      control and motion leave, the bulk lane what state leaves too; offering a little more than the estimate
+      (PROBE) is what lets the estimate find a faster link.
     """
 
     rate: float = INITIAL_RATE  # bytes/s
@@ -183,31 +212,45 @@ class LinkMeter:
     min_rtt: float = 0.0  # s, as the kernel measured it
     measured: bool = False  # a capacity measurement has been made
     lane_rates: list[float] = field(default_factory=list)  # bytes/s each lane delivered in the last window
+    lane_demand: list[float] = field(default_factory=list)  # bytes/s offered to each lane in the last window
     _since: float | None = None
     _acked: tuple[int, ...] = ()
+    _offered: tuple[int, ...] = ()
     _limited: bool = True  # every sample of the window found bytes waiting in the network
 
     @property
     def budget(self) -> int:
         return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate * (self.min_rtt + self.target_delay))))
 
-    def allowance(self, lane: int) -> float:
-        return max(MIN_RATE, PROBE * self.rate - sum(self.lane_rates[:lane]))
+    def allowance(self, lane: int, tiers: Sequence[int] | None = None) -> float:
+        """Bytes/s lane ``lane`` may hand over: what the lanes of earlier tiers (``tiers[i]`` is lane i's; by
+        default each lane its own tier) need, taken from PROBE × rate, shared by the busy lanes of its tier."""
+        tiers = tiers if tiers is not None else range(len(self.lane_rates))
+        rates = self.lane_rates + [0.0] * (len(tiers) - len(self.lane_rates))
+        demand = self.lane_demand + [0.0] * (len(tiers) - len(self.lane_demand))
+        mine = tiers[lane] if lane < len(tiers) else lane
+        need = sum(max(rates[i], demand[i]) for i, tier in enumerate(tiers) if tier < mine)
+        peers = sum(1 for i, tier in enumerate(tiers) if tier == mine and (demand[i] > 0 or i == lane))
+        return max(MIN_RATE, (PROBE * self.rate - need) / max(1, peers))
 
-    def sample(self, now: float, acked: tuple[int, ...], limited: bool, min_rtt: float | None = None) -> float | None:
-        """Feed each lane's delivered-bytes counter (monotonic within one connection) and whether bytes wait in the
-        network now (``limited``: the link is busy); the window's total rate when a window closed, else None."""
+    def sample(self, now: float, acked: tuple[int, ...], limited: bool, min_rtt: float | None = None,
+               offered: tuple[int, ...] = ()) -> float | None:
+        """Feed each lane's delivered-bytes counter (monotonic within one connection), whether bytes wait in the
+        network now (``limited``: the link is busy) and each lane's offered-bytes counter; the window's total
+        rate when a window closed, else None."""
         if min_rtt is not None:
             self.min_rtt = min_rtt
         if (self._since is None or len(acked) != len(self._acked)
                 or any(a < b for a, b in zip(acked, self._acked, strict=True))):  # a new connection's counter
-            self._since, self._acked, self._limited = now, acked, limited
+            self._since, self._acked, self._offered, self._limited = now, acked, offered, limited
             return None
         self._limited = self._limited and limited
         elapsed = now - self._since
         if elapsed < WINDOW:
             return None
         self.lane_rates = [(a - b) / elapsed for a, b in zip(acked, self._acked, strict=True)]
+        if len(offered) == len(self._offered):
+            self.lane_demand = [(a - b) / elapsed for a, b in zip(offered, self._offered, strict=True)]
         delivered = sum(self.lane_rates)
         if self._limited:
             self.rate = delivered if not self.measured else 0.5 * self.rate + 0.5 * delivered
@@ -215,9 +258,9 @@ class LinkMeter:
             self.measured = True
         elif delivered > self.rate:
             self.rate = delivered
-        self._since, self._acked, self._limited = now, acked, True
+        self._since, self._acked, self._offered, self._limited = now, acked, offered, True
         return delivered
 
     def reset(self) -> None:
         """A new connection: its counter starts again (the rate learnt so far is kept as the first guess)."""
-        self._since, self._acked, self._limited = None, (), True
+        self._since, self._acked, self._offered, self._limited = None, (), (), True

@@ -23,6 +23,7 @@ import struct
 import termios
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -80,38 +81,43 @@ class Lane:
     """One MQTT connection the uplink sends on, and the classes it carries."""
 
     link: MqttLink
-    classes: frozenset[Priority]
-    index: int  # its place in the order of lanes (main first): the lanes before it are served first
+    index: int  # its place in the order of lanes (main first)
+    tier: int  # 0 main (control, motion), 1 state, 2 bulk: a tier gets what the tiers before it leave
     paced: bool  # a small send buffer, one message at a time, and an allowance: never crowds the link for long
     sndbuf: int = 0  # what SO_SNDBUF was last set to
     credit: float = 0.0  # bytes it may still hand over (its allowance accrues here; a message may overdraw it)
+    offered: int = 0  # bytes offered to its classes since it was made (its demand, superseded messages included)
     refilled: float = 0.0  # monotonic: when credit last accrued
 
 
 class Uplink:
     """Where the rules' state goes: ``offer`` from any thread; a sender thread drains what had to wait.
 
-    ``state_link`` / ``bulk_link``: the connections for state and bulk streams (None: those streams use the one
-    before). Each is paced: its send buffer is about the budget and it gets its next message only once paho has
-    written the last one, so a 7 kB scan or a 4 MB map never sits in front of a heartbeat or a pose; the link
-    interleaves their packets with the main connection's.
+    ``state_link``: the connection for state streams; ``bulk_links``: one connection per bulk stream (by topic),
+    so a 4 MB map that takes a minute to cross never holds up the camera. Streams without one use the lane before
+    (bulk → state → main). Each of these lanes is paced: its send buffer is about the budget, it gets its next
+    message only once paho has written the last one, and it hands over no more than its allowance (what the tiers
+    before it leave, shared by the lanes of its tier), so a 7 kB scan or a 4 MB map never sits in front of a
+    heartbeat or a pose; the link interleaves their packets with the main connection's.
     """
 
-    def __init__(self, main: MqttLink, state_link: MqttLink | None = None, bulk_link: MqttLink | None = None, *,
-                 fifo: bool = False, target_delay: float = TARGET_DELAY, report_topic: str | None = None) -> None:
+    def __init__(self, main: MqttLink, state_link: MqttLink | None = None,
+                 bulk_links: Mapping[str, MqttLink] | None = None, *, fifo: bool = False,
+                 target_delay: float = TARGET_DELAY, report_topic: str | None = None) -> None:
         """``fifo``: hand every message to paho at once, on the main connection (robots.yaml ``uplink: fifo``).
         ``report_topic``: where the retained :class:`LinkReport` goes every LINK_REPORT_PERIOD (None: nowhere)."""
         self.fifo, self.report_topic = fifo, report_topic
-        self.main = Lane(main, frozenset(Priority), 0, paced=False)
+        self.main = Lane(main, 0, 0, paced=False)
         self.lanes = [self.main]
-        self._lane_of = {p: self.main for p in Priority}
+        self.state_lane = self.main
+        self._bulk_lanes: dict[str, Lane] = {}
         if not fifo:
-            for link, classes in ((state_link, (Priority.STATE, Priority.BULK)), (bulk_link, (Priority.BULK,))):
-                if link is not None:
-                    lane = Lane(link, frozenset(classes), len(self.lanes), paced=True)
-                    self.lanes.append(lane)
-                    self._lane_of.update({p: lane for p in classes})
-                    self._watch_socket(lane)
+            if state_link is not None:
+                self.state_lane = self._add_lane(state_link, 1)
+            for topic, link in (bulk_links or {}).items():
+                self._bulk_lanes[topic] = self._add_lane(link, 2)
+        self._tiers = tuple(lane.tier for lane in self.lanes)
+        main.queue_delay = self.queue_delay
         self.scheduler = UplinkScheduler()
         self.meter = LinkMeter(target_delay=target_delay)
         self.lock = threading.Condition()
@@ -121,6 +127,27 @@ class Uplink:
         self._labels: dict[str, tuple[str, float | None]] = {}  # stream → (state name, max_rate)
         self._counts: dict[str, tuple[int, int, int, int, int]] = {}  # stream → its counters at the last report
         self._reported = time.monotonic()
+
+    def queue_delay(self) -> float:
+        """Seconds a message handed to the main connection now waits before the broker has it: everything the
+        bridge's connections hold in the network, at the measured rate (a modem's queue is first in, first out)."""
+        held = paho_unsent(self.main.link.client) + sum(kernel_unsent(raw_socket(lane.link.client))
+                                                        for lane in self.lanes)
+        return held / self.meter.rate if held else 0.0
+
+    def _add_lane(self, link: MqttLink, tier: int) -> Lane:
+        lane = Lane(link, len(self.lanes), tier, paced=True)
+        self.lanes.append(lane)
+        self._watch_socket(lane)
+        return lane
+
+    def lane_of(self, stream: Stream) -> Lane:
+        """The connection ``stream`` leaves on."""
+        if stream.priority <= Priority.MOTION:
+            return self.main
+        if stream.priority is Priority.BULK:
+            return self._bulk_lanes.get(stream.name, self.state_lane)
+        return self.state_lane
 
     def _watch_socket(self, lane: Lane) -> None:
         """Size a paced lane's send buffer as soon as its socket exists (TCP_NODELAY stays)."""
@@ -159,9 +186,10 @@ class Uplink:
                 stream.bytes_sent += len(payload) + len(topic) + 4
             self.main.link.publish(topic, payload, qos, retain)
             return
-        lane = self._lane_of[stream.priority]
+        lane = self.lane_of(stream)
         message = Outgoing(topic, payload, qos, retain, time.monotonic())
         with self.lock:
+            lane.offered += message.size
             if not lane.link.connected.is_set():
                 stream.offered += 1
                 self.not_connected += 1
@@ -170,6 +198,8 @@ class Uplink:
                 return
             self._refill(lane, message.queued_at)
             if not self.scheduler.has_waiting(below=stream.priority + 1) and self._blocked(lane, 0) is None:
+                # nothing of this class or above waits: straight to paho (a lower class waiting behind a busy
+                # lane of its own goes through the sender thread, which knows why that lane waits)
                 stream.offered += 1
                 stream.sent += 1
                 stream.bytes_sent += message.size
@@ -196,8 +226,8 @@ class Uplink:
 
     def _refill(self, lane: Lane, now: float) -> None:
         if lane.paced:
-            lane.credit = min(float(self.meter.budget),
-                              lane.credit + self.meter.allowance(lane.index) * max(0.0, now - lane.refilled))
+            allowance = self.meter.allowance(lane.index, self._tiers)
+            lane.credit = min(float(self.meter.budget), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
 
     # -- the sender thread ----------------------------------------------------------------------------------
@@ -236,24 +266,36 @@ class Uplink:
                           meter.budget, round(meter.min_rtt * 1000, 2), round(period, 2), streams)
 
     def _pump(self, now: float) -> None:
+        """Hand over what waits, the highest class first, then the stream waiting longest. A full main connection
+        (the link is congested) stops everything; a paced lane that is busy or out of allowance only stops its
+        own streams, and the link's room goes to the next stream on another lane (bulk gets what is left)."""
         self._measure(now)
         for lane in self.lanes:
             self._refill(lane, now)
         handed: dict[int, int] = {}
-        while (head := self.scheduler.head()) is not None:
-            lane = self._lane_of[head]
-            if not lane.link.connected.is_set():
-                self.not_connected += self.scheduler.drop_all(head)  # stale by the time it is back: never replayed
-                continue
-            if self._blocked(lane, handed.get(lane.index, 0)) is not None:
-                return  # strict priority: nothing of a lower class overtakes the head
-            taken = self.scheduler.take()
-            assert taken is not None
-            message = taken[1]
-            lane.link.publish(message.topic, message.payload, message.qos, message.retain)
-            handed[lane.index] = handed.get(lane.index, 0) + message.size
-            if lane.paced:
-                lane.credit -= message.size
+        blocked: set[int] = set()
+        progress = True
+        while progress:
+            progress = False
+            for stream in self.scheduler.ready():
+                lane = self.lane_of(stream)
+                if lane.index in blocked:
+                    continue
+                if not lane.link.connected.is_set():
+                    self.not_connected += self.scheduler.drop(stream)  # stale by the time it is back: not replayed
+                    continue
+                if self._blocked(lane, handed.get(lane.index, 0)) is not None:
+                    if not lane.paced:
+                        return  # strict priority: nothing of a lower class overtakes a congested link
+                    blocked.add(lane.index)
+                    continue
+                message = self.scheduler.take_from(stream)
+                lane.link.publish(message.topic, message.payload, message.qos, message.retain)
+                handed[lane.index] = handed.get(lane.index, 0) + message.size
+                if lane.paced:
+                    lane.credit -= message.size
+                progress = True
+                break  # from the top: the order may have changed
 
     def _measure(self, now: float) -> None:
         """Feed the meter every lane's delivered bytes; resize the paced lanes' buffers when a window closes."""
@@ -270,7 +312,8 @@ class Uplink:
             if sample is not None and sample[1] is not None:
                 min_rtt = sample[1] if min_rtt is None else min(min_rtt, sample[1])
         # The link was the limit if bytes waited in the network at every look of the window: it never idled.
-        if self.meter.sample(now, tuple(acked), queued > 0, min_rtt) is not None:
+        offered = tuple(lane.offered for lane in self.lanes)
+        if self.meter.sample(now, tuple(acked), queued > 0, min_rtt, offered) is not None:
             log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s", self.meter.rate,
                       "measured" if self.meter.measured else "assumed", self.meter.budget,
                       [round(r) for r in self.meter.lane_rates])
