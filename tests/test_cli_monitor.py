@@ -15,6 +15,7 @@ from roslink_mqtt.cli import monitor_cmd
 from roslink_mqtt.cli.monitor_view import HEADERS, FleetView, Row, fit_columns, number, presence
 from roslink_mqtt.client import Ack, GlobalMotion, GpsRawInfo, RobotError, RobotInfo, RobotStatus
 from roslink_mqtt.protocol import AckResult, FlightMode, RobotType, SystemStatus
+from roslink_mqtt.protocol.link import LinkReport, StreamReport
 
 from .support.procs import ROOT
 from .support.robot_stack import turtle1_online
@@ -76,8 +77,24 @@ def test_row_with_every_stream() -> None:
     assert row == Row(robot="turtle1", presence="online", status="active", type="ground", mode="manual",
                       owner="alice", battery="87%", voltage="12.1V", x="1.50", y="-2.25", yaw="90", vx="0.30",
                       wz="-0.50", gps="3D", lat="24.713600", lon="46.675300", rate="-", age="0.4s",
-                      ack="failsafe: operator alice went away")
+                      link="-", ack="failsafe: operator alice went away")
     assert view.seen() == ["turtle1"]
+
+
+def test_the_uplink_column_shows_the_rate_and_the_stream_furthest_behind() -> None:
+    view = FleetView(clock=FakeClock(10.0))
+    view.watch("turtle1")
+    view.record_link("turtle1", {"not": "a report"})  # a generic rule's dict on that name: ignored
+    assert only_row(view).link == "-"
+    report = LinkReport("scheduled", 243.6, True, 3300, 81.0, 2.0, {
+        "global_motion": StreamReport("motion", True, 10.0, 10.0),
+        "range_finder_data": StreamReport("state", True, 5.0, 3.9, superseded=2),
+        "gps_raw_info": StreamReport("state", True, 1.0, 0.5)})
+    view.record_link("turtle1", report)
+    assert only_row(view).link == "244k gps_raw_info 0.5/1"
+    view.record_link("turtle1", LinkReport("scheduled", 900.0, False, 20000, 1.0, 2.0, {
+        "global_motion": StreamReport("motion", True, 10.0, 10.0)}))
+    assert only_row(view).link == "≥900k"  # the link had room: its rate is at least this
 
 
 def test_presence_online_offline_stale() -> None:

@@ -17,7 +17,7 @@ import orjson
 import pytest
 
 from roslink_mqtt.client import RobotClient
-from roslink_mqtt.localproc import free_port
+from roslink_mqtt.localproc import free_port, wait_for_port
 from roslink_mqtt.protocol.link import LinkReport
 
 from .support.broker_setup import write_fleet
@@ -164,3 +164,59 @@ def test_the_same_scene_in_fifo_mode_piles_up_stale_poses(tmp_path) -> None:
     ages = [age for _, _, age in seen["poses"]]
     assert ages and _quantile(ages, 0.9) > 1.5, f"FIFO poses p90 {_quantile(ages, 0.9) if ages else None}"
     assert seen["link"] is None or seen["link"].mode == "fifo"  # its own report waits in the same queue
+
+
+@pytest.mark.parametrize("conflate", [True, False], ids=["conflated", "fifo-control"])
+def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp_path, conflate: bool) -> None:
+    """A phone on a 256 kbit/s downlink subscribes to a robot's camera (1.6 Mbit/s) and pose: the embedded broker
+    holds one latest-wins slot per state topic for it once its connection is backed up, so its poses stay fresh.
+    ``conflate_backlog=0`` (first in, first out, like Mosquitto's queue) is the control: poses go stale."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CompressedImage
+
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", RULES, 1))
+    extra = () if conflate else ("--limit", "conflate_backlog=0")
+    ages: list[float] = []
+    with EmbeddedBrokerProcess(tmp_path, fleet, *extra) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--down-kbit", "256"],
+                 tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{broker.port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(link_port, "bob", "bob-demo") as phone:
+            wait_for_port(link_port)
+            probe = RosProbe()
+            recording = threading.Event()
+
+            def on_message(_c, _u, m) -> None:
+                if recording.is_set() and m.topic.endswith("/state/pose"):
+                    ages.append(time.time() - orjson.loads(m.payload)["payload"]["time_boot_ms"] / 1000)
+
+            try:
+                assert phone.connect(timeout=10) == 0
+                phone.client.on_message = on_message
+                phone.subscribe("roslink/turtle1/state/#", qos=0)
+                odom = probe.publisher(Odometry, "/wl/odom")
+                camera = probe.publisher(CompressedImage, "/wl/camera")
+                frame = CompressedImage(format="jpeg", data=bytes(20_000))
+                end = time.monotonic() + 3 + MEASURE
+                while time.monotonic() < end:  # 10 Hz poses and camera frames
+                    if time.monotonic() > end - MEASURE:
+                        recording.set()
+                    msg = Odometry()
+                    now = time.time()
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                    odom.publish(msg)
+                    camera.publish(frame)
+                    time.sleep(0.1)
+            finally:
+                probe.close()
+        broker_log = broker.output()
+    assert ages, "no pose reached the phone"
+    if conflate:
+        assert _quantile(ages, 0.9) < 1.5, f"poses to a slow viewer are stale: p90 {_quantile(ages, 0.9):.2f} s"
+        assert len(ages) >= 2 * MEASURE, f"only {len(ages)} poses in {MEASURE} s"
+        assert "state topics are conflated" in broker_log
+    else:
+        assert _quantile(ages, 0.9) > 1.5, f"FIFO to a slow viewer kept poses fresh? p90 {_quantile(ages, 0.9):.2f}"

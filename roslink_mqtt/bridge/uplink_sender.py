@@ -16,17 +16,15 @@ the order of classes holds at hand-over: nothing of a lower class is handed over
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import socket
-import struct
-import termios
 import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from .. import netstat
 from ..config import Priority
 from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, StreamReport
 from .link import MqttLink
@@ -35,40 +33,15 @@ from .uplink import TARGET_DELAY, LinkMeter, Outgoing, Stream, UplinkScheduler
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
-_TCP_INFO_BYTES_ACKED = 120  # offsets in Linux's struct tcp_info (stable ABI: fields are only ever appended)
-_TCP_INFO_MIN_RTT = 148
 
 
 def raw_socket(client: Any) -> socket.socket | None:
     """The TCP socket under a paho client (plain, TLS, or inside the websocket wrapper); None while unconnected."""
-    sock = client.socket()
-    sock = getattr(sock, "_socket", sock)
-    return sock if sock is not None and hasattr(sock, "fileno") else None
+    return netstat.raw_socket(client.socket())
 
 
-def kernel_unsent(sock: socket.socket | None) -> int:
-    """Bytes written to ``sock`` that the peer has not acknowledged yet (SIOCOUTQ)."""
-    if sock is None:
-        return 0
-    try:
-        return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
-    except (OSError, ValueError):
-        return 0
-
-
-def delivered(sock: socket.socket | None) -> tuple[int, float | None] | None:
-    """(bytes the peer acknowledged since the connection began, the least round trip seen in s), or None."""
-    if sock is None:
-        return None
-    try:
-        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 160)
-    except (OSError, ValueError):
-        return None
-    if len(info) < _TCP_INFO_MIN_RTT + 4:
-        return None
-    acked = struct.unpack_from("Q", info, _TCP_INFO_BYTES_ACKED)[0]
-    min_rtt = struct.unpack_from("I", info, _TCP_INFO_MIN_RTT)[0]
-    return acked, (min_rtt / 1e6 if min_rtt else None)
+kernel_unsent = netstat.unacked
+delivered = netstat.delivered
 
 
 def paho_unsent(client: Any) -> int:

@@ -293,6 +293,9 @@ class LiveFleet:
 RETAINABLE_VERBS = frozenset(v for v in Verb if v.sent_by_user and v.retained_by_sender)
 
 
+CONTROL_STATE_NAMES = frozenset({"ack"})  # state a slow client must get every message of
+
+
 class TopicPolicy:
     """Per-topic and per-login rules beyond read/write: payload caps, retain refusals, retained quotas.
 
@@ -309,6 +312,12 @@ class TopicPolicy:
         if topic.startswith(self.live.fleet.topics.operators_prefix()):
             return self.limits.max_presence_bytes
         return 0
+
+    def conflatable(self, topic: str) -> bool:
+        """Whether a slow client may get only the newest message of ``topic``: robots' state, not acknowledgements
+        (asked only for clients that are backed up)."""
+        parsed = self.live.fleet.topics.parse(topic)
+        return parsed is not None and parsed.kind is Kind.STATE and parsed.name not in CONTROL_STATE_NAMES
 
     def retain_refusal(self, topic: str) -> str | None:
         """Why a retained PUBLISH on ``topic`` is refused, or None."""

@@ -73,6 +73,11 @@ behaviour.
 25. **QoS 0 deliveries are written straight to a TCP client's transport**, whole packets in broadcast order,
     bounded by the outbox (17); stock runs a Task per delivery (packet objects, write lock, ``drain()``, a timer
     and a plugin event each). WebSocket clients and QoS 1/2 keep amqtt's path.
+26. **Slow viewers get fresh state** (:class:`~.conflate.Conflator`): while a client's connection holds more than
+    ``conflate_backlog`` bytes it has not acknowledged (its socket buffer and the kernel's, ``SIOCOUTQ``), QoS 0
+    deliveries of robots' ``state/…`` topics (not ``state/ack``) wait in one slot per topic, latest wins, and are
+    written once the backlog has drained to half. Stock (and Mosquitto) queue them first in, first out until a
+    limit, then drop the newest.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -121,6 +126,8 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.session import Session
 from amqtt.utils import gen_client_id
 
+from .. import netstat
+from .conflate import Conflator
 from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, Pacer, PacketGate, PacketRefused, SafeWebSocketsReader
 from .limits import BrokerLimits, RetainedIndex, RetainedQuota
 from .outbox import Outbox, Verdict
@@ -141,6 +148,14 @@ ATTR_LISTENER = "roslink.listener"
 ATTR_CLIENT_ID = "roslink.client_id"  # the client id the client sent (session.client_id is login-scoped)
 ATTR_OUTBOX = "roslink.outbox"  # Outbox: deliveries under way to this client
 ATTR_FILTERS = "roslink.filters"  # set of the filters this session holds (bounded by max_subscriptions)
+ATTR_CONFLATE = "roslink.conflate"  # Conflator: latest-wins state slots while the client is backed up
+ATTR_BACKLOG = "roslink.backlog"  # (monotonic time, bytes, threshold): the client's last measured backlog
+ATTR_RATE = "roslink.rate"  # (monotonic time, bytes acknowledged, bytes/s): the client's delivery rate
+RATE_WINDOW = 0.5  # s over which a backed-up client's delivery rate is measured
+BACKLOG_EVERY = 0.01  # s: a client's backlog is measured at most this often (a system call per look)
+CONFLATE_DELAY = 0.25  # s: a backlog this long at the client's own delivery rate is a backed-up client (a fast,
+# far client holds its bandwidth-delay product in flight and is not slow)
+FLUSH_POLL = 0.02  # s between looks at a backed-up client's backlog while state waits for it
 _ATTR_LOGGED = "roslink.logged"
 
 _PUB_QOS: contextvars.ContextVar[int | None] = contextvars.ContextVar("roslink_pub_qos", default=None)
@@ -593,10 +608,94 @@ class HardenedBroker(Broker):
 
     def _deliver(self, target: Session, topic: str, data: bytes | bytearray, qos: int,
                  *, retain: bool) -> asyncio.Future[Any] | None:
-        """Start one delivery unless the client already has too much waiting (fix 17)."""
+        """Start one delivery, or hold it in its state slot while the client is backed up (fix 26)."""
         handler = self._get_handler(target)
         if handler is None:
             return None
+        if qos == 0 and data is not None and self.limits.conflate_backlog and self.policy is not None:
+            conflator: Conflator | None = target.attributes.get(ATTR_CONFLATE)
+            if (conflator or self._backed_up(target, handler)) and self.policy.conflatable(topic):
+                if conflator is None:
+                    conflator = target.attributes[ATTR_CONFLATE] = Conflator(self.limits.max_conflated_topics,
+                                                                             self.limits.max_queued_bytes)
+                if conflator.hold(topic, data, retain):
+                    _log_once(target, "conflate", logging.INFO, "slow consumer %s: over %d bytes unacknowledged; "
+                              "its state topics are conflated (latest wins)", describe_session(target),
+                              self.limits.conflate_backlog)
+                    if not conflator.flush_scheduled:
+                        conflator.flush_scheduled = True
+                        asyncio.get_running_loop().call_later(FLUSH_POLL, self._flush_conflated, target, conflator)
+                    return None
+        return self._send(handler, target, topic, data, qos, retain=retain)
+
+    def _backlog(self, target: Session, handler: BrokerProtocolHandler) -> tuple[int, int]:
+        """(bytes on their way to the client that it has not acknowledged — the transport's buffer and the kernel's —,
+        the backlog over which it is backed up: ``conflate_backlog``, or what its own delivery rate carries in
+        CONFLATE_DELAY if more, since a fast client far away keeps much in flight and is not slow). Measured at
+        most every BACKLOG_EVERY s."""
+        now = time.monotonic()
+        last = target.attributes.get(ATTR_BACKLOG)
+        if last is not None and now - last[0] < BACKLOG_EVERY:
+            return last[1], last[2]
+        transport = _transport(handler.writer)
+        sock = transport.get_extra_info("socket") if transport is not None else None
+        backlog, threshold = write_buffer_size(handler.writer) + netstat.unacked(sock), self.limits.conflate_backlog
+        if backlog > threshold:
+            threshold = max(threshold, int(self._delivery_rate(target, sock, now) * CONFLATE_DELAY))
+        target.attributes[ATTR_BACKLOG] = (now, backlog, threshold)
+        return backlog, threshold
+
+    @staticmethod
+    def _delivery_rate(target: Session, sock: Any, now: float) -> float:
+        """Bytes/s the client acknowledged over the last RATE_WINDOW or more (the kernel's own delivery-rate sample
+        is per burst: megabytes a second on a loopback hop in front of a slow link)."""
+        sample = netstat.delivered(sock)
+        if sample is None:
+            return 0.0
+        last = target.attributes.get(ATTR_RATE)
+        if last is None or sample[0] < last[1]:
+            target.attributes[ATTR_RATE] = (now, sample[0], 0.0)
+            return 0.0
+        if now - last[0] < RATE_WINDOW:
+            return last[2]
+        rate = (sample[0] - last[1]) / (now - last[0])
+        target.attributes[ATTR_RATE] = (now, sample[0], rate)
+        return rate
+
+    def _backed_up(self, target: Session, handler: BrokerProtocolHandler) -> bool:
+        backlog, threshold = self._backlog(target, handler)
+        return backlog > threshold
+
+    def _flush_conflated(self, target: Session, conflator: Conflator) -> None:
+        """Write what the client's backlog has room for (``Conflator.release``); look again soon while any waits."""
+        handler = self._get_handler(target)
+        if handler is None or target.transitions.state != "connected":
+            conflator.clear()  # gone: its next session starts afresh (retained state included)
+            conflator.flush_scheduled = False
+            return
+        target.attributes.pop(ATTR_BACKLOG, None)  # measure now
+        backlog, threshold = self._backlog(target, handler)
+        transport = _transport(handler.writer)
+        sample = netstat.delivered(transport.get_extra_info("socket") if transport is not None else None)
+        if sample is not None and backlog > threshold:
+            stalled = conflator.progress(sample[0], time.monotonic())
+            if stalled > self.limits.slow_consumer_timeout:  # it stopped reading: bounded, then dropped (fix 17)
+                conflator.clear()
+                conflator.flush_scheduled = False
+                _drop_connection(handler, f"slow consumer: over its queue limit for {stalled:.0f} s without reading "
+                                          f"({conflator.superseded} state messages superseded)")
+                return
+        for topic, data, retain in conflator.release(backlog, threshold):
+            self._send(handler, target, topic, data, 0, retain=retain)
+        target.attributes.pop(ATTR_BACKLOG, None)  # what was just written counts at the next look
+        if conflator:
+            asyncio.get_running_loop().call_later(FLUSH_POLL, self._flush_conflated, target, conflator)
+        else:
+            conflator.flush_scheduled = False
+
+    def _send(self, handler: BrokerProtocolHandler, target: Session, topic: str, data: bytes | bytearray,
+              qos: int, *, retain: bool) -> asyncio.Future[Any] | None:
+        """Start one delivery unless the client already has too much waiting (fix 17)."""
         outbox: Outbox | None = target.attributes.get(ATTR_OUTBOX)
         if outbox is None:
             outbox = target.attributes[ATTR_OUTBOX] = Outbox()

@@ -32,6 +32,10 @@ class BrokerLimits:
     max_queued_messages: int = 1000  # deliveries waiting for one slow client
     max_queued_bytes: int = 2 * MIB  # bytes waiting for one slow client (socket buffer included)
     slow_consumer_timeout: float = 30.0  # s a client may stay over the queue limit before it is dropped
+    # bytes a client's connection may hold unacknowledged before robots' state to it is conflated, latest wins
+    # per topic (hardened fix 26; 0 = never: first in, first out up to the limits above)
+    conflate_backlog: int = 16 * KIB  # (raised to what the client's own rate carries in 0.25 s: far is not slow)
+    max_conflated_topics: int = 1024  # state topics one backed-up client may have waiting (more: dropped)
     max_offline_messages: int = 1000  # QoS 1/2 messages kept for one disconnected persistent session
     retained_bytes_robot: int = 16 * MIB  # retained payload bytes one robot login may keep
     retained_bytes_user: int = 64 * KIB  # retained payload bytes one user login may keep (admins: total only)

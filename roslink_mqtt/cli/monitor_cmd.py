@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..client import RobotClient
+from ..protocol.link import LINK
 from .connect import add_connection_options, open_client
 from .monitor_view import ACK_MIN_WIDTH, HEADERS, MISSING, STATE_NAMES, FleetView, Row, fit_columns
 
@@ -103,6 +104,7 @@ class StateFollower:
             self.followed.add(robot)
             for name in STATE_NAMES:
                 self.client.subscribe(robot, name, self.view.record)
+            self.client.subscribe(robot, LINK, lambda report, robot=robot: self.view.record_link(robot, report))
 
 
 def _collect(follower: StateFollower, seconds: float, period: float) -> None:

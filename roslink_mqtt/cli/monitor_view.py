@@ -22,6 +22,7 @@ from ..client.directory import RobotInfo
 from ..client.errors import RobotError
 from ..client.messages import Ack, GlobalMotion, GpsRawInfo, RobotStatus
 from ..protocol import AckResult, SystemStatus
+from ..protocol.link import LinkReport
 from ..topics import Kind, TopicTree
 
 # The state streams the monitor subscribes to for every robot it watches (topic leaves under state/).
@@ -54,11 +55,12 @@ class Row(NamedTuple):
     lon: str
     rate: str
     age: str
+    link: str
     ack: str
 
 
 HEADERS = Row("robot", "presence", "status", "type", "mode", "owner", "batt", "volt", "x m", "y m", "yaw°",
-              "vx m/s", "wz rad/s", "gps", "lat", "lon", "motion Hz", "age", "ack / failsafe")
+              "vx m/s", "wz rad/s", "gps", "lat", "lon", "motion Hz", "age", "uplink", "ack / failsafe")
 
 
 @dataclass
@@ -68,6 +70,7 @@ class _Robot:
     motion: Any = None  # GlobalMotion
     gps: Any = None  # GpsRawInfo
     ack: Any = None  # Ack
+    link: Any = None  # LinkReport (state/link)
     newest: float | None = None  # clock time of the newest state message of any kind
     motion_first: float | None = None  # when global_motion first arrived (the rate window is not full before)
     motion_times: collections.deque[float] = field(default_factory=collections.deque)
@@ -185,6 +188,13 @@ class FleetView:
                 entry.motion_times.append(now)
                 self._trim(entry, now)
 
+    def record_link(self, robot: str, report: Any) -> None:
+        """Keep a robot's uplink report (state/link, a LinkReport); ignore anything else on that name."""
+        if not isinstance(report, LinkReport):
+            return
+        with self._lock:
+            self._robots.setdefault(robot, _Robot()).link = report
+
     def record_error(self, error: RobotError, at: float | None = None) -> None:
         """Keep an error report (RobotClient.on_error) for the footer."""
         with self._lock:
@@ -265,12 +275,14 @@ class FleetView:
             lon=number(getattr(gps, "lon", None), ".6f") if located else MISSING,
             rate=number(rate, ".1f"),
             age=age(None if e.newest is None else now - e.newest),
+            link=link_text(e.link),
             ack=_ack_text(ack),
         )
 
 
 # Columns given up first when the terminal is too narrow for all of them; the rest always stay.
-DROP_ORDER = ("lon", "lat", "type", "status", "mode", "voltage", "owner", "gps", "age", "wz", "vx", "yaw", "rate")
+DROP_ORDER = ("lon", "lat", "type", "status", "mode", "voltage", "owner", "gps", "age", "wz", "vx", "yaw", "rate",
+              "link")
 ACK_MIN_WIDTH = 16  # the ack text may fold onto more lines, so it only needs this much
 COLUMN_GAP = 3  # blanks between two columns: a table without edges and one blank of padding each side
 
@@ -293,6 +305,19 @@ def fit_columns(rows: list[Row], width: int) -> list[str]:
             break
         keep.remove(key)
     return keep
+
+
+def link_text(report: LinkReport | None) -> str:
+    """``244k`` (the uplink's estimated rate), and the stream furthest behind its rate: ``244k scan 3.9/5``."""
+    if report is None:
+        return MISSING
+    text = f"{'≥' if not report.measured else ''}{report.rate_kbit_s:.0f}k"
+    behind = [(s.sent_hz / s.offered_hz, name, s) for name, s in report.streams.items()
+              if s.offered_hz > 0 and s.sent_hz + 0.05 < s.offered_hz]
+    if behind:
+        _, name, s = min(behind)
+        text += f" {name} {s.sent_hz:.1f}/{s.offered_hz:.0f}"
+    return text
 
 
 def _ack_text(ack: Any) -> str:
