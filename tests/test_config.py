@@ -161,6 +161,11 @@ def test_uplink_priority_and_latest_only() -> None:
                            "state/odom}", "{direction: mqtt_to_ros, ros_topic: lights, ros_type: std_msgs/msg/Bool, "
                                           "mqtt_topic: lights, latest_only: true}")
     assert "rules[0].latest_only: latest_only applies to ros_to_mqtt rules only" in _error(command)
+    buffered = parse_fleet(BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, buffer: disk}"),
+                           "robots.yaml").robots["turtle1"]
+    assert buffered.rules[0].buffer == "disk" and buffered.bridge.buffer_max_bytes == 64 * 1024 * 1024
+    assert "rules[0].buffer: expected one of none, disk" in _error(
+        BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/odom, buffer: ram}"))
     assert "'state/link' is written by the bridge itself" in _error(
         BASE.replace("mqtt_topic: state/odom}", "mqtt_topic: state/link}"))
     assert "bridge.uplink: expected one of scheduled, fifo" in _error(

@@ -220,3 +220,71 @@ def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp
         assert "state topics are conflated" in broker_log
     else:
         assert _quantile(ages, 0.9) > 1.5, f"FIFO to a slow viewer kept poses fresh? p90 {_quantile(ages, 0.9):.2f}"
+
+
+def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) -> None:
+    """A ``buffer: disk`` rule: what ROS publishes while the broker is down (across a restart of the bridge,
+    too) reaches the viewer after the broker returns, every message, the buffered ones oldest first."""
+    from std_msgs.msg import String
+
+    rules = RULES.replace("    rules: &rules\n", "    rules: &rules\n      - {direction: ros_to_mqtt, ros_topic: "
+                          "/wl/events, ros_type: std_msgs/msg/String, mqtt_topic: state/events, mqtt_qos: 1, "
+                          "buffer: disk}\n")
+    spool_dir = tmp_path / "spool"
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
+        "      keepalive: 2\n", f"      keepalive: 2\n      buffer_dir: {spool_dir}\n", 1))
+    bridge_cmd = ["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1"]
+    received: list[int] = []
+    probe = RosProbe()
+    try:
+        events = probe.publisher(String, "/wl/events")
+        n = 0
+
+        def publish(count: int) -> None:
+            nonlocal n
+            for _ in range(count):
+                events.publish(String(data=str(n)))
+                n += 1
+                time.sleep(0.05)
+
+        def matched() -> None:
+            deadline = time.monotonic() + 20
+            while events.get_subscription_count() < 1 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert events.get_subscription_count() >= 1, "the bridge never subscribed to /wl/events"
+
+        with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+            url = ["--url", f"mqtt://127.0.0.1:{broker.port}"]
+            with run(bridge_cmd + url, tmp_path / "bridge1.log", bridge_env("turtle1")) as bridge:
+                with TestClient(broker.port, "bob", "bob-demo") as bob:
+                    assert bob.connect() == 0
+                    bob.subscribe("roslink/turtle1/state/events", qos=1)
+                    matched()
+                    deadline = time.monotonic() + 20
+                    while not bob.drain(0.3) and time.monotonic() < deadline:  # until the bridge is online
+                        publish(1)
+                first_offline = n
+                broker.stop()
+                publish(20)  # the broker is down: kept on disk
+                bridge.stop()
+            with run(bridge_cmd + url, tmp_path / "bridge2.log", bridge_env("turtle1")):
+                matched()
+                publish(10)  # the new bridge, still without a broker, keeps these too
+                last_offline = n - 1
+                broker.start()
+                with TestClient(broker.port, "bob", "bob-demo") as bob:
+                    bob.client.on_message = lambda _c, _u, m: received.append(int(orjson.loads(m.payload)["data"]))
+                    assert bob.connect(timeout=10) == 0
+                    bob.subscribe("roslink/turtle1/state/events", qos=1)
+                    deadline = time.monotonic() + 20
+                    while time.monotonic() < deadline and not set(range(first_offline, last_offline + 1)) <= set(
+                            received):
+                        publish(1)  # live events go on meanwhile
+                        time.sleep(0.1)
+    finally:
+        probe.close()
+    buffered = [i for i in received if first_offline <= i <= last_offline]
+    missing = sorted(set(range(first_offline, last_offline + 1)) - set(buffered))
+    assert not missing, f"lost while the broker was down: {missing} (got {received})"
+    assert buffered == sorted(buffered), f"buffered events out of order: {buffered}"
+    assert list(spool_dir.glob("turtle1-*.spool")), "the disk buffer was not where bridge.buffer_dir says"

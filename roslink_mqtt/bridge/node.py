@@ -18,6 +18,7 @@ from typing import Any
 from rclpy.node import Node
 
 from ..config import Fleet, Priority, Robot, Role
+from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
 from ..protocol.link import LINK
 from ..topics import Verb, split_first
@@ -41,6 +42,7 @@ from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .sdk_params import SdkParameterNodes
 from .service_caller import ServiceCaller
 from .service_provider import ProvidedServices
+from .spool import Spool, buffer_dir
 from .systemd import SystemdNotifier
 from .throttle import Throttle
 from .uplink_sender import Uplink
@@ -194,6 +196,15 @@ class Bridge:
         self.uplink = Uplink(self.link, self.state_link, self.bulk_links, fifo=not scheduled,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
+        if any(o.rule.buffer == BUFFER_DISK for o in outbound):
+            directory = buffer_dir(settings.buffer_dir)
+            try:
+                self.uplink.use_spool(Spool(directory, robot.name, max_bytes=settings.buffer_max_bytes,
+                                            max_age=settings.buffer_max_age))
+            except OSError as err:
+                raise RuleError(f"bridge.buffer_dir: cannot keep the disk buffer of `buffer: disk` rules in "
+                                f"{directory}: {err}") from None
+            log.info("disk buffer for %s in %s", robot.name, directory)
         for rule in outbound:
             self._subscribe_ros(rule)
         # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
@@ -403,7 +414,8 @@ class Bridge:
         offer, topic, serialize = self.uplink.offer, out.topic, out.serialize
         qos, retain = out.rule.mqtt_qos, out.rule.retain
         stream = self.uplink.stream(topic, out.rule.priority, out.rule.latest_only,
-                                    label=split_first(out.rule.mqtt_topic)[1], max_rate=out.rule.max_rate)
+                                    label=split_first(out.rule.mqtt_topic)[1], max_rate=out.rule.max_rate,
+                                    buffered=out.rule.buffer == BUFFER_DISK)
 
         def link(topic: str, payload: bytes, qos: int, retain: bool) -> None:
             offer(stream, topic, payload, qos, retain)

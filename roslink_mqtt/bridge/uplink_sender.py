@@ -28,6 +28,7 @@ from .. import netstat
 from ..config import Priority
 from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, StreamReport
 from .link import MqttLink
+from .spool import Spool
 from .uplink import TARGET_DELAY, LinkMeter, Outgoing, Stream, UplinkScheduler
 
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
@@ -42,6 +43,10 @@ def raw_socket(client: Any) -> socket.socket | None:
 
 kernel_unsent = netstat.unacked
 delivered = netstat.delivered
+
+
+def _log_spool_error(err: OSError) -> None:
+    log.error("disk buffer: %s (buffered messages may be lost)", err)
 
 
 def paho_unsent(client: Any) -> int:
@@ -96,6 +101,10 @@ class Uplink:
         self.lock = threading.Condition()
         self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
         self._stopped = False
+        self.spool: Spool | None = None  # set by use_spool: the disk buffer of ``buffer: disk`` streams
+        self._buffered: set[str] = set()  # those streams
+        self.spooled = 0  # messages kept on disk while the broker was away
+        self._draining = False  # records wait on disk while connected: poll fast
         self._thread = threading.Thread(target=self._run, name="uplink", daemon=True)
         self._labels: dict[str, tuple[str, float | None]] = {}  # stream → (state name, max_rate)
         self._counts: dict[str, tuple[int, int, int, int, int]] = {}  # stream → its counters at the last report
@@ -143,11 +152,19 @@ class Uplink:
             self.lock.notify()
 
     def stream(self, name: str, priority: Priority, latest_only: bool, *, label: str | None = None,
-               max_rate: float | None = None) -> Stream:
-        """The stream of topic ``name``; ``label`` (its state name) and ``max_rate`` are for the link report."""
+               max_rate: float | None = None, buffered: bool = False) -> Stream:
+        """The stream of topic ``name``; ``label`` (its state name) and ``max_rate`` are for the link report;
+        ``buffered``: kept in the disk buffer while the broker is away (needs :meth:`use_spool`)."""
         with self.lock:
             self._labels[name] = (label or name, max_rate)
+            if buffered:
+                self._buffered.add(name)
             return self.scheduler.stream(name, priority, latest_only)
+
+    def use_spool(self, spool: Spool) -> None:
+        with self.lock:
+            self.spool = spool
+            self._draining = bool(spool)  # records left from before a restart
 
     # -- the way in ------------------------------------------------------------------------------------------
     def offer(self, stream: Stream, topic: str, payload: bytes, qos: int, retain: bool) -> None:
@@ -155,6 +172,8 @@ class Uplink:
         if stream.priority is Priority.CONTROL or self.fifo:
             with self.lock:
                 stream.offered += 1
+                if not self.main.link.connected.is_set() and self._keep(stream, topic, payload, qos):
+                    return
                 stream.sent += 1
                 stream.bytes_sent += len(payload) + len(topic) + 4
             self.main.link.publish(topic, payload, qos, retain)
@@ -165,6 +184,8 @@ class Uplink:
             lane.offered += message.size
             if not lane.link.connected.is_set():
                 stream.offered += 1
+                if self._keep(stream, topic, payload, qos):
+                    return
                 self.not_connected += 1
                 if not stream.latest_only:
                     stream.dropped += 1  # an ordered stream lost one: counted (a pose is simply stale)
@@ -182,6 +203,18 @@ class Uplink:
                 return
             self.scheduler.offer(stream, message)
             self.lock.notify()
+
+    def _keep(self, stream: Stream, topic: str, payload: bytes, qos: int) -> bool:
+        """Offline: a ``buffer: disk`` stream's message goes to the disk buffer (True); others are not kept."""
+        if self.spool is None or stream.name not in self._buffered:
+            return False
+        try:
+            self.spool.append(topic, payload, qos, time.time())
+        except OSError as err:
+            _log_spool_error(err)
+            return False
+        self.spooled += 1
+        return True
 
     def unsent(self, lane: Lane) -> int:
         """Bytes of ``lane`` handed over and not yet delivered: inside paho, and in the socket."""
@@ -209,7 +242,7 @@ class Uplink:
             with self.lock:
                 if self._stopped:
                     return
-                self.lock.wait(POLL if self.scheduler else 0.25)
+                self.lock.wait(POLL if self.scheduler or self._draining else 0.25)
                 now = time.monotonic()
                 try:
                     self._pump(now)
@@ -241,7 +274,12 @@ class Uplink:
     def _pump(self, now: float) -> None:
         """Hand over what waits, the highest class first, then the stream waiting longest. A full main connection
         (the link is congested) stops everything; a paced lane that is busy or out of allowance only stops its
-        own streams, and the link's room goes to the next stream on another lane (bulk gets what is left)."""
+        own streams, and the link's room goes to the next stream on another lane (bulk gets what is left). The
+        disk buffer goes last, when nothing live waits."""
+        if not self.main.link.connected.is_set():
+            for stream in self.scheduler.ready():  # what waited when the broker went: buffered streams keep it
+                for message in list(stream.waiting):
+                    self._keep(stream, message.topic, message.payload, message.qos)
         self._measure(now)
         for lane in self.lanes:
             self._refill(lane, now)
@@ -269,6 +307,30 @@ class Uplink:
                     lane.credit -= message.size
                 progress = True
                 break  # from the top: the order may have changed
+        self._drain_spool(handed)
+
+    def _drain_spool(self, handed: dict[int, int]) -> None:
+        """After reconnecting, the disk buffer's records, oldest first, when no live message waits."""
+        self._draining = False
+        if self.spool is None or self.scheduler or not self.main.link.connected.is_set():
+            return
+        lane = self.state_lane
+        sent = 0
+        try:
+            while self._blocked(lane, handed.get(lane.index, 0)) is None:
+                record = self.spool.next(time.time())
+                if record is None:
+                    break
+                lane.link.publish(record.topic, record.payload, record.qos, False)
+                handed[lane.index] = handed.get(lane.index, 0) + len(record.payload)
+                if lane.paced:
+                    lane.credit -= len(record.payload)
+                sent += 1
+            if sent:
+                self.spool.commit()
+            self._draining = bool(self.spool)
+        except OSError as err:
+            _log_spool_error(err)
 
     def _measure(self, now: float) -> None:
         """Feed the meter every lane's delivered bytes; resize the paced lanes' buffers when a window closes."""

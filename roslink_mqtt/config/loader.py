@@ -27,6 +27,8 @@ from ..topics import (
 )
 from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
+    BUFFER_NONE,
+    BUFFERS,
     ENCODING_JSON,
     ENCODING_RAW,
     ENCODINGS,
@@ -284,7 +286,7 @@ class _FleetReader:
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
                             "max_requests_per_user", "executor", "retained_refresh", "uplink",
-                            "uplink_target_delay"))
+                            "uplink_target_delay", "buffer_dir", "buffer_max_bytes", "buffer_max_age"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -322,6 +324,9 @@ class _FleetReader:
             uplink=self.value(path, "uplink", self.choice(UPLINK_MODES), d.uplink),
             uplink_target_delay=self.value(path, "uplink_target_delay", self.number(0.01, 10),
                                            d.uplink_target_delay),
+            buffer_dir=self.value(path, "buffer_dir", self.string, d.buffer_dir),
+            buffer_max_bytes=self.value(path, "buffer_max_bytes", self.integer(65536, 1 << 40), d.buffer_max_bytes),
+            buffer_max_age=self.value(path, "buffer_max_age", self.number(1, 366 * 24 * 3600), d.buffer_max_age),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:
@@ -362,7 +367,7 @@ class _FleetReader:
     def rule(self, path: Path, index: int) -> Rule:
         self.mapping(path, ("direction", "ros_topic", "ros_type", "mqtt_topic", "preset", "mqtt_qos", "retain",
                             "ros_qos", "max_rate", "fields", "limits", "on_demand", "encoding", "priority",
-                            "latest_only"))
+                            "latest_only", "buffer"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
         first, _ = split_first(mqtt_topic)
@@ -417,8 +422,9 @@ class _FleetReader:
         encoding = self.encoding(path, direction, ros_type, preset, fields)
         priority = self.value(path, "priority", self.choice(PRIORITY_NAMES), None)
         latest_only = self.value(path, "latest_only", self.boolean, None)
+        buffer = self.value(path, "buffer", self.choice(BUFFERS), None)
         if direction is Direction.MQTT_TO_ROS:
-            for key, value in (("priority", priority), ("latest_only", latest_only)):
+            for key, value in (("priority", priority), ("latest_only", latest_only), ("buffer", buffer)):
                 if value is not None:
                     raise self.err(path + (key,), f"{key} applies to ros_to_mqtt rules only (what the robot sends "
                                                   "on its uplink); commands to the robot are checked for age instead")
@@ -440,6 +446,7 @@ class _FleetReader:
             encoding=encoding,
             priority_setting=Priority[priority.upper()] if priority is not None else None,
             latest_only_setting=latest_only,
+            buffer=buffer or BUFFER_NONE,
         )
 
     def encoding(self, path: Path, direction: Direction, ros_type: str, preset: str | None,

@@ -29,6 +29,8 @@ ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW = "json", "cbor", "raw"
 ENCODINGS = (ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW)
 RAW_TYPES = ("sensor_msgs/msg/CompressedImage",)  # the types whose payload can be their bytes alone
 UPLINK_MODES = ("scheduled", "fifo")
+BUFFER_NONE, BUFFER_DISK = "none", "disk"
+BUFFERS = (BUFFER_NONE, BUFFER_DISK)
 
 
 class Priority(IntEnum):
@@ -139,6 +141,7 @@ class Rule:
     # default_latest_only), resolved by the properties below so a Rule built in code gets them too
     priority_setting: Priority | None = None
     latest_only_setting: bool | None = None
+    buffer: str = BUFFER_NONE  # ros_to_mqtt: BUFFERS; "disk" keeps messages offered while the broker is away
 
     @property
     def priority(self) -> Priority:
@@ -239,6 +242,12 @@ class BridgeSettings:
     # and every other ROS bridge's; for comparison: on a thin link its queue grows to seconds of stale data).
     uplink: str = "scheduled"
     uplink_target_delay: float = 0.1
+    # Rules with `buffer: disk` keep what they offer while the broker is unreachable in files under buffer_dir
+    # (None: $STATE_DIRECTORY from systemd, else ~/.local/state/roslink-mqtt), at most buffer_max_bytes and
+    # buffer_max_age s old, and send it after reconnecting, oldest first, after live data (docs/config.md).
+    buffer_dir: str | None = None
+    buffer_max_bytes: int = 64 * 1024 * 1024
+    buffer_max_age: float = 24 * 3600.0
 
 
 @dataclass(frozen=True, slots=True)
