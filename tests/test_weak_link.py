@@ -288,3 +288,60 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
     assert not missing, f"lost while the broker was down: {missing} (got {received})"
     assert buffered == sorted(buffered), f"buffered events out of order: {buffered}"
     assert list(spool_dir.glob("turtle1-*.spool")), "the disk buffer was not where bridge.buffer_dir says"
+
+
+def test_an_emergency_stop_overtakes_a_flooded_downlink(tmp_path) -> None:
+    """The robot's downlink is 64 kbit/s and alice floods it with log lines (160 kB/s): an ordinary command she
+    sends waits behind them, her emergency stop does not (the bridge reads stops on a connection of their own)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from std_msgs.msg import Bool, String
+
+    fleet = write_fleet(tmp_path)
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", "1000",
+                  "--down-kbit", "64"], tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(broker.port, "alice", "alice-demo", operator=True) as alice:
+            probe = RosProbe()
+            try:
+                stops = probe.watch(Bool, "/emergency_stop", QoSProfile(depth=10,
+                                                                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+                modes = probe.watch(String, "/mode")
+                assert alice.connect() == 0
+                alice.subscribe("roslink/turtle1/heartbeat")
+                alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=30)
+                stops.wait_matched(20)
+                modes.wait_matched(20)
+                alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "GUIDED"}, qos=1)
+                modes.wait_for(lambda m: m.data == "GUIDED", timeout=10)  # the path works when the link is idle
+                flooding = threading.Event()
+                flooding.set()
+
+                def flood() -> None:
+                    line = orjson.dumps({"level": 20, "msg": "x" * 8000})
+                    while flooding.is_set():
+                        alice.client.publish("roslink/turtle1/from/alice/log/flood", line, qos=0)
+                        time.sleep(0.05)
+
+                flooder = threading.Thread(target=flood, daemon=True)
+                flooder.start()
+                time.sleep(1.5)  # a queue builds up in front of the robot
+                sent = time.monotonic()
+                alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "AUTO"}, qos=1)
+                alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {}, qos=1)
+                stopped_at, _ = stops.wait_for(lambda m: m.data, timeout=10, after=sent)
+                try:
+                    mode_at, _ = modes.wait_for(lambda m: m.data == "AUTO", timeout=3, after=sent)
+                except TimeoutError:
+                    mode_at = float("inf")
+                flooding.clear()
+                flooder.join(2)
+            finally:
+                probe.close()
+    stop_delay, mode_delay = stopped_at - sent, mode_at - sent
+    assert stop_delay < 1.5, f"the emergency stop took {stop_delay:.2f} s through the flooded downlink"
+    assert mode_delay > stop_delay + 1.0, (f"the ordinary command was not held up ({mode_delay:.2f} s vs the stop's "
+                                           f"{stop_delay:.2f} s): the flood did not congest the downlink")

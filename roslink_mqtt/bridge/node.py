@@ -10,6 +10,7 @@ timers that drive heartbeats and supervision.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -69,6 +70,31 @@ class _CommandCall:
     sequence: int | None
     service: str
     future: Any
+
+
+class StopDedup:
+    """Emergency stops arrive on two connections: the first copy of each (topic, payload) is obeyed, the second,
+    within DEDUP_WINDOW, dropped. A stop repeated by its sender carries a new sequence number (other bytes) and is
+    obeyed again; repeating one is harmless anyway."""
+
+    DEDUP_WINDOW = 5.0  # s
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seen: dict[tuple[str, bytes], float] = {}
+
+    def seen(self, topic: str, payload: bytes) -> bool:
+        now = time.monotonic()
+        key = (topic, bytes(payload))
+        with self._lock:
+            if len(self._seen) > 256:
+                self._seen = {k: t for k, t in self._seen.items() if now - t < self.DEDUP_WINDOW}
+            at = self._seen.get(key)
+            if at is not None and now - at < self.DEDUP_WINDOW:
+                del self._seen[key]  # both copies have come: a third (a resend) is a new stop
+                return True
+            self._seen[key] = now
+            return False
 
 
 class RosActuators:
@@ -214,6 +240,15 @@ class Bridge:
             client_id=bridge_client_id(robot.name, "viewers"), username=robot.name, password=password,
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
             on_message=self._on_mqtt, ca_file=ca_file)
+        # Emergency stops also arrive on a connection that carries nothing else: on a thin downlink they never wait
+        # behind a large request, response or log line of any user in the broker's queue or the socket. Each
+        # stop then arrives twice (this link and the command link); the second copy is dropped (StopDedup).
+        self._stop_leaves = tuple(name for name, r in routes.items() if r.behaviour.never_stale)
+        self.stop_link = MqttLink(
+            client_id=bridge_client_id(robot.name, "stop"), username=robot.name, password=password,
+            url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.stop_subscriptions,
+            on_message=self._on_mqtt, ca_file=ca_file) if self._stop_leaves else None
+        self._stops = StopDedup()
         budget = RequestBudget(settings.max_requests_per_user)  # calls and parameter requests together
         self.on_executor = OnExecutor()  # main() hands it the executor before start()
         self.action_on_executor = OnExecutor() if action_node is not None else self.on_executor
@@ -279,6 +314,8 @@ class Bridge:
         self.endpoint.refuse(*args, **kwargs)
 
     def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
+        if self._stop_leaves and topic.endswith(self._stop_leaves) and self._stops.seen(topic, payload):
+            return  # the other copy of an emergency stop (stop link and command link both carry it)
         self.endpoint.on_mqtt(topic, payload, retained, arrived)
 
     def _publish_reliable(self, topic: str, payload: bytes) -> None:
@@ -310,6 +347,8 @@ class Bridge:
         # the same command arriving twice), then join the new one
         links = {link: (self._subscriptions_of(link, old_fleet), self._subscriptions_of(link, fleet))
                  for link in (self.link, self.viewer_link)}
+        if self.stop_link is not None:
+            links[self.stop_link] = (self.stop_subscriptions(old_fleet), self.stop_subscriptions(fleet))
         for link, (old, new) in links.items():
             for topic, _ in set(old) - set(new):
                 link.unsubscribe(topic)
@@ -330,6 +369,8 @@ class Bridge:
         self.uplink.start()
         for lane in self.lanes:
             lane.start()
+        if self.stop_link is not None:
+            self.stop_link.start()
         self.link.start()
         self.systemd.ready(f"connecting to {self.link.url}")
 
@@ -341,6 +382,8 @@ class Bridge:
         self.uplink.stop()
         for lane in self.lanes:
             lane.stop()
+        if self.stop_link is not None:
+            self.stop_link.stop()
         self.viewer_link.stop()
         self.link.stop([(self.topics.heartbeat(self.robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
                          True)])
@@ -371,6 +414,13 @@ class Bridge:
                 if role is not None:
                     subs.append((self.topics.operators_of(user), 1))
         return subs
+
+    def stop_subscriptions(self, fleet: Fleet | None = None) -> list[tuple[str, int]]:
+        """The stop link's: the emergency-stop input of every user of the fleet (a refusal is reported as on the
+        other links)."""
+        fleet = fleet or self.fleet
+        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in sorted(fleet.users)
+                for leaf in self._stop_leaves]
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
         """The command link's: every operator's commands, requests and presence (re-read at each connect)."""

@@ -99,7 +99,10 @@ class ServiceProviders:
         info = self.connection.publish(self.topics.provide(offer.robot, self.user, offer.name), b"",
                                        qos=ServiceOffer.QOS, retain=ServiceOffer.RETAINED)
         if wait and not self.connection.on_network_thread() and self.connection.connected.is_set():
-            info.wait_for_publish(wait)
+            try:
+                info.wait_for_publish(wait)
+            except (RuntimeError, ValueError):
+                pass  # the connection went meanwhile: the broker's copy goes with the session (or our will)
 
     def withdraw_all(self) -> None:
         with self._lock:
