@@ -127,6 +127,7 @@ class Run:
     failures: list[str] = field(default_factory=list)  # why calls failed
     link: Any = None  # the bridge's last state/link report (a LinkReport)
     silent: int = 0  # times the bridge found the broker silent (a heartbeat's PUBACK late): each one a stop
+    warnings: list[str] = field(default_factory=list)  # the bridge's last warnings, shown when it found silence
     note: str = ""
 
 
@@ -257,7 +258,9 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         time.sleep(seconds)
         viewer.run = current[0] = None
         run.seconds = time.monotonic() - began
-        run.silent = bridge_log.read_text(errors="replace").count("broker silent") - before
+        log_text = bridge_log.read_text(errors="replace")
+        run.silent = log_text.count("broker silent") - before
+        run.warnings = [line for line in log_text.splitlines() if " WARNING " in line or " ERROR " in line][-5:]
     return run
 
 
@@ -392,12 +395,18 @@ def main(argv: list[str] | None = None) -> int:
                           f"hb gap {heartbeat_gap(run):.2f} s, {run.silent} silent, {len(run.replies)} replies"
                           + (f" [{run.note}]" if run.note else "")
                           + (f"\n      bridge: {run.link.summary()}" if run.link is not None else "")
-                          + "".join(f"\n      call failed: {why}" for why in run.failures[:3]), flush=True)
+                          + "".join(f"\n      call failed: {why}" for why in run.failures[:3])
+                          + ("".join(f"\n      bridge log: {line[:160]}" for line in run.warnings)
+                             if run.silent else ""), flush=True)
         except KeyboardInterrupt:
             print("weak_link: interrupted", file=sys.stderr)
             return 130
         except (lat.ChildExited, TimeoutError) as e:
             raise SystemExit(f"weak_link: {e}") from None
+        if any(run.silent for run in runs):
+            warned = [line for line in (work / "broker.log").read_text(errors="replace").splitlines()
+                      if " WARNING " in line or " ERROR " in line]
+            print("".join(f"  broker log: {line[:160]}\n" for line in warned[-8:]), end="")
     report(runs)
     written = plot(runs, args.plot_dir)
     if written is not None:
