@@ -38,7 +38,7 @@
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
                     "actions-box", "actions", "params-box", "params",
-                    "rates", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks"]) {
+                    "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks"]) {
     ui[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = $(id);
   }
 
@@ -347,6 +347,12 @@
       if (env && env.payload) robot.status = env.payload;
       return;
     }
+    if (name === "link") {  // the bridge's uplink report (docs/protocol.md, "link report")
+      const l = parse(payload);
+      robot.link = l && typeof l.rate_kbit_s === "number" && l.streams && typeof l.streams === "object" ? l : null;
+      if (dash.selected === robot.name) showUplink(robot);
+      return;
+    }
     if (dash.selected !== robot.name) return;  // other robots: counted, not parsed
     const encoding = (entryOf(robot, "state", name) || {}).encoding;
     if (encoding === "raw") { showImageBytes(robot, name, payload); return; }
@@ -536,6 +542,7 @@
     ui.rates.tBodies[0].replaceChildren();
     for (const r of robot.rates.values()) r.row = null;
     ui.acks.replaceChildren();
+    showUplink(robot);
     show(ui.gpsBox, false);
     show(ui.cameraBox, false);
     ui.serviceResult.textContent = "";
@@ -734,6 +741,22 @@
     g.fillStyle = "#7b8590";
     g.font = "11px sans-serif";
     g.fillText(`N ↑   ±${half.toFixed(0)} m`, 6, 14);
+  }
+
+  // "uplink 244 kbit/s — range_finder_data 3.9 of 5 Hz (2 superseded)": the streams its link cannot carry at
+  // their rate, so a slow scan on a thin link reads as what it is rather than as a fault.
+  function uplinkText(link) {
+    if (!link) return "";
+    const behind = Object.entries(link.streams)
+      .filter(([, s]) => s && s.offered_hz > 0 && s.sent_hz + 0.05 < s.offered_hz)
+      .map(([n, s]) => `${n} ${Number(s.sent_hz).toFixed(1)} of ${Number(s.offered_hz).toFixed(1)} Hz` +
+           (s.superseded ? ` (${s.superseded} superseded)` : ""));
+    return `uplink ${link.measured ? "" : "≥ "}${Math.round(link.rate_kbit_s)} kbit/s — ` +
+           (behind.length ? behind.join(", ") : "every stream at its rate");
+  }
+
+  function showUplink(robot) {
+    setText(ui.uplink, uplinkText(robot.link));
   }
 
   function updateRates(now) {
