@@ -7,7 +7,9 @@ of 1 Mbit/s, 256 kbit/s or 64 kbit/s (one FIFO shared by the bridge's connection
 four times faster). The simulated robot publishes the demo's telemetry (20 Hz odometry → 10 Hz global_motion, a
 5 Hz 360-beam scan, 1 Hz GPS and battery); the "+ camera + map" rows add a 30 Hz 640×480 JPEG (raw) and a 4 MB
 OccupancyGrid (CBOR) every 10 s. bob, a viewer on the broker's side, times what arrives; alice, an operator,
-calls the robot's ``reset`` service once a second and times each reply (the control round trip).
+calls the robot's ``reset`` service once a second and times each reply (the control round trip), and presses the
+emergency stop every 3 s, timed from her call to the stop's ``std_msgs/Bool`` on the robot's ROS topic (an
+rclpy subscriber in this process), then arms again.
 
 Each row runs twice in one run, with the fleet file's ``bridge.uplink: fifo`` (every message handed to the
 network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's) and ``scheduled``.
@@ -56,6 +58,8 @@ IMAGE_STATE, MAP_STATE = "image", "occupancy"
 IMAGE_RATE, MAP_PERIOD = 30.0, 10.0
 WARMUP = 4.0  # s after the robot is online before measuring
 MOTION_RATE = 10.0  # the demo fleet's max_rate for global_motion
+ESTOP_TOPIC = "/emergency_stop"  # where the demo fleet's emergency_stop rule publishes (std_msgs/Bool, latched)
+STOP_PERIOD = 3.0  # s between alice's emergency stops
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,6 +127,7 @@ class Run:
     ages: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))  # stream -> ages (s)
     heartbeats: list[float] = field(default_factory=list)  # arrival times
     replies: list[float] = field(default_factory=list)  # round trips (s)
+    stops: list[float] = field(default_factory=list)  # emergency stop sent → its Bool on the robot's ROS topic (s)
     failed_calls: int = 0
     failures: list[str] = field(default_factory=list)  # why calls failed
     link: Any = None  # the bridge's last state/link report (a LinkReport)
@@ -229,6 +234,74 @@ def caller(operator: Any, stop: threading.Event, run_: list[Run | None]) -> None
             run_[0].replies.append(time.monotonic() - began)
 
 
+class StopWatch:
+    """An rclpy subscriber here on the robot's ``emergency_stop`` topic: when each stop reached ROS."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from std_msgs.msg import Bool
+
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("weak_link_stop_watch")
+        self.arrivals: list[float] = []
+        self.cond = threading.Condition()
+        self.node.create_subscription(Bool, ESTOP_TOPIC, self._on_stop, 10)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_stop(self, msg: Any) -> None:
+        if msg.data:
+            with self.cond:
+                self.arrivals.append(time.monotonic())
+                self.cond.notify_all()
+
+    def wait_after(self, t: float, timeout: float) -> float | None:
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                later = [a for a in self.arrivals if a >= t]
+                if later:
+                    return later[0]
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self.cond.wait(left)
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop.set()
+        self.thread.join(2)
+        self.node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def stopper(operator: Any, watch: StopWatch, stop: threading.Event, run_: list[Run | None]) -> None:
+    """alice presses the emergency stop every STOP_PERIOD s, times it to the robot's ROS topic, and arms again."""
+    while not stop.wait(STOP_PERIOD):
+        sent = time.monotonic()
+        try:
+            operator.emergency_stop(ROBOT, "bench")
+        except Exception:  # noqa: BLE001 - a stop the broker did not confirm: counted as not arrived below
+            pass
+        arrived = watch.wait_after(sent, 5.0)
+        if run_[0] is not None:
+            run_[0].stops.append(float("inf") if arrived is None else arrived - sent)
+        try:
+            operator.arm(ROBOT)
+        except Exception:  # noqa: BLE001 - the next stop is measured all the same
+            pass
+
+
 def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, str], port: int, viewer: Viewer,
             current: list[Run | None]) -> Run:
     run = Run(case, mode)
@@ -280,6 +353,14 @@ def stream_cell(run: Run, name: str) -> str:
     return f"{rate:5.1f}/s {pct(ages, 0.5) * 1000:6.0f}/{pct(ages, 0.99) * 1000:6.0f} ms"
 
 
+def stop_cell(run: Run) -> str:
+    """The slowest emergency stop of the row (sent → on the robot's ROS topic), and how many there were."""
+    if not run.stops:
+        return "-"
+    worst = max(run.stops)
+    return ("lost" if worst == float("inf") else f"{worst * 1000:.0f} ms") + f" ({len(run.stops)})"
+
+
 def heartbeat_gap(run: Run) -> float:
     beats = run.heartbeats
     return max((b - a for a, b in zip(beats, beats[1:], strict=False)), default=float("nan"))
@@ -288,7 +369,7 @@ def heartbeat_gap(run: Run) -> float:
 def report(runs: list[Run]) -> None:
     extras = any(r.case.extras for r in runs)
     head = (f"{'uplink':<26} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
-            f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15}")
+            f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15} {'e-stop max':>10}")
     if extras:
         head += f"  {'image rate, age p50/p99':<30} {'map rate, age p50/p99':<30}"
     print()
@@ -302,11 +383,14 @@ def report(runs: list[Run]) -> None:
         if run.failed_calls:
             replies += f" ({run.failed_calls} failed)"
         line = (f"{run.case.label:<26} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
-                f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {run.silent:>6} {replies:>15}")
+                f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {run.silent:>6} {replies:>15}"
+                f" {stop_cell(run):>10}")
         if extras:
             line += f"  {stream_cell(run, IMAGE_STATE):<30} {stream_cell(run, MAP_STATE):<30}"
         print(line)
     print("\nsilent: heartbeats the broker did not acknowledge in time (each one is a failsafe stop of a driven robot)")
+    print(f"e-stop max: alice's emergency stops (one every {STOP_PERIOD:g} s) from her call to the Bool on the robot's "
+          f"{ESTOP_TOPIC}, the slowest (how many)")
     print(f"rates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
           "the scan is 5 Hz); age = arrival − the message's own timestamp")
 
@@ -385,6 +469,10 @@ def main(argv: list[str] | None = None) -> int:
         stack.callback(operator.close)
         calls = threading.Thread(target=caller, args=(operator, stop, current), daemon=True)
         calls.start()
+        watch = StopWatch()
+        stack.callback(watch.close)
+        stops = threading.Thread(target=stopper, args=(operator, watch, stop, current), daemon=True)
+        stops.start()
         stack.callback(stop.set)
         try:
             for case in cases(args.rate_list):

@@ -8,15 +8,16 @@ it. So the bridge keeps what it has not yet sent *here*, where it can still choo
 * **latest wins**: a state stream keeps one slot; a newer message replaces the waiting one (counted as
   superseded) and keeps its place in line. A superseded pose is never sent.
 * **ordered streams** (retained or QoS 1 rules unless they say ``latest_only: true``) queue every message in
-  order; a queue that outgrows its bound loses its oldest, counted and logged, never silently.
+  order; a queue that outgrows its bound loses its oldest, counted (``state/link`` reports it), never silently.
 * **priority classes**: control (sent at once, never queued here) > motion > state > bulk. Within a class,
   streams take turns (the one waiting longest goes first).
 * **a budget** (:class:`LinkMeter`): the link holds at most what it carries in ``target_delay`` beyond its
   round trip; the rest waits here. It follows the rate the kernel says was delivered, so on a fast link the
   budget is never reached and every message goes out at once, as before.
 
-The I/O side (:mod:`.link`) asks :meth:`UplinkScheduler.take` for the next message whenever the bytes it has
-handed to the network and not yet seen delivered fall below :attr:`LinkMeter.budget`.
+The I/O side (:mod:`.uplink_sender`) walks :meth:`UplinkScheduler.ready` and takes the next message of a stream
+(:meth:`~UplinkScheduler.take_from`) whenever that stream's connection has room: the bytes handed to the network
+and not yet seen delivered are under :attr:`LinkMeter.budget`, and a paced lane is within its allowance.
 """
 
 from __future__ import annotations

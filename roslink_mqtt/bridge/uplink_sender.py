@@ -7,11 +7,12 @@ queue). While they stay under the budget a message goes straight to paho from th
 before this module existed (a fast link never notices it); otherwise it waits in its stream's slot and a sender
 thread hands the next one over as soon as the link has room, polling every :data:`POLL` while anything waits.
 
-State and bulk streams go out on connections of their own (lanes), each with a send buffer about the size of
-the budget, one message at a time: a 7 kB scan takes a quarter of a second on a 256 kbit/s link and a 4 MB map
-two minutes; on the main connection every heartbeat, acknowledgement and pose would wait behind them, while from
-small buffers on other connections the link interleaves their packets with the main connection's. Across lanes
-the order of classes holds at hand-over: nothing of a lower class is handed over while a higher one waits.
+State streams, and each bulk stream, go out on connections of their own (lanes), each with a send buffer about
+the size of the budget, one message at a time, paced to what the lanes before them leave: a 7 kB scan takes a
+quarter of a second on a 256 kbit/s link and a 4 MB map two minutes; on the main connection every heartbeat,
+acknowledgement and pose would wait behind them, while from small buffers on other connections the link
+interleaves their packets with the main connection's. A congested main connection holds everything back (nothing
+of a lower class overtakes it); a lane that is busy or out of allowance holds back only its own streams.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def paho_unsent(client: Any) -> int:
 
 @dataclass(eq=False)
 class Lane:
-    """One MQTT connection the uplink sends on, and the classes it carries."""
+    """One MQTT connection the uplink sends on (main: control and motion; then state; then one per bulk stream)."""
 
     link: MqttLink
     index: int  # its place in the order of lanes (main first)
