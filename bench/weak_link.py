@@ -345,7 +345,8 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         run.seconds = time.monotonic() - began
         log_text = bridge_log.read_text(errors="replace")
         run.silent = log_text.count("broker silent") - before
-        run.warnings = [line for line in log_text.splitlines() if " WARNING " in line or " ERROR " in line][-5:]
+        run.warnings = [line for line in log_text.splitlines()
+                        if (" WARNING " in line or " ERROR " in line) and "emergency stop by" not in line][-5:]
     return run
 
 
