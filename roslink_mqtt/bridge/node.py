@@ -10,7 +10,6 @@ timers that drive heartbeats and supervision.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -44,6 +43,7 @@ from .sdk_params import SdkParameterNodes
 from .service_caller import ServiceCaller
 from .service_provider import ProvidedServices
 from .spool import Spool, buffer_dir
+from .stops import StopDedup
 from .systemd import SystemdNotifier
 from .throttle import Throttle
 from .uplink_sender import Uplink
@@ -70,31 +70,6 @@ class _CommandCall:
     sequence: int | None
     service: str
     future: Any
-
-
-class StopDedup:
-    """Emergency stops arrive on two connections: the first copy of each (topic, payload) is obeyed, the second,
-    within DEDUP_WINDOW, dropped. A stop repeated by its sender carries a new sequence number (other bytes) and is
-    obeyed again; repeating one is harmless anyway."""
-
-    DEDUP_WINDOW = 5.0  # s
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._seen: dict[tuple[str, bytes], float] = {}
-
-    def seen(self, topic: str, payload: bytes) -> bool:
-        now = time.monotonic()
-        key = (topic, bytes(payload))
-        with self._lock:
-            if len(self._seen) > 256:
-                self._seen = {k: t for k, t in self._seen.items() if now - t < self.DEDUP_WINDOW}
-            at = self._seen.get(key)
-            if at is not None and now - at < self.DEDUP_WINDOW:
-                del self._seen[key]  # both copies have come: a third (a resend) is a new stop
-                return True
-            self._seen[key] = now
-            return False
 
 
 class RosActuators:
@@ -240,9 +215,10 @@ class Bridge:
             client_id=bridge_client_id(robot.name, "viewers"), username=robot.name, password=password,
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
             on_message=self._on_mqtt, ca_file=ca_file)
-        # Emergency stops also arrive on a connection that carries nothing else: on a thin downlink they never wait
-        # behind a large request, response or log line of any user in the broker's queue or the socket. Each
-        # stop then arrives twice (this link and the command link); the second copy is dropped (StopDedup).
+        # Operators' emergency stops also arrive on a connection that carries nothing else: on a thin downlink they
+        # never wait behind a large request, response or log line in the broker's queue or the socket. Each stop
+        # then arrives twice (this link and the command link); the second copy is dropped (bridge/stops.py). Only
+        # operators' (those the endpoint obeys): nothing a viewer sends can queue in front of a stop.
         self._stop_leaves = tuple(name for name, r in routes.items() if r.behaviour.never_stale)
         self.stop_link = MqttLink(
             client_id=bridge_client_id(robot.name, "stop"), username=robot.name, password=password,
@@ -416,10 +392,11 @@ class Bridge:
         return subs
 
     def stop_subscriptions(self, fleet: Fleet | None = None) -> list[tuple[str, int]]:
-        """The stop link's: the emergency-stop input of every user of the fleet (a refusal is reported as on the
-        other links)."""
+        """The stop link's: the emergency-stop input of every operator of this robot (anyone else's stop comes on
+        the viewer link and is refused there, with the reason)."""
         fleet = fleet or self.fleet
-        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in sorted(fleet.users)
+        operators = sorted(u for u, role in fleet.users_of(self.robot.name).items() if role is Role.OPERATOR)
+        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in operators
                 for leaf in self._stop_leaves]
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
