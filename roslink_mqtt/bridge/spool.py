@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,6 +59,8 @@ class Spool:
         self.dropped_old = 0  # records skipped because they were older than max_age
         self._pos_file = self.dir / f"{name}.pos"
         self._segments = sorted(self._segment_numbers())
+        self._sizes = {n: self._size_on_disk(n) for n in self._segments}  # kept here: no stat() per record
+        self._cache: tuple[int, int, bytes] | None = None  # (segment, size, its bytes): the segment being read
         self._read_segment, self._read_offset = self._load_position()
 
     # -- files ---------------------------------------------------------------------------------------------
@@ -87,16 +90,16 @@ class Spool:
         tmp.write_text(f"{self._read_segment} {self._read_offset}\n")
         os.replace(tmp, self._pos_file)
 
+    def _size_on_disk(self, number: int) -> int:
+        try:
+            return self._path(number).stat().st_size
+        except OSError:
+            return 0
+
     @property
     def bytes(self) -> int:
         """What the queue holds on disk (read records of the current segment included)."""
-        total = 0
-        for number in self._segments:
-            try:
-                total += self._path(number).stat().st_size
-            except OSError:
-                pass
-        return total
+        return sum(self._sizes.values())
 
     def __bool__(self) -> bool:
         """Anything left to read."""
@@ -104,10 +107,7 @@ class Spool:
             return False
         if self._read_segment < self._segments[-1]:
             return True
-        try:
-            return self._path(self._read_segment).stat().st_size > self._read_offset
-        except OSError:
-            return False
+        return self._sizes.get(self._read_segment, 0) > self._read_offset
 
     # -- writing ---------------------------------------------------------------------------------------------
     def append(self, topic: str, payload: bytes, qos: int, stamp: float) -> None:
@@ -117,19 +117,23 @@ class Spool:
         if len(body) > self.max_bytes:
             self.dropped_full += 1
             return
-        if not self._segments or self._path(self._segments[-1]).stat().st_size + len(body) > self.segment_bytes:
+        if not self._segments or self._sizes[self._segments[-1]] + len(body) > self.segment_bytes:
             self._segments.append(self._segments[-1] + 1 if self._segments else 0)
+            self._sizes[self._segments[-1]] = 0
             if len(self._segments) == 1:
                 self._read_segment, self._read_offset = self._segments[0], 0
         while self.bytes + len(body) > self.max_bytes and len(self._segments) > 1:
             self._drop_oldest()
         with open(self._path(self._segments[-1]), "ab") as f:
             f.write(body)
+        self._sizes[self._segments[-1]] += len(body)
 
     def _drop_oldest(self) -> None:
         oldest = self._segments.pop(0)
+        self._sizes.pop(oldest, None)
         path = self._path(oldest)
-        count = sum(1 for _ in self._records(path, self._read_offset if oldest == self._read_segment else 0))
+        count = sum(1 for _ in self._records(self._read(oldest), self._read_offset if oldest == self._read_segment
+                                             else 0))
         self.dropped_full += count
         path.unlink(missing_ok=True)
         if self._read_segment <= oldest:
@@ -137,13 +141,20 @@ class Spool:
         log.warning("disk buffer %s full (%d bytes): dropped %d oldest records", self.name, self.max_bytes, count)
 
     # -- reading ---------------------------------------------------------------------------------------------
+    def _read(self, number: int) -> bytes:
+        """A segment's bytes, read again only when it has grown since (not once per record)."""
+        size = self._sizes.get(number, 0)
+        if self._cache is None or self._cache[:2] != (number, size):
+            try:
+                data = self._path(number).read_bytes()
+            except OSError:
+                data = b""
+            self._cache = (number, size, data)
+        return self._cache[2]
+
     @staticmethod
-    def _records(path: Path, offset: int):  # -> Iterator[tuple[int, Record]]
+    def _records(data: bytes, offset: int) -> Iterator[tuple[int, Record]]:
         """(offset after the record, record) from ``offset`` on; stops at a torn record."""
-        try:
-            data = path.read_bytes()
-        except OSError:
-            return
         while offset + _HEAD.size <= len(data):
             size, stamp, qos, topic_len = _HEAD.unpack_from(data, offset)
             end = offset + 4 + size
@@ -157,8 +168,7 @@ class Spool:
     def next(self, now: float) -> Record | None:
         """The oldest record not yet read and not older than ``max_age`` (it counts as read); None when empty."""
         while self._segments:
-            path = self._path(self._read_segment)
-            for end, record in self._records(path, self._read_offset):
+            for end, record in self._records(self._read(self._read_segment), self._read_offset):
                 self._read_offset = end
                 if now - record.stamp > self.max_age:
                     self.dropped_old += 1
@@ -166,8 +176,9 @@ class Spool:
                 return record
             if self._read_segment >= self._segments[-1]:
                 return None  # the newest segment: more may be appended
-            path.unlink(missing_ok=True)  # finished
+            self._path(self._read_segment).unlink(missing_ok=True)  # finished
             self._segments.remove(self._read_segment)
+            self._sizes.pop(self._read_segment, None)
             self._read_segment, self._read_offset = self._segments[0], 0
             self._save_position()
         return None
