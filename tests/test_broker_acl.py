@@ -70,7 +70,7 @@ def test_rules_per_login_follow_design() -> None:
         return {(e.pattern, e.access) for e in ACL.entries(login)}
 
     assert table("turtle1") == {
-        ("roslink/turtle1/heartbeat", Access.WRITE), ("roslink/turtle1/state/#", Access.WRITE),
+        ("roslink/turtle1/heartbeat", Access.READWRITE), ("roslink/turtle1/state/#", Access.WRITE),
         ("roslink/turtle1/to/+/#", Access.WRITE), ("roslink/turtle1/from/+/#", Access.READ),
         ("roslink/operators/alice/#", Access.READ), ("roslink/operators/bob/#", Access.READ),
         ("roslink/operators/admin/#", Access.READ)}

@@ -42,6 +42,7 @@ from ..protocol import (
 from ..protocol.control import ErrorReport, pop_generic_sender, request_id
 from ..topics import Kind, TopicTree, Verb
 from .authorize import refusal
+from .claim import Claim
 from .failsafe import Failsafe, late_motion
 from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
@@ -94,14 +95,18 @@ class CommandEndpoint:
     """Decides what to do with every input of one robot, and keeps its motion state."""
 
     def __init__(self, fleet: Fleet, robot: Robot, link: Link, actuators: Actuators,
-                 routes: Mapping[str, Inbound], handlers: Mapping[Verb, VerbHandler] | None = None) -> None:
+                 routes: Mapping[str, Inbound], handlers: Mapping[Verb, VerbHandler] | None = None,
+                 claim: Claim | None = None) -> None:
         """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``handlers``: call, provide,
-        response and advertise, each given (user, name, topic, payload)."""
+        response and advertise, each given (user, name, topic, payload); ``claim``: this bridge's, carried by
+        every heartbeat (bridge/claim.py)."""
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
         self.link, self.actuators, self.routes = link, actuators, dict(routes)
         self.handlers: dict[Verb, VerbHandler] = dict(handlers or {})
         settings = robot.bridge
-        self.session = int(time.time()) & 0xFFFFFFFF  # grows with every start
+        self.claim = claim or Claim.mine()
+        self.session = int(self.claim.since) & 0xFFFFFFFF  # grows with every start
+        self.fenced: str | None = None  # why this bridge stood down for another one: it ignores every input
         self.owner = ""  # user who last commanded the robot
         self.motion_blocked: str | None = None  # why motion is refused (e-stop, disarmed)
         self.sequences = SequenceTracker()
@@ -146,6 +151,8 @@ class CommandEndpoint:
     # -- MQTT in (paho network thread) ----------------------------------------------------
     def on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
         """One MQTT message; ``arrived`` (monotonic, from the link) lets late motion be dropped, not executed."""
+        if self.fenced is not None:
+            return  # another bridge has the robot: nothing reaches ROS from here any more
         parsed = self.topics.parse(topic)
         if parsed is None:
             return
@@ -334,6 +341,13 @@ class CommandEndpoint:
             if why:
                 self.trigger_stop(f"{why} ({why_suffix})")
 
+    def fence(self, reason: str) -> None:
+        """Another bridge has the robot (bridge/claim.py): stop it, and ignore every input from now on."""
+        with self.lock:
+            self.fenced = reason
+            self.trigger_stop(reason)
+        self._cancel_goals(None, reason)
+
     # -- the link ------------------------------------------------------------------------------
     def link_up(self) -> None:
         with self.lock:
@@ -393,10 +407,12 @@ class CommandEndpoint:
     def heartbeat(self, status: SystemStatus) -> bytes:
         self._heartbeat_seq = (self._heartbeat_seq + 1) & 0xFFFFFFFF
         payload = {"type": int(self.robot.type), "name": self.robot.name, "system_status": int(status),
-                   "owner_id": self.owner, "mode": 0, "session": self.session}
+                   "owner_id": self.owner, "mode": 0, "session": self.session, **self.claim.fields()}
         return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
 
     def publish_heartbeat(self) -> None:
+        if self.fenced is not None:
+            return  # the robot's heartbeat is the other bridge's now
         status = SystemStatus.EMERGENCY if self.motion_blocked else SystemStatus.ACTIVE
         info = self.link.publish(self.topics.heartbeat(self.robot.name), self.heartbeat(status), qos=1, retain=True)
         with self.lock:

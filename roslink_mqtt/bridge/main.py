@@ -10,6 +10,10 @@ robot; the robot's password comes from ``--password-file``, ``ROSLINK_PASSWORD``
 would show it. The old ``--broker`` and ``ROSLINK_MQTT_PASSWORD`` still work for one release and log a
 deprecation line. SIGHUP re-reads the fleet file's users and grants (as the broker does); rule changes need
 a restart.
+
+A robot has one live bridge (bridge/claim.py): a bridge that finds another live one for its robot does not start
+and exits with 3 (the systemd unit does not restart it); ``--take-over`` stops the other one instead. A bridge that
+another one took over stops its robot and exits with 4.
 """
 
 from __future__ import annotations
@@ -44,6 +48,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.add_argument("--robot", required=True, help="robot name in the fleet file (the bridge logs in as it)")
     add_connection_options(p, username=False, default_url=None, url_fallback="else bridge.broker in the config")
+    p.add_argument("--take-over", action="store_true",
+                   help="if another bridge for this robot is live, make it stop the robot and exit, then start "
+                        "(without this, a second bridge refuses to start)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--executor", choices=EXECUTORS, default=None,
                    help=f"rclpy executor: 'events' (rclpy.experimental.EventsExecutor, C++: least CPU) or 'single' "
@@ -98,6 +105,33 @@ def reload_grants(bridge: Any, config: str) -> None:
     bridge.reload(fleet)
 
 
+class StartCheck(threading.Thread):
+    """The one-bridge check (bridge/claim.py), run while ROS starts: it needs the broker, not ROS."""
+
+    def __init__(self, robot: Any, urls: list, password: str, ca_file: str | None, take_over: bool,
+                 topic: str) -> None:
+        super().__init__(name="claim-check", daemon=True)
+        from .claim import Claim
+
+        self.robot, self.urls, self.password, self.ca_file, self.topic = robot, urls, password, ca_file, topic
+        self.claim = Claim.mine(take_over=take_over)
+        self.result: Any = None
+
+    def run(self) -> None:
+        from .claim import StartCheck as Result
+        from .claim import Verdict, announcement, check_claim, paho_connector
+
+        robot = self.robot
+        connect, close = paho_connector(self.urls, robot.name, self.password, self.ca_file, self.topic)
+        try:
+            self.result = check_claim(connect, robot.name, self.claim, robot.bridge.heartbeat_period,
+                                      announce=announcement(robot.name, robot.system_id, int(robot.type), self.claim))
+        except Exception as err:  # the check must never keep a robot without its bridge
+            self.result = Result(Verdict.START, note=f"could not check for another bridge ({err})")
+        finally:
+            close()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     import rclpy
@@ -129,6 +163,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
                                 Path(args.config).resolve().parent)
+    from .claim import EXIT_DUPLICATE, EXIT_FENCED, Verdict
+
+    check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
+                       fleet.topics.heartbeat(robot.name))
+    check.start()
     # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
     # could publish the final zero velocity and the offline heartbeat.
     kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor
@@ -136,30 +175,47 @@ def main(argv: list[str] | None = None) -> int:
         print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
         return 2
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    try:
-        node = rclpy.create_node("roslink_mqtt_bridge")
-        # Under the EventsExecutor, actions provided by MQTT clients get a node and a single-threaded executor
-        # of their own (Bridge says why); the main node keeps the cheap one.
-        action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if kind == "events" else None
-        bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
-                        ca_file=resolve_ca_file(args), action_node=action_node)
-    except RuleError as err:
-        line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
-        print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
-        rclpy.shutdown()
-        return 2
-    spun = [(make_executor(kind), node, bridge.on_executor)]
-    if action_node is not None:
-        spun.append((make_executor("single"), action_node, bridge.action_on_executor))
-    for executor, spun_node, handoff in spun:
-        executor.add_node(spun_node)
-        handoff.executor = executor
     stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
 
     def on_signal(flag: threading.Event) -> None:
         flag.set()
         wake.set()
 
+    try:
+        node = rclpy.create_node("roslink_mqtt_bridge")
+        # Under the EventsExecutor, actions provided by MQTT clients get a node and a single-threaded executor
+        # of their own (Bridge says why); the main node keeps the cheap one.
+        action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if kind == "events" else None
+        bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
+                        ca_file=resolve_ca_file(args), action_node=action_node, claim=check.claim,
+                        on_fenced=lambda: on_signal(stopping))
+    except RuleError as err:
+        line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
+        print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
+        rclpy.shutdown()
+        return 2
+    # Only now, with ROS set up meanwhile, does the bridge need the start check's answer: nothing has reached the
+    # broker or ROS's actuators yet.
+    check.join()
+    log = logging.getLogger("roslink_mqtt.bridge")
+    if check.result.verdict is Verdict.REFUSE:
+        print(f"roslink-mqtt-bridge: {check.result.refusal(robot.name)}", file=sys.stderr)
+        for created in (node, action_node):
+            if created is not None:
+                created.destroy_node()
+        rclpy.shutdown()
+        return EXIT_DUPLICATE
+    if check.result.verdict is Verdict.REPLACE:
+        log.warning("%s", check.result.note)
+        bridge.take_over_claim()
+    elif check.result.note:
+        log.info("%s", check.result.note)
+    spun = [(make_executor(kind), node, bridge.on_executor)]
+    if action_node is not None:
+        spun.append((make_executor("single"), action_node, bridge.action_on_executor))
+    for executor, spun_node, handoff in spun:
+        executor.add_node(spun_node)
+        handoff.executor = executor
     signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
     signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
     signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
@@ -198,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             spun_node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
-    return 0
+    return EXIT_FENCED if bridge.fenced_by is not None else 0
 
 
 if __name__ == "__main__":

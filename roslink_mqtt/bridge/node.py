@@ -27,6 +27,7 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
+from .claim import Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
@@ -165,8 +166,11 @@ class Bridge:
     """
 
     def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
-                 ca_file: str | None = None, action_node: Node | None = None) -> None:
-        """``action_node``: a second node, spun by a SingleThreadedExecutor of its own, for the action servers of
+                 ca_file: str | None = None, action_node: Node | None = None, claim: Claim | None = None,
+                 on_fenced: Callable[[], None] = lambda: None) -> None:
+        """``claim``: this bridge's (bridge/claim.py; the start check made it); ``on_fenced``: called once another
+        bridge has taken the robot over and this one has stopped it (main() then exits).
+        ``action_node``: a second node, spun by a SingleThreadedExecutor of its own, for the action servers of
         actions provided by MQTT clients (when ``node``'s executor is the EventsExecutor, which runs an action
         server's callbacks to completion ahead of everything else); None: they live on ``node``."""
         self.node, self.fleet, self.robot = node, fleet, robot
@@ -234,7 +238,11 @@ class Bridge:
                                             {n for n, r in routes.items() if not r.rule.on_demand},
                                             role_of, self._is_live, self._refuse, robot=robot.name)
         self.actuators = RosActuators(node, robot, routes, self.on_demand)
-        self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes)
+        self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim)
+        self._heartbeat_topic = self.topics.heartbeat(robot.name)
+        self.fenced_by: Claim | None = None  # the bridge this one stood down for
+        self._on_fenced = on_fenced
+        self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         try:
@@ -289,7 +297,24 @@ class Bridge:
     def _refuse(self, *args: Any, **kwargs: Any) -> None:
         self.endpoint.refuse(*args, **kwargs)
 
+    def take_over_claim(self) -> None:
+        """The start check replaced another bridge: this one's heartbeats say so (a take-over claim), so that one,
+        should it still be running (frozen, cut off), stands down when it sees them. Before :meth:`start`."""
+        claim = replace(self.endpoint.claim, take_over=True)
+        self.endpoint.claim = self.claims.me = claim
+        self.link.set_will(self._heartbeat_topic, self.endpoint.heartbeat(SystemStatus.OFFLINE))
+
+    def _fence(self, reason: str, rival: Claim) -> None:
+        """Another bridge keeps the robot (bridge/claim.py): stop it, say why, and have main() exit."""
+        log.error("%s: stopping the robot and exiting", reason)
+        self.fenced_by = rival
+        self.endpoint.fence(reason)
+        self._on_fenced()
+
     def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
+        if topic == self._heartbeat_topic:
+            self.claims.on_heartbeat(self.robot.name, payload, retained)
+            return
         if self._stop_leaves and topic.endswith(self._stop_leaves) and self._stops.seen(topic, payload):
             return  # the other copy of an emergency stop (stop link and command link both carry it)
         self.endpoint.on_mqtt(topic, payload, retained, arrived)
@@ -361,8 +386,11 @@ class Bridge:
         if self.stop_link is not None:
             self.stop_link.stop()
         self.viewer_link.stop()
-        self.link.stop([(self.topics.heartbeat(self.robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
-                         True)])
+        # A bridge that stood down for an older one leaves the robot's heartbeat alone (it is the other one's); one
+        # that was taken over says offline, which the new bridge waits for before it starts.
+        yielded = self.fenced_by is not None and not self.fenced_by.take_over
+        self.link.stop([] if yielded else [(self._heartbeat_topic, self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
+                                            True)])
 
     @property
     def lanes(self) -> list[MqttLink]:
@@ -400,8 +428,9 @@ class Bridge:
                 for leaf in self._stop_leaves]
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
-        """The command link's: every operator's commands, requests and presence (re-read at each connect)."""
-        return self._subscriptions_of(self.link)
+        """The command link's: every operator's commands, requests and presence (re-read at each connect), and the
+        robot's own heartbeat topic, where another bridge for this robot would show itself (bridge/claim.py)."""
+        return [(self._heartbeat_topic, 1), *self._subscriptions_of(self.link)]
 
     def viewer_subscriptions(self) -> list[tuple[str, int]]:
         """The viewer link's: every other user's inputs, and viewers' presence."""

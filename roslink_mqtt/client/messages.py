@@ -59,7 +59,7 @@ M = TypeVar("M", bound=RoslinkMessage)
 
 @dataclass(frozen=True, slots=True)
 class Heartbeat(RoslinkMessage):
-    """ROSLink message 0 (heartbeat). Sent retained once a second; its last-will says offline."""
+    """ROSLink message 0 (heartbeat). Sent retained once a second; its last-will says offline. `owner_id` names the holder of the control lease (docs/protocol.md, "Control"); status 1 (boot) with `take_over` 1 is a starting bridge asking the live one to stand down."""
 
     SPEC: ClassVar[MessageSpec] = SPECS_BY_NAME['heartbeat']
     MESSAGE_ID: ClassVar[MessageId] = MessageId.HEARTBEAT
@@ -68,9 +68,14 @@ class Heartbeat(RoslinkMessage):
     type: int = dataclasses.field(metadata={'doc': 'RobotType'})
     name: str = dataclasses.field(metadata={'doc': 'robot name'})
     system_status: int = dataclasses.field(metadata={'doc': 'SystemStatus; 8 = offline (last-will)'})
-    owner_id: str = dataclasses.field(metadata={'doc': "user who last commanded the robot, '' when none"})
+    owner_id: str = dataclasses.field(metadata={'doc': "user who holds control of the robot (the control lease), '' when none"})  # noqa: E501
     mode: int = dataclasses.field(metadata={'doc': 'FlightMode'})
     session: int = dataclasses.field(default=0, metadata={'doc': 'grows with every bridge start'})
+    instance: str = dataclasses.field(default='', metadata={'doc': "this bridge process's random id: two bridges of one robot tell each other apart by it"})  # noqa: E501
+    host: str = dataclasses.field(default='', metadata={'doc': 'the machine the bridge runs on'})
+    pid: int = dataclasses.field(default=0, metadata={'doc': "the bridge's process id on that machine"})
+    since: float = dataclasses.field(default=0.0, metadata={'doc': 'when this bridge started, s since the Unix epoch (the older live bridge keeps the robot)'})  # noqa: E501
+    take_over: int = dataclasses.field(default=0, metadata={'doc': '1: this bridge deliberately replaced another (`--take-over`, or one that fell silent); a live older bridge that sees it stops its robot and exits'})  # noqa: E501
 
 
 @dataclass(frozen=True, slots=True)

@@ -109,10 +109,20 @@ SPECS: tuple[MessageSpec, ...] = (
         _i("type", UINT8, "RobotType"),
         _s("name", "robot name"),
         _i("system_status", UINT8, "SystemStatus; 8 = offline (last-will)"),
-        _s("owner_id", "user who last commanded the robot, '' when none"),
+        _s("owner_id", "user who holds control of the robot (the control lease), '' when none"),
         _i("mode", UINT8, "FlightMode"),
         _i("session", UINT32, "grows with every bridge start", default=0),
-    ), "Sent retained once a second; its last-will says offline."),
+        _s("instance", "this bridge process's random id: two bridges of one robot tell each other apart by it",
+           default=""),
+        _s("host", "the machine the bridge runs on", default=""),
+        _i("pid", UINT32, "the bridge's process id on that machine", default=0),
+        _f("since", "when this bridge started, s since the Unix epoch (the older live bridge keeps the robot)",
+           default=0.0),
+        _i("take_over", UINT8, "1: this bridge deliberately replaced another (`--take-over`, or one that fell "
+                               "silent); a live older bridge that sees it stops its robot and exits", default=0),
+    ), "Sent retained once a second; its last-will says offline. `owner_id` names the holder of the control "
+       "lease (docs/protocol.md, \"Control\"); status 1 (boot) with `take_over` 1 is a starting bridge asking the "
+       "live one to stand down."),
     MessageSpec(MessageId.ROBOT_STATUS, "robot_status", _STATE, (
         _i("onboard_control_sensors_present", UINT32, "bitmask", default=0),
         _i("onboard_control_sensors_enabled", UINT32, "bitmask", default=0),
