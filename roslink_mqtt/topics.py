@@ -109,6 +109,7 @@ class Verb(Enum):
     PARAM_RESULT = "param_result"  # an SDK node's answer to a param_set: param_result/<node>
     PROVIDE_ACTION = "provide_action"  # serve a ROS action (retained; empty withdraws): provide_action/<action>
     ACTION_UPDATE = "action_update"  # a provider's accepted/rejected/feedback/end of a goal: action_update/<action>
+    CONTROL = "control"  # claim, release or take over control of the robot: control/<claim|release|take_over>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -165,15 +166,19 @@ _MEANINGS = {
     Verb.PROVIDE_ACTION: "serve a ROS action from your program (an empty retained message withdraws)",
     Verb.ACTION_UPDATE: "your answer on a goal you serve: accepted/rejected, feedback, its end and result",
     Verb.ACTION_REQUEST: "a ROS client sent a goal to (or canceled one of) an action you serve",
+    Verb.CONTROL: "claim, release or take over control of the robot (`control/claim`, `control/release`, "
+                  "`control/take_over`); `state/control` says who holds it",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
-                        Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE})
+                        Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE,
+                        Verb.CONTROL})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
-# State names the bridge writes itself (acknowledgements, the robot's description, its uplink report): no rule may.
-BRIDGE_STATE_NAMES = ("ack", "description", "link")
+# State names the bridge writes itself (acknowledgements, the robot's description, its uplink report, who holds
+# control): no rule may.
+BRIDGE_STATE_NAMES = ("ack", "description", "link", "control")
 
 
 def split_leaf(leaf: str, *, sent_by_user: bool = True) -> tuple[Verb | None, str]:
@@ -331,6 +336,10 @@ class TopicTree:
 
     def access(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ACCESS)
+
+    def control(self, robot: str, user: str, op: str) -> str:
+        """``from/<user>/control/<op>``: claim, release or take over control of ``robot``."""
+        return self.user_topic(robot, user, Verb.CONTROL, check_name(op, "control request"))
 
     def operator(self, user: str, client_id: str) -> str:
         return join(self.prefix, OPERATORS, check_name(user, "user"), check_name(client_id, "client id"))

@@ -225,7 +225,7 @@ def test_a_twist_from_a_live_operator_reaches_ros_clamped(h: Harness) -> None:
     h.command("twist", {"lx": 0.2, "az": 0.3})
     h.command("twist", {"lx": 99.0})  # over the 0.5 m/s limit: clamped, never refused
     assert h.twists() == [(0.2, 0.3), (ROBOT.bridge.limits.linear, 0.0)]
-    assert h.link.errors("alice") == [] and h.endpoint.owner == "alice"
+    assert h.link.errors("alice") == [] and h.endpoint.lease.holder == "alice"
 
 
 def test_a_generic_rule_carries_ros_json(h: Harness) -> None:

@@ -83,7 +83,8 @@ def test_rules_per_login_follow_design() -> None:
     assert table("bob") == {
         ("roslink/operators/bob/#", Access.WRITE), ("roslink/turtle1/heartbeat", Access.READ),
         ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/bob/#", Access.READ),
-        ("roslink/turtle1/from/bob/param/sim_robot", Access.WRITE)}
+        ("roslink/turtle1/from/bob/param/sim_robot", Access.WRITE),
+        ("roslink/turtle1/from/bob/cmd/emergency_stop", Access.WRITE)}  # any granted user may stop the robot
     assert table("admin") == {("#", Access.READWRITE), ("$SYS/#", Access.READ)}
     assert ACL.entries("nobody") == () and ACL.entries(None) == ()
 

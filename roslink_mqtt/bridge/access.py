@@ -24,7 +24,9 @@ def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, byt
     for user, role in sorted(fleet.users_of(robot).items()):
         callable_ = tuple(s.name for s in services if allowed(role, Verb.CALL, read_only=s.read_only))
         goals = tuple(a.name for a in actions if allowed(role, Verb.GOAL, read_only=a.viewers))
-        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_, goals)
+        estop = bool(fleet.robots[robot].estop_inputs) and (role is Role.OPERATOR or
+                                                            fleet.robots[robot].estop == "viewers")
+        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_, goals, estop)
         out[topics.access(robot, user)] = report.to_json()
     return out
 

@@ -56,6 +56,8 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"answer parameter changes of '{name}'"
     if verb is Verb.LOG:
         return f"write the robot's /rosout (as node '{name}')"
+    if verb is Verb.CONTROL:
+        return f"{name.replace('_', ' ')} control of {robot}"
     return f"publish on '{name}'"
 
 

@@ -23,6 +23,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any, Protocol
 
 from ..config import Fleet, Robot, Role
@@ -40,10 +41,13 @@ from ..protocol import (
     sender_id,
 )
 from ..protocol.control import ErrorReport, pop_generic_sender, request_id
+from ..protocol.errors import ProtocolError
+from ..protocol.lease import CONTROL, ControlOp, ControlState, read_request
 from ..topics import Kind, TopicTree, Verb
 from .authorize import refusal
 from .claim import Claim
 from .failsafe import Failsafe, late_motion
+from .lease import ControlLease, Outcome
 from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
 from .safety import is_standstill, make_safe_twist
@@ -107,7 +111,7 @@ class CommandEndpoint:
         self.claim = claim or Claim.mine()
         self.session = int(self.claim.since) & 0xFFFFFFFF  # grows with every start
         self.fenced: str | None = None  # why this bridge stood down for another one: it ignores every input
-        self.owner = ""  # user who last commanded the robot
+        self.lease = ControlLease(robot.name, robot.control, frozenset(robot.supervisors))  # who drives
         self.motion_blocked: str | None = None  # why motion is refused (e-stop, disarmed)
         self.sequences = SequenceTracker()
         self.operators = OperatorTracker(settings.operator_timeout)
@@ -137,11 +141,16 @@ class CommandEndpoint:
         Returns the users demoted from operator (the ROS side withdraws what they provide).
         """
         before, after = self.fleet.users_of(self.robot.name), fleet.users_of(self.robot.name)
+        robot = fleet.robots.get(self.robot.name, self.robot)
         with self.lock:
             self.fleet, self._grants = fleet, (fleet, {})
+            # who drives and who may stop are grants too: they apply now (rules and settings need a restart)
+            self.robot = replace(self.robot, control=robot.control, supervisors=robot.supervisors, estop=robot.estop)
+            self.lease.mode, self.lease.supervisors = robot.control, frozenset(robot.supervisors)
         demoted = sorted(u for u, role in before.items() if role is Role.OPERATOR and after.get(u) is not Role.OPERATOR)
         for user in demoted:
             with self.lock:
+                self._lease_ends(user, "operator grant removed")
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (operator grant removed)")
@@ -170,7 +179,13 @@ class CommandEndpoint:
                                          "without the retain flag (and clear this one with an empty retained message)",
                             payload=payload)
             return
-        if verb is Verb.GOAL and not self._goal_gates(user, topic, payload):
+        if verb is Verb.CONTROL:
+            self.on_control(user, parsed.name or "", topic, payload)
+            return
+        if verb is Verb.GOAL and not self._goal_gates(user, topic, payload, parsed.name or ""):
+            return
+        if verb in (Verb.CALL, Verb.PARAM) and not self._request_lease_gate(user, verb, parsed.name or "", topic,
+                                                                              payload):
             return
         if verb is not None and verb is not Verb.CMD:
             handler = self.handlers.get(verb)
@@ -185,14 +200,18 @@ class CommandEndpoint:
             self.refuse(user, topic, f"no mapping for '{name}' on robot {self.robot.name} "
                                      f"(commands: {', '.join(sorted(self.routes)) or 'none'})", payload=payload)
             return
-        why = refusal(user, self.role_of(user), Verb.CMD, name, robot=self.robot.name)
+        role = self.role_of(user)
+        why = refusal(user, role, Verb.CMD, name, robot=self.robot.name)
+        if why and role is Role.VIEWER and name in self.robot.estop_inputs and self.robot.estop == "viewers":
+            why = None  # any granted user may stop the robot (robots.yaml `estop: operators` restricts it)
         if why:
             self.refuse(user, topic, why, payload=payload)
             return
         self.handle_command(user, topic, route, payload, arrived)
 
-    def _goal_gates(self, user: str, topic: str, payload: bytes) -> bool:
-        """A goal may move the robot: it needs the sender's live presence and motion not blocked."""
+    def _goal_gates(self, user: str, topic: str, payload: bytes, action: str) -> bool:
+        """A goal may move the robot: it needs the sender's live presence, motion not blocked, and (unless the
+        action is open to viewers) the control lease."""
         with self.lock:
             if not self.operators.is_live(user):
                 self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
@@ -203,7 +222,90 @@ class CommandEndpoint:
                 self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", payload=payload,
                             request_id=request_id(payload))
                 return False
+            rule = self.robot.action(action)
+            if rule is not None and not rule.viewers and self.role_of(user) is Role.OPERATOR:
+                why = self._lease_gate(user)
+                if why:
+                    self.refuse(user, topic, why, payload=payload, request_id=request_id(payload))
+                    return False
         return True
+
+    def _request_lease_gate(self, user: str, verb: Verb, name: str, topic: str, payload: bytes) -> bool:
+        """Service calls (unless read-only) and parameter sets change the robot: only from the lease's holder.
+        Viewers are left to the verb's own handler (it refuses what they may not do, with its own reason)."""
+        if self.role_of(user) is not Role.OPERATOR:
+            return True
+        if verb is Verb.CALL:
+            rule = self.robot.service(name)
+            if rule is None or rule.read_only:
+                return True
+        else:
+            try:
+                body = loads(payload)
+            except ProtocolError:
+                return True  # the parameter bridge reports the malformed body
+            if not isinstance(body, dict) or body.get("op") != "set":
+                return True
+        with self.lock:
+            why = self._lease_gate(user)
+        if why:
+            self.refuse(user, topic, why, payload=payload, request_id=request_id(payload))
+            return False
+        return True
+
+    # -- the control lease (bridge/lease.py) --------------------------------------------------
+    def _lease_gate(self, user: str) -> str | None:
+        """Under the lock: None when ``user`` may change the robot now (a free lease may be claimed on the way)."""
+        before = self.lease.version
+        why = self.lease.gate(user, live=self.operators.is_live(user), now=time.time())
+        if self.lease.version != before:
+            log.info("%s: %s", self.robot.name, self.lease.event)
+            self.publish_control()
+        return why
+
+    def control_state(self) -> ControlState:
+        return self.lease.state(self.robot.estop)
+
+    def publish_control(self) -> None:
+        """Retained ``state/control``: who holds control, since when (on every change, and on connecting)."""
+        self.link.publish(self.topics.state(self.robot.name, CONTROL), self.control_state().to_json(),
+                          qos=ControlState.QOS, retain=True)
+
+    def on_control(self, user: str, name: str, topic: str, payload: bytes) -> None:
+        """``control/claim|release|take_over`` from ``user``."""
+        try:
+            op = ControlOp.parse(name)
+            body = read_request(payload)
+        except ProtocolError as err:
+            self.refuse(user, topic, str(err), payload=payload)
+            return
+        sender = body.get("client_id") if isinstance(body.get("client_id"), str) else None
+        if self.role_of(user) is not Role.OPERATOR:
+            self.refuse(user, topic, refusal(user, self.role_of(user), Verb.CONTROL, name, robot=self.robot.name)
+                        or "", client_id=sender)
+            return
+        with self.lock:
+            answer = self.lease.request(user, op, live=self.operators.is_live(user), now=time.time())
+            if answer.outcome is Outcome.REFUSED:
+                self.refuse(user, topic, answer.reason, client_id=sender)
+                return
+            log.info("%s: %s", self.robot.name, answer.reason)
+            if answer.outcome is Outcome.TAKEN and answer.displaced is not None:
+                # the new holder starts from standstill; the old one hears it at once, on its error topic
+                self.trigger_stop(f"control {answer.reason}", level=logging.INFO)
+                self.link.publish(self.topics.error(self.robot.name, answer.displaced),
+                                  error_reply(self.topics.state(self.robot.name, CONTROL),
+                                              f"control of {self.robot.name} {answer.reason}"),
+                                  qos=ErrorReport.QOS)
+            self.publish_control()
+        if answer.outcome is Outcome.TAKEN and answer.displaced is not None:
+            self._cancel_goals(answer.displaced, f"control of {self.robot.name} {answer.reason}")
+
+    def _lease_ends(self, user: str, why: str) -> None:
+        """Under the lock: ``user``'s presence or grant ended; so does their lease, if they held it."""
+        if self.lease.ended(user, why, time.time()):
+            log.info("%s: %s", self.robot.name, self.lease.event)
+            self.publish_control()
 
     def _cancel_goals(self, user: str | None, why: str) -> None:
         """Cancel goals exactly where velocity stops (presence ended, broker lost, e-stop); say so on state/ack."""
@@ -237,6 +339,11 @@ class CommandEndpoint:
                                          f"on {self.topics.operator(user, '<client_id>')} every second",
                             message_id, sequence, client_id=sender)
                 return
+            if not behaviour.never_stale:  # an emergency stop needs no lease
+                why = self._lease_gate(user)
+                if why:
+                    self.refuse(user, topic, why, message_id, sequence, client_id=sender)
+                    return
             if route.moves_robot:
                 if self.motion_blocked:
                     self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
@@ -266,13 +373,15 @@ class CommandEndpoint:
                 self.block_motion(f"{behaviour.blocks_motion} by {user}")
             elif behaviour.resumes_motion and not route.is_service:
                 self.motion_blocked = None  # a service-backed arm resumes only when its service succeeds
-            self.owner = user
             if route.is_service:
                 why = self.actuators.call_service(route, msg, message_id, sequence)
                 if why:
                     self.refuse(user, topic, why, message_id, sequence, client_id=sender)
             else:
                 self.actuators.publish(user, route, msg)
+            if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
+                self.publish_ack(message_id or 0, sequence, AckResult.ACCEPTED,
+                                 f"{behaviour.blocks_motion or 'stop'} by {user}")
 
     def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
         """Operator presence. Classified before the lock (bounded work), so presence can never hold up a stop."""
@@ -283,6 +392,7 @@ class CommandEndpoint:
         with self.lock:
             gone = not self.operators.record(user, client_id, presence, time.monotonic())
             if gone:
+                self._lease_ends(user, "signed off" if presence is Presence.SIGNED_OFF else "last-will")
                 why = self.failsafe.operator_gone(user)
                 if why and presence is Presence.SIGNED_OFF:
                     # a program that finished: the robot stops all the same, but nothing failed
@@ -389,6 +499,7 @@ class CommandEndpoint:
             self._check_link(now)
             expired = self.operators.expire(now)
             for user in expired:
+                self._lease_ends(user, f"no heartbeat for {self.operators.timeout:g} s")
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")
@@ -407,7 +518,7 @@ class CommandEndpoint:
     def heartbeat(self, status: SystemStatus) -> bytes:
         self._heartbeat_seq = (self._heartbeat_seq + 1) & 0xFFFFFFFF
         payload = {"type": int(self.robot.type), "name": self.robot.name, "system_status": int(status),
-                   "owner_id": self.owner, "mode": 0, "session": self.session, **self.claim.fields()}
+                   "owner_id": self.lease.holder or "", "mode": 0, "session": self.session, **self.claim.fields()}
         return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
 
     def publish_heartbeat(self) -> None:

@@ -420,11 +420,14 @@ class Bridge:
         return subs
 
     def stop_subscriptions(self, fleet: Fleet | None = None) -> list[tuple[str, int]]:
-        """The stop link's: the emergency-stop input of every operator of this robot (anyone else's stop comes on
-        the viewer link and is refused there, with the reason)."""
+        """The stop link's: the emergency-stop input of every user the endpoint obeys there: operators, and viewers
+        unless robots.yaml says ``estop: operators`` (then a viewer's stop comes on the viewer link and is refused
+        there, with the reason)."""
         fleet = fleet or self.fleet
-        operators = sorted(u for u, role in fleet.users_of(self.robot.name).items() if role is Role.OPERATOR)
-        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in operators
+        robot = fleet.robots.get(self.robot.name, self.robot)
+        stoppers = sorted(u for u, role in fleet.users_of(self.robot.name).items()
+                          if role is Role.OPERATOR or robot.estop == "viewers")
+        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in stoppers
                 for leaf in self._stop_leaves]
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
@@ -441,6 +444,7 @@ class Bridge:
         self.systemd.status(f"connected to {self.link.url}")
         self.endpoint.link_up()
         self.endpoint.publish_heartbeat()
+        self.endpoint.publish_control()
         self.publish_access()
         self.publish_description()
 
@@ -529,6 +533,7 @@ class Bridge:
             self._retained_at = now
             self.publish_access()
             self.publish_description()
+            self.endpoint.publish_control()
         self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
         self.endpoint.supervise(now)
         self.caller.expire(now)

@@ -12,8 +12,9 @@ With ``P`` the fleet prefix (``roslink``):
 * user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
   writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
   ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``, and ``P/R/from/U/goal/<a>`` and
-  ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``, and ``P/R/from/U/param/<n>`` for
-  its exposed parameter nodes (reads; the bridge refuses a viewer's set unless ``viewers_may_set``).
+  ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``, ``P/R/from/U/param/<n>`` for
+  its exposed parameter nodes (reads; the bridge refuses a viewer's set unless ``viewers_may_set``), and the
+  robot's emergency-stop inputs (``P/R/from/U/cmd/emergency_stop``) unless the robot says ``estop: operators``.
 * an admin reads and writes ``#`` and reads ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
 * an unknown login (and anonymous) may do nothing.
 
@@ -161,6 +162,10 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
             # viewers read every exposed node's parameters (the bridge refuses a set unless viewers_may_set)
             entries += [AclEntry(t.param(robot, user, rule.name), Access.WRITE)
                         for rule in fleet.robots[robot].parameters]
+            # any granted user may stop the robot (unless robots.yaml says `estop: operators`)
+            if fleet.robots[robot].estop == "viewers":
+                entries += [AclEntry(t.from_user(robot, user, leaf), Access.WRITE)
+                            for leaf in fleet.robots[robot].estop_inputs]
     return entries
 
 

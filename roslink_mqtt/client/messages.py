@@ -59,7 +59,7 @@ M = TypeVar("M", bound=RoslinkMessage)
 
 @dataclass(frozen=True, slots=True)
 class Heartbeat(RoslinkMessage):
-    """ROSLink message 0 (heartbeat). Sent retained once a second; its last-will says offline. `owner_id` names the holder of the control lease (docs/protocol.md, "Control"); status 1 (boot) with `take_over` 1 is a starting bridge asking the live one to stand down."""
+    """ROSLink message 0 (heartbeat). Sent retained once a second; its last-will says offline."""
 
     SPEC: ClassVar[MessageSpec] = SPECS_BY_NAME['heartbeat']
     MESSAGE_ID: ClassVar[MessageId] = MessageId.HEARTBEAT

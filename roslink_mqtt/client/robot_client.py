@@ -355,7 +355,7 @@ class RobotClient:
             if urgent:
                 info = self._send(topic, data, qos, leaf)
                 self.watch(robot, timeout=ACCESS_WAIT)
-                self._raise_if_refused(robot, topic)  # the broker dropped it: say so
+                self._raise_if_refused(robot, topic, "estop")  # the broker dropped it: say so
             else:
                 self.watch(robot)
                 self._raise_if_refused(robot, topic)
@@ -370,8 +370,8 @@ class RobotClient:
                     self._error_waiters.remove(waiter)
         return seq
 
-    def _raise_if_refused(self, robot: str, topic: str) -> None:
-        refusal = self._refusal(robot, "command")
+    def _raise_if_refused(self, robot: str, topic: str, action: str = "command") -> None:
+        refusal = self._refusal(robot, action)
         if refusal is not None:
             raise CommandRefused(RobotError(robot, topic, refusal, client_id=self.client_id))
 
@@ -690,6 +690,11 @@ class RobotClient:
                     f"as a viewer of {robot} you may use: {allowed}")
         if report.operator:
             return None
+        if action == "estop":
+            if report.estop:
+                return None
+            return (f"user '{user}' may not press the emergency stop of {robot}: it says `estop: operators` and you "
+                    "are a viewer")
         if action == "provide":
             return f"user '{user}' may not provide services on {robot} (operators only; you are a viewer)"
         return f"user '{user}' is not an operator of {robot} (a viewer): the broker drops your commands"

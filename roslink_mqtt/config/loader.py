@@ -29,9 +29,11 @@ from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_ta
 from .model import (
     BUFFER_NONE,
     BUFFERS,
+    CONTROL_MODES,
     ENCODING_JSON,
     ENCODING_RAW,
     ENCODINGS,
+    ESTOP_MODES,
     EXECUTORS,
     LIMIT_MODES,
     PRIORITY_NAMES,
@@ -213,7 +215,30 @@ class _FleetReader:
         broker = self.broker(("broker",)) if "broker" in self.get(root) else BrokerSettings()
         robots = self.robots(("robots",))
         users = self.users(("users",), robots)
+        self.check_supervisors(robots, users)
         return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes))
+
+    def names(self, path: Path, what: str) -> tuple[str, ...]:
+        """A list of login names (each a valid topic level), without repeats."""
+        check = self.topic_name(what)
+        names = tuple(check(path + (i,), v) for i, v in enumerate(self.sequence(path)))
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise self.err(path + (i,), f"'{name}' is listed twice")
+        return names
+
+    def check_supervisors(self, robots: dict[str, Robot], users: dict[str, User]) -> None:
+        """A supervisor must be an operator of the robot (a grant with role operator, or an admin)."""
+        keys = {r.key: r.name for r in robots.values()}
+        for robot in robots.values():
+            for i, name in enumerate(robot.supervisors):
+                user = users.get(name)
+                operator = user is not None and (user.admin or any(
+                    keys.get(g.key) == robot.name and g.role is Role.OPERATOR for g in user.grants))
+                if not operator:
+                    why = "no such user" if user is None else f"'{name}' is not an operator of {robot.name}"
+                    raise self.err(("robots", robot.name, "supervisors", i),
+                                   f"a supervisor must be an operator of the robot: {why}")
 
     def broker(self, path: Path) -> BrokerSettings:
         self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload"))
@@ -258,7 +283,7 @@ class _FleetReader:
 
     def robot(self, path: Path, name: str) -> Robot:
         self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services", "actions",
-                            "parameters"))
+                            "parameters", "control", "supervisors", "estop"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         return Robot(
@@ -272,6 +297,9 @@ class _FleetReader:
             services=self.services(path + ("services",)) if "services" in self.get(path) else (),
             actions=self.actions(path + ("actions",)) if "actions" in self.get(path) else (),
             parameters=self.parameters(path + ("parameters",)) if "parameters" in self.get(path) else (),
+            control=self.value(path, "control", self.choice(CONTROL_MODES), "auto"),
+            supervisors=self.names(path + ("supervisors",), "supervisor") if "supervisors" in self.get(path) else (),
+            estop=self.value(path, "estop", self.choice(ESTOP_MODES), "viewers"),
         )
 
     def limits(self, path: Path) -> VelocityLimits:

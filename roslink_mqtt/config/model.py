@@ -29,6 +29,9 @@ ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW = "json", "cbor", "raw"
 ENCODINGS = (ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW)
 RAW_TYPES = ("sensor_msgs/msg/CompressedImage",)  # the types whose payload can be their bytes alone
 UPLINK_MODES = ("scheduled", "fifo")
+CONTROL_MODES = ("auto", "explicit")  # robots.<name>.control
+ESTOP_MODES = ("viewers", "operators")  # robots.<name>.estop
+ESTOP_PRESET = "emergency_stop"  # the preset whose rules are emergency stops
 BUFFER_NONE, BUFFER_DISK = "none", "disk"
 BUFFERS = (BUFFER_NONE, BUFFER_DISK)
 
@@ -262,6 +265,19 @@ class Robot:
     services: tuple[ServiceRule, ...] = ()
     actions: tuple[ActionRule, ...] = ()
     parameters: tuple[ParameterRule, ...] = ()
+    # Who drives (docs/safety.md, "One driver"): "auto" lets an operator's first command claim a free control
+    # lease, "explicit" needs a claim first; supervisors take over by claiming and only another supervisor takes
+    # their lease; estop "viewers" lets every granted user press the emergency stop, "operators" only operators.
+    control: str = "auto"
+    supervisors: tuple[str, ...] = ()
+    estop: str = "viewers"
+
+    @property
+    def estop_inputs(self) -> tuple[str, ...]:
+        """The leaves (``cmd/emergency_stop``) of the robot's emergency-stop rules: no lease, open to viewers when
+        ``estop`` says so (the broker's ACL and the bridge read this one list)."""
+        return tuple(r.mqtt_topic for r in self.rules
+                     if r.direction is Direction.MQTT_TO_ROS and r.preset == ESTOP_PRESET)
 
     def service(self, name: str) -> ServiceRule | None:
         return next((s for s in self.services if s.name == name), None)

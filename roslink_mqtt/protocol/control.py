@@ -187,6 +187,7 @@ class AccessReport:
     role: str  # "operator" or "viewer"
     services: tuple[str, ...] = ()  # services this user may call; the broker drops calls to any other
     actions: tuple[str, ...] = ()  # actions this user may send goals to (and cancel them)
+    estop: bool = False  # this user may send emergency stops (operators; viewers unless `estop: operators`)
 
     FIELDS = (
         BodyField("role", "string", True, "`operator` (commands, calls, provides, advertises, goals) or `viewer` "
@@ -197,6 +198,9 @@ class AccessReport:
         BodyField("actions", "array of strings", False, "the robot's actions this user may send goals to: all of "
                                                         "them for an operator, those with `viewers: true` for a "
                                                         "viewer (missing from older bridges: none listed)"),
+        BodyField("estop", "boolean", False, "this user may press the robot's emergency stop: operators, and "
+                                             "viewers unless robots.yaml says `estop: operators` (missing from "
+                                             "older bridges: operators only)"),
     )
     QOS = 1
     RETAINED = True
@@ -214,7 +218,8 @@ class AccessReport:
         return self.operator or action in self.actions
 
     def to_json(self) -> bytes:
-        return orjson.dumps({"role": self.role, "services": list(self.services), "actions": list(self.actions)})
+        return orjson.dumps({"role": self.role, "services": list(self.services), "actions": list(self.actions),
+                             "estop": self.estop})
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> AccessReport:
@@ -229,7 +234,7 @@ class AccessReport:
         actions = body.get("actions", [])
         if not isinstance(actions, list) or not all(isinstance(a, str) for a in actions):
             raise ProtocolError("access report: actions: expected an array of strings")
-        return cls(role, tuple(services), tuple(actions))
+        return cls(role, tuple(services), tuple(actions), bool(body.get("estop", role == "operator")))
 
 
 def _dump(body: dict[str, Any], client_id: str | None) -> bytes:

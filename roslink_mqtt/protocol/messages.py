@@ -120,9 +120,7 @@ SPECS: tuple[MessageSpec, ...] = (
            default=0.0),
         _i("take_over", UINT8, "1: this bridge deliberately replaced another (`--take-over`, or one that fell "
                                "silent); a live older bridge that sees it stops its robot and exits", default=0),
-    ), "Sent retained once a second; its last-will says offline. `owner_id` names the holder of the control "
-       "lease (docs/protocol.md, \"Control\"); status 1 (boot) with `take_over` 1 is a starting bridge asking the "
-       "live one to stand down."),
+    ), "Sent retained once a second; its last-will says offline."),
     MessageSpec(MessageId.ROBOT_STATUS, "robot_status", _STATE, (
         _i("onboard_control_sensors_present", UINT32, "bitmask", default=0),
         _i("onboard_control_sensors_enabled", UINT32, "bitmask", default=0),

@@ -29,6 +29,7 @@ from .control import (
 from .description import DESCRIPTION_BODIES, RobotDescription
 from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
+from .lease import LEASE_BODIES, ControlState
 from .link import LINK_BODIES, LinkReport, StreamReport
 from .messages import SPECS, Direction, Field, Kind, MessageSpec
 from .node_params import NODE_PARAM_BODIES, DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
@@ -45,7 +46,7 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
-                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES)
+                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES)
 
 _CONTROL_EXAMPLES: dict[type, object] = {
     ParamDeclaration: ParamDeclaration("alice-legacy_arm-5f2c9e0a1b3d4c6e", {
@@ -58,6 +59,7 @@ _CONTROL_EXAMPLES: dict[type, object] = {
     ActionRequest: ActionRequest("turtle1-g7", "goal", {"order": 5}, "alice-planner-5f2c9e0a1b3d4c6e"),
     ActionUpdate: ActionUpdate("turtle1-g7", "succeeded", result={"sequence": [0, 1, 1, 2, 3, 5]}),
     LogLine: LogLine(20, "gripper closed", "legacy_arm.py", "close", 42, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
+    ControlState: ControlState("alice", 1764158585.2, False, "auto", ("admin",), "viewers", "claimed by alice"),
     LinkReport: LinkReport("scheduled", 243.5, True, 3300, 81.2, 2.0, {
         "global_motion": StreamReport("motion", True, 10.0, 10.0, 0, 0, 10.0, 39.2),
         "range_finder_data": StreamReport("state", True, 5.0, 3.5, 3, 0, 5.0, 196.1)}),
