@@ -60,6 +60,14 @@ def stack(request, tmp_path_factory):
                                   bob=bob)
 
 
+@pytest.fixture(autouse=True)
+def free_control(stack):
+    """Each test starts with nobody holding control of turtle1 (the stack's operators live on between tests)."""
+    yield
+    for client, user in ((stack.alice, "alice"), (stack.admin, "admin")):
+        client.publish(f"roslink/turtle1/from/{user}/control/release", b"")
+
+
 def send_goal(client: TestClient, user: str, goal: dict, goal_id: str | None = None, action: str = ACTION) -> str:
     goal_id = goal_id or uuid.uuid4().hex[:12]
     client.publish(f"roslink/turtle1/from/{user}/goal/{action}", {"id": goal_id, "goal": goal})
@@ -129,17 +137,21 @@ def test_bad_input_is_refused_on_the_error_topic(stack, leaf: str, body: dict, w
 
 
 def test_two_operators_same_goal_id_no_collision(stack) -> None:
-    send_goal(stack.alice, "alice", {"order": 6}, goal_id="shared")
-    send_goal(stack.admin, "admin", {"order": 9}, goal_id="shared")
-    alice = GoalResult.from_json(until_result(stack.alice, "alice", "shared")[-1].payload)
-    admin = GoalResult.from_json(until_result(stack.admin, "admin", "shared")[-1].payload)
-    assert (len(alice.result["sequence"]), len(admin.result["sequence"])) == (7, 10)
-    # alice cannot cancel admin's goal: the id is looked up among her own
-    send_goal(stack.admin, "admin", {"order": 30}, goal_id="mine")
-    stack.admin.wait_for(lambda m: "/goal_status/" in m.topic and m.json().get("id") == "mine", timeout=10)
-    stack.alice.publish(f"roslink/turtle1/from/alice/cancel/{ACTION}", {"id": "mine"})
-    stack.alice.wait_for(lambda m: m.topic.endswith("/error") and "no goal 'mine' of yours" in m.json()["error"])
-    assert GoalResult.from_json(until_result(stack.admin, "admin", "mine")[-1].payload).status == "succeeded"
+    # goals to an action open to viewers change nothing: no control lease, both operators' goals run at once
+    send_goal(stack.alice, "alice", {"order": 3}, goal_id="shared", action="fib_public")
+    send_goal(stack.admin, "admin", {"order": 5}, goal_id="shared", action="fib_public")
+    alice = GoalResult.from_json(until_result(stack.alice, "alice", "shared", action="fib_public")[-1].payload)
+    admin = GoalResult.from_json(until_result(stack.admin, "admin", "shared", action="fib_public")[-1].payload)
+    assert (len(alice.result["sequence"]), len(admin.result["sequence"])) == (4, 6)
+    # on any other action only the holder of control sends goals: admin learns who drives
+    send_goal(stack.alice, "alice", {"order": 30}, goal_id="mine")
+    stack.alice.wait_for(lambda m: "/goal_status/" in m.topic and m.json().get("id") == "mine", timeout=10)
+    send_goal(stack.admin, "admin", {"order": 3}, goal_id="theirs")
+    stack.admin.wait_for(lambda m: m.topic.endswith("/error") and "turtle1 is driven by alice" in m.json()["error"])
+    # admin cannot cancel alice's goal: the id is looked up among his own
+    stack.admin.publish(f"roslink/turtle1/from/admin/cancel/{ACTION}", {"id": "mine"})
+    stack.admin.wait_for(lambda m: m.topic.endswith("/error") and "no goal 'mine' of yours" in m.json()["error"])
+    assert GoalResult.from_json(until_result(stack.alice, "alice", "mine")[-1].payload).status == "succeeded"
 
 
 def test_viewer_is_refused_unless_the_action_is_open_to_viewers(stack) -> None:
@@ -180,7 +192,11 @@ def test_emergency_stop_cancels_every_goal(stack) -> None:
     send_goal(stack.admin, "admin", {"order": 3})
     error = stack.admin.wait_for(lambda m: m.topic.endswith("/error") and "goal/" in m.json()["topic"])
     assert "send cmd/arm to resume" in error.json()["error"]
+    # any operator stops it; only the holder of control (admin, whose goal claimed it) resumes it
     stack.alice.publish("roslink/turtle1/from/alice/cmd/arm",
+                        {"message_id": 104, "sequence_number": 7, "payload": {}})
+    stack.alice.wait_for(lambda m: m.topic.endswith("/error") and "turtle1 is driven by admin" in m.json()["error"])
+    stack.admin.publish("roslink/turtle1/from/admin/cmd/arm",
                         {"message_id": 104, "sequence_number": 7, "payload": {}})
     time.sleep(0.5)
     again = send_goal(stack.admin, "admin", {"order": 3})

@@ -82,6 +82,7 @@ def test_sighup_gives_and_takes_operator_grants(tmp_path: Path) -> None:
                 stop_carol.set()
                 streamer.join()
             assert "carol:operator" in bridge.output()
+            carol.publish("roslink/turtle1/from/carol/control/release", b"")  # alice drives next
 
             # 2. alice loses turtle1 while she drives: only the bridge reloads (the broker still lets her
             #    publish), so the stop below is the bridge's doing, not the broker's or the dead-man's

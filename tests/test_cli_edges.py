@@ -291,7 +291,7 @@ def test_finished_pub_is_no_warning_but_the_robot_stops(stack) -> None:
     out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.2}', "--rate", "10", "--duration", "1")
     assert out.returncode == 0, out.stdout + out.stderr
     lines = _wait_line(log, since, "operator alice went away (signed off)")
-    stop = next(line for line in lines if "signed off" in line)
+    stop = next(line for line in lines if "operator alice went away (signed off)" in line)
     assert " INFO " in stop and "stop of turtle1" in stop
     assert not [line for line in lines if " WARNING " in line], lines
     for command in ("arm", "emergency_stop", "arm"):  # commands that start no motion stop nothing

@@ -131,3 +131,15 @@ def test_a_viewer_cannot_claim_and_an_unknown_request_is_refused() -> None:
     assert "unknown request" in h.link.errors("alice")[-1].error
     h.raw("control/claim", b"[1]", user="alice")
     assert h.endpoint.lease.holder is None
+
+
+def test_a_refused_command_claims_nothing() -> None:
+    h = _harness()
+    h.present("alice")
+    h.command("twist", {"lx": 0.1}, sequence=50)
+    h.raw("control/release", b"")
+    assert h.endpoint.lease.holder is None
+    h.command("twist", {"lx": 0.1}, sequence=49)  # stale: dropped, and it does not take the robot
+    assert h.endpoint.lease.holder is None and "stale" in h.link.errors("alice")[-1].error
+    h.command("twist", {"lx": 0.1}, sequence=51)
+    assert h.endpoint.lease.holder == "alice"

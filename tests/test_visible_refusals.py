@@ -82,8 +82,11 @@ def test_sdk_viewer_is_refused_at_the_call_site(stack) -> None:
         with pytest.raises(CommandRefused, match="not an operator of turtle1") as refused:
             bob.twist("turtle1", lx=0.3)  # no check=: the broker would drop it, so nothing could come back
         assert refused.value.error.topic == "roslink/turtle1/from/bob/cmd/twist"
-        with pytest.raises(CommandRefused, match="not an operator"):
-            bob.emergency_stop("turtle1", "viewer tries")
+        # any granted user may stop the robot (robots.yaml `estop: operators` would refuse it here)
+        bob.emergency_stop("turtle1", "viewer stops", check=0.5)
+        with RobotClient("alice", "alice-demo", url=stack.url, robots=["turtle1"]) as alice:
+            alice.wait_for_robot("turtle1", timeout=10)
+            alice.arm("turtle1", check=0.5)  # only an operator (the holder of control) resumes it
         started = time.monotonic()
         with pytest.raises(ServiceError, match="may not call 'reset'"):
             bob.call("turtle1", "reset", timeout=5)
@@ -95,7 +98,7 @@ def test_sdk_viewer_is_refused_at_the_call_site(stack) -> None:
         assert any(e.topic.endswith("/provide/bob_service") for e in bob.recent_errors)
         from roslink_mqtt.protocol import AccessReport
 
-        assert _access(bob, "turtle1") == AccessReport("viewer", ("status",))
+        assert _access(bob, "turtle1") == AccessReport("viewer", ("status",), estop=True)
 
 
 def test_sdk_operator_is_not_refused_and_a_stranger_is(stack) -> None:
@@ -106,7 +109,7 @@ def test_sdk_operator_is_not_refused_and_a_stranger_is(stack) -> None:
             alice.call("turtle1", "reset", timeout=10)
         from roslink_mqtt.protocol import AccessReport
 
-        assert _access(alice, "turtle1") == AccessReport("operator", ("reset", "status"), ("fibonacci",))
+        assert _access(alice, "turtle1") == AccessReport("operator", ("reset", "status"), ("fibonacci",), estop=True)
     if stack.backend == "embedded":  # it refuses carol's subscription to turtle1/to/carol/# (SUBACK 0x80)
         with RobotClient("carol", "carol-demo", url=stack.url, robots=["turtle1"]) as carol:
             with pytest.raises(CommandRefused, match="no grant on turtle1"):
@@ -197,11 +200,13 @@ def test_access_reports_follow_a_reload(tmp_path) -> None:
         admin.subscribe("roslink/turtle1/to/+/access")
         bob = "roslink/turtle1/to/bob/access"
         assert admin.wait_for(lambda m: m.topic == bob, timeout=30).json() == {"role": "viewer",
-                                                                               "services": ["status"], "actions": []}
+                                                                               "services": ["status"], "actions": [],
+                                                                               "estop": True}
         fleet.write_text(fleet.read_text().replace(viewer, viewer.replace("viewer", "operator")))
         bridge.signal(signal.SIGHUP)
         promoted = admin.wait_for(lambda m: m.topic == bob, timeout=10).json()
-        assert promoted == {"role": "operator", "services": ["reset", "status"], "actions": ["fibonacci"]}
+        assert promoted == {"role": "operator", "services": ["reset", "status"], "actions": ["fibonacci"],
+                            "estop": True}
         fleet.write_text(fleet.read_text().replace(viewer.replace("viewer", "operator"), ""))
         bridge.signal(signal.SIGHUP)
         cleared = admin.wait_for(lambda m: m.topic == bob, timeout=10)

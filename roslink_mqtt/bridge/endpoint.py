@@ -254,10 +254,11 @@ class CommandEndpoint:
         return True
 
     # -- the control lease (bridge/lease.py) --------------------------------------------------
-    def _lease_gate(self, user: str) -> str | None:
-        """Under the lock: None when ``user`` may change the robot now (a free lease may be claimed on the way)."""
+    def _lease_gate(self, user: str, *, claim: bool = True) -> str | None:
+        """Under the lock: None when ``user`` may change the robot now (a free lease is claimed on the way unless
+        ``claim`` is False)."""
         before = self.lease.version
-        why = self.lease.gate(user, live=self.operators.is_live(user), now=time.time())
+        why = self.lease.gate(user, live=self.operators.is_live(user), now=time.time(), claim=claim)
         if self.lease.version != before:
             log.info("%s: %s", self.robot.name, self.lease.event)
             self.publish_control()
@@ -340,7 +341,7 @@ class CommandEndpoint:
                             message_id, sequence, client_id=sender)
                 return
             if not behaviour.never_stale:  # an emergency stop needs no lease
-                why = self._lease_gate(user)
+                why = self._lease_gate(user, claim=False)  # claimed below, once every other check has passed
                 if why:
                     self.refuse(user, topic, why, message_id, sequence, client_id=sender)
                     return
@@ -363,6 +364,8 @@ class CommandEndpoint:
                     self.refuse(user, topic, f"{verdict.value} sequence_number {sequence} dropped",
                                 message_id, sequence, client_id=sender)
                     return
+            if not behaviour.never_stale:
+                self._lease_gate(user)  # a free lease is this command's sender's now (auto mode)
             if route.moves_robot:
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if route.is_velocity:

@@ -70,16 +70,17 @@ class ControlLease:
         return f"driven by {self.holder} since {clock_text(self.since)}"
 
     # -- the gate -------------------------------------------------------------------------------
-    def gate(self, user: str, *, live: bool, now: float) -> str | None:
+    def gate(self, user: str, *, live: bool, now: float, claim: bool = True) -> str | None:
         """None when ``user`` may send a state-changing command now (claiming a free lease in auto mode when the
-        user's presence is live); else why not, naming the holder."""
+        user's presence is live, unless ``claim`` is False: the command has other checks to pass first); else why
+        not, naming the holder."""
         if self.holder == user:
             return None
         if self.holder is None:
             if self.mode == CONTROL_EXPLICIT:
                 return (f"nobody holds control of {self.robot} (control: explicit): claim it first "
                         f"(roslink-mqtt control claim {self.robot})")
-            if live:  # without presence nothing could end the lease: the command runs, nobody holds it
+            if live and claim:  # without presence nothing could end the lease: the command runs, nobody holds it
                 self._set(user, now, f"claimed by {user} (first command)")
             return None
         return self._held_reason(user)

@@ -16,6 +16,7 @@ from typing import Any
 from ..client import RobotClient, RoslinkError
 from ..protocol.control import AccessReport
 from ..protocol.description import RobotDescription
+from ..protocol.lease import ControlState
 from ..protocol.link import LinkReport
 from ..topics import TopicError, check_name
 from .connect import add_connection_options, open_client
@@ -59,12 +60,13 @@ def run(args: argparse.Namespace) -> int:
             return 1
         report = _access(client, args.robot)
         link = None if args.json else client.link(args.robot, timeout=LINK_WAIT)
+        control = None if args.json else client.control(args.robot, timeout=LINK_WAIT)
     finally:
         client.close()
     if args.json:
         print(description.to_json().decode())
         return 0
-    print(summary(description, report, client.username, types=args.types, link=link))
+    print(summary(description, report, client.username, types=args.types, link=link, control=control))
     return 0
 
 
@@ -88,13 +90,14 @@ def _carries(message: str | None, ros_type: str | None) -> str:
 
 
 def summary(d: RobotDescription, report: AccessReport | None, user: str, *, types: bool = False,
-            link: LinkReport | None = None) -> str:
+            link: LinkReport | None = None, control: ControlState | None = None) -> str:
     """The human-readable form: one line per entry, ``(not you)`` where ``report`` says you may not use it."""
     def mark(kind: str, name: str) -> str:
         if report is None or report.operator:
             return ""
         ok = kind == "state" or (kind == "service" and name in report.services) or (
-            kind == "action" and name in report.actions)
+            kind == "action" and name in report.actions) or (
+            kind == "command" and report.estop and name.endswith("emergency_stop"))
         return "" if ok else "  (not you)"
 
     you = f"{report.role}" if report is not None else "unknown (no access report from its bridge)"
@@ -103,6 +106,10 @@ def summary(d: RobotDescription, report: AccessReport | None, user: str, *, type
            f"  you ({user}): {you}"]
     if link is not None:
         out.append(f"  uplink: {link.summary()}")
+    if control is not None:
+        who = "every granted user" if control.estop == "viewers" else "operators"
+        sup = f"; supervisors: {', '.join(control.supervisors)}" if control.supervisors else ""
+        out.append(f"  control: {control.summary()} (claim: {control.mode}{sup}; emergency stop: {who})")
     out += ["", f"state (every user granted {d.robot} reads it):"]
     for s in d.state:
         extra = [f"≤ {s.max_rate:g} Hz"] if s.max_rate else []

@@ -14,8 +14,10 @@ from . import (
     acl_cmd,
     action_cmd,
     call_cmd,
+    control_cmd,
     dashboard_cmd,
     echo_cmd,
+    estop_cmd,
     fleet_cmd,
     info_cmd,
     monitor_cmd,
@@ -27,8 +29,8 @@ from . import (
     whoami_cmd,
 )
 
-SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, param_cmd, teleop_cmd, monitor_cmd, passwd_cmd,
-               fleet_cmd, acl_cmd, dashboard_cmd, info_cmd, whoami_cmd)
+SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, param_cmd, teleop_cmd, control_cmd, estop_cmd,
+               monitor_cmd, passwd_cmd, fleet_cmd, acl_cmd, dashboard_cmd, info_cmd, whoami_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..client import RobotClient
+from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
 from .connect import add_connection_options, open_client
 from .monitor_view import ACK_MIN_WIDTH, HEADERS, MISSING, STATE_NAMES, FleetView, Row, fit_columns
@@ -105,6 +106,7 @@ class StateFollower:
             for name in STATE_NAMES:
                 self.client.subscribe(robot, name, self.view.record)
             self.client.subscribe(robot, LINK, lambda report, robot=robot: self.view.record_link(robot, report))
+            self.client.subscribe(robot, CONTROL, lambda state, robot=robot: self.view.record_control(robot, state))
 
 
 def _collect(follower: StateFollower, seconds: float, period: float) -> None:

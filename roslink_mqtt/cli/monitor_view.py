@@ -22,6 +22,7 @@ from ..client.directory import RobotInfo
 from ..client.errors import RobotError
 from ..client.messages import Ack, GlobalMotion, GpsRawInfo, RobotStatus
 from ..protocol import AckResult, SystemStatus
+from ..protocol.lease import ControlState
 from ..protocol.link import LinkReport
 from ..topics import Kind, TopicTree
 
@@ -59,7 +60,7 @@ class Row(NamedTuple):
     ack: str
 
 
-HEADERS = Row("robot", "presence", "status", "type", "mode", "owner", "batt", "volt", "x m", "y m", "yaw°",
+HEADERS = Row("robot", "presence", "status", "type", "mode", "driven by", "batt", "volt", "x m", "y m", "yaw°",
               "vx m/s", "wz rad/s", "gps", "lat", "lon", "motion Hz", "age", "uplink", "ack / failsafe")
 
 
@@ -71,6 +72,7 @@ class _Robot:
     gps: Any = None  # GpsRawInfo
     ack: Any = None  # Ack
     link: Any = None  # LinkReport (state/link)
+    control: Any = None  # ControlState (state/control): who drives
     newest: float | None = None  # clock time of the newest state message of any kind
     motion_first: float | None = None  # when global_motion first arrived (the rate window is not full before)
     motion_times: collections.deque[float] = field(default_factory=collections.deque)
@@ -195,6 +197,13 @@ class FleetView:
         with self._lock:
             self._robots.setdefault(robot, _Robot()).link = report
 
+    def record_control(self, robot: str, state: Any) -> None:
+        """Keep who drives a robot (state/control, a ControlState); ignore anything else on that name."""
+        if not isinstance(state, ControlState):
+            return
+        with self._lock:
+            self._robots.setdefault(robot, _Robot()).control = state
+
     def record_error(self, error: RobotError, at: float | None = None) -> None:
         """Keep an error report (RobotClient.on_error) for the footer."""
         with self._lock:
@@ -262,7 +271,7 @@ class FleetView:
             status=enum_name(info.system_status) if info else MISSING,
             type=enum_name(info.type) if info else MISSING,
             mode=enum_name(info.mode) if info else MISSING,
-            owner=(info.owner or MISSING) if info else MISSING,
+            owner=_driver_text(e.control, info),
             battery=number(remaining, ".0f", "%") if remaining is not None and remaining >= 0 else MISSING,
             voltage=number(getattr(status, "voltage_battery", None), ".1f", "V"),
             x=number(getattr(motion, "x", None)),
@@ -318,6 +327,13 @@ def link_text(report: LinkReport | None) -> str:
         _, name, s = min(behind)
         text += f" {name} {s.sent_hz:.1f}/{s.offered_hz:.0f}"
     return text
+
+
+def _driver_text(control: ControlState | None, info: RobotInfo | None) -> str:
+    """``alice since 12:03:05`` (state/control), else the heartbeat's holder, else ``-``."""
+    if control is not None and (info is None or info.online):
+        return MISSING if control.holder is None else control.summary().removeprefix("driven by ")
+    return (info.owner or MISSING) if info else MISSING
 
 
 def _ack_text(ack: Any) -> str:

@@ -7,8 +7,10 @@ import sys
 import time
 
 from ..client import CommandRefused, RoslinkError
+from ..client.commands import command_leaf, roslink_command
 from ..protocol import ProtocolError
 from .connect import add_connection_options, json_object, open_client
+from .control_cmd import claim_if_free
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +36,11 @@ def run(args: argparse.Namespace) -> int:
     client = open_client(args, robots=[args.robot])
     try:
         client.wait_for_robot(args.robot, timeout=5.0)
+        if roslink_command(command_leaf(args.command)) != "emergency_stop":  # a stop needs no control
+            held = claim_if_free(client, args.robot)
+            if held:
+                print(f"roslink-mqtt pub: refused: {held}")
+                return 1
         count = max(1, int(args.rate * args.duration)) if args.rate else 1
         period = 1.0 / args.rate if args.rate else 0.0
         start = time.monotonic()

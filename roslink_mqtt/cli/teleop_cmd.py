@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 
 from .connect import add_connection_options, open_client
+from .control_cmd import claim_if_free
 
 # key -> (linear steps, angular steps) added to the current velocity
 STEPS = {"w": (1, 0), "s": (-1, 0), "a": (0, 1), "d": (0, -1)}
@@ -94,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
 
     drive = Drive(abs(args.linear), abs(args.angular), abs(args.max_linear), abs(args.max_angular))
     client = open_client(args, robots=[args.robot])
+    held = claim_if_free(client, args.robot)
+    if held:
+        client.close()
+        raise SystemExit(f"roslink-mqtt teleop: {held}")
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
     print(f"teleop {args.robot}: {HELP}\r")

@@ -29,10 +29,13 @@ class RobotInfo:
     type: RobotType | int
     system_status: SystemStatus | int
     mode: FlightMode | int
-    owner: str  # user who last commanded it, '' when none
+    owner: str  # user who holds control of it (the control lease), '' when none
     session: int  # grows with every bridge start: a new value means the bridge restarted
     received_at: float  # time.monotonic() of the heartbeat
     stale_after: float = DEFAULT_STALE_AFTER
+    host: str = ""  # where its bridge runs ('' from bridges older than one-bridge claims)
+    pid: int = 0
+    bridge_since: float = 0.0  # when its bridge started, s since the epoch
 
     @property
     def online(self) -> bool:
@@ -77,7 +80,7 @@ class RobotDirectory:
         p = envelope.payload
         info = RobotInfo(robot, envelope.system_id, _enum(RobotType, p["type"]),
                          _enum(SystemStatus, p["system_status"]), _enum(FlightMode, p["mode"]), p["owner_id"],
-                         p["session"], time.monotonic(), self.stale_after)
+                         p["session"], time.monotonic(), self.stale_after, p["host"], p["pid"], p["since"])
         with self.changed:
             self._robots[robot] = info
             self.changed.notify_all()

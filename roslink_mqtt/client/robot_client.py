@@ -227,6 +227,44 @@ class RobotClient:
         payload = self._retained(robot, LINK, "link report", timeout)
         return None if payload is None else LinkReport.from_json(payload)
 
+    # -- who drives (docs/protocol.md, "Control") ---------------------------------------------------
+    def control(self, robot: str, timeout: float = 2.0) -> Any:
+        """Who holds control of ``robot`` (a :class:`~roslink_mqtt.protocol.lease.ControlState`: ``holder``,
+        ``since``, ``summary()`` says "driven by alice since 12:03:05"), from the bridge's retained
+        ``state/control``; None when none comes within ``timeout``."""
+        from .control import read_control
+
+        return read_control(self, robot, timeout)
+
+    def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> Any:
+        """Hold control of ``robot``: only the holder's commands move it (emergency stops excepted). Returns the new
+        control state; CommandRefused says who holds it instead (``take_over=True`` takes it from them: the robot
+        stops, and they are told). The lease ends when this client's presence does, or with
+        :meth:`release_control`."""
+        from ..protocol.lease import ControlOp
+        from .control import request_control
+
+        return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout)
+
+    def release_control(self, robot: str, *, timeout: float = 2.0) -> Any:
+        """Give control of ``robot`` back (CommandRefused when we do not hold it)."""
+        from ..protocol.lease import ControlOp
+        from .control import request_control
+
+        return request_control(self, robot, ControlOp.RELEASE, timeout)
+
+    def emergency_stop_all(self, reason: str = "", *, robots: Iterable[str] | None = None,
+                           timeout: float = 1.0) -> dict[str, Any]:
+        """Stop every robot we may stop (``robots``: those named; default: every robot whose heartbeat we see) at
+        once, and report per robot whether its bridge acknowledged the stop within ``timeout`` (a
+        :class:`~roslink_mqtt.client.control.StopReport`: ``acknowledged``, ``seconds``, ``error``)."""
+        from .control import stop_all
+
+        names = sorted(robots) if robots is not None else sorted(self.robots())
+        with self._access_changed:
+            stoppable = [r for r in names if r not in self._access or self._access[r].estop]
+        return stop_all(self, stoppable, reason, timeout)
+
     def _retained(self, robot: str, name: str, what: str, timeout: float) -> bytes | None:
         """The first non-empty message on ``state/<name>`` of ``robot`` within ``timeout`` (a retained snapshot)."""
         from .errors import SubscriptionFailed

@@ -21,6 +21,7 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Any
 
 from ..protocol import ProtocolError, loads
+from ..protocol.lease import CONTROL, ControlState
 from ..protocol.link import LINK, LinkReport
 from .dispatch import CallbackQueue
 from .encodings import JSON, decode_state, sniff
@@ -29,7 +30,7 @@ from .messages import RoslinkMessage, parse_state
 
 log = logging.getLogger("roslink_mqtt.client")
 
-StateItem = RoslinkMessage | LinkReport | dict[str, Any]
+StateItem = RoslinkMessage | LinkReport | ControlState | dict[str, Any]
 _FAILED: Any = object()  # queued by fail(): wakes a blocked get() or loop
 _CLOSED: Any = object()  # queued by close(): ends an ``async for`` blocked on an empty queue
 
@@ -40,11 +41,11 @@ def parse_state_item(payload: bytes, robot: str, name: str, encoding: str | None
     ``encoding`` (``json``, ``cbor``, ``raw``) is the rule's, from the robot description; None tells it from
     the payload (:func:`.encodings.sniff`: the three cannot be confused).
     """
-    if name == LINK:  # the bridge's uplink report: typed, like ROSLink state
+    if name in (LINK, CONTROL):  # the bridge's uplink report and control state: typed, like ROSLink state
         try:
-            return LinkReport.from_json(payload)
+            return LinkReport.from_json(payload) if name == LINK else ControlState.from_json(payload)
         except ProtocolError as err:
-            log.debug("ignoring malformed link report of %s: %s", robot, err)
+            log.debug("ignoring malformed %s report of %s: %s", name, robot, err)
             return None
     encoding = encoding or sniff(payload)
     if encoding != JSON:  # ROSLink messages are always JSON

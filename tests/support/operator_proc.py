@@ -27,6 +27,8 @@ def main() -> None:
     p.add_argument("--stream-seconds", type=float, default=None)
     p.add_argument("--lx", type=float, default=0.2)
     p.add_argument("--client-id", default=None)
+    p.add_argument("--first-seq", type=int, default=1, help="the stream's first sequence_number (a program of a user "
+                                                            "who commanded before must continue above it)")
     p.add_argument("--waypoint", action="store_true", help="send one go_to_waypoint instead of a twist stream")
     p.add_argument("--goal", metavar="ACTION", help="send one goal (Fibonacci order 40, id 'proc-goal') to ACTION "
                                                   "instead of a twist stream, then keep only presence")
@@ -49,7 +51,7 @@ def main() -> None:
         print("goal sent", flush=True)
         while True:
             time.sleep(1.0)
-    start, seq = time.monotonic(), 0
+    start, seq = time.monotonic(), args.first_seq - 1
     while args.waypoint:  # the same goal once a second (idempotent), no velocity stream
         client.publish(TopicTree().command(args.robot, args.user, "go_to_waypoint"),
                        orjson.dumps({"x": 2.0, "y": 1.0}), qos=1)

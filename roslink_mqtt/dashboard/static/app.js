@@ -33,7 +33,7 @@
 
   const $ = (id) => document.getElementById(id);
   const ui = {};
-  for (const id of ["conn", "whoami", "logout", "estop", "notice", "login", "login-form", "ws-url", "username",
+  for (const id of ["conn", "whoami", "logout", "estop", "stop-all", "driver", "take-over", "notice", "login", "login-form", "ws-url", "username",
                     "password", "connect", "login-error", "main", "fleet", "fleet-empty", "robot-view", "robot-title",
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
@@ -347,11 +347,22 @@
       if (env && env.payload) robot.status = env.payload;
       return;
     }
+    if (name === "control") {  // who drives (docs/protocol.md, "control state")
+      const c = parse(payload);
+      robot.control = c && typeof c === "object" && !Array.isArray(c) && "holder" in c ? c : null;
+      if (dash.selected === robot.name) showControl(robot);
+      return;
+    }
     if (name === "link") {  // the bridge's uplink report (docs/protocol.md, "link report")
       const l = parse(payload);
       robot.link = l && typeof l.rate_kbit_s === "number" && l.streams && typeof l.streams === "object" ? l : null;
       if (dash.selected === robot.name) showUplink(robot);
       return;
+    }
+    if (name === "ack" && dash.stopRound) {  // STOP ALL waits for every robot's acknowledgement
+      const m = parse(payload);
+      const a = m && (m.payload || m);
+      if (a) noteStopAck(robot, a);
     }
     if (dash.selected !== robot.name) return;  // other robots: counted, not parsed
     const encoding = (entryOf(robot, "state", name) || {}).encoding;
@@ -526,7 +537,7 @@
     setText(c.battery, st ? (st.battery_remaining >= 0 ? `${Math.round(st.battery_remaining)} %` : "?") +
       ` ${fmt(st.voltage_battery, 1)} V` : "–");
     setText(c.mode, hb ? (MODES[hb.mode] || String(hb.mode)) : "–");
-    setText(c.owner, hb && hb.owner_id ? hb.owner_id : "–");
+    setText(c.owner, driverText(robot) || "–");
     setText(c.role, robot.access ? robot.access.role : (robot.access === null ? "none" : "–"));
     robot.row.classList.toggle("selected", dash.selected === robot.name);
   }
@@ -572,11 +583,39 @@
 
   function isOperator(robot) { return Boolean(robot && robot.access && robot.access.role === "operator"); }
 
+  // "alice since 12:03:05" from the robot's state/control (the heartbeat's owner_id says only who)
+  function driverText(robot) {
+    const c = robot.control;
+    if (c && typeof c.holder === "string") {
+      const since = typeof c.since === "number" ? new Date(c.since * 1000).toLocaleTimeString([], { hour12: false }) : "?";
+      return `${c.holder}${c.supervisor ? " (supervisor)" : ""} since ${since}`;
+    }
+    if (c && c.holder === null) return "";
+    return robot.hb && robot.hb.owner_id ? robot.hb.owner_id : "";
+  }
+
+  function heldByOther(robot) {
+    return Boolean(robot && robot.control && typeof robot.control.holder === "string" && robot.control.holder !== dash.user);
+  }
+
+  function showControl(robot) {
+    const who = driverText(robot);
+    setText(ui.driver, who ? `driven by ${who}` : "nobody drives it: the first command claims control");
+    ui.driver.dataset.holder = robot.control && robot.control.holder ? robot.control.holder : "";
+    const sup = robot.control && Array.isArray(robot.control.supervisors) && robot.control.supervisors.includes(dash.user);
+    show(ui.takeOver, isOperator(robot) && heldByOther(robot) && (!robot.control.supervisor || sup));
+    ui.takeOver.textContent = heldByOther(robot) ? `Take over from ${robot.control.holder}` : "Take over";
+  }
+
+  function mayStop(robot) { return isOperator(robot) || Boolean(robot && robot.access && robot.access.estop); }
+
   function buildControls(robot) {
     const op = isOperator(robot);
     show(ui.controls, op);
-    show(ui.estop, op);
-    ui.estop.textContent = op ? `EMERGENCY STOP ${robot.name}` : "EMERGENCY STOP";
+    showControl(robot);
+    show(ui.stopAll, [...dash.robots.values()].some(mayStop));
+    show(ui.estop, mayStop(robot));
+    ui.estop.textContent = mayStop(robot) ? `EMERGENCY STOP ${robot.name}` : "EMERGENCY STOP";
     show(ui.waypointLabel, op);
     if (!op) ui.waypointMode.checked = false;
     ui.viewerNote.textContent = robot.access === undefined
@@ -789,14 +828,21 @@
   function command(robotName, name, payload, messageId) {
     const robot = dash.robots.get(robotName);
     if (!dash.client || !dash.connected) { notice(`not sent (${name}): not connected to the broker`); return false; }
-    if (!isOperator(robot)) {
+    if (!isOperator(robot) && !(name === "emergency_stop" && mayStop(robot))) {
       const why = `not sent (${name}): ${dash.user} is ${robot && robot.access ? "a " + robot.access.role : "not an operator"} ` +
         `of ${robotName}; the broker would drop it`;
       addLog(ui.errors, why, { robot: robotName });
       notice(why);
       return false;
     }
-    if (!dash.commanding) {  // from now on this client's leaving stops the robot: say so before the command
+    if (name !== "emergency_stop" && heldByOther(robot)) {  // the robot would refuse it: say who drives at once
+      const why = `not sent (${name}): ${robotName} is driven by ${driverText(robot)}; take over to drive it`;
+      addLog(ui.errors, why, { robot: robotName });
+      notice(why);
+      return false;
+    }
+    if (name !== "emergency_stop" && robot && robot.control && robot.control.holder === null) claimControl(robotName, "claim");
+    if (!dash.commanding && isOperator(robot)) {  // from now on this client's leaving stops the robot: say so first
       dash.commanding = true;
       beat();
     }
@@ -845,6 +891,56 @@
     ui.driving.dataset.driving = "no";
     if (sendZero && (wasDriving || dash.commanding) && robot && dash.connected && isOperator(dash.robots.get(robot))) {
       dash.sendTwist(robot, 0, 0);
+    }
+  }
+
+  // control/claim (the drive pad claims a free robot before its first twist) and control/take_over (confirmed)
+  function claimControl(robotName, op) {
+    if (!dash.client || !dash.connected) return;
+    if (!dash.commanding) { dash.commanding = true; beat(); }
+    dash.client.publish(topic(robotName, "from", dash.user, "control", op), JSON.stringify({ client_id: dash.clientId }),
+                        { qos: 1 });
+  }
+  dash.claimControl = claimControl;
+
+  function takeOver() {
+    const robot = dash.selected && dash.robots.get(dash.selected);
+    if (!robot || !heldByOther(robot)) return;
+    if (!window.confirm(`Take control of ${robot.name} from ${robot.control.holder}? The robot stops, and ` +
+                        `${robot.control.holder} is told.`)) return;
+    claimControl(robot.name, "take_over");
+    addLog(ui.acks, `asked to take over ${robot.name} from ${robot.control.holder}`);
+  }
+
+  // STOP ALL: an emergency stop to every robot this login may stop, then per robot whether its bridge acknowledged
+  // it (state/ack, command 108, our sequence number) within STOP_ACK_MS.
+  const STOP_ACK_MS = 1000;
+  function stopAll() {
+    stopDriving(false);
+    const round = { sent: new Map(), acked: new Map() };
+    dash.stopRound = round;
+    for (const robot of dash.robots.values()) {
+      if (!mayStop(robot) || presenceOf(robot, performance.now()) !== "online") continue;
+      const seq = nextSeq();
+      const body = { message_id: 108, sequence_number: seq, client_id: dash.clientId,
+                     payload: { reason: `STOP ALL (dashboard, ${dash.user})` } };
+      dash.client.publish(topic(robot.name, "from", dash.user, "cmd", "emergency_stop"), JSON.stringify(body), { qos: 1 });
+      round.sent.set(robot.name, { seq, at: performance.now() });
+    }
+    addLog(ui.acks, `STOP ALL sent to ${[...round.sent.keys()].join(", ") || "no robot"}`);
+    setTimeout(() => {
+      const lines = [...round.sent.keys()].map((name) => round.acked.has(name)
+        ? `${name} stopped (acknowledged in ${round.acked.get(name)} ms)` : `${name} NOT ACKNOWLEDGED — stop it another way`);
+      for (const line of lines) addLog(ui.acks, line, { stop: round.acked.size === round.sent.size ? "all" : "missing" });
+      notice(lines.join("; "));
+      ui.stopAll.dataset.result = round.acked.size === round.sent.size ? "acknowledged" : "missing";
+    }, STOP_ACK_MS);
+  }
+  function noteStopAck(robot, a) {
+    const round = dash.stopRound;
+    const sent = round && round.sent.get(robot.name);
+    if (sent && a.command === 108 && a.command_sequence === sent.seq && a.result === 0 && !round.acked.has(robot.name)) {
+      round.acked.set(robot.name, Math.round(performance.now() - sent.at));
     }
   }
 
@@ -1488,6 +1584,8 @@
 
   ui.speed.addEventListener("input", () => { ui.speedOut.textContent = `${parseFloat(ui.speed.value).toFixed(2)} m/s`; });
   ui.estop.addEventListener("click", emergencyStop);
+  ui.stopAll.addEventListener("click", stopAll);
+  ui.takeOver.addEventListener("click", takeOver);
   ui.arm.addEventListener("click", arm);
   ui.plot.addEventListener("click", onPlotClick);
   ui.loginForm.addEventListener("submit", connect);
@@ -1497,7 +1595,8 @@
     const now = performance.now();
     for (const r of dash.robots.values()) updateRow(r, now);
     const robot = dash.selected && dash.robots.get(dash.selected);
-    if (robot) updateBanner(robot);
+    if (robot) { updateBanner(robot); showControl(robot); }
+    show(ui.stopAll, dash.connected && [...dash.robots.values()].some(mayStop));
     show(ui.fleetEmpty, dash.robots.size === 0);
   }, 500);
   setInterval(() => updateRates(performance.now()), 1000);

@@ -1,0 +1,47 @@
+"""``roslink-mqtt estop ROBOT… | --all``: emergency-stop robots, and say which ones acknowledged."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from .connect import add_connection_options, open_client
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("estop", help="emergency-stop robots (--all: every robot you may stop)",
+                       description="Send an emergency stop to the robots named, or with --all to every robot whose "
+                                   "heartbeat you see and that you may stop (viewers too, unless a robot says "
+                                   "`estop: operators`), then print per robot whether its bridge acknowledged it "
+                                   "within --timeout. Exit status 1 when any did not. Only the holder of control "
+                                   "(or a supervisor) can resume a robot: `roslink-mqtt pub ROBOT arm`.")
+    p.add_argument("robots", nargs="*", help="robots to stop")
+    p.add_argument("--all", action="store_true", help="every robot you may stop")
+    p.add_argument("--reason", default="", help="said in the stop (and the robot's log)")
+    p.add_argument("--timeout", type=float, default=1.0, help="seconds each robot has to acknowledge "
+                                                              "(default %(default)s)")
+    p.add_argument("--wait", type=float, default=1.5, help="with --all: seconds to collect heartbeats first "
+                                                           "(default %(default)s)")
+    add_connection_options(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if bool(args.robots) == bool(args.all):
+        raise SystemExit("roslink-mqtt estop: name the robots to stop, or pass --all (not both)")
+    client = open_client(args, robots=args.robots, presence=False)
+    try:
+        if args.all:
+            time.sleep(args.wait)  # retained heartbeats arrive right after the subscription
+            if not client.robots():
+                print("roslink-mqtt estop: no robots seen (name them if your broker refuses wildcards)",
+                      file=sys.stderr)
+                return 1
+        reports = client.emergency_stop_all(args.reason or "roslink-mqtt estop",
+                                            robots=args.robots or None, timeout=args.timeout)
+    finally:
+        client.close()
+    for report in reports.values():
+        print(report.line())
+    return 0 if reports and all(r.acknowledged for r in reports.values()) else 1

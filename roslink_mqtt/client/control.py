@@ -1,0 +1,135 @@
+"""Who drives a robot, from the SDK: read ``state/control``, claim, release or take over the control lease, and stop
+every robot at once. Used by :class:`~roslink_mqtt.client.robot_client.RobotClient` (its methods of the same names);
+the bridge's side is ``roslink_mqtt/bridge/lease.py`` (docs/protocol.md, "Control").
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from ..protocol import AckResult, MessageId, ProtocolError, decode
+from ..protocol.lease import CONTROL, ControlOp, ControlState, control_request
+from .errors import CommandRefused, RobotError, RoslinkError, WaitTimeout
+
+if TYPE_CHECKING:
+    from .robot_client import RobotClient
+
+STOP_ACK_WAIT = 1.0  # s: a robot that does not acknowledge an emergency stop within this is reported
+
+
+@dataclass(frozen=True, slots=True)
+class StopReport:
+    """What :meth:`RobotClient.emergency_stop_all` learned about one robot."""
+
+    robot: str
+    acknowledged: bool  # the robot's bridge said it carried out the stop (state/ack) in time
+    seconds: float | None = None  # from sending to its acknowledgement
+    error: str | None = None  # why the stop could not be sent, or what the robot answered instead
+
+    def line(self) -> str:
+        """``turtle1   stopped (acknowledged in 0.012 s)``, as ``roslink-mqtt estop`` prints it."""
+        if self.acknowledged:
+            return f"{self.robot:<12} stopped (acknowledged in {self.seconds:.3f} s)"
+        return f"{self.robot:<12} NOT ACKNOWLEDGED: {self.error or 'no answer'} — stop it another way"
+
+
+def read_control(client: RobotClient, robot: str, timeout: float) -> ControlState | None:
+    """The robot's retained ``state/control``; None when none comes (an older bridge, or one not yet connected)."""
+    payload = client._retained(robot, CONTROL, "control state", timeout)
+    return None if payload is None else ControlState.from_json(payload)
+
+
+def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: float) -> ControlState:
+    """Send ``control/<op>`` and wait for its outcome: the new ``state/control``, or CommandRefused with the reason
+    (held by someone else, a viewer, no presence); WaitTimeout when the robot says nothing."""
+    client.connection.require(f"control/{op.value} of {robot}")
+    client.watch(robot)
+    me, topic = client.username, client.topics.control(robot, client.username, op.value)
+    done, box = threading.Event(), []
+    sent = [False]
+
+    def settled(state: ControlState) -> bool:
+        return state.holder != me if op is ControlOp.RELEASE else state.holder == me
+
+    def on_state(_topic: str, payload: bytes, _retained: bool) -> None:
+        try:
+            state = ControlState.from_json(payload) if payload else None
+        except ProtocolError:
+            return
+        if state is not None and sent[0] and settled(state):
+            box.append(state)
+            done.set()
+
+    waiter: tuple[str, int | None, threading.Event, list[RobotError]] = (topic, None, done, [])
+    state_topic = client.topics.state(robot, CONTROL)
+    with client._waiters_lock:
+        client._error_waiters.append(waiter)
+    try:
+        client.connection.subscribe(state_topic, on_state, timeout=timeout)
+        sent[0] = True
+        client._send(topic, control_request(client.client_id), 1, f"control/{op.value}")
+        if not done.wait(timeout):
+            raise WaitTimeout(f"{robot} did not answer control/{op.value} within {timeout:g} s (is it online, and "
+                              "its bridge recent enough to have control leases?)")
+        if waiter[3]:
+            raise CommandRefused(waiter[3][0])
+        return box[0]
+    finally:
+        with client._waiters_lock:
+            client._error_waiters.remove(waiter)
+        client.connection.unsubscribe(state_topic, on_state)
+
+
+def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float) -> dict[str, StopReport]:
+    """Send every robot an emergency stop at once, then wait up to ``timeout`` for each acknowledgement."""
+    acks: dict[str, float] = {}
+    sequences: dict[str, int | None] = {}
+    sent_at: dict[str, float] = {}
+    errors: dict[str, str] = {}
+    lock = threading.Condition()
+
+    def on_ack(robot: str):
+        def handle(_topic: str, payload: bytes, _retained: bool) -> None:
+            try:
+                body = decode(payload, MessageId.ACK).payload
+            except ProtocolError:
+                return
+            with lock:
+                seq = sequences.get(robot)
+                if body["command"] == int(MessageId.EMERGENCY_STOP) and seq is not None \
+                        and body["command_sequence"] == seq and body["result"] == int(AckResult.ACCEPTED):
+                    acks.setdefault(robot, time.monotonic())
+                    lock.notify_all()
+        return handle
+
+    handlers = {robot: on_ack(robot) for robot in robots}
+    ack_topics = {robot: client.topics.state(robot, "ack") for robot in robots}
+    try:
+        for robot in robots:  # acknowledgements are not retained: listen first (a SUBACK away on a LAN)
+            client.connection.subscribe(ack_topics[robot], handlers[robot], timeout=timeout)
+        for robot in robots:
+            try:
+                with lock:
+                    sent_at[robot] = time.monotonic()
+                    # no PUBACK wait per robot: the next robot's stop must not queue behind it; the robot's own
+                    # acknowledgement below is the stronger confirmation
+                    sequences[robot] = client.command(robot, "emergency_stop", {"reason": reason})
+            except (RoslinkError, ProtocolError) as err:  # one robot's failure must not keep the others running
+                errors[robot] = str(err)
+        deadline = time.monotonic() + timeout
+        with lock:
+            while any(r not in acks and r not in errors for r in robots) and time.monotonic() < deadline:
+                lock.wait(deadline - time.monotonic())
+    finally:
+        for robot in robots:
+            client.connection.unsubscribe(ack_topics[robot], handlers[robot])
+    out = {}
+    for robot in robots:
+        if robot in acks:
+            out[robot] = StopReport(robot, True, acks[robot] - sent_at[robot])
+        else:
+            out[robot] = StopReport(robot, False, error=errors.get(robot, f"no acknowledgement within {timeout:g} s"))
+    return out
