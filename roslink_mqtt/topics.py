@@ -177,8 +177,8 @@ ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
 # State names the bridge writes itself (acknowledgements, the robot's description, its uplink report, who holds
-# control): no rule may.
-BRIDGE_STATE_NAMES = ("ack", "description", "link", "control")
+# control, a starting bridge's claim): no rule may.
+BRIDGE_STATE_NAMES = ("ack", "description", "link", "control", "bridge")
 
 
 def split_leaf(leaf: str, *, sent_by_user: bool = True) -> tuple[Verb | None, str]:

@@ -12,6 +12,7 @@ from roslink_mqtt.bridge.claim import (
     Verdict,
     announcement,
     check_claim,
+    read_announcement,
     read_heartbeat,
     winner,
 )
@@ -62,7 +63,7 @@ class FakeBroker:
             self.published.append(payload)
             if self.live is None:
                 return
-            status, claim = read_heartbeat(payload)
+            claim = read_announcement(payload)
             if claim.take_over and self.stands_down:
                 gone, self.live = self.live, None
                 threading.Timer(0.05, on_heartbeat, (beat(gone, SystemStatus.OFFLINE), False)).start()
@@ -72,7 +73,7 @@ class FakeBroker:
 
 
 def check(broker: FakeBroker, me: Claim, period: float = 0.2):
-    return check_claim(broker.connect, "turtle1", me, period, announce=announcement("turtle1", 1, 1, me),
+    return check_claim(broker.connect, "turtle1", me, period, announce=announcement(me),
                        handover_timeout=0.5)
 
 
@@ -97,8 +98,10 @@ def test_running_bridge_yields_to_an_older_or_take_over_claim_and_answers_a_star
     watch = ClaimWatch(NEW, lambda why, rival: fenced.append((why, rival)), lambda: answers.append(1))
     watch.on_heartbeat("turtle1", beat(NEW), False)  # its own
     watch.on_heartbeat("turtle1", beat(OLD), True)  # retained: history, not a live bridge
-    watch.on_heartbeat("turtle1", beat(Claim("zzzz", "h", 1, 9000.0), SystemStatus.BOOT), False)
+    watch.on_announcement("turtle1", announcement(Claim("zzzz", "h", 1, 9000.0)), False)
     assert not fenced and answers == [1]  # a newer bridge starting: told the robot is taken
+    watch.on_announcement("turtle1", b"not a claim", False)
+    assert answers == [1]
     watch.on_heartbeat("turtle1", beat(OLD, SystemStatus.OFFLINE), False)  # an offline one claims nothing
     assert not fenced
     watch.on_heartbeat("turtle1", beat(OLD), False)
@@ -108,5 +111,5 @@ def test_running_bridge_yields_to_an_older_or_take_over_claim_and_answers_a_star
     assert len(fenced) == 1
 
     old = ClaimWatch(OLD, lambda why, rival: fenced.append((why, rival)), lambda: None)
-    old.on_heartbeat("turtle1", beat(NEW_TAKE_OVER, SystemStatus.BOOT), False)
+    old.on_announcement("turtle1", announcement(NEW_TAKE_OVER), False)
     assert fenced[-1][1] == NEW_TAKE_OVER and fenced[-1][0].startswith("taken over by the bridge on laptop")

@@ -71,6 +71,7 @@ def test_rules_per_login_follow_design() -> None:
 
     assert table("turtle1") == {
         ("roslink/turtle1/heartbeat", Access.READWRITE), ("roslink/turtle1/state/#", Access.WRITE),
+        ("roslink/turtle1/state/bridge", Access.READ),
         ("roslink/turtle1/to/+/#", Access.WRITE), ("roslink/turtle1/from/+/#", Access.READ),
         ("roslink/operators/alice/#", Access.READ), ("roslink/operators/bob/#", Access.READ),
         ("roslink/operators/admin/#", Access.READ)}
@@ -138,7 +139,9 @@ def test_decisions(login: str | None, topic: str, action: Action, expected: bool
     ("alice", "roslink/+/to/bob/#", False), ("alice", "roslink/+/to/alice/#", True),
     ("alice", "$SYS/#", False), ("admin", "$SYS/#", True), ("admin", "#", True),
     ("bob", "roslink/turtle1/from/#", False), ("turtle1", "roslink/turtle1/from/+/#", True),
-    ("turtle1", "roslink/operators/+/+", True), ("turtle1", "roslink/turtle1/state/#", False),
+    ("turtle1", "roslink/operators/+/+", True),
+    ("turtle1", "roslink/turtle1/state/#", True),  # it reads state/bridge: another bridge's claim
+    ("turtle1", "roslink/turtle1/state/global_motion", False),
     ("alice", "roslink/turtle1/state/#/x", False),  # invalid filter
     ("carol", "+/+/heartbeat", True), ("nobody", "#", False),
 ])

@@ -58,10 +58,10 @@ WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "rosl
 # The documented outcome (broker/README.md "What it enforces", issue 3). r = may read (subscribe, receive, retained),
 # w = may publish. Unlisted classes: nothing. "other" is bob (alice for bob himself).
 EXPECTED: dict[str, dict[str, str]] = {
-    "turtle1": {"heartbeat@turtle1": "w", "state@turtle1": "w", "to/self@turtle1": "w", "to/other@turtle1": "w",
+    "turtle1": {"heartbeat@turtle1": "rw", "state@turtle1": "w", "to/self@turtle1": "w", "to/other@turtle1": "w",
                 "from/self/cmd@turtle1": "r", "from/other/cmd@turtle1": "r", "call/read-only@turtle1": "r",
                 "call/read-write@turtle1": "r", "operators/other": "r"},  # bob is granted turtle1
-    "turtle2": {"heartbeat@turtle2": "w", "state@turtle2": "w", "to/self@turtle2": "w", "to/other@turtle2": "w",
+    "turtle2": {"heartbeat@turtle2": "rw", "state@turtle2": "w", "to/self@turtle2": "w", "to/other@turtle2": "w",
                 "from/self/cmd@turtle2": "r", "from/other/cmd@turtle2": "r", "call/read-only@turtle2": "r",
                 "call/read-write@turtle2": "r"},  # bob is not granted turtle2: his presence is not for turtle2
     "alice": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "from/self/cmd@turtle1": "w",
@@ -118,7 +118,9 @@ def may_read(login: str, topic: str) -> bool:
     if t is None:
         return False
     if login in ROBOTS:
-        return (t.kind is Kind.FROM and t.robot == login) or (t.kind is Kind.OPERATOR and t.user in GRANTED[login])
+        # its own heartbeat and state/bridge too: where another bridge of the robot shows itself (one per robot)
+        return (t.kind is Kind.FROM and t.robot == login) or (t.kind is Kind.OPERATOR and t.user in GRANTED[login]) \
+            or (t.robot == login and (t.kind is Kind.HEARTBEAT or (t.kind is Kind.STATE and t.name == "bridge")))
     robots = OPERATORS.get(login, set()) | VIEWERS.get(login, set())
     return t.robot in robots and (t.kind in (Kind.HEARTBEAT, Kind.STATE) or (t.kind is Kind.TO and t.user == login))
 

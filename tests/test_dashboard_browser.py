@@ -418,6 +418,46 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
         arm_if_blocked(stack)
 
 
+def test_driven_by_take_over_and_stop_all(stack, tmp_path) -> None:
+    """Who drives is shown; another operator's driving makes the pad refuse with the holder's name; Take over
+    (after the confirmation) moves control and tells the old driver; STOP ALL reports each robot's acknowledgement."""
+    from selenium.webdriver.common.by import By
+
+    try:
+        with browser(tmp_path, "control") as driver, \
+                TestClient(stack["broker"].port, "admin", "admin-demo", operator=True) as admin:
+            alice_ready(driver, stack)
+            assert admin.connect() == 0
+            admin.subscribe("roslink/turtle1/to/admin/error")
+            for i in range(3):  # admin drives first: he holds control
+                admin.publish("roslink/turtle1/from/admin/cmd/twist",
+                              {"message_id": 100, "sequence_number": 900 + i, "payload": {"lx": 0.0}}, qos=0)
+            wait_until("admin drives, says the page", lambda: (robot_row(driver, "turtle1") or {}).get(
+                "owner", "").startswith("admin since") and visible(driver, "take-over"))
+            assert "driven by admin since" in driver.find_element(By.ID, "driver").text
+            assert driver.execute_script("return window.dashboard.sendTwist('turtle1', 0.2, 0)") is False
+            assert "turtle1 is driven by admin since" in errors_text(driver)
+
+            driver.find_element(By.ID, "take-over").click()
+            alert = driver.switch_to.alert
+            assert "Take control of turtle1 from admin?" in alert.text
+            alert.accept()
+            told = admin.wait_for(lambda m: "taken over by alice from admin" in m.json().get("error", ""), timeout=5)
+            assert told.json()["topic"] == "roslink/turtle1/state/control"
+            wait_until("alice drives now", lambda: (robot_row(driver, "turtle1") or {}).get("owner", "").startswith(
+                "alice since") and not visible(driver, "take-over"))
+
+            driver.find_element(By.ID, "stop-all").click()
+            acked = wait_until("STOP ALL's report", lambda: "turtle1 stopped (acknowledged in" in driver.find_element(
+                By.ID, "acks").text and driver.find_element(By.ID, "acks").text)
+            assert "NOT ACKNOWLEDGED" not in acked
+            assert driver.execute_script("return document.getElementById('stop-all').dataset.result") == "acknowledged"
+            wait_until("turtle1 stopped", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "emergency")
+            no_console_errors(driver)
+    finally:
+        arm_if_blocked(stack)
+
+
 def _browser_pids(driver: Any) -> list[int]:
     """Chromium's main process(es): the children of chromedriver (read from /proc, no extra package)."""
     root = driver.service.process.pid
@@ -473,8 +513,9 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         wait_until("turtle1 online", lambda: (robot_row(driver, "turtle1") or {}).get("presence") == "online")
         wait_until("bob's role", lambda: (robot_row(driver, "turtle1") or {}).get("role") == "viewer")
         wait_until("a position on the plot", lambda: pose(driver))
-        assert not visible(driver, "controls") and not visible(driver, "estop")
-        assert not visible(driver, "waypoint-label")
+        assert not visible(driver, "controls") and not visible(driver, "waypoint-label")
+        # any granted user may stop a robot: bob gets the emergency stop (and STOP ALL), nothing else
+        wait_until("bob's emergency stop", lambda: visible(driver, "estop") and visible(driver, "stop-all"))
         # of the services only the read-only one his access report lists: no `reset`
         wait_until("bob's read-only service", lambda: driver.find_elements(
             By.CSS_SELECTOR, '#services form[data-service="list_parameters"]'))
@@ -487,8 +528,9 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         # The page's own command path refuses, visibly.
         assert driver.execute_script("return window.dashboard.sendTwist('turtle1', 0.37, 0)") is False
         assert "bob is a viewer of turtle1" in errors_text(driver)
-        # The console: the page's MQTT client publishing by hand, with a presence heartbeat first, a bare twist,
-        # an e-stop and a service call. The broker's ACL drops all of it before it reaches the robot.
+        # The console: the page's MQTT client publishing by hand, with a presence heartbeat first, a bare twist
+        # and a service call: the broker's ACL drops them before they reach the robot. His emergency stop it lets
+        # through (any granted user may stop a robot), and nothing he sends can resume the robot.
         t0 = time.monotonic()
         driver.execute_script("""
             const d = window.dashboard, c = d.client;
@@ -498,10 +540,12 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
             for (let i = 0; i < 10; i++) c.publish('roslink/turtle1/from/bob/cmd/twist', JSON.stringify({lx: 0.37}));
             c.publish('roslink/turtle1/from/alice/cmd/twist', JSON.stringify({lx: 0.37}));
             c.publish('roslink/turtle1/from/bob/cmd/emergency_stop', JSON.stringify({reason: 'bob'}), {qos: 1});
-            c.publish('roslink/turtle1/from/bob/call/reset', JSON.stringify({id: 'b1', args: {}}), {qos: 1});""")
+            c.publish('roslink/turtle1/from/bob/call/reset', JSON.stringify({id: 'b1', args: {}}), {qos: 1});
+            c.publish('roslink/turtle1/from/bob/cmd/arm', JSON.stringify({}), {qos: 1});""")
         time.sleep(2.0)
         assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.37)], "bob's twist reached ROS"
-        assert (robot_row(driver, "turtle1") or {}).get("status") == "active", "bob's e-stop reached the robot"
+        assert (robot_row(driver, "turtle1") or {}).get("status") == "emergency", "bob's e-stop did not stop it"
+        arm_if_blocked(stack)
         assert driver.execute_script("return document.getElementById('conn').dataset.state") == "connected"
 
         # A camera image, when the robot maps one, is shown to viewers too (played here as turtle1's state/image:

@@ -6,9 +6,10 @@ broker, because it is ordinary publish/subscribe on the robot's own heartbeat to
 may write): each heartbeat names its bridge (``instance``, ``host``, ``pid``, ``since``, ``take_over``), and every
 bridge reads its robot's heartbeats.
 
-* **At start** (:func:`check_claim`, before the bridge subscribes to any command) a bridge announces itself on
-  the heartbeat topic (a heartbeat with status *boot*), which a live bridge answers at once with its own heartbeat,
-  and listens for :data:`START_WAIT` s (longer when the retained heartbeat names a live bridge). A live heartbeat
+* **At start** (:func:`check_claim`, before the bridge subscribes to any command) a bridge announces its claim
+  on ``state/bridge`` (:data:`ANNOUNCE`; not on the heartbeat topic, where a client would take it for the robot
+  coming up), which a live bridge answers at once with its heartbeat, and listens to the heartbeat topic for
+  :data:`START_WAIT` s (longer when the retained heartbeat names a live bridge). A live heartbeat
   from another bridge means the robot is taken: the new bridge refuses to start (:data:`EXIT_DUPLICATE`, which the
   systemd unit does not restart), naming the live one. With ``--take-over`` its announcement says ``take_over`` 1
   instead, and it starts once the old bridge has gone. A retained heartbeat that says online but is not followed by
@@ -39,12 +40,15 @@ from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
 
-from ..protocol import Envelope, MessageId, ProtocolError, SystemStatus, decode, encode
+import orjson
+
+from ..protocol import MessageId, ProtocolError, SystemStatus, decode
 
 log = logging.getLogger("roslink_mqtt.bridge.claim")
 
 EXIT_DUPLICATE = 3  # another live bridge has the robot: refused at start (systemd: RestartPreventExitStatus)
 EXIT_FENCED = 4  # this bridge stopped its robot and left: taken over, or a duplicate that lost to an older one
+ANNOUNCE = "bridge"  # state/bridge: a starting bridge's claim, answered by a live bridge's heartbeat
 START_WAIT = 0.6  # s a starting bridge waits for a live one to answer its announcement (at most 1.2 periods)
 SILENT_PERIODS = 2.5  # periods a retained "online" heartbeat may go unconfirmed before its bridge counts as dead
 HANDOVER_TIMEOUT = 5.0  # s a --take-over bridge waits for the old one to stand down (then starts anyway)
@@ -142,16 +146,23 @@ class _Listener:
     def live_rival(self) -> Claim | None:
         """Another bridge's claim from a live heartbeat that says it runs (not offline, not a booting one)."""
         for status, claim, _ in self.live.values():
-            if status not in (SystemStatus.OFFLINE, SystemStatus.BOOT):
+            if status != SystemStatus.OFFLINE:
                 return claim
         return None
 
 
-def announcement(robot: str, system_id: int, robot_type: int, me: Claim) -> bytes:
-    """The heartbeat a starting bridge sends (not retained): status boot, its claim. A live bridge answers it."""
-    return encode(Envelope(MessageId.HEARTBEAT, {
-        "type": robot_type, "name": robot, "system_status": int(SystemStatus.BOOT), "owner_id": "", "mode": 0,
-        "session": int(me.since) & 0xFFFFFFFF, **me.fields()}, system_id, 0))
+def announcement(me: Claim) -> bytes:
+    """What a starting bridge publishes on ``state/bridge`` (not retained): its claim. A live bridge answers it."""
+    return orjson.dumps(me.fields())
+
+
+def read_announcement(payload: bytes) -> Claim | None:
+    """The claim in a ``state/bridge`` message; None for anything else."""
+    try:
+        body = orjson.loads(payload)
+        return Claim.of(body) if isinstance(body, dict) and body.get("instance") else None
+    except (orjson.JSONDecodeError, TypeError, ValueError):
+        return None
 
 
 def check_claim(connect: Callable[[Callable[[bytes, bool], None]], Callable[[str, bytes], None] | None],
@@ -169,7 +180,7 @@ def check_claim(connect: Callable[[Callable[[bytes, bool], None]], Callable[[str
     with listener.cond:
         while True:  # the retained heartbeat may come after the SUBACK: it lengthens the window when it does
             rival, retained = listener.live_rival(), listener.retained
-            silent = retained is not None and retained[0] not in (SystemStatus.OFFLINE, SystemStatus.BOOT)
+            silent = retained is not None and retained[0] != SystemStatus.OFFLINE
             window = SILENT_PERIODS * period if silent else min(START_WAIT, 1.2 * period)
             left = started + window - time.monotonic()
             if rival is not None or left <= 0:
@@ -223,6 +234,13 @@ class ClaimWatch:
         self.fenced: str | None = None  # why this bridge stands down
         self._told: set[str] = set()  # rivals already logged (each once)
 
+    def on_announcement(self, robot: str, payload: bytes, retained: bool) -> None:
+        """A starting bridge's claim on ``state/bridge`` (paho's thread): a take-over fences this bridge; anything
+        else is answered with this bridge's heartbeat, which tells the new one the robot is taken."""
+        rival = None if retained or self.fenced is not None else read_announcement(payload)
+        if rival is not None and rival.instance != self.me.instance:
+            self._rival(robot, rival, starting=True)
+
     def on_heartbeat(self, robot: str, payload: bytes, retained: bool) -> None:
         """A message on the robot's heartbeat topic (paho's thread)."""
         if retained or self.fenced is not None:
@@ -233,24 +251,28 @@ class ClaimWatch:
         status, rival = seen
         if rival.instance == self.me.instance or status == SystemStatus.OFFLINE:
             return
+        self._rival(robot, rival, starting=False)
+
+    def _rival(self, robot: str, rival: Claim, *, starting: bool) -> None:
         if winner(rival, self.me) is rival:
             self.fenced = (f"taken over by the bridge {rival.describe()}" if rival.take_over else
                            f"robot {robot} already had a live bridge {rival.describe()} (started earlier); this "
                            f"one stands down")
             self.on_fenced(self.fenced, rival)
             return
-        if status == SystemStatus.BOOT:
-            self.answer()  # a bridge starting: this heartbeat tells it the robot is taken
+        if starting:
+            self.answer()  # this heartbeat tells the starting bridge that the robot is taken
         if rival.instance not in self._told and len(self._told) < 64:
             self._told.add(rival.instance)
             log.warning("another bridge for %s %s %s; it stands down (this one keeps the robot)", robot,
-                        "is starting" if status == SystemStatus.BOOT else "runs", rival.describe())
+                        "is starting" if starting else "runs", rival.describe())
 
 
 def paho_connector(urls: list, username: str, password: str | None, ca_file: str | None, topic: str,
-                   *, wait: float = CONNECT_WAIT) -> tuple[Callable, Callable[[], None]]:
+                   announce_topic: str, *, wait: float = CONNECT_WAIT) -> tuple[Callable, Callable[[], None]]:
     """(connect, close) for :func:`check_claim`: a short-lived connection of the robot's login (a random client
-    id: a fixed one would knock the live bridge off a broker) that subscribes to ``topic``."""
+    id: a fixed one would knock the live bridge off a broker) that subscribes to the heartbeat ``topic`` and
+    publishes on ``announce_topic``."""
     import paho.mqtt.client as mqtt
 
     from ..mqtt import make_client
@@ -283,7 +305,7 @@ def paho_connector(urls: list, username: str, password: str | None, ca_file: str
         answered.wait(wait)
         if not subscribed.is_set():
             return None
-        return lambda _robot, payload: client.publish(topic, payload, qos=1)
+        return lambda _robot, payload: client.publish(announce_topic, payload, qos=1)
 
     def close() -> None:
         try:

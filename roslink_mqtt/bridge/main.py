@@ -109,11 +109,12 @@ class StartCheck(threading.Thread):
     """The one-bridge check (bridge/claim.py), run while ROS starts: it needs the broker, not ROS."""
 
     def __init__(self, robot: Any, urls: list, password: str, ca_file: str | None, take_over: bool,
-                 topic: str) -> None:
+                 topic: str, announce_topic: str) -> None:
         super().__init__(name="claim-check", daemon=True)
         from .claim import Claim
 
-        self.robot, self.urls, self.password, self.ca_file, self.topic = robot, urls, password, ca_file, topic
+        self.robot, self.urls, self.password, self.ca_file = robot, urls, password, ca_file
+        self.topic, self.announce_topic = topic, announce_topic
         self.claim = Claim.mine(take_over=take_over)
         self.result: Any = None
 
@@ -122,10 +123,11 @@ class StartCheck(threading.Thread):
         from .claim import Verdict, announcement, check_claim, paho_connector
 
         robot = self.robot
-        connect, close = paho_connector(self.urls, robot.name, self.password, self.ca_file, self.topic)
+        connect, close = paho_connector(self.urls, robot.name, self.password, self.ca_file, self.topic,
+                                        self.announce_topic)
         try:
             self.result = check_claim(connect, robot.name, self.claim, robot.bridge.heartbeat_period,
-                                      announce=announcement(robot.name, robot.system_id, int(robot.type), self.claim))
+                                      announce=announcement(self.claim))
         except Exception as err:  # the check must never keep a robot without its bridge
             self.result = Result(Verdict.START, note=f"could not check for another bridge ({err})")
         finally:
@@ -163,10 +165,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
                                 Path(args.config).resolve().parent)
-    from .claim import EXIT_DUPLICATE, EXIT_FENCED, Verdict
+    from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, Verdict
 
     check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
-                       fleet.topics.heartbeat(robot.name))
+                       fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
     check.start()
     # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
     # could publish the final zero velocity and the offline heartbeat.

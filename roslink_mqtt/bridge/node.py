@@ -27,7 +27,7 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
-from .claim import Claim, ClaimWatch
+from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
@@ -240,6 +240,7 @@ class Bridge:
         self.actuators = RosActuators(node, robot, routes, self.on_demand)
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
+        self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
         self._on_fenced = on_fenced
         self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
@@ -314,6 +315,9 @@ class Bridge:
     def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
         if topic == self._heartbeat_topic:
             self.claims.on_heartbeat(self.robot.name, payload, retained)
+            return
+        if topic == self._announce_topic:
+            self.claims.on_announcement(self.robot.name, payload, retained)
             return
         if self._stop_leaves and topic.endswith(self._stop_leaves) and self._stops.seen(topic, payload):
             return  # the other copy of an emergency stop (stop link and command link both carry it)
@@ -432,8 +436,9 @@ class Bridge:
 
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
         """The command link's: every operator's commands, requests and presence (re-read at each connect), and the
-        robot's own heartbeat topic, where another bridge for this robot would show itself (bridge/claim.py)."""
-        return [(self._heartbeat_topic, 1), *self._subscriptions_of(self.link)]
+        robot's own heartbeat topic and ``state/bridge``, where another bridge for this robot would show itself
+        (bridge/claim.py)."""
+        return [(self._heartbeat_topic, 1), (self._announce_topic, 1), *self._subscriptions_of(self.link)]
 
     def viewer_subscriptions(self) -> list[tuple[str, int]]:
         """The viewer link's: every other user's inputs, and viewers' presence."""

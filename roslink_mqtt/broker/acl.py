@@ -7,8 +7,8 @@ list as a Mosquitto ACL file, so the two brokers cannot drift apart.
 With ``P`` the fleet prefix (``roslink``):
 
 * robot ``R`` writes ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/+/#``, and reads
-  ``P/R/from/+/#``, ``P/R/heartbeat`` (where a second bridge of ``R`` would show itself: one live bridge per
-  robot) plus ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
+  ``P/R/from/+/#``, ``P/R/heartbeat`` and ``P/R/state/bridge`` (where a second bridge of ``R`` shows itself:
+  one live bridge per robot) plus ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
 * user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
   writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
   ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``, and ``P/R/from/U/goal/<a>`` and
@@ -131,6 +131,7 @@ def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
     t = fleet.topics
     entries = [
         AclEntry(t.heartbeat(robot), Access.READWRITE),  # read: another bridge of the robot shows itself there
+        AclEntry(t.state(robot, "bridge"), Access.READ),  # a starting bridge's claim (bridge/claim.py)
         AclEntry(t.state_filter(robot), Access.WRITE),
         AclEntry(t.to_user_filter(robot, ANY), Access.WRITE),
         AclEntry(t.from_user_filter(robot, ANY), Access.READ),
