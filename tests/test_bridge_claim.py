@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import threading
 
+import pytest
+
 from roslink_mqtt.bridge.claim import (
     Claim,
     ClaimWatch,
@@ -14,6 +16,7 @@ from roslink_mqtt.bridge.claim import (
     check_claim,
     read_announcement,
     read_heartbeat,
+    start_wait,
     winner,
 )
 from roslink_mqtt.protocol import Envelope, MessageId, SystemStatus, encode
@@ -69,7 +72,7 @@ class FakeBroker:
                 threading.Timer(0.05, on_heartbeat, (beat(gone, SystemStatus.OFFLINE), False)).start()
             else:
                 threading.Timer(0.02, on_heartbeat, (beat(self.live), False)).start()
-        return publish
+        return publish, 0.001
 
 
 def check(broker: FakeBroker, me: Claim, period: float = 0.2):
@@ -113,3 +116,9 @@ def test_running_bridge_yields_to_an_older_or_take_over_claim_and_answers_a_star
     old = ClaimWatch(OLD, lambda why, rival: fenced.append((why, rival)), lambda: None)
     old.on_announcement("turtle1", announcement(NEW_TAKE_OVER), False)
     assert fenced[-1][1] == NEW_TAKE_OVER and fenced[-1][0].startswith("taken over by the bridge on laptop")
+
+
+def test_the_start_wait_follows_the_round_trip() -> None:
+    assert start_wait(0.001, 1.0) == 0.25  # loopback: the floor
+    assert start_wait(0.15, 1.0) == pytest.approx(0.6)  # a slow link: four round trips
+    assert start_wait(2.0, 1.0) == 1.2  # never longer than 1.2 heartbeat periods

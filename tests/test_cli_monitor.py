@@ -297,3 +297,20 @@ def test_monitor_without_visible_robots_exits_1(port) -> None:
     out = monitor(port, "carol", "--once", "--wait", "1")  # carol operates turtle2 only; no bridge runs for it
     assert out.returncode == 1, out.stdout + out.stderr
     assert "turtle1" not in out.stdout and "no robots seen" in out.stdout
+
+
+def test_driven_by_comes_from_the_control_state() -> None:
+    from datetime import datetime
+
+    from roslink_mqtt.protocol.lease import ControlState
+
+    view = FleetView(clock=FakeClock(10.0))
+    view.watch("turtle1")
+    view.record_control("turtle1", {"holder": "alice"})  # not a ControlState: ignored
+    assert only_row(view).owner == "-"
+    since = 1764158585.0
+    view.record_control("turtle1", ControlState("alice", since, supervisor=True))
+    clock = datetime.fromtimestamp(since).strftime("%H:%M:%S")
+    assert only_row(view).owner == f"alice (supervisor) since {clock}"
+    view.record_control("turtle1", ControlState(None, None))
+    assert only_row(view).owner == "-"

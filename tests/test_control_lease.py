@@ -143,3 +143,11 @@ def test_a_refused_command_claims_nothing() -> None:
     assert h.endpoint.lease.holder is None and "stale" in h.link.errors("alice")[-1].error
     h.command("twist", {"lx": 0.1}, sequence=51)
     assert h.endpoint.lease.holder == "alice"
+
+
+def test_between_supervisors_a_take_over_is_explicit() -> None:
+    lease = ControlLease("turtle1", supervisors=frozenset({"admin", "chief"}))
+    assert lease.request("admin", ControlOp.CLAIM, live=True, now=1.0).outcome is Outcome.GRANTED
+    refused = lease.request("chief", ControlOp.CLAIM, live=True, now=2.0)
+    assert refused.outcome is Outcome.REFUSED and "control take-over turtle1" in refused.reason
+    assert lease.request("chief", ControlOp.TAKE_OVER, live=True, now=3.0).displaced == "admin"

@@ -1,7 +1,8 @@
-"""One driver per robot, with real processes on the embedded broker and on the exported Mosquitto.
+"""One bridge and one driver per robot, with real processes on the embedded broker and on the exported Mosquitto.
 
 One stack per broker (broker, simulated turtle1 and its bridge, turtle2's bridge in a namespace of its own) plays
-what the issue measured and what must hold now: two operators racing (only the holder's twists reach ``/cmd_vel``;
+what the issue measured and what must hold now: a second bridge refused (and, at the end, ``--take-over`` fencing
+the live one), two operators racing (only the holder's twists reach ``/cmd_vel``;
 the other learns who drives within 1 s), a take-over that stops the robot and tells the old holder, a supervisor's
 claim, a viewer's emergency stop that nobody but the holder can resume, the holder SIGKILLed (lease ended, robot
 stopped), and ``roslink-mqtt estop --all`` across two robots. The decisions themselves are unit-tested in
@@ -10,6 +11,9 @@ tests/test_control_lease.py.
 
 from __future__ import annotations
 
+import os
+import re
+import socket
 import subprocess
 import sys
 import time
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import pytest
 
+from roslink_mqtt.bridge.claim import EXIT_DUPLICATE, EXIT_FENCED
 from roslink_mqtt.protocol import encode_message
 from roslink_mqtt.protocol.lease import ControlState
 
@@ -79,6 +84,12 @@ def _driver(port: int, user: str, stack: ExitStack) -> Driver:
     return d
 
 
+def _cli(port: int, user: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args, "--url", f"mqtt://127.0.0.1:{port}",
+                           "-u", user], cwd=ROOT, capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"})
+
+
 def _control_state(watcher: TestClient, predicate, timeout: float = 5.0) -> ControlState:
     m = watcher.wait_for(lambda m: m.topic.endswith("/state/control") and m.payload
                          and predicate(ControlState.from_json(m.payload)), timeout=timeout)
@@ -99,16 +110,26 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
             server = stack.enter_context(EmbeddedBrokerProcess(tmp_path, fleet))
         port = server.port
         stack.enter_context(run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"))
-        stack.enter_context(run(bridge_args("turtle1", port, config=fleet), tmp_path / "bridge1.log",
-                                bridge_env("turtle1")))
+        bridge1 = stack.enter_context(run(bridge_args("turtle1", port, config=fleet), tmp_path / "bridge1.log",
+                                          bridge_env("turtle1")))
         stack.enter_context(run(bridge_args("turtle2", port, "--ros-args", "-r", "__ns:=/t2", config=fleet),
                                 tmp_path / "bridge2.log", bridge_env("turtle2")))
         watcher = stack.enter_context(TestClient(port, "bob", "bob-demo"))
         assert watcher.connect() == 0
         watcher.subscribe("roslink/turtle1/#")
-        watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.payload
-                         and m.json()["payload"]["system_status"] == 4, timeout=30)
+        live = watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.payload
+                                and m.json()["payload"]["system_status"] == 4, timeout=30).json()["payload"]
+        assert live["pid"] == bridge1.pid and live["host"] == socket.gethostname() and live["take_over"] == 0
         _control_state(watcher, lambda s: s.holder is None and s.supervisors == ("admin",))
+
+        # -- one live bridge: a second one for turtle1 refuses to start, naming the live one, with an exit code
+        #    systemd does not restart; the live one keeps the robot (the take-over is at the end)
+        second = stack.enter_context(run(bridge_args("turtle1", port, config=fleet), tmp_path / "bridge1b.log",
+                                         bridge_env("turtle1")))
+        assert second.popen.wait(timeout=30) == EXIT_DUPLICATE, second.output()
+        said = second.output()
+        assert f"already has a live bridge on {socket.gethostname()} (pid {bridge1.pid})" in said, said
+        assert "--take-over" in said and bridge1.poll() is None
 
         # -- two operators racing: alice drives first; admin's twists never reach /cmd_vel, and admin learns who
         alice = _driver(port, "alice", stack)
@@ -173,22 +194,44 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         alice.close()
         _released(watcher)
 
-        # -- the holder SIGKILLed: its last-will ends the lease and the robot stops
-        with run(["-m", "tests.support.operator_proc", str(port), "alice", "alice-demo", "turtle1", "--lx", "0.15",
+        # -- the holder (admin, a supervisor, driving from a process of his own) SIGKILLed: its last-will ends the
+        #    lease and the robot stops
+        with run(["-m", "tests.support.operator_proc", str(port), "admin", "admin-demo", "turtle1", "--lx", "0.15",
                   "--first-seq", str(Driver.seq + 1000)], tmp_path / "operator.log") as proc:
-            _control_state(watcher, lambda s: s.holder == "alice", timeout=10)
+            _control_state(watcher, lambda s: s.holder == "admin", timeout=10)
             probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.15, timeout=5)
+            # what people see: robots and info say who drives since when; alice's pub is refused with the name
+            robots = _cli(port, "bob", "robots", "turtle1", "--wait", "0.5")
+            assert robots.returncode == 0 and re.search(r"turtle1 .* admin \(supervisor\) since \d\d:\d\d:\d\d",
+                                                        robots.stdout), robots
+            info = _cli(port, "bob", "info", "turtle1")
+            assert "control: driven by admin (supervisor) since" in info.stdout and \
+                "emergency stop: every granted user" in info.stdout, info.stdout + info.stderr
+            pub = _cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.4}')
+            assert pub.returncode == 1 and "turtle1 is driven by admin (supervisor) since" in pub.stdout \
+                and "only another supervisor" in pub.stdout, pub.stdout + pub.stderr
             killed = time.monotonic()
             proc.kill()
             state = _control_state(watcher, lambda s: s.holder is None, timeout=10)
-            assert "alice's lease ended" in state.event
+            assert "admin's lease ended" in state.event
             probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
 
         # -- a fleet-wide stop: both robots acknowledge within 1 s
-        done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "estop", "--all", "--url",
-                               f"mqtt://127.0.0.1:{port}", "-u", "admin"], cwd=ROOT, capture_output=True, text=True,
-                              timeout=60, env={**bridge_env("turtle1"), "ROSLINK_PASSWORD": "admin-demo"})
+        done = _cli(port, "admin", "estop", "--all")
         assert done.returncode == 0, done.stdout + done.stderr
         lines = done.stdout.splitlines()
         assert any(line.startswith("turtle1") and "stopped (acknowledged in" in line for line in lines), lines
         assert any(line.startswith("turtle2") and "stopped (acknowledged in" in line for line in lines), lines
+
+        # -- --take-over: the live bridge stops its robot and exits (4); the new one runs and says it took over
+        since = time.monotonic()
+        third = stack.enter_context(run(bridge_args("turtle1", port, "--take-over", config=fleet),
+                                        tmp_path / "bridge1c.log", bridge_env("turtle1")))
+        assert bridge1.popen.wait(timeout=30) == EXIT_FENCED, bridge1.output()
+        assert "taken over by the bridge" in bridge1.output()
+        probe.cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, timeout=5, after=since)
+        new = watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain and m.payload
+                               and m.json()["payload"]["pid"] == third.pid
+                               and m.json()["payload"]["system_status"] in (4, 6), timeout=30)
+        assert new.json()["payload"]["take_over"] == 1
+        assert "took over from the bridge" in third.output() and third.poll() is None

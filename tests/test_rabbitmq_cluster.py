@@ -19,6 +19,7 @@ from contextlib import ExitStack
 import paho.mqtt.client as mqtt
 import pytest
 
+from roslink_mqtt.bridge.claim import EXIT_DUPLICATE
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.rabbit_cluster import RabbitCluster, rabbitmq_available
 from tests.support.broker_setup import write_fleet
@@ -105,6 +106,12 @@ def test_state_commands_and_stops_across_three_nodes(cluster, probe, tmp_path) -
         assert motion.get(timeout=10) is not None  # state from node 1 reached node 3
         # retained on node 1 only; re-published every retained_refresh (2 s), so node 3 has it within that
         assert bob.description("turtle1", timeout=2 + 1.5).robot == "turtle1"
+        # a second bridge for turtle1 on node 3, whose retained store holds no heartbeat of it: the live bridge on
+        # node 1 answers its claim across the cluster, and it refuses to start (one live bridge per robot)
+        second = exits.enter_context(run([*bridge_args("turtle1", 0, config=cluster.fleet)[:-1], _urls(cluster, 2)],
+                                         tmp_path / "second-bridge.log", bridge_env("turtle1")))
+        assert second.popen.wait(timeout=30) == EXIT_DUPLICATE, second.output()
+        assert "already has a live bridge" in second.output()
 
         exits.callback(stop.set)
         t0 = time.monotonic()

@@ -8,13 +8,13 @@ bridge reads its robot's heartbeats.
 
 * **At start** (:func:`check_claim`, before the bridge subscribes to any command) a bridge announces its claim
   on ``state/bridge`` (:data:`ANNOUNCE`; not on the heartbeat topic, where a client would take it for the robot
-  coming up), which a live bridge answers at once with its heartbeat, and listens to the heartbeat topic for
-  :data:`START_WAIT` s (longer when the retained heartbeat names a live bridge). A live heartbeat
-  from another bridge means the robot is taken: the new bridge refuses to start (:data:`EXIT_DUPLICATE`, which the
-  systemd unit does not restart), naming the live one. With ``--take-over`` its announcement says ``take_over`` 1
-  instead, and it starts once the old bridge has gone. A retained heartbeat that says online but is not followed by
-  a live one is a bridge that died without a last-will (power cut): it is replaced after :data:`SILENT_PERIODS`
-  periods, and the new claim counts as a take-over.
+  coming up), which a live bridge answers at once with its heartbeat, and listens to the heartbeat topic for a few
+  round trips to the broker (:func:`start_wait`; longer when the retained heartbeat names a live bridge). A live
+  heartbeat from another bridge means the robot is taken: the new bridge refuses to start
+  (:data:`EXIT_DUPLICATE`, which the systemd unit does not restart), naming the live one. With ``--take-over`` its
+  announcement says ``take_over`` 1 instead, and it starts once the old bridge has gone. A retained heartbeat that
+  says online but is not followed by a live one is a bridge that died without a last-will (power cut): it is
+  replaced after :data:`SILENT_PERIODS` periods, and the new claim counts as a take-over.
 * **While running** (:class:`ClaimWatch`) a bridge that sees another bridge's live heartbeat compares claims
   (:func:`winner`): the older claim wins unless the newer one is a take-over. The loser stops its robot and exits
   (:data:`EXIT_FENCED`). That settles what the start check cannot see: two bridges started in the same second, a
@@ -49,7 +49,15 @@ log = logging.getLogger("roslink_mqtt.bridge.claim")
 EXIT_DUPLICATE = 3  # another live bridge has the robot: refused at start (systemd: RestartPreventExitStatus)
 EXIT_FENCED = 4  # this bridge stopped its robot and left: taken over, or a duplicate that lost to an older one
 ANNOUNCE = "bridge"  # state/bridge: a starting bridge's claim, answered by a live bridge's heartbeat
-START_WAIT = 0.6  # s a starting bridge waits for a live one to answer its announcement (at most 1.2 periods)
+MIN_START_WAIT = 0.25  # s a starting bridge waits at least for a live one to answer its announcement
+START_ROUND_TRIPS = 4  # ... or this many round trips to the broker (the answer takes two: there and back)
+
+
+def start_wait(round_trip: float, period: float) -> float:
+    """How long a starting bridge listens for a live one's answer: a few measured round trips, at least
+    :data:`MIN_START_WAIT`, at most 1.2 heartbeat periods (a live bridge beats once a period anyway). Should the
+    answer be later still (a thin, busy link), both run until the next heartbeat, and the younger stands down."""
+    return min(1.2 * period, max(MIN_START_WAIT, START_ROUND_TRIPS * round_trip))
 SILENT_PERIODS = 2.5  # periods a retained "online" heartbeat may go unconfirmed before its bridge counts as dead
 HANDOVER_TIMEOUT = 5.0  # s a --take-over bridge waits for the old one to stand down (then starts anyway)
 CONNECT_WAIT = 3.0  # s the start check waits for the broker; later, the running bridge's watch decides
@@ -165,23 +173,27 @@ def read_announcement(payload: bytes) -> Claim | None:
         return None
 
 
-def check_claim(connect: Callable[[Callable[[bytes, bool], None]], Callable[[str, bytes], None] | None],
+Publish = Callable[[str, bytes], None]
+
+
+def check_claim(connect: Callable[[Callable[[bytes, bool], None]], tuple[Publish, float] | None],
                 robot: str, me: Claim, period: float, *, announce: bytes,
                 handover_timeout: float = HANDOVER_TIMEOUT) -> StartCheck:
     """Decide whether this bridge may start. ``connect(on_heartbeat)`` subscribes to the robot's heartbeat topic
-    and returns a publish function for it once subscribed, or None when the broker is not reachable in time;
-    ``announce``: this bridge's :func:`announcement`."""
+    and returns (a publish function for the announcement, the round trip its SUBSCRIBE took) once subscribed, or
+    None when the broker is not reachable in time; ``announce``: this bridge's :func:`announcement`."""
     listener = _Listener(me.instance)
-    publish = connect(listener.on_message)
-    if publish is None:
+    connected = connect(listener.on_message)
+    if connected is None:
         return StartCheck(Verdict.START, note="broker not reachable yet: the claim is checked once connected")
+    publish, round_trip = connected
     started = time.monotonic()
     publish(robot, announce)
     with listener.cond:
         while True:  # the retained heartbeat may come after the SUBACK: it lengthens the window when it does
             rival, retained = listener.live_rival(), listener.retained
             silent = retained is not None and retained[0] != SystemStatus.OFFLINE
-            window = SILENT_PERIODS * period if silent else min(START_WAIT, 1.2 * period)
+            window = SILENT_PERIODS * period if silent else start_wait(round_trip, period)
             left = started + window - time.monotonic()
             if rival is not None or left <= 0:
                 break
@@ -281,15 +293,20 @@ def paho_connector(urls: list, username: str, password: str | None, ca_file: str
     client = make_client(bridge_client_id(username, "claim"), username=username, password=password, url=urls,
                          ca_file=ca_file)
     subscribed, answered = threading.Event(), threading.Event()  # answered: subscribed, refused or unreachable
+    round_trip = [0.0]
 
-    def connect(on_heartbeat: Callable[[bytes, bool], None]) -> Callable[[str, bytes], None] | None:
+    def connect(on_heartbeat: Callable[[bytes, bool], None]) -> tuple[Publish, float] | None:
+        asked = [0.0]
+
         def on_connect(c: mqtt.Client, _u, _f, reason, _p) -> None:
             if reason.is_failure:
                 answered.set()  # the main connection logs why (a wrong password, say)
             else:
+                asked[0] = time.monotonic()
                 c.subscribe(topic, 1)
 
         def on_subscribe(*_: object) -> None:
+            round_trip[0] = time.monotonic() - asked[0]
             subscribed.set()
             answered.set()
 
@@ -305,7 +322,7 @@ def paho_connector(urls: list, username: str, password: str | None, ca_file: str
         answered.wait(wait)
         if not subscribed.is_set():
             return None
-        return lambda _robot, payload: client.publish(announce_topic, payload, qos=1)
+        return (lambda _robot, payload: client.publish(announce_topic, payload, qos=1)), round_trip[0]
 
     def close() -> None:
         try:

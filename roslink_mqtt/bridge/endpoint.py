@@ -4,9 +4,10 @@ Everything a user sends the robot passes here: parse the topic (:mod:`roslink_mq
 (:mod:`.authorize`), decode and validate the body, make velocities safe, then the gates — operator presence,
 motion blocked by an emergency stop or a disarm, motion that waited too long inside the bridge — and the
 sequence rule (stale and duplicate numbers are dropped; a number is recorded only once every other check has
-passed). What survives becomes a call on :class:`Actuators`; what does not becomes an error report on
-``to/<user>/error``. Presence, the failsafe decisions, stops, acknowledgements and the robot's heartbeat live
-here too, because they read and change the same motion state under the same lock.
+passed). State-changing inputs also need the control lease (:mod:`.lease`: one driver at a time; an emergency
+stop needs none, and any granted user may send one). What survives becomes a call on :class:`Actuators`; what does
+not becomes an error report on ``to/<user>/error``. Presence, the failsafe decisions, stops, acknowledgements, the
+lease and the robot's heartbeat live here too, because they read and change the same motion state under one lock.
 
 The ROS side (:mod:`.node`) owns publishers, service clients and timers and implements :class:`Actuators`;
 the MQTT side is any object with ``publish``. So the endpoint runs in-process in unit tests with a recording

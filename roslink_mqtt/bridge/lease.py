@@ -89,7 +89,7 @@ class ControlLease:
         supervisor = " (a supervisor)" if self.holder in self.supervisors else ""
         if self.holder in self.supervisors and user not in self.supervisors:
             how = "only another supervisor can take it over"
-        elif user in self.supervisors:
+        elif user in self.supervisors and self.holder not in self.supervisors:
             how = f"claim it to take it over (roslink-mqtt control claim {self.robot})"
         else:
             how = f"take it over explicitly with roslink-mqtt control take-over {self.robot}"

@@ -134,19 +134,26 @@ class StartCheck(threading.Thread):
             close()
 
 
+def without_ros_args(argv: list[str]) -> list[str]:
+    """``argv`` without its ROS arguments (``--ros-args … [--]``, as rclpy's ``remove_ros_args`` reads them): here,
+    so that the one-bridge check starts before rclpy is even imported."""
+    out, inside = [], False
+    for arg in argv:
+        if arg == "--ros-args":
+            inside = True
+        elif inside and arg == "--":
+            inside = False
+        elif not inside:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
-    from rclpy.utilities import remove_ros_args
-
     from ..config import ConfigError, load_fleet
     from ..mqtt import parse_broker_urls
-    from .node import Bridge
-    from .rules import RuleError
 
-    args = parse_args(remove_ros_args(argv)[1:])
+    args = parse_args(without_ros_args(argv)[1:])
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         fleet = load_fleet(args.config)
@@ -169,7 +176,14 @@ def main(argv: list[str] | None = None) -> int:
 
     check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
                        fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
-    check.start()
+    check.start()  # meanwhile, rclpy loads and ROS starts
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    from .node import Bridge
+    from .rules import RuleError
+
     # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
     # could publish the final zero velocity and the offline heartbeat.
     kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor

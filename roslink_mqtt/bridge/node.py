@@ -20,6 +20,7 @@ from rclpy.node import Node
 from ..config import Fleet, Priority, Robot, Role
 from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
+from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
 from ..topics import Verb, split_first
 from . import trace
@@ -393,8 +394,11 @@ class Bridge:
         # A bridge that stood down for an older one leaves the robot's heartbeat alone (it is the other one's); one
         # that was taken over says offline, which the new bridge waits for before it starts.
         yielded = self.fenced_by is not None and not self.fenced_by.take_over
-        self.link.stop([] if yielded else [(self._heartbeat_topic, self.endpoint.heartbeat(SystemStatus.OFFLINE), 1,
-                                            True)])
+        with self.endpoint.lock:  # nobody drives a robot without a bridge: its retained control state says so
+            self.endpoint.lease.ended(self.endpoint.lease.holder or "", "the bridge stopped", time.time())
+        last_words = [(self.topics.state(self.robot.name, CONTROL), self.endpoint.control_state().to_json(), 1, True),
+                      (self._heartbeat_topic, self.endpoint.heartbeat(SystemStatus.OFFLINE), 1, True)]
+        self.link.stop([] if yielded else last_words)
 
     @property
     def lanes(self) -> list[MqttLink]:

@@ -90,6 +90,8 @@ def claim_if_free(client: RobotClient, robot: str, timeout: float = 2.0) -> str 
     if state is None or state.holder == client.username:
         return None
     if state.holder is not None and client.username not in state.supervisors:
+        if state.supervisor:
+            return f"{robot} is {state.summary()}: only another supervisor can take it over"
         return (f"{robot} is {state.summary()}: `roslink-mqtt control take-over {robot}` takes it over "
                 f"(the robot stops, and {state.holder} is told)")
     try:

@@ -26,7 +26,9 @@ def summary(fleet: Fleet) -> str:
         lines.append(f"  robot {robot.name:<10} system_id={robot.system_id:<5} type={robot.type.name.lower():<8}"
                      f" rules={len(robot.rules)} services={len(robot.services)}")
         for user, role in sorted(fleet.users_of(robot.name).items()):
-            lines.append(f"      {role.value:<8} {user}")
+            lines.append(f"      {role.value:<8} {user}" + ("  (supervisor)" if user in robot.supervisors else ""))
+        stoppers = "every granted user" if robot.estop == "viewers" else "operators"
+        lines.append(f"      control: {robot.control}; emergency stop: {stoppers}")
     lines.append(f"ROS types checked against {interface_table().source}"
                  + (f"; {len(fleet.notes)} not checked here:" if fleet.notes else ""))
     lines += [f"  note: {note}" for note in fleet.notes]
