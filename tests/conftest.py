@@ -18,7 +18,7 @@ UNIT_MODULES = frozenset({
     "test_bridge_settings_config", "test_broker_acl", "test_broker_ratelimit", "test_config", "test_docs",
     "test_failsafe_logic", "test_late_commands", "test_protocol_malformed", "test_protocol_roundtrip",
     "test_safety", "test_sdk_docs", "test_sdk_unit", "test_sequence", "test_sim_world", "test_throttle",
-    "test_topics", "test_limits_logic", "test_bridge_claim", "test_control_lease",
+    "test_topics", "test_limits_logic", "test_bridge_claim", "test_control_lease", "test_broker_logging",
 })
 
 

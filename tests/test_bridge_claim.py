@@ -119,6 +119,6 @@ def test_running_bridge_yields_to_an_older_or_take_over_claim_and_answers_a_star
 
 
 def test_the_start_wait_follows_the_round_trip() -> None:
-    assert start_wait(0.001, 1.0) == 0.25  # loopback: the floor
+    assert start_wait(0.001, 1.0) == 0.1  # loopback: the floor
     assert start_wait(0.15, 1.0) == pytest.approx(0.6)  # a slow link: four round trips
     assert start_wait(2.0, 1.0) == 1.2  # never longer than 1.2 heartbeat periods

@@ -49,7 +49,7 @@ log = logging.getLogger("roslink_mqtt.bridge.claim")
 EXIT_DUPLICATE = 3  # another live bridge has the robot: refused at start (systemd: RestartPreventExitStatus)
 EXIT_FENCED = 4  # this bridge stopped its robot and left: taken over, or a duplicate that lost to an older one
 ANNOUNCE = "bridge"  # state/bridge: a starting bridge's claim, answered by a live bridge's heartbeat
-MIN_START_WAIT = 0.25  # s a starting bridge waits at least for a live one to answer its announcement
+MIN_START_WAIT = 0.1  # s a starting bridge waits at least for a live one to answer its announcement
 START_ROUND_TRIPS = 4  # ... or this many round trips to the broker (the answer takes two: there and back)
 
 

@@ -91,6 +91,26 @@ def _limit(text: str) -> tuple[str, float]:
     return name, number
 
 
+class ClosedDeliveryFilter(logging.Filter):
+    """One line, not a traceback, for a delivery that failed because its client had just disconnected.
+
+    amqtt delivers each message in a task of its own and logs a failed one with its traceback at ERROR ("Task failed
+    and will be skipped", or "… during broadcast shutdown" when the broker stops). A subscriber that disconnects
+    while a message is on its way (a bridge's last words at shutdown reaching a client that is leaving too) makes
+    the transport raise ``RuntimeError: unable to perform operation on <TCPTransport closed=True …>``: a race, not
+    a fault. Any other exception keeps its traceback.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        if isinstance(error, (RuntimeError, ConnectionError)) and "closed" in str(error) \
+                and str(record.msg).startswith("Task failed"):
+            record.msg, record.args = f"a delivery failed: its client had just disconnected ({error})", ()
+            record.exc_info = record.exc_text = None
+            record.levelno, record.levelname = logging.INFO, "INFO"
+        return True
+
+
 def setup_logging(level: str) -> None:
     logging.basicConfig(level=level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("transitions").setLevel(logging.WARNING)
@@ -101,6 +121,7 @@ def setup_logging(level: str) -> None:
         logging.getLogger("amqtt").setLevel(logging.ERROR)
         # amqtt logs a failed start (port in use) with a traceback; StartError explains it in one line
         logging.getLogger("amqtt.broker").addFilter(lambda record: "startup failed" not in record.getMessage())
+    logging.getLogger("amqtt.broker").addFilter(ClosedDeliveryFilter())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
