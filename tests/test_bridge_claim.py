@@ -75,9 +75,9 @@ class FakeBroker:
         return publish, 0.001
 
 
-def check(broker: FakeBroker, me: Claim, period: float = 0.2):
+def check(broker: FakeBroker, me: Claim, period: float = 0.1):
     return check_claim(broker.connect, "turtle1", me, period, announce=announcement(me),
-                       handover_timeout=0.5)
+                       handover_timeout=0.2)
 
 
 def test_start_check_verdicts() -> None:
@@ -90,7 +90,7 @@ def test_start_check_verdicts() -> None:
     assert silent.verdict is Verdict.REPLACE and silent.other == OLD and "without a last-will" in silent.note
     took = check(FakeBroker(beat(OLD), live=OLD), NEW_TAKE_OVER)
     assert took.verdict is Verdict.REPLACE and took.other == OLD and took.note.startswith("took over")
-    stubborn = check(FakeBroker(beat(OLD), live=OLD, stands_down=False), NEW_TAKE_OVER, period=0.05)
+    stubborn = check(FakeBroker(beat(OLD), live=OLD, stands_down=False), NEW_TAKE_OVER, period=0.02)
     assert stubborn.verdict is Verdict.REPLACE and "did not stand down" in stubborn.note
     assert check_claim(lambda _cb: None, "turtle1", NEW, 1.0, announce=b"").verdict is Verdict.START  # no broker
 

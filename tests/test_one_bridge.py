@@ -18,19 +18,8 @@ from roslink_mqtt.bridge.claim import EXIT_FENCED
 from .support.embedded_broker import EmbeddedBrokerProcess
 from .support.mqtt_client import Received, TestClient
 from .support.procs import bridge_args, bridge_env, run
-from .support.ros import RosProbe
 
 pytestmark = pytest.mark.timeout(150)
-
-
-@pytest.fixture(scope="module")
-def probe():
-    from geometry_msgs.msg import Twist
-
-    p = RosProbe()
-    p.cmd_vel = p.watch(Twist, "/cmd_vel")
-    yield p
-    p.close()
 
 
 def _heartbeat(m: Received) -> dict:

@@ -145,13 +145,16 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
 
         # -- two operators racing: alice drives first; admin's twists never reach /cmd_vel, and admin learns who
         alice = _driver(port, "alice", stack)
-        for _ in range(3):
+        started = time.monotonic()
+        for _ in range(100):  # until ROS delivers them: the probe must have matched this bridge's publisher
             alice.twist(0.11)
             time.sleep(0.1)
+            if any(round(m.linear.x, 2) == 0.11 for _, m in probe.cmd_vel.since(started)):
+                break
         _control_state(watcher, lambda s: s.holder == "alice")
         admin = _driver(port, "admin", stack)
         since = time.monotonic()
-        for _ in range(20):  # both stream at 10 Hz for 2 s
+        for _ in range(12):  # both stream at 10 Hz for 1.2 s
             alice.twist(0.11)
             admin.twist(0.22)
             time.sleep(0.1)
