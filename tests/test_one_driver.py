@@ -94,6 +94,10 @@ def _what_people_see(port: int) -> None:
     pub = _cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.4}')
     assert pub.returncode == 1 and "turtle1 is driven by admin (supervisor) since" in pub.stdout \
         and "only another supervisor" in pub.stdout, pub.stdout + pub.stderr
+    claim = _cli(port, "alice", "control", "take-over", "turtle1")
+    assert claim.returncode == 1 and "refused" in claim.stderr and "only another supervisor" in claim.stderr, claim
+    status = _cli(port, "bob", "control", "status", "turtle1")
+    assert status.returncode == 0 and "turtle1: driven by admin (supervisor) since" in status.stdout, status
 
 
 def _cli(port: int, user: str, *args: str) -> subprocess.CompletedProcess:

@@ -87,12 +87,15 @@ def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: flo
 
 
 def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float) -> dict[str, StopReport]:
-    """Send every robot an emergency stop at once, then wait up to ``timeout`` for each acknowledgement."""
-    acks: dict[str, float] = {}
+    """Send every robot an emergency stop at once, then wait up to ``timeout`` for each acknowledgement.
+
+    Acknowledgements are kept as they come (paho's thread) and matched to the stops' sequence numbers here: a lock
+    held while sending would make the network thread wait, and with it the SUBACKs the sends may wait for."""
+    seen: dict[str, dict[int, float]] = {robot: {} for robot in robots}  # robot → {acknowledged sequence: when}
     sequences: dict[str, int | None] = {}
     sent_at: dict[str, float] = {}
     errors: dict[str, str] = {}
-    lock = threading.Condition()
+    changed = threading.Condition()
 
     def on_ack(robot: str):
         def handle(_topic: str, payload: bytes, _retained: bool) -> None:
@@ -100,13 +103,15 @@ def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float
                 body = decode(payload, MessageId.ACK).payload
             except ProtocolError:
                 return
-            with lock:
-                seq = sequences.get(robot)
-                if body["command"] == int(MessageId.EMERGENCY_STOP) and seq is not None \
-                        and body["command_sequence"] == seq and body["result"] == int(AckResult.ACCEPTED):
-                    acks.setdefault(robot, time.monotonic())
-                    lock.notify_all()
+            if body["command"] == int(MessageId.EMERGENCY_STOP) and body["result"] == int(AckResult.ACCEPTED):
+                with changed:
+                    seen[robot].setdefault(body["command_sequence"], time.monotonic())
+                    changed.notify_all()
         return handle
+
+    def acked(robot: str) -> float | None:
+        seq = sequences.get(robot)
+        return None if seq is None else seen[robot].get(seq)
 
     handlers = {robot: on_ack(robot) for robot in robots}
     ack_topics = {robot: client.topics.state(robot, "ack") for robot in robots}
@@ -114,25 +119,25 @@ def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float
         for robot in robots:  # acknowledgements are not retained: listen first (a SUBACK away on a LAN)
             client.connection.subscribe(ack_topics[robot], handlers[robot], timeout=timeout)
         for robot in robots:
+            sent_at[robot] = time.monotonic()
             try:
-                with lock:
-                    sent_at[robot] = time.monotonic()
-                    # no PUBACK wait per robot: the next robot's stop must not queue behind it; the robot's own
-                    # acknowledgement below is the stronger confirmation
-                    sequences[robot] = client.command(robot, "emergency_stop", {"reason": reason})
+                # no PUBACK wait per robot: the next robot's stop must not queue behind it; the robot's own
+                # acknowledgement below is the stronger confirmation
+                sequences[robot] = client.command(robot, "emergency_stop", {"reason": reason})
             except (RoslinkError, ProtocolError) as err:  # one robot's failure must not keep the others running
                 errors[robot] = str(err)
         deadline = time.monotonic() + timeout
-        with lock:
-            while any(r not in acks and r not in errors for r in robots) and time.monotonic() < deadline:
-                lock.wait(deadline - time.monotonic())
+        with changed:
+            while any(acked(r) is None and r not in errors for r in robots) and time.monotonic() < deadline:
+                changed.wait(deadline - time.monotonic())
     finally:
         for robot in robots:
             client.connection.unsubscribe(ack_topics[robot], handlers[robot])
     out = {}
     for robot in robots:
-        if robot in acks:
-            out[robot] = StopReport(robot, True, acks[robot] - sent_at[robot])
+        at = acked(robot)
+        if at is not None:
+            out[robot] = StopReport(robot, True, max(0.0, at - sent_at[robot]))
         else:
             out[robot] = StopReport(robot, False, error=errors.get(robot, f"no acknowledgement within {timeout:g} s"))
     return out
