@@ -151,3 +151,13 @@ def test_between_supervisors_a_take_over_is_explicit() -> None:
     refused = lease.request("chief", ControlOp.CLAIM, live=True, now=2.0)
     assert refused.outcome is Outcome.REFUSED and "control take-over turtle1" in refused.reason
     assert lease.request("chief", ControlOp.TAKE_OVER, live=True, now=3.0).displaced == "admin"
+
+
+def test_a_flood_of_stops_is_obeyed_but_acknowledged_at_most_twice_a_second_per_user() -> None:
+    h = _harness()
+    for _ in range(20):  # bob, a viewer, floods stops
+        h.command("emergency_stop", {}, user="bob")
+    h.command("emergency_stop", {}, user="alice")
+    acks = [a for a in h.link.acks() if a["command"] == 108]
+    assert [a["text"] for a in acks] == ["emergency stop by bob", "emergency stop by alice"]
+    assert h.ros.zeros >= 21  # every stop zeroed the velocity

@@ -58,6 +58,7 @@ log = logging.getLogger("roslink_mqtt.bridge")
 SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
 ACK_QOS = 1  # state/ack: the outcome of a command (and every failsafe stop) must not be lost
+STOP_ACK_INTERVAL = 0.5  # s: a user's emergency stops are acknowledged at most this often (every one is obeyed)
 MAX_QUEUE_ALLOWANCE = 1.0  # s a heartbeat's PUBACK may take beyond link_timeout because of a busy uplink
 
 
@@ -125,6 +126,7 @@ class CommandEndpoint:
         self._oversized_presence: set[tuple[str, str]] = set()  # clients already told (paho threads; set.add is atomic)
         self._grants: tuple[Fleet, dict[str, Role | None]] = (fleet, {})  # swapped whole on reload
         self.reports = RefusalReports()  # refusal reports per user are rate-limited, never silently dropped
+        self._stop_acked: dict[str, float] = {}  # user → when their last emergency stop was acknowledged
 
     # -- grants --------------------------------------------------------------------------
     def role_of(self, user: str) -> Role | None:
@@ -384,8 +386,17 @@ class CommandEndpoint:
             else:
                 self.actuators.publish(user, route, msg)
             if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
-                self.publish_ack(message_id or 0, sequence, AckResult.ACCEPTED,
-                                 f"{behaviour.blocks_motion or 'stop'} by {user}")
+                self._acknowledge_stop(user, message_id, sequence, behaviour.blocks_motion or "stop")
+
+    def _acknowledge_stop(self, user: str, message_id: int | None, sequence: int | None, what: str) -> None:
+        """Acknowledge a stop on ``state/ack``, at most once per :data:`STOP_ACK_INTERVAL` per user: any granted
+        user, viewers included, may send stops, and a flood of them must not become a flood of acknowledgements on
+        the robot's uplink (control class: they would go out ahead of its state). Every stop is still obeyed."""
+        now = time.monotonic()
+        if now - self._stop_acked.get(user, -STOP_ACK_INTERVAL) < STOP_ACK_INTERVAL:
+            return
+        self._stop_acked[user] = now  # granted users only reach here: bounded by the fleet file
+        self.publish_ack(message_id or 0, sequence, AckResult.ACCEPTED, f"{what} by {user}")
 
     def on_operator(self, user: str, client_id: str, payload: bytes) -> None:
         """Operator presence. Classified before the lock (bounded work), so presence can never hold up a stop."""
