@@ -29,9 +29,11 @@ demo: install
 dashboard: install
 	$(BIN)/python -m roslink_mqtt.demo --dashboard
 
+# Pure logic first (tests/unit refuses ROS imports when run alone: seconds), then everything with real parts.
 test: install
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -q tests/unit
+	$(BIN)/python -m pytest --ignore=tests/unit
 
 lint: install
 	$(BIN)/ruff check .

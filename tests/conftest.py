@@ -7,32 +7,26 @@ test starts inherits them.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from roslink_mqtt.ros_env import apply_local_ros_env
+from tests.support.measure import MEASUREMENTS
 
 ROS_ENV = apply_local_ros_env()
 
-MEASUREMENTS: list[tuple[str, float, float]] = []
-
-# Pure logic: no processes, no sockets, no ROS. `pytest -m unit` runs these in seconds.
-UNIT_MODULES = frozenset({
-    "test_bridge_settings_config", "test_broker_acl", "test_broker_ratelimit", "test_config", "test_docs",
-    "test_failsafe_logic", "test_late_commands", "test_protocol_malformed", "test_protocol_roundtrip",
-    "test_safety", "test_sdk_docs", "test_sdk_unit", "test_sequence", "test_sim_world", "test_throttle",
-    "test_topics", "test_limits_logic", "test_bridge_claim", "test_control_lease", "test_broker_logging",
-})
+# Each folder is a kind of test, and its marker: `pytest tests/unit` (or `-m unit`) runs the pure logic in seconds,
+# without ROS or a broker (tests/unit/conftest.py refuses an rclpy import there).
+FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 
 
 def pytest_collection_modifyitems(config, items) -> None:
     import pytest
 
+    tests = Path(__file__).parent
     for item in items:
-        if item.path.stem in UNIT_MODULES:
-            item.add_marker(pytest.mark.unit)
-
-
-def record_measurement(name: str, seconds: float, deadline: float) -> None:
-    """Keep a timing for the closing summary (tests print what they measured)."""
-    MEASUREMENTS.append((name, seconds, deadline))
+        folder = item.path.relative_to(tests).parts[0] if item.path.is_relative_to(tests) else ""
+        if folder in FOLDER_MARKERS:
+            item.add_marker(getattr(pytest.mark, folder))
 
 
 def pytest_terminal_summary(terminalreporter) -> None:

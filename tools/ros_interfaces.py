@@ -7,7 +7,7 @@
 a client machine or a broker host has no rclpy. So the names and fields of the common_interfaces types
 (every package the ``ros-common-interfaces`` wheel depends on) are read here, once, from the wheels
 themselves — the ament index lists each package's interfaces, and the generated Python classes give
-their fields — and shipped as a plain Python table. tests/test_fleet_types.py runs the check.
+their fields — and shipped as a plain Python table. tests/integration/test_fleet_types.py runs the check.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ TABLE = ROOT / "roslink_mqtt" / "config" / "interface_table.py"
 HEADER = '''"""The ROS 2 common_interfaces message and service types, with their fields. GENERATED: do not edit.
 
 Written by tools/ros_interfaces.py from the installed ROS wheels ({source});
-tests/test_fleet_types.py checks it against them. Read by roslink_mqtt.config.interfaces, which
+tests/integration/test_fleet_types.py checks it against them. Read by roslink_mqtt.config.interfaces, which
 must not import ROS.
 """
 

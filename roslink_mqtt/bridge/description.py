@@ -2,7 +2,7 @@
 
 :func:`build_description` is ROS-free: it reads the robot's part of the fleet file and asks a
 ``fields_of(type_name) -> layout`` callable for the field layout of each ROS type an entry mentions, so it is
-unit-tested with a table (tests/test_description_unit.py). :func:`ros_fields_of` is that callable on a robot:
+unit-tested with a table (tests/unit/test_description_unit.py). :func:`ros_fields_of` is that callable on a robot:
 it loads the interface classes (:func:`~roslink_mqtt.bridge.ros_types.load_interface`) and walks their
 ``SLOT_TYPES``, nested messages expanded, spelling types as a ``.msg`` file does (what ``ros2 interface show``
 prints). :func:`description_message` gives the bridge the topic and the body to publish.

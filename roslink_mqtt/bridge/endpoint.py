@@ -11,7 +11,7 @@ lease and the robot's heartbeat live here too, because they read and change the 
 
 The ROS side (:mod:`.node`) owns publishers, service clients and timers and implements :class:`Actuators`;
 the MQTT side is any object with ``publish``. So the endpoint runs in-process in unit tests with a recording
-link and recording actuators (``tests/test_bridge_endpoint.py``), the way rosbridge tests one capability with a
+link and recording actuators (``tests/unit/test_bridge_endpoint.py``), the way rosbridge tests one capability with a
 real protocol object, while the integration tests keep running the real bridge.
 
 Threads: MQTT messages arrive on paho's network thread, supervision and ROS callbacks on the executor.

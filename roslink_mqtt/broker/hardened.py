@@ -1,7 +1,7 @@
 """amqtt's Broker with the gaps of amqtt 0.12.1 closed (pinned: ``amqtt==0.12.1`` in pyproject.toml).
 
 Each fix below was reproduced on stock 0.12.1 first and has a regression test in
-``tests/test_broker_hardening.py``. They are subclass overrides -- nothing in amqtt is
+``tests/integration/test_broker_hardening.py``. They are subclass overrides -- nothing in amqtt is
 monkeypatched, so a plain ``amqtt.broker.Broker`` in the same process keeps its stock
 behaviour.
 

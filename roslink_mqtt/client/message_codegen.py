@@ -7,7 +7,7 @@ Why generated source rather than classes built at import time: type checkers
 and IDEs read source, so ``GlobalMotion(x=…)`` is checked and completed only
 when the class is written out. Why generated at all: the schema
 (roslink_mqtt/protocol/messages.py) stays the one place a field is declared;
-tests/test_sdk_message_types.py fails when the block and the schema differ.
+tests/unit/test_sdk_message_types.py fails when the block and the schema differ.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The ROS 2 common_interfaces message and service types, with their fields. GENERATED: do not edit.
 
 Written by tools/ros_interfaces.py from the installed ROS wheels (ros-common-interfaces 5.3.6, ROS 2 jazzy);
-tests/test_fleet_types.py checks it against them. Read by roslink_mqtt.config.interfaces, which
+tests/integration/test_fleet_types.py checks it against them. Read by roslink_mqtt.config.interfaces, which
 must not import ROS.
 """
 

@@ -30,7 +30,7 @@ that can never be a ROS field name (ROS field names start with a letter), so it
 cannot collide with the message. The bridge strips it before conversion.
 
 docs/protocol.md renders the reference of these bodies (fields, topic, QoS, retain flag, id and version
-rules) from :data:`CONTROL_BODIES`; tests/test_docs.py fails when it drifts.
+rules) from :data:`CONTROL_BODIES`; tests/unit/test_docs.py fails when it drifts.
 """
 
 from __future__ import annotations

@@ -23,11 +23,11 @@ from collections.abc import Iterator
 import pytest
 from websockets.sync.client import connect as ws_connect
 
-from tests.conftest import record_measurement
 from tests.support.attack import StallMeter, rss_bytes
 from tests.support.broker_client import Probe
 from tests.support.broker_setup import ExportedMosquitto, write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
 from tests.support.procs import DEMO_PASSWORDS as PW
 from tests.support.rawmqtt import RawClient, connect_packet, publish_header, publish_packet, subscribe_packet
 

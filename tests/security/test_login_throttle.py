@@ -12,9 +12,9 @@ import time
 
 import pytest
 
-from tests.conftest import record_measurement
 from tests.support.broker_setup import write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
 from tests.support.procs import DEMO_PASSWORDS as PW
 from tests.support.rawmqtt import RawClient
 

@@ -19,12 +19,12 @@ from contextlib import ExitStack
 import orjson
 import pytest
 
-from ..conftest import record_measurement
-from ..support.marked_twists import MarkedTwists, nonzero
-from ..support.mqtt_client import TestClient
-from ..support.procs import ROOT
-from ..support.robot_stack import BROKERS, turtle1_online
-from ..support.ros import RosProbe
+from tests.support.marked_twists import MarkedTwists, nonzero
+from tests.support.measure import record_measurement
+from tests.support.mqtt_client import TestClient
+from tests.support.procs import ROOT
+from tests.support.robot_stack import BROKERS, turtle1_online
+from tests.support.ros import RosProbe
 
 pytestmark = [pytest.mark.security, pytest.mark.timeout(120)]
 

@@ -11,8 +11,7 @@ from typing import Any
 
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.client.errors import NotConnectedError
-
-from ..conftest import record_measurement
+from tests.support.measure import record_measurement
 
 BACK_WITHIN = 5.0  # issue 18: commands flow again within 5 s of losing a node
 STOPPED_WITHIN = 1.0

@@ -1,0 +1,338 @@
+"""Regression tests for each amqtt 0.12.1 gap the embedded broker closes (roslink_mqtt.broker.hardened).
+
+Every test here fails on a stock ``amqtt.broker.Broker`` with the same plugins (shown while
+porting the prototype); the numbers refer to the list in hardened.py's docstring.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.support.broker_client import REFUSED, Probe
+from tests.support.broker_setup import write_fleet
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
+from tests.support.net import free_port
+from tests.support.procs import DEMO_PASSWORDS
+
+MAX_PAYLOAD = 2048
+PW = DEMO_PASSWORDS
+
+
+@pytest.fixture(scope="module")
+def broker(tmp_path_factory) -> Iterator[EmbeddedBrokerProcess]:
+    workdir = tmp_path_factory.mktemp("hardening")
+    fleet = write_fleet(workdir, edit=lambda t: t.replace("  ws_port: 0\n",
+                                                          f"  ws_port: 0\n  max_payload: {MAX_PAYLOAD}\n"))
+    with EmbeddedBrokerProcess(workdir, fleet, "--connect-timeout", "1", "--login-free-failures", "100",
+                               "--sys-interval", "0.5", ws=True) as b:
+        yield b
+
+
+@pytest.fixture
+def clients() -> Iterator:
+    made: list[Probe] = []
+
+    def make(port: int, login: str | None, *args, password: str | None = None, connect: bool = True,
+             **kw) -> Probe:
+        p = Probe(port, login, password if password is not None else PW.get(login or ""), *args, **kw)
+        made.append(p)
+        if connect:
+            assert p.connect() == 0, f"{login} refused"
+        return p
+
+    yield make
+    for p in made:
+        p.close()
+
+
+# -- 1: keep-alive ---------------------------------------------------------------------------
+
+SILENT_CLIENT = textwrap.dedent("""
+    import sys, paho.mqtt.client as mqtt
+    port, user, password, cid, transport, will_topic = sys.argv[1:7]
+    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cid, protocol=mqtt.MQTTv311, transport=transport)
+    c.username_pw_set(user, password)
+    c.will_set(will_topic, b"gone", 1, True)
+    c.on_connect = lambda *a: print("CONNECTED", flush=True)
+    c.connect("127.0.0.1", int(port), keepalive=2)
+    c.loop_forever()
+""")
+
+
+@pytest.mark.parametrize("transport", ["tcp", "websockets"])
+def test_frozen_client_is_dropped_and_its_will_arrives_within_1_5_keepalive(broker, clients, transport) -> None:
+    """SIGSTOP an operator (keep-alive 2 s): its will reaches the robot within 1.5 x 2 + 1 s."""
+    cid = f"frozen-{transport}"
+    will_topic = f"roslink/operators/alice/{cid}"
+    robot = clients(broker.port, "turtle1")
+    assert robot.subscribe(will_topic) == [1]
+    alive = clients(broker.port, "bob", keepalive=1)  # idle, but paho pings: must not be dropped
+    port = broker.port if transport == "tcp" else broker.ws_port
+    child = subprocess.Popen([sys.executable, "-c", SILENT_CLIENT, str(port), "alice", PW["alice"], cid, transport,
+                              will_topic], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "CONNECTED"
+        time.sleep(0.3)
+        os.kill(child.pid, signal.SIGSTOP)
+        frozen_at = time.monotonic()
+        deadline = 1.5 * 2 + 1
+        will = robot.wait_for(lambda m: m.topic == will_topic, timeout=deadline + 5)
+        elapsed = will.at - frozen_at
+        record_measurement(f"broker: will after SIGSTOP ({transport}, keepalive 2 s)", elapsed, deadline)
+        assert will.payload == b"gone"
+        assert elapsed <= deadline, f"will after {elapsed:.2f} s"
+        assert elapsed >= 2.0, "dropped before its keep-alive ran out"
+        assert not alive.disconnected.is_set(), "an idle client that pings was dropped"
+    finally:
+        child.kill()
+        child.wait()
+    assert "keep-alive expired" in broker.output()
+
+
+# -- 2: retained messages --------------------------------------------------------------------
+
+def test_late_user_never_gets_another_robots_retained_messages(broker, clients) -> None:
+    """alice (turtle1) connects late while carol is subscribed to turtle2: no turtle2 retained for alice."""
+    t2 = clients(broker.port, "turtle2")
+    t2.publish("roslink/turtle2/heartbeat", "t2-alive", retain=True)
+    t2.publish("roslink/turtle2/state/robot_status", "t2-status", retain=True)
+    t1 = clients(broker.port, "turtle1")
+    t1.publish("roslink/turtle1/heartbeat", "t1-alive", retain=True)
+    carol = clients(broker.port, "carol")
+    assert carol.subscribe("roslink/turtle2/#") == [1]  # turtle2's filters are in the broker's table
+    assert {m.payload for m in carol.collect(2)} == {b"t2-alive", b"t2-status"}
+
+    alice = clients(broker.port, "alice")
+    before = alice.drain(0.8)
+    assert before == [], "retained messages arrived without any SUBSCRIBE"
+    assert alice.subscribe("roslink/#") == [1]
+    got = alice.collect(1)
+    assert [(m.topic, m.payload, m.retain) for m in got] == [("roslink/turtle1/heartbeat", b"t1-alive", True)]
+
+    # and the robot of the original report: turtle1 connecting late sees nothing of turtle2
+    t1_late = clients(broker.port, "turtle1", "turtle1-late")
+    assert t1_late.drain(0.8) == []
+    for topic in ("roslink/turtle2/heartbeat", "roslink/turtle2/state/robot_status"):
+        t2.publish(topic, "", retain=True)
+    t1.publish("roslink/turtle1/heartbeat", "", retain=True)
+
+
+def test_retained_delivery_on_subscribe_is_receive_checked_and_min_qos(broker, clients) -> None:
+    admin = clients(broker.port, "admin")
+    admin.publish("roslink/turtle2/state/secret", "no", qos=1, retain=True)
+    admin.publish("roslink/turtle1/state/q0", "low", qos=0, retain=True)
+    time.sleep(0.2)
+    bob = clients(broker.port, "bob")
+    assert bob.subscribe("#", qos=1) == [1]  # granted: it can match turtle1's topics
+    got = {m.topic: m for m in bob.collect(1, then=0.5)}
+    assert "roslink/turtle2/state/secret" not in got
+    assert got["roslink/turtle1/state/q0"].qos == 0 and got["roslink/turtle1/state/q0"].retain
+    for topic in ("roslink/turtle2/state/secret", "roslink/turtle1/state/q0"):
+        admin.publish(topic, "", retain=True)
+
+
+# -- 3: QoS ----------------------------------------------------------------------------------
+
+def test_delivery_qos_is_min_of_publish_and_subscription(broker, clients) -> None:
+    alice = clients(broker.port, "alice")
+    assert alice.subscribe("roslink/turtle1/state/q2", qos=2) == [2]
+    assert alice.subscribe("roslink/turtle1/state/q0", qos=0) == [0]
+    t1 = clients(broker.port, "turtle1")
+    t1.publish("roslink/turtle1/state/q2", "a", qos=0)
+    t1.publish("roslink/turtle1/state/q2", "b", qos=1)
+    t1.publish("roslink/turtle1/state/q0", "c", qos=2)
+    got = {m.payload: m.qos for m in alice.collect(3)}
+    assert got == {b"a": 0, b"b": 1, b"c": 0}
+
+
+def test_overlapping_filters_deliver_one_copy_at_the_highest_granted_qos(broker, clients) -> None:
+    alice = clients(broker.port, "alice")
+    assert alice.subscribe("roslink/turtle1/state/#", qos=0) == [0]
+    assert alice.subscribe("roslink/turtle1/state/+", qos=1) == [1]
+    clients(broker.port, "turtle1").publish("roslink/turtle1/state/overlap", "x", qos=1)
+    assert [(m.topic, m.qos) for m in alice.collect(1)] == [("roslink/turtle1/state/overlap", 1)]
+
+
+# -- 4, 5, 6, 7: CONNECT -----------------------------------------------------------------------
+
+def test_wrong_password_cannot_hijack_a_client_id(broker, clients) -> None:
+    victim = clients(broker.port, "alice", "victim")
+    assert victim.subscribe("roslink/turtle1/to/alice/#") == [1]
+    attacker = clients(broker.port, "alice", "victim", password="guess", connect=False)
+    assert attacker.connect() == REFUSED
+    clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/reply/reset", "still here")
+    assert [m.payload for m in victim.collect(1)] == [b"still here"]
+    assert not victim.disconnected.is_set()
+
+
+def test_failed_logins_leave_no_sessions_behind(broker, clients) -> None:
+    """Stock amqtt kept a 'connected' zombie session for every failed login; watch $SYS/broker/clients/total."""
+    admin = clients(broker.port, "admin")
+    assert admin.subscribe("$SYS/broker/clients/total") == [1]
+
+    def total_after_next_tick() -> int:
+        admin.drain(0.1)
+        return int(admin.wait_for(lambda m: not m.retain, timeout=5).payload)
+
+    time.sleep(1.2)  # clean sessions of earlier tests are reaped once a second
+    before = total_after_next_tick()
+    for i in range(10):
+        assert clients(broker.port, "turtle1", f"zombie-{i}", password="wrong", connect=False).connect() == REFUSED
+    time.sleep(0.6)
+    assert total_after_next_tick() == before
+
+
+@pytest.mark.parametrize("clean", [True, False])
+def test_client_id_takeover_closes_the_old_connection_without_will(broker, clients, clean: bool) -> None:
+    cid = f"takeover-{clean}"
+    will = f"roslink/operators/alice/{cid}"
+    watcher = clients(broker.port, "turtle1")
+    assert watcher.subscribe(will) == [1]
+    first = clients(broker.port, "alice", cid, clean=clean, will=(will, b"", 1, False))
+    first.client.reconnect_delay_set(30, 60)  # keep paho from fighting for the client id
+    assert first.subscribe("roslink/turtle1/to/alice/#") == [1]
+    second = clients(broker.port, "alice", cid, clean=clean)
+    assert second.subscribe("roslink/turtle1/to/alice/#") == [1]
+    clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/x", "for the new connection")
+    assert [m.payload for m in second.collect(1)] == [b"for the new connection"]
+    assert first.disconnected.wait(2), "the old connection was left open"
+    assert watcher.drain(0.3) == [], "will published on take-over"
+
+
+def test_persistent_session_is_not_inherited_by_another_login(broker, clients) -> None:
+    alice = clients(broker.port, "alice", "shared-id", clean=False)
+    assert alice.subscribe("roslink/turtle1/to/alice/#", qos=1) == [1]
+    alice.close()
+    time.sleep(0.3)
+    clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/reply/x", "for alice only", qos=1)
+    time.sleep(0.3)
+    carol = clients(broker.port, "carol", "shared-id", clean=False)
+    assert not carol.session_present
+    assert carol.drain(0.8) == []
+
+
+def test_offline_queue_is_replayed_once_without_retain_flag(broker, clients) -> None:
+    alice = clients(broker.port, "alice", "persistent-alice", clean=False)
+    assert alice.subscribe("roslink/turtle1/to/alice/#", qos=1) == [1]
+    alice.close()
+    time.sleep(0.3)
+    clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/reply/q", "queued", qos=1)
+    time.sleep(0.3)
+    again = clients(broker.port, "alice", "persistent-alice", clean=False)
+    assert again.session_present
+    got = again.collect(1)
+    assert [(m.topic, m.payload, m.qos, m.retain) for m in got] == [
+        ("roslink/turtle1/to/alice/reply/q", b"queued", 1, False)]
+
+
+def test_will_topic_is_checked_against_the_publish_acl(broker, clients) -> None:
+    forged = clients(broker.port, "alice", will=("roslink/turtle1/heartbeat", b"offline", 1, True), connect=False)
+    assert forged.connect() == REFUSED
+    own = clients(broker.port, "alice", will=("roslink/operators/alice/w", b"", 1, True), connect=False)
+    assert own.connect() == 0
+    assert "will topic 'roslink/turtle1/heartbeat' is not writable" in broker.output()
+
+
+# -- 8: broadcast while subscriptions change ---------------------------------------------------
+
+def test_no_message_lost_while_another_client_subscribes_concurrently(broker, clients) -> None:
+    n = 1500
+    counter = clients(broker.port, "alice")
+    assert counter.subscribe("roslink/turtle1/state/#", qos=0) == [0]
+    churn = clients(broker.port, "admin")
+    publisher = clients(broker.port, "turtle1")
+    stop = threading.Event()
+
+    def churner() -> None:
+        i = 0
+        while not stop.is_set():
+            churn.client.subscribe(f"roslink/churn/{i}", 0)
+            i += 1
+            time.sleep(0.001)
+
+    thread = threading.Thread(target=churner)
+    thread.start()
+    try:
+        for i in range(n):
+            publisher.client.publish("roslink/turtle1/state/count", str(i), qos=0)
+            if i % 100 == 0:
+                time.sleep(0.01)
+        deadline = time.monotonic() + 20
+        got = 0
+        while got < n and time.monotonic() < deadline:
+            got += len(counter.drain(0.2))
+    finally:
+        stop.set()
+        thread.join()
+    assert got == n
+    assert "dictionary changed size" not in broker.output()
+
+
+# -- 10: CONNECT timeout -------------------------------------------------------------------------
+
+def test_connection_without_connect_is_closed(broker) -> None:
+    with socket.create_connection(("127.0.0.1", broker.port)) as s:
+        s.settimeout(10)
+        start = time.monotonic()
+        assert s.recv(16) == b""
+        assert time.monotonic() - start < 5  # --connect-timeout 1
+
+
+# -- 13: '$' topics and oversize payloads ---------------------------------------------------------
+
+def test_dollar_and_oversize_publishes_are_dropped_and_the_client_stays(broker, clients) -> None:
+    admin = clients(broker.port, "admin")
+    assert admin.subscribe(["$SYS/broker/version", "roslink/turtle1/state/#"]) == [1, 1]
+    admin.drain(0.3)
+    t1 = clients(broker.port, "turtle1")
+    t1.publish("$SYS/broker/version", "forged")
+    t1.publish("roslink/turtle1/state/big", b"x" * (MAX_PAYLOAD + 1))
+    t1.publish("roslink/turtle1/state/ok", b"x" * MAX_PAYLOAD)
+    got = [(m.topic, len(m.payload)) for m in admin.collect(1)]  # in order: anything forged comes first
+    assert got == [("roslink/turtle1/state/ok", MAX_PAYLOAD)]
+    assert not t1.disconnected.is_set()
+
+
+def test_huge_packet_closes_the_connection_before_it_is_buffered(broker, clients) -> None:
+    t1 = clients(broker.port, "turtle1")
+    t1.client.publish("roslink/turtle1/state/huge", b"x" * (MAX_PAYLOAD + 200_000), qos=0)
+    assert t1.disconnected.wait(5)
+    assert "PUBLISH of" in broker.output() and "limit" in broker.output()
+
+
+# -- 12: failed start ------------------------------------------------------------------------------
+
+def test_failed_start_leaves_no_listener_open(tmp_path: Path) -> None:
+    from amqtt.errors import BrokerError
+
+    from roslink_mqtt.broker.hardened import HardenedBroker
+
+    tcp_port, ws_port = free_port(), free_port()
+    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{tcp_port}"},
+                            "ws": {"type": "ws", "bind": f"127.0.0.1:{ws_port}"}},
+              "plugins": {}}
+
+    async def scenario() -> None:
+        with socket.socket() as blocker:
+            blocker.bind(("127.0.0.1", ws_port))
+            blocker.listen()
+            broker = HardenedBroker(config)
+            with pytest.raises(BrokerError, match="address already in use"):
+                await broker.start()
+            with pytest.raises(ConnectionRefusedError):
+                socket.create_connection(("127.0.0.1", tcp_port), timeout=1).close()
+
+    asyncio.run(scenario())

@@ -1,0 +1,90 @@
+"""The `roslink-mqtt` command line against a real stack (embedded broker, sim robot, bridge)."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+
+import orjson
+import pytest
+
+from tests.support.procs import ROOT
+from tests.support.robot_stack import turtle1_online
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture(scope="module")
+def port(tmp_path_factory):
+    work = tmp_path_factory.mktemp("cli")
+    with turtle1_online(work) as broker_port:
+        yield broker_port
+
+
+def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.CompletedProcess:
+    env = {**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"}
+    return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args, "--url", f"mqtt://127.0.0.1:{port}",
+                           "-u", user], capture_output=True, text=True, env=env, cwd=ROOT, timeout=timeout,
+                          stdin=subprocess.DEVNULL)
+
+
+def test_robots_lists_granted_robots_only(port) -> None:
+    out = cli(port, "alice", "robots")
+    assert out.returncode == 0, out.stderr
+    assert "turtle1" in out.stdout and "active" in out.stdout and "turtle2" not in out.stdout
+    nothing = cli(port, "carol", "robots", "--wait", "0.5")  # turtle2 has no bridge running
+    assert "turtle1" not in nothing.stdout
+
+
+def test_echo_prints_state_as_json(port) -> None:
+    out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "2", "--timeout", "10")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == 2 and {"x", "y", "yaw"} <= set(orjson.loads(lines[0]))
+
+
+def _pose(port: int) -> tuple[float, float, float]:
+    out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "10")
+    assert out.returncode == 0, out.stderr
+    motion = orjson.loads(out.stdout)
+    return motion["x"], motion["y"], motion["yaw"]
+
+
+def _reset(port: int) -> None:
+    reset = cli(port, "alice", "call", "turtle1", "reset")
+    assert reset.returncode == 0 and '"success": true' in reset.stdout, reset.stdout + reset.stderr
+
+
+def test_pub_stream_moves_robot_and_call_resets_it(port) -> None:
+    # turtle1 is shared by this module's tests: start from the room centre and measure the displacement.
+    _reset(port)
+    time.sleep(0.3)
+    x0, y0, yaw0 = _pose(port)
+    assert abs(x0) < 0.05 and abs(y0) < 0.05, (x0, y0)
+    out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.5}', "--rate", "10", "--duration", "1.5")
+    assert out.returncode == 0 and "sent 15 × twist" in out.stdout, out.stdout + out.stderr
+    time.sleep(1.5)  # the dead-man (command_timeout 1.0 s) has stopped it
+    x1, y1, yaw1 = _pose(port)
+    ahead = (x1 - x0) * math.cos(yaw0) + (y1 - y0) * math.sin(yaw0)
+    aside = -(x1 - x0) * math.sin(yaw0) + (y1 - y0) * math.cos(yaw0)
+    # 0.5 m/s for 1.5 s = 0.75 m straight ahead, plus at most the dead-man's 1.0 s of coasting.
+    assert 0.6 < ahead < 1.3 and abs(aside) < 0.05 and abs(yaw1 - yaw0) < 0.05, (x0, y0, yaw0, x1, y1, yaw1)
+    _reset(port)
+    time.sleep(0.3)
+    x2, y2, _ = _pose(port)
+    assert abs(x2) < 0.05 and abs(y2) < 0.05, (x2, y2)  # back at the centre
+
+
+def test_clear_errors(port) -> None:
+    bad = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": "fast"}')
+    assert bad.returncode == 1 and 'expected number, got "fast"' in bad.stdout
+    viewer = cli(port, "bob", "call", "turtle1", "reset", "--timeout", "2")
+    assert viewer.returncode == 1  # the broker drops a viewer's call to a non-read-only service
+    wrong = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "robots", "--url",
+                            f"mqtt://127.0.0.1:{port}", "-u", "alice"], capture_output=True, text=True,
+                           env={**os.environ, "ROSLINK_PASSWORD": "nope"}, cwd=ROOT, timeout=30,
+                           stdin=subprocess.DEVNULL)
+    assert wrong.returncode != 0 and "cannot connect" in wrong.stderr

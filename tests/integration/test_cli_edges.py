@@ -1,0 +1,334 @@
+"""The command line's rough edges (issue 13 item 10), through real processes against a real stack.
+
+echo says why nothing came and exits with a status that tells timeout, unknown state and an offline robot
+apart; a closed stdout ends every command quietly; ``roslink-mqtt-sim --help`` starts nothing; teleop keys
+step the velocity (w then a drives an arc) and the e-stopped screen shows no speed; a clean Ctrl-C of the
+bridge and a finished ``pub`` do not log warnings, while a killed commanding client still stops the robot
+with one.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import orjson
+import pytest
+
+from roslink_mqtt.cli import echo_cmd
+from roslink_mqtt.cli.main import EXIT_BROKEN_PIPE
+from roslink_mqtt.cli.teleop_cmd import ARM, ESTOP, QUIT, Drive
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.mqtt_client import TestClient
+from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.robot_stack import turtle1_online
+
+pytestmark = pytest.mark.timeout(180)
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    """(broker port, bridge log) of a live turtle1."""
+    work = tmp_path_factory.mktemp("cli-edges")
+    with turtle1_online(work) as port:
+        yield port, work / "bridge.log"
+
+
+def cli(port: int, user: str, *args: str, timeout: float = 30, **kw) -> subprocess.CompletedProcess:
+    env = {**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"}
+    return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args, "--url", f"mqtt://127.0.0.1:{port}",
+                           "-u", user], capture_output=True, text=True, env=env, cwd=ROOT, timeout=timeout,
+                          stdin=subprocess.DEVNULL, **kw)
+
+
+# -- echo --------------------------------------------------------------------------------------------------------
+
+def test_echo_heartbeat(stack) -> None:
+    out = cli(stack[0], "bob", "echo", "turtle1", "heartbeat", "-n", "1", "--timeout", "10")
+    assert out.returncode == 0, out.stderr
+    beat = orjson.loads(out.stdout)
+    assert beat["name"] == "turtle1" and beat["system_status"] == 4
+
+
+def test_echo_every_state_with_a_wildcard(stack) -> None:
+    out = cli(stack[0], "bob", "echo", "turtle1", "#", "-n", "5", "--timeout", "10")
+    assert out.returncode == 0, out.stderr
+    lines = [orjson.loads(line) for line in out.stdout.splitlines()]
+    assert len(lines) == 5 and "Traceback" not in out.stderr
+    assert {"global_motion", "robot_status"} & {line["state"] for line in lines}
+    assert all(isinstance(line["message"], dict) for line in lines)
+
+
+def test_echo_timeout_says_so(stack) -> None:
+    out = cli(stack[0], "bob", "echo", "turtle1", "global_motion", "-n", "10000", "--timeout", "1.5")
+    assert out.returncode == echo_cmd.EXIT_TIMEOUT == 1, out.stderr
+    assert re.search(r"timeout: \d+ of 10000 messages on turtle1 state/global_motion within 1.5 s", out.stderr)
+
+
+def test_echo_unknown_state_names_what_the_robot_publishes(stack) -> None:
+    out = cli(stack[0], "bob", "echo", "turtle1", "global_motoin", "-n", "1", "--timeout", "1.5")
+    assert out.returncode == echo_cmd.EXIT_NOTHING == 3, out.stderr
+    assert "sent nothing on state/global_motoin" in out.stderr and "global_motion" in out.stderr.split("publishes:")[1]
+    assert out.stdout == ""
+
+
+def test_echo_offline_or_unseen_robot(stack) -> None:
+    out = cli(stack[0], "carol", "echo", "turtle2", "global_motion", "-n", "1", "--timeout", "1.5")
+    assert out.returncode == echo_cmd.EXIT_OFFLINE == 4, out.stderr
+    assert "turtle2 is never seen" in out.stderr or "turtle2 is offline" in out.stderr
+    refused = cli(stack[0], "carol", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "1.5")
+    assert refused.returncode == echo_cmd.EXIT_OFFLINE, refused.stderr  # not hers to see
+    assert "roslink-mqtt echo:" in refused.stderr
+
+
+def test_echo_bad_name_is_a_usage_error(stack) -> None:
+    out = cli(stack[0], "bob", "echo", "turtle1", "global#", "-n", "1", "--timeout", "1")
+    assert out.returncode == echo_cmd.EXIT_USAGE == 2
+    assert "must be whole levels" in out.stderr and "Traceback" not in out.stderr
+
+
+# -- a closed stdout ---------------------------------------------------------------------------------------------
+
+def _closed_stdout(args: list[str], port: int | None = None, user: str = "bob") -> tuple[int, str]:
+    """Run the CLI with a stdout whose reader is already gone (what `| head` becomes once head exits)."""
+    env = {**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"}
+    conn = ["--url", f"mqtt://127.0.0.1:{port}", "-u", user] if port else []
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args, *conn], stdout=write,
+                              stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, timeout=30,
+                              stdin=subprocess.DEVNULL)
+    finally:
+        os.close(write)
+    return proc.returncode, proc.stderr
+
+
+def test_fleet_into_a_closed_pipe() -> None:
+    code, err = _closed_stdout(["fleet", "--config", str(ROOT / "config" / "robots.yaml")])
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert code == EXIT_BROKEN_PIPE
+
+
+def test_help_into_a_closed_pipe() -> None:
+    code, err = _closed_stdout(["--help"])
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert code in (0, EXIT_BROKEN_PIPE)
+
+
+def test_echo_into_head(stack) -> None:
+    env = {**os.environ, "ROSLINK_PASSWORD": "bob-demo"}
+    proc = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.cli.main", "echo", "turtle1", "global_motion",
+                             "--url", f"mqtt://127.0.0.1:{stack[0]}", "-u", "bob"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env, cwd=ROOT, stdin=subprocess.DEVNULL)
+    try:
+        first = proc.stdout.readline()
+        assert b'"x"' in first
+        proc.stdout.close()  # head -n 1 exits
+        code = proc.wait(timeout=15)
+        err = proc.stderr.read().decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert code == EXIT_BROKEN_PIPE
+
+
+# -- the simulated robot -----------------------------------------------------------------------------------------
+
+def test_sim_help_starts_no_robot() -> None:
+    out = subprocess.run([sys.executable, "-m", "roslink_mqtt.sim", "--help"], capture_output=True, text=True,
+                         cwd=ROOT, timeout=20)
+    assert out.returncode == 0 and "usage: roslink-mqtt-sim" in out.stdout
+    assert "--ros-args" in out.stdout and "LOCALHOST" in out.stdout
+    probe = subprocess.run([sys.executable, "-c", "import sys\nfrom roslink_mqtt.sim.node import main\n"
+                            "try:\n    main(['roslink-mqtt-sim', '--help'])\nexcept SystemExit:\n    pass\n"
+                            "print('rclpy loaded' if 'rclpy' in sys.modules else 'no rclpy')"],
+                           capture_output=True, text=True, cwd=ROOT, timeout=20)
+    assert probe.stdout.strip().endswith("no rclpy"), probe.stdout + probe.stderr
+    typo = subprocess.run([sys.executable, "-m", "roslink_mqtt.sim", "--hepl"], capture_output=True, text=True,
+                          cwd=ROOT, timeout=20)
+    assert typo.returncode == 2 and "unrecognized arguments: --hepl" in typo.stderr
+
+
+def test_sim_always_applies_the_local_dds_settings() -> None:
+    """Even from a shell with no DDS settings the sim's environment is loopback-only (its domain id kept)."""
+    bare = {k: v for k, v in os.environ.items()
+            if k not in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")}
+    bare["ROS_DOMAIN_ID"] = "17"
+    out = subprocess.run([sys.executable, "-c", "import os\nfrom roslink_mqtt.sim.node import local_dds_env\n"
+                          "local_dds_env()\nfor k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID', "
+                          "'RMW_IMPLEMENTATION', 'FASTRTPS_DEFAULT_PROFILES_FILE'):\n    print(k, os.environ.get(k))"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=20, env=bare)
+    got = dict(line.split(" ", 1) for line in out.stdout.splitlines())
+    assert got["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST" and got["ROS_DOMAIN_ID"] == "17", out.stderr
+    assert got["RMW_IMPLEMENTATION"] == "rmw_fastrtps_cpp" and got["FASTRTPS_DEFAULT_PROFILES_FILE"].endswith(
+        "fastdds_localhost.xml")
+
+
+def test_sim_binds_loopback_without_a_profile_in_its_environment(tmp_path) -> None:
+    """The real process: started without the Fast DDS profile, its DDS ports are still on 127.0.0.1 only.
+
+    (The discovery range stays LOCALHOST in this test's environment, so even a sim without the fix
+    would not have announced itself beyond this machine.)
+    """
+    env = {k: v for k, v in os.environ.items() if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")}
+    domain = int(env["ROS_DOMAIN_ID"])
+    with run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log", env) as sim:
+        deadline = time.monotonic() + 20
+        while "simulated robot ready" not in sim.output():
+            assert time.monotonic() < deadline and sim.popen.poll() is None, sim.output()
+            time.sleep(0.1)
+        sockets = subprocess.run(["ss", "-uanp"], capture_output=True, text=True, timeout=10).stdout
+        log = sim.output()
+    base = 7400 + 250 * domain  # RTPS well-known ports of this domain (multicast and unicast discovery, user)
+    bound = [line.split()[3] for line in sockets.splitlines() if f"pid={sim.pid}," in line]
+    in_domain = [addr for addr in bound if base <= int(addr.rsplit(":", 1)[1]) < base + 250]
+    assert in_domain, sockets
+    assert all(addr.startswith("127.0.0.1:") for addr in in_domain), in_domain
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST" in log
+
+
+# -- teleop ------------------------------------------------------------------------------------------------------
+
+def test_teleop_keys_step_and_combine() -> None:
+    drive = Drive(linear_step=0.1, angular_step=0.3, max_linear=0.25, max_angular=1.5)
+    drive.key("w")
+    drive.key("a")
+    assert (drive.lx, drive.az) == (0.1, 0.3)  # forward + turn: an arc
+    drive.key("w")
+    drive.key("w")
+    assert drive.lx == 0.25  # steps add up to the cap
+    drive.key("d")
+    drive.key("d")
+    assert drive.az == -0.3
+    drive.key(" ")
+    assert (drive.lx, drive.az) == (0.0, 0.0)
+    assert drive.key("e") == ESTOP and drive.estopped and not drive.streaming
+    drive.key("w")
+    assert drive.lx == 0.0 and "m/s" not in drive.status() and "EMERGENCY STOP" in drive.status()
+    assert drive.key("r") == ARM and drive.streaming and "lx=+0.00" in drive.status()
+    assert drive.key("q") == QUIT
+
+
+def test_teleop_drives_an_arc_in_a_terminal(stack) -> None:
+    """The real command in a pseudo-terminal: w, w, a makes the robot move forward and turn at once."""
+    port = stack[0]
+    env = {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}
+    pid, fd = pty.fork()
+    if pid == 0:  # child: the terminal is ours
+        os.chdir(ROOT)
+        os.execve(sys.executable, [sys.executable, "-m", "roslink_mqtt.cli.main", "teleop", "turtle1", "--url",
+                                   f"mqtt://127.0.0.1:{port}", "-u", "alice"], env)
+    screen = b""
+
+    def read_until(pattern: bytes, timeout: float) -> None:
+        nonlocal screen
+        deadline = time.monotonic() + timeout
+        while pattern not in screen:
+            assert time.monotonic() < deadline, screen.decode(errors="replace")
+            if select.select([fd], [], [], 0.2)[0]:
+                try:
+                    screen += os.read(fd, 4096)
+                except OSError:
+                    break
+
+    try:
+        read_until(b"teleop turtle1:", 20)
+        with TestClient(port, "bob", "bob-demo") as bob:
+            assert bob.connect() == 0
+            for key in b"wwa":
+                os.write(fd, bytes([key]))
+                time.sleep(0.2)
+            read_until(b"lx=+0.20 m/s az=+0.30 rad/s", 5)
+            bob.subscribe("roslink/turtle1/state/global_motion", qos=0)
+            motion = bob.wait_for(lambda m: m.json()["payload"]["vx"] > 0.15, timeout=5).json()["payload"]
+            assert motion["vx"] == pytest.approx(0.2, abs=0.02) and motion["wz"] == pytest.approx(0.3, abs=0.02)
+        os.write(fd, b"e")
+        read_until(b"EMERGENCY STOP", 5)
+        after = screen.rsplit(b"EMERGENCY STOP", 1)[1]
+        assert b"m/s" not in after
+        os.write(fd, b"r")
+        read_until(b"lx=+0.00", 5)
+        os.write(fd, b"q")
+        _, status = os.waitpid(pid, 0)
+        pid = 0
+        assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    finally:
+        if pid:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        os.close(fd)
+
+
+# -- what the bridge logs ----------------------------------------------------------------------------------------
+
+def _bridge_lines(log: Path, since: int) -> list[str]:
+    return log.read_text(errors="replace")[since:].splitlines()
+
+
+def _wait_line(log: Path, since: int, needle: str, timeout: float = 5) -> list[str]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        lines = _bridge_lines(log, since)
+        if any(needle in line for line in lines):
+            return lines
+        time.sleep(0.1)
+    raise AssertionError(f"no {needle!r} in the bridge log:\n" + "\n".join(_bridge_lines(log, since)))
+
+
+def test_finished_pub_is_no_warning_but_the_robot_stops(stack) -> None:
+    port, log = stack
+    since = len(log.read_text(errors="replace"))
+    out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.2}', "--rate", "10", "--duration", "1")
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = _wait_line(log, since, "operator alice went away (signed off)")
+    stop = next(line for line in lines if "operator alice went away (signed off)" in line)
+    assert " INFO " in stop and "stop of turtle1" in stop
+    assert not [line for line in lines if " WARNING " in line], lines
+    for command in ("arm", "emergency_stop", "arm"):  # commands that start no motion stop nothing
+        assert cli(port, "alice", "pub", "turtle1", command).returncode == 0
+    time.sleep(0.5)
+    assert not [line for line in _bridge_lines(log, since) if " WARNING " in line and "failsafe" in line]
+
+
+def test_killed_commanding_client_still_stops_the_robot_with_a_warning(stack) -> None:
+    port, log = stack
+    since = len(log.read_text(errors="replace"))
+    env = {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}
+    pub = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.cli.main", "pub", "turtle1", "twist", '{"lx": 0.2}',
+                            "--rate", "10", "--duration", "20", "--url", f"mqtt://127.0.0.1:{port}", "-u", "alice"],
+                           cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    try:
+        time.sleep(2.5)
+    finally:
+        pub.kill()
+        pub.wait()
+    lines = _wait_line(log, since, "failsafe stop of turtle1", timeout=5)
+    stop = next(line for line in lines if "failsafe stop of turtle1" in line)
+    assert " WARNING " in stop and "last-will" in stop
+
+
+def test_clean_ctrl_c_of_the_bridge_is_not_a_lost_broker(tmp_path) -> None:
+    with EmbeddedBrokerProcess(tmp_path) as broker, run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"):
+        with run(bridge_args("turtle1", broker.port), tmp_path / "bridge.log", bridge_env("turtle1")) as bridge, \
+                TestClient(broker.port, "alice", "alice-demo", operator=True) as alice:
+            assert alice.connect() == 0
+            alice.subscribe("roslink/turtle1/heartbeat")
+            alice.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
+            for _ in range(5):  # the robot is moving when the bridge is stopped
+                alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.1}, qos=0)
+                time.sleep(0.1)
+            bridge.signal(signal.SIGINT)
+            assert bridge.popen.wait(15) == 0
+        text = bridge.output()
+    assert "disconnected from" in text and "(shutting down)" in text, text
+    assert "stop of turtle1: the bridge is shutting down" in text
+    assert " WARNING " not in text, text

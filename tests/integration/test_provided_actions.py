@@ -1,0 +1,125 @@
+"""ROS actions served by an MQTT client (the SDK's serve_action), called from a real rclpy ActionClient.
+
+Real processes: broker (embedded, and Mosquitto with the exported ACL), the bridge, and the provider as its own
+process so it can be killed. goal → feedback → result; a cancel; a rejection by the provider; the provider's
+SIGKILL aborts the goal it held (time printed) and takes the ROS action server down; a viewer cannot serve.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from tests.support.broker_setup import ExportedMosquitto, write_fleet
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
+from tests.support.mqtt_client import TestClient
+from tests.support.procs import bridge_args, bridge_env, run
+from tests.support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(180)
+
+
+def _wait(future, timeout: float = 15.0):
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        assert time.monotonic() < deadline, "no answer from the action server"
+        time.sleep(0.02)
+    return future.result()
+
+
+@pytest.fixture(scope="module", params=["embedded", "mosquitto", "embedded-events"])
+def stack(request, tmp_path_factory):
+    """``-events``: the bridge runs rclpy's EventsExecutor, which moves provided actions to a node and a
+    single-threaded executor of their own (bridge/main.py): the same behaviour is expected."""
+    from rclpy.action import ActionClient
+    from test_msgs.action import Fibonacci
+
+    work = tmp_path_factory.mktemp(f"provided-actions-{request.param}")
+    fleet = write_fleet(work)
+    backend, _, executor = request.param.partition("-")
+    broker = EmbeddedBrokerProcess(work, fleet) if backend == "embedded" else ExportedMosquitto(work, fleet)
+    probe = RosProbe()
+    try:
+        with broker, run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log",
+                         {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": executor or "single"}):
+            with TestClient(broker.port, "bob", "bob-demo") as bob:
+                assert bob.connect() == 0
+                bob.subscribe("roslink/turtle1/heartbeat")
+                bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
+            client = ActionClient(probe.node, Fibonacci, "/plan")
+            yield SimpleNamespace(backend=backend, port=broker.port, work=work, client=client,
+                                  Goal=Fibonacci.Goal, url=f"mqtt://127.0.0.1:{broker.port}")
+    finally:
+        probe.close()
+
+
+def gone(client, timeout: float = 10.0) -> None:
+    """Wait until no action server answers on /plan (a provider that left takes it down)."""
+    deadline = time.monotonic() + timeout
+    while client.server_is_ready():
+        assert time.monotonic() < deadline, "the action server outlived its provider"
+        time.sleep(0.1)
+
+
+def provider(stack, name: str = "provider"):
+    gone(stack.client)  # an earlier test's provider: its server must be down first
+    return run(["-m", "tests.support.action_provider_proc", stack.url, "alice", "alice-demo", "turtle1"],
+               stack.work / f"{name}.log")
+
+
+def test_goal_feedback_result_cancel_and_rejection(stack) -> None:
+    from action_msgs.msg import GoalStatus
+
+    with provider(stack):
+        assert stack.client.wait_for_server(timeout_sec=20), "the bridge never served /plan"
+        feedback: list[list[int]] = []
+        handle = _wait(stack.client.send_goal_async(stack.Goal(order=6),
+                                                    feedback_callback=lambda fb: feedback.append(
+                                                        list(fb.feedback.sequence))))
+        assert handle.accepted
+        result = _wait(handle.get_result_async())
+        assert result.status == GoalStatus.STATUS_SUCCEEDED
+        assert list(result.result.sequence) == [0, 1, 1, 2, 3, 5, 8]
+        assert feedback and feedback[-1][:3] == [0, 1, 1]
+        long = _wait(stack.client.send_goal_async(stack.Goal(order=40)))
+        assert long.accepted
+        time.sleep(0.3)
+        cancel = _wait(long.cancel_goal_async())
+        assert len(cancel.goals_canceling) == 1
+        ended = _wait(long.get_result_async())
+        assert ended.status == GoalStatus.STATUS_CANCELED and len(ended.result.sequence) < 41
+        rejected = _wait(stack.client.send_goal_async(stack.Goal(order=99)))
+        assert not rejected.accepted
+
+
+def test_provider_sigkill_aborts_its_goal_and_removes_the_server(stack) -> None:
+    from action_msgs.msg import GoalStatus
+
+    with provider(stack, "doomed") as proc:
+        assert stack.client.wait_for_server(timeout_sec=20)
+        handle = _wait(stack.client.send_goal_async(stack.Goal(order=40)))
+        assert handle.accepted
+        result_future = handle.get_result_async()
+        time.sleep(0.3)
+        killed = time.monotonic()
+        proc.signal(signal.SIGKILL)
+        result = _wait(result_future, timeout=10)
+        took = time.monotonic() - killed
+    assert result.status == GoalStatus.STATUS_ABORTED
+    record_measurement(f"[{stack.backend}] provider SIGKILL -> goal aborted", took, 3.0)
+    print(f"[{stack.backend}] provider SIGKILL -> goal aborted in {took * 1000:.0f} ms", file=sys.stderr)
+    gone(stack.client)
+
+
+def test_a_viewer_cannot_serve(stack) -> None:
+    from roslink_mqtt.client import CommandRefused, RobotClient
+
+    with RobotClient("bob", "bob-demo", url=stack.url, robots=["turtle1"]) as bob:
+        bob.wait_for_robot("turtle1", timeout=10)
+        with pytest.raises(CommandRefused, match="may not provide"):
+            bob.serve_action("turtle1", "plan", "test_msgs/action/Fibonacci", lambda goal: {})

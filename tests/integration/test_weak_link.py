@@ -1,0 +1,339 @@
+"""A robot on a thin uplink (issue 25): the real bridge reaches the embedded broker through a 128 kbit/s shaped link
+(one FIFO shared by all its connections, like a modem) while ROS floods it with far more than the link carries:
+poses at 10 Hz, a 2 kB state blob at 10 Hz and 20 kB camera frames at 10 Hz (≈ 1.8 Mbit/s in all).
+
+With ``bridge.uplink: scheduled`` (the default) the viewer sees fresh poses (latest wins: a superseded pose is
+never sent), heartbeats on time and service replies within a second, while the camera gets what is left. The
+control, the same scene with ``uplink: fifo`` (poses pile up seconds old, which the same checks would catch), runs
+side by side with it in ``bench/weak_link.py`` (docs/performance.md, "Weak links"): 15 s of the suite's time.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import orjson
+import pytest
+
+from roslink_mqtt.client import RobotClient
+from roslink_mqtt.localproc import free_port, wait_for_port
+from roslink_mqtt.protocol.link import LinkReport
+from tests.support.broker_setup import write_fleet
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.mqtt_client import TestClient
+from tests.support.procs import bridge_env, run
+from tests.support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(120)
+
+UPLINK_KBIT = 128
+RULES = """    rules: &rules
+      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,
+         mqtt_topic: state/pose, preset: global_motion}
+      - {direction: ros_to_mqtt, ros_topic: /wl/blob, ros_type: std_msgs/msg/String, mqtt_topic: state/blob}
+      - {direction: ros_to_mqtt, ros_topic: /wl/camera, ros_type: sensor_msgs/msg/CompressedImage,
+         mqtt_topic: state/camera, encoding: raw}
+"""
+MEASURE = 8.0  # s of flood measured, after the first pose arrived
+
+
+def _scene(tmp_path, mode: str) -> dict:
+    """Flood the robot for MEASURE s; what bob and a service caller saw."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CompressedImage
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", RULES, 1).replace(
+        "      keepalive: 2\n", f"      keepalive: 2\n      uplink: {mode}\n", 1))
+    seen: dict = {"poses": [], "blobs": [], "camera": 0, "heartbeats": [], "replies": [], "link": None}
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", str(UPLINK_KBIT),
+                  "--down-kbit", "1024"], tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(broker.port, "bob", "bob-demo") as bob:
+            probe = RosProbe()
+            probe.node.create_service(Trigger, "/status", lambda _req, resp: setattr(resp, "success", True) or resp)
+            recording = threading.Event()
+
+            def on_message(_c, _u, m) -> None:
+                now = time.time()
+                leaf = m.topic.rsplit("/", 1)[-1]
+                if leaf == "pose":
+                    body = orjson.loads(m.payload)["payload"]
+                    seen["poses"].append((now, body["x"], now - body["time_boot_ms"] / 1000))
+                if leaf == "link" and m.payload:
+                    seen["link"] = LinkReport.from_json(m.payload)
+                if not recording.is_set() or m.retain:
+                    return
+                if leaf == "blob":
+                    seen["blobs"].append(now - float(orjson.loads(m.payload)["data"][:20]))
+                elif leaf == "camera":
+                    seen["camera"] += 1
+                elif leaf == "heartbeat":
+                    seen["heartbeats"].append(time.monotonic())
+
+            try:
+                assert bob.connect() == 0
+                bob.client.on_message = on_message
+                bob.subscribe("roslink/turtle1/state/#", qos=0)
+                bob.subscribe("roslink/turtle1/heartbeat", qos=0)
+                odom = probe.publisher(Odometry, "/wl/odom")
+                blob = probe.publisher(String, "/wl/blob")
+                camera = probe.publisher(CompressedImage, "/wl/camera")
+                frame = CompressedImage(format="jpeg", data=bytes(20_000))
+                stop = threading.Event()
+
+                def flood() -> None:
+                    n = 0
+                    while not stop.wait(0.1):  # 10 Hz poses, blob and camera
+                        n += 1
+                        msg = Odometry()
+                        now = time.time()
+                        msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                        msg.pose.pose.position.x = float(n)
+                        odom.publish(msg)
+                        blob.publish(String(data=f"{time.time():<20.6f}" + "x" * 2000))
+                        camera.publish(frame)
+
+                flooder = threading.Thread(target=flood, daemon=True)
+                flooder.start()
+                deadline = time.monotonic() + 30
+                while not seen["poses"] and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                assert seen["poses"], f"no pose arrived: {(tmp_path / 'bridge.log').read_text()[-2000:]}"
+                recording.set()
+                began = len(seen["poses"])
+                with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{broker.port}") as caller:
+                    end = time.monotonic() + MEASURE
+                    while time.monotonic() < end:
+                        t0 = time.monotonic()
+                        try:
+                            caller.call("turtle1", "status", timeout=5.0)
+                            seen["replies"].append(time.monotonic() - t0)
+                        except Exception as err:  # noqa: BLE001 - a lost reply is what the check counts
+                            seen["replies"].append(float("inf"))
+                            print(f"call failed: {err}", file=sys.stderr)
+                        time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
+                recording.clear()
+                seen["poses"] = seen["poses"][began:]
+                stop.set()
+                flooder.join(2)
+            finally:
+                probe.close()
+    return seen
+
+
+def _quantile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def test_a_thin_uplink_keeps_poses_fresh_heartbeats_on_time_and_bulk_last(tmp_path) -> None:
+    seen = _scene(tmp_path, "scheduled")
+    poses = seen["poses"]
+    ages = [age for _, _, age in poses]
+    indices = [x for _, x, _ in poses]
+    assert indices == sorted(indices), "poses out of order"
+    assert len(set(indices)) == len(indices), "a pose arrived twice"
+    assert len(poses) >= 5 * MEASURE, f"only {len(poses)} poses in {MEASURE} s"  # ≥ 5 Hz of the 10 Hz offered
+    assert _quantile(ages, 0.9) < 1.5, f"poses arrive stale: p90 age {_quantile(ages, 0.9):.2f} s"
+    beats = seen["heartbeats"]
+    gaps = [b - a for a, b in zip(beats, beats[1:], strict=False)]
+    assert len(beats) >= MEASURE - 3 and max(gaps) < 2.5, f"heartbeat gaps {gaps}"
+    assert seen["replies"] and max(seen["replies"]) < 3.0, f"service replies waited: {seen['replies']}"
+    assert seen["blobs"] and max(seen["blobs"]) < 4.0, f"stale state blobs: {seen['blobs']}"
+    assert len(seen["blobs"]) < 0.6 * 10 * MEASURE  # most were superseded (latest wins), yet each is fresh
+    assert seen["camera"] < 10 * MEASURE / 2, "the camera was not held back"  # bulk gets what is left
+    link = seen["link"]  # the retained state/link report says why the streams are slow
+    assert link is not None and link.mode == "scheduled" and link.measured
+    assert 0.5 * UPLINK_KBIT < link.rate_kbit_s < 1.5 * UPLINK_KBIT, link
+    blob = link.streams["blob"]
+    assert blob.priority == "state" and blob.latest_only and blob.superseded > 0 and blob.sent_hz < blob.offered_hz
+    assert link.streams["camera"].priority == "bulk" and link.streams["pose"].priority == "motion"
+
+
+@pytest.mark.parametrize("conflate", [True, False], ids=["conflated", "fifo-control"])
+def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp_path, conflate: bool) -> None:
+    """A phone on a 256 kbit/s downlink subscribes to a robot's camera (1.6 Mbit/s) and pose: the embedded broker
+    holds one latest-wins slot per state topic for it once its connection is backed up, so its poses stay fresh.
+    ``conflate_backlog=0`` (first in, first out, like Mosquitto's queue) is the control: poses go stale."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CompressedImage
+
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", RULES, 1))
+    extra = () if conflate else ("--limit", "conflate_backlog=0")
+    ages: list[float] = []
+    with EmbeddedBrokerProcess(tmp_path, fleet, *extra) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--down-kbit", "256"],
+                 tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{broker.port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(link_port, "bob", "bob-demo") as phone:
+            wait_for_port(link_port)
+            probe = RosProbe()
+            recording = threading.Event()
+
+            def on_message(_c, _u, m) -> None:
+                if recording.is_set() and m.topic.endswith("/state/pose"):
+                    ages.append(time.time() - orjson.loads(m.payload)["payload"]["time_boot_ms"] / 1000)
+
+            try:
+                assert phone.connect(timeout=10) == 0
+                phone.client.on_message = on_message
+                phone.subscribe("roslink/turtle1/state/#", qos=0)
+                odom = probe.publisher(Odometry, "/wl/odom")
+                camera = probe.publisher(CompressedImage, "/wl/camera")
+                frame = CompressedImage(format="jpeg", data=bytes(20_000))
+                end = time.monotonic() + 3 + MEASURE
+                while time.monotonic() < end:  # 10 Hz poses and camera frames
+                    if time.monotonic() > end - MEASURE:
+                        recording.set()
+                    msg = Odometry()
+                    now = time.time()
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                    odom.publish(msg)
+                    camera.publish(frame)
+                    time.sleep(0.1)
+            finally:
+                probe.close()
+        broker_log = broker.output()
+    assert ages, "no pose reached the phone"
+    if conflate:
+        assert _quantile(ages, 0.9) < 1.5, f"poses to a slow viewer are stale: p90 {_quantile(ages, 0.9):.2f} s"
+        assert len(ages) >= 2 * MEASURE, f"only {len(ages)} poses in {MEASURE} s"
+        assert "state topics are conflated" in broker_log
+    else:
+        assert _quantile(ages, 0.9) > 1.5, f"FIFO to a slow viewer kept poses fresh? p90 {_quantile(ages, 0.9):.2f}"
+
+
+def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) -> None:
+    """A ``buffer: disk`` rule: what ROS publishes while the broker is down (across a restart of the bridge,
+    too) reaches the viewer after the broker returns, every message, the buffered ones oldest first."""
+    from std_msgs.msg import String
+
+    rules = RULES.replace("    rules: &rules\n", "    rules: &rules\n      - {direction: ros_to_mqtt, ros_topic: "
+                          "/wl/events, ros_type: std_msgs/msg/String, mqtt_topic: state/events, mqtt_qos: 1, "
+                          "buffer: disk}\n")
+    spool_dir = tmp_path / "spool"
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
+        "      keepalive: 2\n", f"      keepalive: 2\n      buffer_dir: {spool_dir}\n", 1))
+    bridge_cmd = ["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1"]
+    received: list[int] = []
+    probe = RosProbe()
+    try:
+        events = probe.publisher(String, "/wl/events")
+        n = 0
+
+        def publish(count: int) -> None:
+            nonlocal n
+            for _ in range(count):
+                events.publish(String(data=str(n)))
+                n += 1
+                time.sleep(0.05)
+
+        def matched() -> None:
+            deadline = time.monotonic() + 20
+            while events.get_subscription_count() < 1 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert events.get_subscription_count() >= 1, "the bridge never subscribed to /wl/events"
+
+        with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+            url = ["--url", f"mqtt://127.0.0.1:{broker.port}"]
+            with run(bridge_cmd + url, tmp_path / "bridge1.log", bridge_env("turtle1")) as bridge:
+                with TestClient(broker.port, "bob", "bob-demo") as bob:
+                    assert bob.connect() == 0
+                    bob.subscribe("roslink/turtle1/state/events", qos=1)
+                    matched()
+                    deadline = time.monotonic() + 20
+                    while not bob.drain(0.3) and time.monotonic() < deadline:  # until the bridge is online
+                        publish(1)
+                first_offline = n
+                broker.stop()
+                publish(20)  # the broker is down: kept on disk
+                bridge.stop()
+            with run(bridge_cmd + url, tmp_path / "bridge2.log", bridge_env("turtle1")):
+                matched()
+                publish(10)  # the new bridge, still without a broker, keeps these too
+                last_offline = n - 1
+                broker.start()
+                with TestClient(broker.port, "bob", "bob-demo") as bob:
+                    bob.client.on_message = lambda _c, _u, m: received.append(int(orjson.loads(m.payload)["data"]))
+                    assert bob.connect(timeout=10) == 0
+                    bob.subscribe("roslink/turtle1/state/events", qos=1)
+                    deadline = time.monotonic() + 20
+                    while time.monotonic() < deadline and not set(range(first_offline, last_offline + 1)) <= set(
+                            received):
+                        publish(1)  # live events go on meanwhile
+                        time.sleep(0.1)
+    finally:
+        probe.close()
+    buffered = [i for i in received if first_offline <= i <= last_offline]
+    missing = sorted(set(range(first_offline, last_offline + 1)) - set(buffered))
+    assert not missing, f"lost while the broker was down: {missing} (got {received})"
+    assert buffered == sorted(buffered), f"buffered events out of order: {buffered}"
+    assert list(spool_dir.glob("turtle1-*.spool")), "the disk buffer was not where bridge.buffer_dir says"
+
+
+def test_an_emergency_stop_overtakes_a_flooded_downlink(tmp_path) -> None:
+    """The robot's downlink is 64 kbit/s and alice floods it with log lines (160 kB/s): an ordinary command she
+    sends waits behind them, her emergency stop does not (the bridge reads stops on a connection of their own)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from std_msgs.msg import Bool, String
+
+    fleet = write_fleet(tmp_path)
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", "1000",
+                  "--down-kbit", "64"], tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(broker.port, "alice", "alice-demo", operator=True) as alice:
+            probe = RosProbe()
+            try:
+                stops = probe.watch(Bool, "/emergency_stop", QoSProfile(depth=10,
+                                                                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+                modes = probe.watch(String, "/mode")
+                assert alice.connect() == 0
+                alice.subscribe("roslink/turtle1/heartbeat")
+                alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=30)
+                stops.wait_matched(20)
+                modes.wait_matched(20)
+                alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "GUIDED"}, qos=1)
+                modes.wait_for(lambda m: m.data == "GUIDED", timeout=10)  # the path works when the link is idle
+                flooding = threading.Event()
+                flooding.set()
+
+                def flood() -> None:
+                    line = orjson.dumps({"level": 20, "msg": "x" * 8000})
+                    while flooding.is_set():
+                        alice.client.publish("roslink/turtle1/from/alice/log/flood", line, qos=0)
+                        time.sleep(0.05)
+
+                flooder = threading.Thread(target=flood, daemon=True)
+                flooder.start()
+                time.sleep(1.5)  # a queue builds up in front of the robot
+                sent = time.monotonic()
+                alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "AUTO"}, qos=1)
+                alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {}, qos=1)
+                stopped_at, _ = stops.wait_for(lambda m: m.data, timeout=10, after=sent)
+                try:
+                    mode_at, _ = modes.wait_for(lambda m: m.data == "AUTO", timeout=3, after=sent)
+                except TimeoutError:
+                    mode_at = float("inf")
+                flooding.clear()
+                flooder.join(2)
+            finally:
+                probe.close()
+    stop_delay, mode_delay = stopped_at - sent, mode_at - sent
+    assert stop_delay < 1.5, f"the emergency stop took {stop_delay:.2f} s through the flooded downlink"
+    assert mode_delay > stop_delay + 1.0, (f"the ordinary command was not held up ({mode_delay:.2f} s vs the stop's "
+                                           f"{stop_delay:.2f} s): the flood did not congest the downlink")
