@@ -99,8 +99,9 @@ class BrokerRing:
         self.index = (self.index + 1) % len(self.urls)
         nxt = self.url
         # paho reconnects to the address it keeps in these; its public setters refuse to change it until a lost
-        # connection is fully torn down, which is exactly when failover must act (tests/integration/test_failover.py proves
-        # it against real brokers, so a paho release that renames them fails there, not in the field).
+        # connection is fully torn down, which is exactly when failover must act
+        # (tests/integration/test_failover.py proves it against real brokers, so a paho release that renames them
+        # fails there, not in the field).
         self.client._host, self.client._port = nxt.host, nxt.port
         if nxt.transport == "websockets":
             self.client.ws_set_options(path=nxt.path)

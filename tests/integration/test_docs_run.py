@@ -113,7 +113,7 @@ RUNNABLE = [s for s in SNIPPETS if s.runnable]
 def test_every_snippet_is_marked() -> None:
     unmarked = [s.id for s in SNIPPETS if not s.words or s.words[0] not in ("run", "norun")]
     no_reason = [s.id for s in SNIPPETS if s.words[:1] == ["norun"] and len(s.words) < 2]
-    assert not unmarked, f"mark these blocks `run …` or `norun <reason>` (tests/integration/test_docs_run.py): {unmarked}"
+    assert not unmarked, f"mark these blocks `run …` or `norun <reason>` ({__file__}): {unmarked}"
     assert not no_reason, f"`norun` needs a reason: {no_reason}"
     assert len(RUNNABLE) >= len(SNIPPETS) // 2, "most documentation snippets should run"
 

@@ -1,8 +1,9 @@
 """Failover across several brokers, with real processes: the bridge, an SDK operator and the CLI get two URLs.
 
-Two Mosquitto brokers with the fleet's logins stand in for two nodes of a cluster (tests/integration/test_rabbitmq_cluster.py
-does the same against a real RabbitMQ cluster). Killing the broker everyone is on must stop the robot (the
-failsafe), and within 5 s the bridge and the operator are on the other broker and the robot moves again.
+Two Mosquitto brokers with the fleet's logins stand in for two nodes of a cluster
+(tests/integration/test_rabbitmq_cluster.py does the same against a real RabbitMQ cluster). Killing the broker
+everyone is on must stop the robot (the failsafe), and within 5 s the bridge and the operator are on the other
+broker and the robot moves again.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Pure logic of issue 13 items 4 and 8: sender ids in requests and reports, access reports, client-side filtering.
 
-The integration tests (tests/integration/test_visible_refusals.py) show the same against a real broker and bridge; these pin
-the wire format and the decisions without one.
+The integration tests (tests/integration/test_visible_refusals.py) show the same against a real broker and
+bridge; these pin the wire format and the decisions without one.
 """
 
 from __future__ import annotations

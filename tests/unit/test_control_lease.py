@@ -1,5 +1,6 @@
 """The control lease: one driver at a time, as pure decisions (bridge/lease.py) and through the command endpoint
-in-process (the harness of tests/unit/test_bridge_endpoint.py). Real processes race in tests/integration/test_one_driver.py."""
+in-process (the harness of tests/unit/test_bridge_endpoint.py). Real processes race in
+tests/integration/test_one_driver.py."""
 
 from __future__ import annotations
 
