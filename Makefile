@@ -29,14 +29,16 @@ demo: install
 dashboard: install
 	$(BIN)/python -m roslink_mqtt.demo --dashboard
 
-# Pure logic first (tests/unit refuses ROS imports when run alone: seconds), then everything with real parts.
+# Lint and types, pure logic (tests/unit refuses ROS imports when run alone: seconds), then everything with real parts.
 test: install
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q tests/unit
 	$(BIN)/python -m pytest --ignore=tests/unit
 
 lint: install
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 bench: install
 	$(BIN)/python bench/run_all.py

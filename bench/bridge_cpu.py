@@ -25,11 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from _support import cpu_seconds, rss_bytes
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 ROBOT, ROBOT_PASSWORD = "turtle1", "turtle1-demo"
 SETTLE = 4.0  # s after the bridge is online before measuring: discovery and first messages are not steady state
-TICKS = os.sysconf("SC_CLK_TCK")
 DEFAULT_PLOT = ROOT / "docs" / "performance" / "bridge_cpu.png"
 
 
@@ -54,19 +55,6 @@ class Row:
     def per_1000(self) -> float:
         """ms of bridge CPU per 1,000 forwarded messages."""
         return 1e6 * self.bridge_cpu / self.messages if self.messages else float("nan")
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU of ``pid`` so far (its threads included), from /proc/<pid>/stat."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime (fields 14, 15 of the full line)
-
-
-def rss_bytes(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) * 1024
-    return 0
 
 
 def bridge_inputs() -> list[tuple[str, str]]:

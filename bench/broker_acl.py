@@ -30,6 +30,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import orjson
+from _support import cpu_seconds
 
 from roslink_mqtt.localproc import LocalProcess, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
 from roslink_mqtt.mqtt import make_client
@@ -75,12 +76,6 @@ def connect(port: int, login: str, client_id: str):
     if not ready.wait(10):
         raise RuntimeError(f"{login} could not connect to port {port}")
     return client
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time a process has used (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def run_once(port: int, pid: int, messages: int, qos: int, tag: str) -> tuple[float, int, float]:

@@ -36,13 +36,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import latency as lat  # (bench/latency.py: the process helpers shared by the benches)
 import orjson
 import yaml
+from _support import cpu_seconds, rss_bytes
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: the process helpers shared by the benches)
-
-from roslink_mqtt.topics import TopicTree  # noqa: E402
+from roslink_mqtt.topics import TopicTree
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_PLOT = ROOT / "docs" / "performance" / "fleet.png"
@@ -53,8 +52,6 @@ BAR_P99_MS = 50.0
 WARMUP = 2.0
 SETTLE = 2.0
 WORKERS = 2
-TICKS = os.sysconf("SC_CLK_TCK")
-PAGE = os.sysconf("SC_PAGE_SIZE")
 DEFAULT_COUNTS = {"embedded": (10, 100, 200), "mosquitto": (10, 300, 1000), "rabbitmq": (10, 100, 300)}
 
 
@@ -226,21 +223,6 @@ def worker_main(args: argparse.Namespace) -> int:
 
 
 # -- one step --------------------------------------------------------------------------------------------------
-def cpu_seconds(pid: int) -> float:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / TICKS
-    except (OSError, IndexError, ValueError):
-        return float("nan")
-
-
-def rss_bytes(pid: int) -> int:
-    try:
-        return int(Path(f"/proc/{pid}/statm").read_text().split()[1]) * PAGE
-    except (OSError, IndexError, ValueError):
-        return 0
-
-
 @dataclass
 class Step:
     broker: str
@@ -374,19 +356,19 @@ def start_cluster(work: Path, robots: int) -> Any:
 # -- report ----------------------------------------------------------------------------------------------------
 def fmt(step: Step) -> str:
     def share(got: int, sent: int) -> str:
-        return f"{got}/{sent}"
+        return f"{got} of {sent}"
 
     return (f"{step.broker:<10} {step.robots:>6} {step.connect_s:8.1f} "
-            f"{share(step.state_received, step.state_sent):>13} {step.pct(step.state_ms, 50):7.1f} "
+            f"{share(step.state_received, step.state_sent):>16} {step.pct(step.state_ms, 50):7.1f} "
             f"{step.pct(step.state_ms, 99):7.1f} {max(step.state_ms, default=float('nan')):7.0f} "
-            f"{share(step.cmd_received, step.cmd_sent):>13} {step.pct(step.cmd_ms, 50):7.1f} "
+            f"{share(step.cmd_received, step.cmd_sent):>16} {step.pct(step.cmd_ms, 50):7.1f} "
             f"{step.pct(step.cmd_ms, 99):7.1f} {max(step.cmd_ms, default=float('nan')):7.0f} "
             f"{step.broker_cpu:6.0f} {step.broker_rss / 2**20:7.0f} {step.per_connection / 1024:7.1f} "
             f"{step.generator_cpu:6.0f}  {'pass' if step.passed else 'MISS'} {step.note}")
 
 
-HEADER = (f"{'broker':<10} {'robots':>6} {'connect':>8} {'state recv':>13} {'p50':>7} {'p99':>7} {'max':>7} "
-          f"{'cmd recv':>13} {'p50':>7} {'p99':>7} {'max':>7} {'CPU %':>6} {'RSS MB':>7} {'kB/conn':>7} "
+HEADER = (f"{'broker':<10} {'robots':>6} {'connect':>8} {'state recv':>16} {'p50':>7} {'p99':>7} {'max':>7} "
+          f"{'cmd recv':>16} {'p50':>7} {'p99':>7} {'max':>7} {'CPU %':>6} {'RSS MB':>7} {'kB/conn':>7} "
           f"{'gen %':>6}  bar")
 
 

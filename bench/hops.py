@@ -36,13 +36,12 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+import latency as lat  # (bench/latency.py: brokers and the process helpers shared by the benches)
 import orjson
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: brokers and the process helpers shared by the benches)
-
-from roslink_mqtt.bridge.trace import ENV as TRACE_ENV  # noqa: E402
-from roslink_mqtt.topics import TopicTree  # noqa: E402
+from roslink_mqtt import ros_names
+from roslink_mqtt.bridge.trace import ENV as TRACE_ENV
+from roslink_mqtt.topics import TopicTree
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
@@ -167,7 +166,7 @@ class RosSide:
         self.node.create_subscription(Int64MultiArray, IN_ROS, self._on_in, 100)
         self.pub = self.node.create_publisher(Int64MultiArray, OUT_ROS, 100)
         self.node.create_service(BasicTypes, ECHO_ROS, self._echo)
-        self.client = self.node.create_client(BasicTypes, f"/{PROVIDED}")
+        self.client = self.node.create_client(BasicTypes, ros_names.absolute(PROVIDED))
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self.executor.spin, name="hops-ros", daemon=True)

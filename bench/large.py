@@ -49,14 +49,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: the twist command path and its bookkeeping)
+import latency as lat  # (bench/latency.py: the twist command path and its bookkeeping)
+from _support import cpu_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 ROBOT, ROBOT_PASSWORD = "turtle1", "turtle1-demo"
 DEFAULT_PLOT = ROOT / "docs" / "performance" / "large.png"
-TICKS = os.sysconf("SC_CLK_TCK")
 PRIME_SECONDS = 12.0  # bound on waiting for a stream's first frame through a freshly matched bridge subscription
 SETTLE = 2.0  # bound on waiting for frames in flight after a window
 TWIST_RATE = 20.0
@@ -169,17 +168,6 @@ def index_of(payload: bytes, encoding: str) -> int | None:
 
 
 # -- processes --------------------------------------------------------------------------------------
-def cpu_seconds(pid: int | None) -> float:
-    """User + system CPU of ``pid`` so far (all its threads), from /proc/<pid>/stat; NaN when gone."""
-    if pid is None:
-        return float("nan")
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / TICKS
-
-
 def rule_name(stream: str, encoding: str) -> str:
     return f"large_{stream}_{encoding}"
 

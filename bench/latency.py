@@ -62,7 +62,7 @@ from roslink_mqtt.config import load_fleet
 from roslink_mqtt.localproc import ChildExited, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child, tail
 from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.protocol import SystemStatus
-from roslink_mqtt.topics import TopicTree, Verb, join, join_leaf
+from roslink_mqtt.topics import TopicTree, Verb, join_leaf, state_leaf
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
@@ -106,7 +106,7 @@ def fleet_facts(path: Path) -> FleetFacts:
     """Read the rules the bench drives, so a changed fleet file changes the bench, not silently its numbers."""
     robot = load_fleet(path).robots[ROBOT]
     by_topic = {rule.mqtt_topic: rule for rule in robot.rules}
-    cmd, state = by_topic.get(join_leaf(Verb.CMD, "twist")), by_topic.get(join("state", STATE_NAME))
+    cmd, state = by_topic.get(join_leaf(Verb.CMD, "twist")), by_topic.get(state_leaf(STATE_NAME))
     if cmd is None or state is None or state.ros_type != "nav_msgs/msg/Odometry":
         raise SystemExit(f"latency bench: {path} needs a cmd/twist rule and an Odometry state/{STATE_NAME} rule "
                          f"for {ROBOT}")
@@ -121,7 +121,7 @@ def bench_fleet(work: Path, port: int, keep_throttle: bool) -> Path:
     throttle would be measured instead of the bridge (see the module docstring).
     """
     def lift_throttle(data: dict[str, Any]) -> None:
-        rules = [rule for rule in data["robots"][ROBOT]["rules"] if rule.get("mqtt_topic") == join("state", STATE_NAME)]
+        rules = [rule for rule in data["robots"][ROBOT]["rules"] if rule.get("mqtt_topic") == state_leaf(STATE_NAME)]
         if len(rules) != 1:  # an edit that finds nothing must not silently measure the throttle
             raise SystemExit(f"latency bench: expected one state/{STATE_NAME} rule for {ROBOT}, found {len(rules)}")
         rules[0].pop("max_rate", None)

@@ -44,8 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: brokers, bridge, bookkeeping shared by the benches)
+import latency as lat  # (bench/latency.py: brokers, bridge, bookkeeping shared by the benches)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"

@@ -33,17 +33,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import latency as lat  # (bench/latency.py: brokers and the process helpers shared by the benches)
 import orjson
+from _support import cpu_seconds
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: brokers and the process helpers shared by the benches)
+from roslink_mqtt import ros_names
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
 ROBOT, ROBOT_PASSWORD = "turtle1", "turtle1-demo"
 OPERATOR, VIEWER = ("alice", "alice-demo"), ("bob", "bob-demo")
 DEFAULT_PLOT = ROOT / "docs" / "performance" / "throughput.png"
-TICKS = os.sysconf("SC_CLK_TCK")
 GAP = 1.0  # s between windows: what is in flight arrives, queues drain
 TYPES = {"odom": "nav_msgs/msg/Odometry", "scan": "sensor_msgs/msg/LaserScan"}
 RATES = {"odom": (2000, 3000, 4000, 5000), "scan": (1000, 2000, 3000)}
@@ -51,7 +51,7 @@ BEAMS = 720
 
 
 def ros_topic(direction: str, kind: str) -> str:
-    return f"/bench_tp/{direction}/{kind}"
+    return ros_names.absolute("bench_tp", direction, kind)
 
 
 def rule_name(direction: str, kind: str) -> str:
@@ -193,17 +193,6 @@ def ros_child(mode: str, kind: str, rates: tuple[int, ...], seconds: float, star
 
 
 # -- measuring -----------------------------------------------------------------------------------------------
-def cpu_seconds(pid: int | None) -> float:
-    """User + system CPU of ``pid`` (None: this process) so far."""
-    if pid is None:
-        return time.process_time()
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / TICKS
-    except (OSError, IndexError, ValueError):
-        return float("nan")
-
-
 @dataclass
 class Row:
     broker: str
@@ -238,7 +227,8 @@ class CpuSampler:
             for edge, store in ((w.start, None), (w.start + w.seconds, True)):
                 if (delay := edge - time.monotonic()) > 0:
                     time.sleep(delay)
-                now = {name: cpu_seconds(pid) for name, pid in self.pids.items()}
+                now = {name: cpu_seconds(pid) if pid is not None else time.process_time()  # None: this process
+                       for name, pid in self.pids.items()}
                 if store is None:
                     begin = now
                 else:

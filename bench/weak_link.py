@@ -36,14 +36,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import latency as lat  # (bench/latency.py: brokers, bridge, bookkeeping shared by the benches)
 import orjson
 
 from roslink_mqtt.protocol import SystemStatus
 from roslink_mqtt.protocol.link import LINK, LinkReport
-from roslink_mqtt.topics import Kind, TopicTree, join
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import latency as lat  # noqa: E402  (bench/latency.py: brokers, bridge, bookkeeping shared by the benches)
+from roslink_mqtt.topics import Kind, TopicTree, state_leaf
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
@@ -207,10 +205,10 @@ def bench_fleet(work: Path, port: int, mode: str, extras: bool) -> Path:
         if extras:
             robot["rules"] = [*robot["rules"],
                               {"direction": "ros_to_mqtt", "ros_topic": IMAGE_TOPIC,
-                               "ros_type": "sensor_msgs/msg/CompressedImage", "mqtt_topic": join("state", IMAGE_STATE),
+                               "ros_type": "sensor_msgs/msg/CompressedImage", "mqtt_topic": state_leaf(IMAGE_STATE),
                                "encoding": "raw"},
                               {"direction": "ros_to_mqtt", "ros_topic": MAP_TOPIC,
-                               "ros_type": "nav_msgs/msg/OccupancyGrid", "mqtt_topic": join("state", MAP_STATE),
+                               "ros_type": "nav_msgs/msg/OccupancyGrid", "mqtt_topic": state_leaf(MAP_STATE),
                                "encoding": "cbor", "ros_qos": {"durability": "volatile"}}]
         data["broker"]["max_payload"] = 16 << 20
 

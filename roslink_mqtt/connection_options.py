@@ -24,6 +24,7 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import overload
 
 ENV_URL, ENV_USERNAME, ENV_PASSWORD, ENV_CA_FILE = "ROSLINK_URL", "ROSLINK_USERNAME", "ROSLINK_PASSWORD", \
     "ROSLINK_CA_FILE"
@@ -90,6 +91,10 @@ def env_ca_file() -> str | None:
     return os.environ.get(ENV_CA_FILE) or None
 
 
+@overload
+def resolve_url(args: argparse.Namespace, prog: str, default: str = ...) -> str: ...
+@overload
+def resolve_url(args: argparse.Namespace, prog: str, default: str | None) -> str | None: ...
 def resolve_url(args: argparse.Namespace, prog: str, default: str | None = DEFAULT_URL) -> str | None:
     """``--url``, else the old ``--broker`` (warns), else ``ROSLINK_URL``, else ``default`` (may be None)."""
     if getattr(args, "url", None):

@@ -41,7 +41,8 @@ class Scene:
     """Plain MQTT clients (no SDK needed): what any Node-RED flow or phone app would do."""
 
     def __init__(self, port: int, topics: TopicTree) -> None:
-        self.topics, self.inbox = topics, queue.Queue()
+        self.topics = topics
+        self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.viewer = self._client("bob", "demo-viewer", port)
         self.viewer.on_message = lambda c, u, m: self.inbox.put((m.topic, m.payload))
         self.viewer.connect("127.0.0.1", port)
@@ -78,7 +79,9 @@ class Scene:
             except queue.Empty:
                 break
             parsed = self.topics.parse(topic)
+            assert parsed is not None  # the viewer subscribed to this tree's heartbeat and state topics only
             name = parsed.name if parsed.kind is Kind.STATE else parsed.kind.value  # "heartbeat"
+            assert name is not None  # a state topic names its state
             try:
                 env = decode(payload)
             except ProtocolError:
@@ -209,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
             parsed = topics.parse(topic)
             if parsed is None or parsed.name != "fibonacci":
                 continue
+            assert parsed.verb is not None  # a to/<user>/ topic: reply, goal status, feedback, result
             print(f"  {parsed.verb.value}: {body.decode()}")
             if parsed.verb is Verb.RESULT:
                 break

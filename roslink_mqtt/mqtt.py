@@ -12,7 +12,7 @@ import socket
 import ssl
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 from urllib.parse import urlsplit
 
 import paho.mqtt.client as mqtt
@@ -32,7 +32,7 @@ class BrokerUrl:
         return self.scheme in ("mqtts", "wss")
 
     @property
-    def transport(self) -> str:
+    def transport(self) -> Literal["websockets", "tcp"]:
         return "websockets" if self.scheme in ("ws", "wss") else "tcp"
 
     def __str__(self) -> str:
@@ -148,5 +148,6 @@ def make_client(client_id: str, *, username: str | None = None, password: str | 
             context.verify_mode = ssl.CERT_NONE
         client.tls_set_context(context)
     client.on_socket_open = lambda _client, _userdata, sock: set_nodelay(sock)
-    client.reconnect_delay_set(min_delay=0.1, max_delay=max(0.1, max_reconnect_delay))
+    # paho annotates the delays int, but they are seconds used as numbers: a float works (a 0.1 s first retry)
+    client.reconnect_delay_set(min_delay=0.1, max_delay=max(0.1, max_reconnect_delay))  # type: ignore[arg-type]
     return client

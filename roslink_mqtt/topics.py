@@ -39,12 +39,17 @@ class TopicError(ValueError):
     """A name cannot be used in a topic (empty, or contains ``+``, ``#`` or ``/``)."""
 
 
-def levels(topic: str) -> list[str]:
-    """An MQTT topic or filter split into its levels (the broker's filter algebra works on these)."""
+def _levels(topic: str) -> list[str]:
     return topic.split(SEPARATOR)
 
 
-def join(*parts: str) -> str:
+def filter_levels(topic: str) -> tuple[str, ...]:
+    """An MQTT topic or filter as its levels, for MQTT's wildcard matching (the broker's filter algebra: ACL
+    patterns, the subscription index, the retained store). Not for reading the tree: :meth:`TopicTree.parse` is."""
+    return tuple(topic.split(SEPARATOR))
+
+
+def _join(*parts: str) -> str:
     """Levels (or already joined paths) back into one topic."""
     return SEPARATOR.join(parts)
 
@@ -65,7 +70,7 @@ def check_path(path: str, what: str = "name") -> str:
     """Validate a multi-level leaf such as ``cmd/twist`` (each level as :func:`check_name`)."""
     if not isinstance(path, str) or not path:
         raise TopicError(f"{what} must be a non-empty string, got {path!r}")
-    for level in levels(path):
+    for level in _levels(path):
         check_name(level, f"{what} level in {path!r}")
     return path
 
@@ -78,7 +83,7 @@ def check_filter_path(path: str, what: str = "filter") -> bool:
     """
     if not isinstance(path, str) or not path:
         raise TopicError(f"{what} must be a non-empty string, got {path!r}")
-    parts = levels(path)
+    parts = _levels(path)
     for i, level in enumerate(parts):
         if level == ANY or level == REST and i == len(parts) - 1:
             continue
@@ -206,19 +211,44 @@ def join_leaf(verb: Verb | None, name: str = "") -> str:
         if name:
             raise TopicError(f"'{verb.value}' takes no name, got {name!r}")
         return verb.value
-    return join(verb.value, check_path(name, f"{verb.value} name"))
+    return _join(verb.value, check_path(name, f"{verb.value} name"))
 
 
-def split_first(path: str) -> tuple[str, str]:
-    """``state/global_motion`` → (``state``, ``global_motion``): a rule's mqtt_topic read by the config checks."""
+def _split_first(path: str) -> tuple[str, str]:
     head, _, rest = path.partition(SEPARATOR)
     return head, rest
+
+
+def first_level(path: str) -> str:
+    """``cmd/twist`` → ``cmd``: the level a rule's mqtt_topic starts with (the config checks reserve some)."""
+    return _split_first(path)[0]
+
+
+def state_leaf(name: str) -> str:
+    """``global_motion`` → ``state/global_motion``: a ros_to_mqtt rule's mqtt_topic (relative to the robot)."""
+    return _join("state", name)
+
+
+def state_rule_name(path: str) -> str | None:
+    """A rule's ``state/global_motion`` → ``global_motion``; None unless it is a state below ``state/``."""
+    head, rest = _split_first(path)
+    return rest if head == "state" and rest else None
+
+
+def sys_topic(*names: str) -> str:
+    """A topic of the broker's own ``$SYS`` tree (outside the robots' tree): ``sys_topic("broker", "clients")``."""
+    return _join("$SYS", *names)
+
+
+def trimmed(name: str) -> str:
+    """A path as a user may type it, without leading or trailing separators: ``/cmd/twist/`` → ``cmd/twist``."""
+    return name.strip(SEPARATOR)
 
 
 def state_name(name: str) -> str:
     """What a user means by a state name: ``state/global_motion``, ``/global_motion/`` → ``global_motion``."""
     name = name.strip(SEPARATOR)
-    head, rest = split_first(name)
+    head, rest = _split_first(name)
     return rest if head == "state" else name
 
 
@@ -251,7 +281,7 @@ class ParsedTopic:
         """Everything after ``from/<user>/`` or ``to/<user>/`` (``cmd/twist``): what rules are keyed by."""
         if self.verb is None:
             return self.name or ""
-        return join(self.verb.value, self.name) if self.name else self.verb.value
+        return _join(self.verb.value, self.name) if self.name else self.verb.value
 
 
 class TopicTree:
@@ -259,24 +289,24 @@ class TopicTree:
 
     def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
         self.prefix = check_path(prefix, "prefix")
-        self._levels = len(levels(prefix))
+        self._levels = len(_levels(prefix))
 
     # -- builders ---------------------------------------------------------
     def robot_root(self, robot: str) -> str:
-        return join(self.prefix, check_name(robot, "robot"))
+        return _join(self.prefix, check_name(robot, "robot"))
 
     def heartbeat(self, robot: str) -> str:
-        return join(self.robot_root(robot), "heartbeat")
+        return _join(self.robot_root(robot), "heartbeat")
 
     def state(self, robot: str, name: str) -> str:
-        return join(self.robot_root(robot), "state", check_path(name, "state name"))
+        return _join(self.robot_root(robot), "state", check_path(name, "state name"))
 
     def from_user(self, robot: str, user: str, leaf: str) -> str:
         """``leaf`` as :func:`join_leaf` makes it (``cmd/twist``, ``lights``)."""
-        return join(self.robot_root(robot), "from", check_name(user, "user"), check_path(leaf))
+        return _join(self.robot_root(robot), "from", check_name(user, "user"), check_path(leaf))
 
     def to_user(self, robot: str, user: str, leaf: str) -> str:
-        return join(self.robot_root(robot), "to", check_name(user, "user"), check_path(leaf))
+        return _join(self.robot_root(robot), "to", check_name(user, "user"), check_path(leaf))
 
     def user_topic(self, robot: str, user: str, verb: Verb, name: str = "") -> str:
         """The topic of ``verb`` between ``user`` and ``robot``, in the direction the verb goes."""
@@ -329,7 +359,7 @@ class TopicTree:
 
     def param_events(self, robot: str, node: str) -> str:
         """Changes of ``node``'s parameters (from ROS ``/parameter_events``): a state topic, never retained."""
-        return self.state(robot, join(PARAM_EVENTS, check_name(node, "parameter node")))
+        return self.state(robot, _join(PARAM_EVENTS, check_name(node, "parameter node")))
 
     def error(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ERROR)
@@ -342,41 +372,41 @@ class TopicTree:
         return self.user_topic(robot, user, Verb.CONTROL, check_name(op, "control request"))
 
     def operator(self, user: str, client_id: str) -> str:
-        return join(self.prefix, OPERATORS, check_name(user, "user"), check_name(client_id, "client id"))
+        return _join(self.prefix, OPERATORS, check_name(user, "user"), check_name(client_id, "client id"))
 
     # -- subscription filters and ACL patterns (ANY = "+" allowed for robot/user) ------------
     def _root(self, robot: str) -> str:
-        return join(self.prefix, _level_or_any(robot, "robot"))
+        return _join(self.prefix, _level_or_any(robot, "robot"))
 
     def heartbeat_filter(self, robot: str = ANY) -> str:
-        return join(self._root(robot), "heartbeat")
+        return _join(self._root(robot), "heartbeat")
 
     def state_filter(self, robot: str = ANY, name: str = REST) -> str:
         """State topics of ``robot`` (every robot with ANY) whose name matches ``name`` (a filter: ``nav/+``)."""
         check_filter_path(name, "state name")
-        return join(self._root(robot), "state", name)
+        return _join(self._root(robot), "state", name)
 
     def from_user_filter(self, robot: str, user: str = ANY) -> str:
         """Everything ``user`` (every user with ANY) sends ``robot``: what a bridge subscribes to."""
-        return join(self._root(robot), "from", _level_or_any(user, "user"), REST)
+        return _join(self._root(robot), "from", _level_or_any(user, "user"), REST)
 
     def to_user_filter(self, robot: str, user: str = ANY) -> str:
         """Everything ``robot`` sends ``user``: replies, requests, errors, the access report."""
-        return join(self._root(robot), "to", _level_or_any(user, "user"), REST)
+        return _join(self._root(robot), "to", _level_or_any(user, "user"), REST)
 
     def verb_filter(self, robot: str, user: str, verb: Verb) -> str:
         """Every ``verb`` message between ``user`` and ``robot`` (e.g. all of alice's replies)."""
         side = "from" if verb.sent_by_user else "to"
         tail = (verb.value, REST) if verb.named else (verb.value,)
-        return join(self._root(robot), side, _level_or_any(user, "user"), *tail)
+        return _join(self._root(robot), side, _level_or_any(user, "user"), *tail)
 
     def operators_filter(self, user: str, *, deep: bool = False) -> str:
         """Presence of every program of ``user`` (``deep``: any depth, as ACL patterns grant it)."""
-        return join(self.prefix, OPERATORS, _level_or_any(user, "user"), REST if deep else ANY)
+        return _join(self.prefix, OPERATORS, _level_or_any(user, "user"), REST if deep else ANY)
 
     def operators_prefix(self) -> str:
         """The text every operator presence topic starts with (a cheap test on every PUBLISH)."""
-        return join(self.prefix, OPERATORS, "")
+        return _join(self.prefix, OPERATORS, "")
 
     def all_from_users(self, robot: str) -> str:
         return self.from_user_filter(robot)
@@ -393,8 +423,8 @@ class TopicTree:
     # -- parsing -----------------------------------------------------------
     def parse(self, topic: str) -> ParsedTopic | None:
         """Classify a concrete topic; None if it is not part of the tree."""
-        parts = levels(topic)
-        if join(*parts[: self._levels]) != self.prefix:
+        parts = _levels(topic)
+        if _join(*parts[: self._levels]) != self.prefix:
             return None
         rest = parts[self._levels:]
         if not rest or any(not level for level in rest):
@@ -407,9 +437,9 @@ class TopicTree:
         if len(rest) == 2 and rest[1] == "heartbeat":
             return ParsedTopic(Kind.HEARTBEAT, robot=robot)
         if len(rest) >= 3 and rest[1] == "state":
-            return ParsedTopic(Kind.STATE, robot=robot, name=join(*rest[2:]))
+            return ParsedTopic(Kind.STATE, robot=robot, name=_join(*rest[2:]))
         if len(rest) >= 4 and rest[1] in ("from", "to"):
             kind = Kind.FROM if rest[1] == "from" else Kind.TO
-            verb, name = split_leaf(join(*rest[3:]), sent_by_user=kind is Kind.FROM)
+            verb, name = split_leaf(_join(*rest[3:]), sent_by_user=kind is Kind.FROM)
             return ParsedTopic(kind, robot=robot, user=rest[2], name=name, verb=verb)
         return None

@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from rclpy.action import ActionClient
@@ -170,7 +171,7 @@ class ActionCaller:
         with self._lock:
             goals = [g for g in self._goals.values() if user is None or g.user == user]
         for goal in goals:
-            self._queue(lambda goal=goal: self._cancel(goal, CANCELED, reason))
+            self._queue(partial(self._cancel, goal, CANCELED, reason))
         if goals:
             log.warning("canceling %d goal(s)%s: %s", len(goals), f" of {user}" if user else "", reason)
         return len(goals)

@@ -185,7 +185,7 @@ class ProvidedActions:
     def _on_update(self, user: str, name: str, topic: str, update: ActionUpdate) -> None:
         offer = self.offers.get((user, name))
         goal = offer.goals.get(update.id) if offer is not None else None
-        if goal is None:
+        if offer is None or goal is None:
             self.refuse(user, topic, f"no goal {update.id!r} waits for you on '{name}' (ended, timed out, or never "
                                      "sent)", client_id=update.client_id, request_id=update.id)
             return

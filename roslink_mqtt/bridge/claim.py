@@ -35,14 +35,18 @@ import secrets
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
+from typing import TYPE_CHECKING
 
 import orjson
 
 from ..protocol import MessageId, ProtocolError, SystemStatus, decode
+
+if TYPE_CHECKING:
+    from ..mqtt import BrokerUrl
 
 log = logging.getLogger("roslink_mqtt.bridge.claim")
 
@@ -173,7 +177,7 @@ def read_announcement(payload: bytes) -> Claim | None:
         return None
 
 
-Publish = Callable[[str, bytes], None]
+Publish = Callable[[str, bytes], object]  # what it returns (paho's MQTTMessageInfo) is not used
 
 
 def check_claim(connect: Callable[[Callable[[bytes, bool], None]], tuple[Publish, float] | None],
@@ -216,7 +220,7 @@ def check_claim(connect: Callable[[Callable[[bytes, bool], None]], tuple[Publish
     return StartCheck(Verdict.START)
 
 
-def _hand_over(listener: _Listener, publish: Callable[[str, bytes], None], robot: str, announce: bytes,
+def _hand_over(listener: _Listener, publish: Publish, robot: str, announce: bytes,
                target: Claim, period: float, timeout: float) -> StartCheck:
     """Wait until ``target`` has stood down: its offline heartbeat, or 1.5 periods without one. The announcement
     (take_over 1) is repeated each period, in case one was missed."""
@@ -280,7 +284,7 @@ class ClaimWatch:
                         "is starting" if starting else "runs", rival.describe())
 
 
-def paho_connector(urls: list, username: str, password: str | None, ca_file: str | None, topic: str,
+def paho_connector(urls: Sequence[BrokerUrl], username: str, password: str | None, ca_file: str | None, topic: str,
                    announce_topic: str, *, wait: float = CONNECT_WAIT) -> tuple[Callable, Callable[[], None]]:
     """(connect, close) for :func:`check_claim`: a short-lived connection of the robot's login (a random client
     id: a fixed one would knock the live bridge off a broker) that subscribes to the heartbeat ``topic`` and
@@ -298,7 +302,7 @@ def paho_connector(urls: list, username: str, password: str | None, ca_file: str
     def connect(on_heartbeat: Callable[[bytes, bool], None]) -> tuple[Publish, float] | None:
         asked = [0.0]
 
-        def on_connect(c: mqtt.Client, _u, _f, reason, _p) -> None:
+        def on_connect(c: mqtt.Client, _u: object, _f: object, reason: mqtt.ReasonCode, _p: object) -> None:
             if reason.is_failure:
                 answered.set()  # the main connection logs why (a wrong password, say)
             else:
@@ -313,7 +317,8 @@ def paho_connector(urls: list, username: str, password: str | None, ca_file: str
         client.on_connect = on_connect
         client.on_subscribe = on_subscribe
         client.on_connect_fail = lambda *_: answered.set()
-        client.on_message = lambda _c, _u, m: on_heartbeat(m.payload, bool(m.retain))
+        # paho types a message's payload bytes | bytearray; a received one is always bytes (struct.unpack)
+        client.on_message = lambda _c, _u, m: on_heartbeat(m.payload, bool(m.retain))  # type: ignore[arg-type]
         try:
             client.connect_async(urls[0].host, urls[0].port, keepalive=5)
             client.loop_start()

@@ -33,6 +33,7 @@ import orjson
 from rosidl_parser import definition as d
 
 from ..protocol.validate import describe, show_key
+from ..ros_names import interface_name
 from .refusals import ConversionError
 from .ros_types import load_interface
 
@@ -69,7 +70,7 @@ def _b64(data: Any) -> str:
 
 
 def _namespaced(t: d.NamespacedType) -> type:
-    return load_interface("/".join(t.namespaces) + "/" + t.name)
+    return load_interface(interface_name(t.namespaces, t.name))
 
 
 @dataclass
@@ -161,7 +162,7 @@ def _typed_array(tag: int, dtype: str) -> Callable[[Any], Any]:
 
 # -- ROS → dict: generated source ------------------------------------------------------
 
-def _build_to_dict(cls: type, numpy: bool, cbor: bool = False) -> Callable[[Any], dict[str, Any]]:
+def _build_to_dict(cls: type[Any], numpy: bool, cbor: bool = False) -> Callable[[Any], dict[str, Any]]:
     env: dict[str, Any] = {"_nf": _nf, "_nf_list": _nf_list, "_b64": _b64, "isfinite": math.isfinite,
                            "all": all, "map": map, "_float_view": _float_view, "_raw": raw_bytes}
     if cbor:
@@ -208,7 +209,7 @@ def _build_to_dict(cls: type, numpy: bool, cbor: bool = False) -> Callable[[Any]
     return env["to_dict"]
 
 
-def _build_to_cbor(cls: type, env: dict[str, Any]) -> Callable[[Any], dict[str, Any]]:
+def _build_to_cbor(cls: type[Any], env: dict[str, Any]) -> Callable[[Any], dict[str, Any]]:
     """Like the JSON ``to_dict`` but for CBOR: floats as they are, numeric arrays as bytes or typed arrays."""
     items = []
     for i, (name, slot) in enumerate(zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)):
@@ -253,7 +254,7 @@ Check = Callable[[Any], Any]
 
 
 class _Reader:
-    def __init__(self, cls: type) -> None:
+    def __init__(self, cls: type[Any]) -> None:  # a rosidl message class (untyped: get_fields_and_field_types…)
         self.cls = cls
         self.fields: dict[str, Check] = {
             name: _checker(slot) for name, slot in zip(cls.get_fields_and_field_types(), cls.SLOT_TYPES, strict=True)
@@ -286,6 +287,7 @@ class _Nested:
     """Checker for a nested message field: its reader, built on first use (most fields are never sent)."""
 
     __slots__ = ("slot", "_reader")
+    _reader: _Reader | None
 
     def __init__(self, slot: d.NamespacedType) -> None:
         self.slot, self._reader = slot, None

@@ -37,6 +37,7 @@ from ..protocol.description import (
     StateEntry,
 )
 from ..protocol.enums import RobotType
+from ..ros_names import interface_name
 from ..topics import TopicTree, Verb, state_name
 from .authorize import allowed
 
@@ -78,7 +79,8 @@ def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
     parameters = [ParameterEntry(p.name, p.node, _who(Verb.PARAM, read_only=p.viewers_may_set), p.timeout,
                                  _who(Verb.PARAM, read_only=True)) for p in robot.parameters]
     types: dict[str, Layout] = {}
-    for ros_type in [e.ros_type for e in (*state, *commands, *services, *actions)]:
+    entries: list[StateEntry | CommandEntry | ServiceEntry | ActionEntry] = [*state, *commands, *services, *actions]
+    for ros_type in [e.ros_type for e in entries]:
         if ros_type is None or ros_type in types:
             continue
         try:
@@ -117,7 +119,7 @@ def ros_fields_of(type_name: str) -> Layout:
     return message_layout(cls)
 
 
-def message_layout(cls: type) -> Layout:
+def message_layout(cls: type[Any]) -> Layout:
     """Field name → type of a message class, nested messages expanded (``{"type": …, "fields": …}``)."""
     names = list(cls.get_fields_and_field_types())
     return {name: _slot(slot) for name, slot in zip(names, cls.SLOT_TYPES, strict=True)}
@@ -135,7 +137,7 @@ def _slot(slot: Any) -> Any:
     elif isinstance(slot, d.UnboundedSequence):
         suffix, inner = "[]", slot.value_type
     if isinstance(inner, d.NamespacedType):
-        name = "/".join([*inner.namespaces, inner.name])
+        name = interface_name(inner.namespaces, inner.name)
         from .ros_types import load_interface
 
         return {"type": name + suffix, "fields": message_layout(load_interface(name))}

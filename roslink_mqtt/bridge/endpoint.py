@@ -20,10 +20,11 @@ Threads: MQTT messages arrive on paho's network thread, supervision and ROS call
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -43,12 +44,13 @@ from ..protocol import (
 )
 from ..protocol.control import ErrorReport, pop_generic_sender, request_id
 from ..protocol.errors import ProtocolError
-from ..protocol.lease import CONTROL, ControlOp, ControlState, read_request
+from ..protocol.lease import CONTROL, ControlState
 from ..topics import Kind, TopicTree, Verb
 from .authorize import refusal
+from .capabilities import Capability, Control, Refusal, Request
 from .claim import Claim
 from .failsafe import Failsafe, late_motion
-from .lease import ControlLease, Outcome
+from .lease import ControlLease
 from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
 from .safety import is_standstill, make_safe_twist
@@ -102,13 +104,16 @@ class CommandEndpoint:
 
     def __init__(self, fleet: Fleet, robot: Robot, link: Link, actuators: Actuators,
                  routes: Mapping[str, Inbound], handlers: Mapping[Verb, VerbHandler] | None = None,
-                 claim: Claim | None = None) -> None:
+                 claim: Claim | None = None, capabilities: Iterable[Capability[Any]] = ()) -> None:
         """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``handlers``: call, provide,
         response and advertise, each given (user, name, topic, payload); ``claim``: this bridge's, carried by
         every heartbeat (bridge/claim.py)."""
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
         self.link, self.actuators, self.routes = link, actuators, dict(routes)
         self.handlers: dict[Verb, VerbHandler] = dict(handlers or {})
+        # every verb moved to its capability (bridge/capabilities/) runs through _dispatch; the lease verbs always
+        self.capabilities: dict[Verb, Capability[Any]] = {Verb.CONTROL: Control(robot.name, self, self.refuse)}
+        self.capabilities.update((c.verb, c) for c in capabilities)
         settings = robot.bridge
         self.claim = claim or Claim.mine()
         self.session = int(self.claim.since) & 0xFFFFFFFF  # grows with every start
@@ -119,7 +124,9 @@ class CommandEndpoint:
         self.operators = OperatorTracker(settings.operator_timeout)
         self.failsafe = Failsafe(settings.command_timeout)
         self.lock = threading.RLock()
-        self._heartbeat_seq = self._ack_seq = 0
+        # sequence numbers: heartbeats and acks are sent from paho's and the executor's threads; next() on an
+        # itertools.count is one C call (atomic), where `n += 1` on an attribute could hand out a number twice
+        self._heartbeat_numbers, self._ack_numbers = itertools.count(1), itertools.count(1)
         # (deadline for its PUBACK, sent at, paho info): link_timeout after it, plus what it waits behind
         self._pending_heartbeat: tuple[float, float, Any] | None = None
         self._stop_repeats_left = 0
@@ -182,13 +189,13 @@ class CommandEndpoint:
                                          "without the retain flag (and clear this one with an empty retained message)",
                             payload=payload)
             return
-        if verb is Verb.CONTROL:
-            self.on_control(user, parsed.name or "", topic, payload)
+        capability = self.capabilities.get(verb) if verb is not None else None
+        if capability is not None:
+            self._dispatch(capability, user, parsed.name or "", topic, payload)
             return
         if verb is Verb.GOAL and not self._goal_gates(user, topic, payload, parsed.name or ""):
             return
-        if verb in (Verb.CALL, Verb.PARAM) and not self._request_lease_gate(user, verb, parsed.name or "", topic,
-                                                                              payload):
+        if verb is Verb.PARAM and not self._request_lease_gate(user, verb, parsed.name or "", topic, payload):
             return
         if verb is not None and verb is not Verb.CMD:
             handler = self.handlers.get(verb)
@@ -212,6 +219,36 @@ class CommandEndpoint:
             return
         self.handle_command(user, topic, route, payload, arrived)
 
+    def _dispatch(self, capability: Capability[Any], user: str, name: str, topic: str, payload: bytes) -> None:
+        """Every verb with a capability, the same way: parse its body once, gate, then carry it out."""
+        role = self.role_of(user)
+        try:
+            body = capability.parse(name, payload)
+        except ProtocolError as err:
+            capability.refuse(Request(user, name, topic, payload, None, role), Refusal(str(err)))
+            return
+        request = Request(user, name, topic, payload, body, role)
+        refused = capability.gate(request, self)
+        if refused is not None:
+            capability.refuse(request, refused)
+        else:
+            capability.run(request)
+
+    # -- Gates and LeaseDesk (bridge/capabilities/): what capabilities ask of the robot's state ----------------
+    def is_live(self, user: str) -> bool:
+        return self.operators.is_live(user)
+
+    def lease_gate(self, user: str) -> str | None:
+        with self.lock:
+            return self._lease_gate(user)
+
+    def tell_displaced(self, user: str, text: str) -> None:
+        self.link.publish(self.topics.error(self.robot.name, user),
+                          error_reply(self.topics.state(self.robot.name, CONTROL), text), qos=ErrorReport.QOS)
+
+    def cancel_goals(self, user: str | None, why: str) -> None:
+        self._cancel_goals(user, why)
+
     def _goal_gates(self, user: str, topic: str, payload: bytes, action: str) -> bool:
         """A goal may move the robot: it needs the sender's live presence, motion not blocked, and (unless the
         action is open to viewers) the control lease."""
@@ -234,21 +271,16 @@ class CommandEndpoint:
         return True
 
     def _request_lease_gate(self, user: str, verb: Verb, name: str, topic: str, payload: bytes) -> bool:
-        """Service calls (unless read-only) and parameter sets change the robot: only from the lease's holder.
+        """Parameter sets change the robot: only from the lease's holder (service calls: capabilities/call.py).
         Viewers are left to the verb's own handler (it refuses what they may not do, with its own reason)."""
         if self.role_of(user) is not Role.OPERATOR:
             return True
-        if verb is Verb.CALL:
-            rule = self.robot.service(name)
-            if rule is None or rule.read_only:
-                return True
-        else:
-            try:
-                body = loads(payload)
-            except ProtocolError:
-                return True  # the parameter bridge reports the malformed body
-            if not isinstance(body, dict) or body.get("op") != "set":
-                return True
+        try:
+            body = loads(payload)
+        except ProtocolError:
+            return True  # the parameter bridge reports the malformed body
+        if not isinstance(body, dict) or body.get("op") != "set":
+            return True
         with self.lock:
             why = self._lease_gate(user)
         if why:
@@ -274,36 +306,6 @@ class CommandEndpoint:
         """Retained ``state/control``: who holds control, since when (on every change, and on connecting)."""
         self.link.publish(self.topics.state(self.robot.name, CONTROL), self.control_state().to_json(),
                           qos=ControlState.QOS, retain=True)
-
-    def on_control(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``control/claim|release|take_over`` from ``user``."""
-        try:
-            op = ControlOp.parse(name)
-            body = read_request(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload)
-            return
-        sender = body.get("client_id") if isinstance(body.get("client_id"), str) else None
-        if self.role_of(user) is not Role.OPERATOR:
-            self.refuse(user, topic, refusal(user, self.role_of(user), Verb.CONTROL, name, robot=self.robot.name)
-                        or "", client_id=sender)
-            return
-        with self.lock:
-            answer = self.lease.request(user, op, live=self.operators.is_live(user), now=time.time())
-            if answer.outcome is Outcome.REFUSED:
-                self.refuse(user, topic, answer.reason, client_id=sender)
-                return
-            log.info("%s: %s", self.robot.name, answer.reason)
-            if answer.outcome is Outcome.TAKEN and answer.displaced is not None:
-                # the new holder starts from standstill; the old one hears it at once, on its error topic
-                self.trigger_stop(f"control {answer.reason}", level=logging.INFO)
-                self.link.publish(self.topics.error(self.robot.name, answer.displaced),
-                                  error_reply(self.topics.state(self.robot.name, CONTROL),
-                                              f"control of {self.robot.name} {answer.reason}"),
-                                  qos=ErrorReport.QOS)
-            self.publish_control()
-        if answer.outcome is Outcome.TAKEN and answer.displaced is not None:
-            self._cancel_goals(answer.displaced, f"control of {self.robot.name} {answer.reason}")
 
     def _lease_ends(self, user: str, why: str) -> None:
         """Under the lock: ``user``'s presence or grant ended; so does their lease, if they held it."""
@@ -531,10 +533,10 @@ class CommandEndpoint:
 
     # -- MQTT out --------------------------------------------------------------------------------
     def heartbeat(self, status: SystemStatus) -> bytes:
-        self._heartbeat_seq = (self._heartbeat_seq + 1) & 0xFFFFFFFF
+        sequence = next(self._heartbeat_numbers) & 0xFFFFFFFF
         payload = {"type": int(self.robot.type), "name": self.robot.name, "system_status": int(status),
                    "owner_id": self.lease.holder or "", "mode": 0, "session": self.session, **self.claim.fields()}
-        return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, self._heartbeat_seq))
+        return encode(Envelope(MessageId.HEARTBEAT, payload, self.robot.system_id, sequence))
 
     def publish_heartbeat(self) -> None:
         if self.fenced is not None:
@@ -551,11 +553,12 @@ class CommandEndpoint:
                 self._pending_heartbeat = (now + self.robot.bridge.link_timeout + allowance, now, info)
 
     def publish_ack(self, command: int, sequence: int | None, result: AckResult, text: str) -> None:
-        self._ack_seq = (self._ack_seq + 1) & 0xFFFFFFFF
+        sequence_number = next(self._ack_numbers) & 0xFFFFFFFF
         payload = {"command": int(command), "command_sequence": -1 if sequence is None else sequence,
                    "result": int(result), "text": text}
         self.link.publish(self.topics.state(self.robot.name, "ack"),
-                          encode(Envelope(MessageId.ACK, payload, self.robot.system_id, self._ack_seq)), qos=ACK_QOS)
+                          encode(Envelope(MessageId.ACK, payload, self.robot.system_id, sequence_number)),
+                          qos=ACK_QOS)
 
     def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
                sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None,
@@ -567,11 +570,11 @@ class CommandEndpoint:
         every accepted command. A request that names no sender gets a report without one (any program may show it).
         """
         log.debug("refused %s: %s", topic, reason)
-        reason = self.reports.admit(user, topic, reason, time.monotonic())
-        if reason is None:
+        admitted = self.reports.admit(user, topic, reason, time.monotonic())
+        if admitted is None:
             return  # held back and counted: the next report (or a summary) says how many
         if client_id is None and payload is not None:
             client_id = sender_id(payload)
         self.link.publish(self.topics.error(self.robot.name, user),
-                          error_reply(topic, reason, message_id=message_id, sequence_number=sequence,
+                          error_reply(topic, admitted, message_id=message_id, sequence_number=sequence,
                                       client_id=client_id, request_id=request_id), qos=ErrorReport.QOS)

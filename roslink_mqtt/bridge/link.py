@@ -84,7 +84,7 @@ class MqttLink:
         self.client.connect_async(self.url.host, self.url.port, keepalive=self.keepalive)
         self.client.loop_start()
 
-    def stop(self, last_words: list[tuple[str, bytes, int, bool]] = ()) -> None:
+    def stop(self, last_words: Sequence[tuple[str, bytes, int, bool]] = ()) -> None:
         """Publish ``last_words`` (e.g. the offline heartbeat), then disconnect cleanly.
 
         Sets :attr:`closing` first, so the disconnect that follows is logged (and reported to ``on_down``) as
@@ -182,6 +182,7 @@ class MqttLink:
         if trace.TRACE is not None:
             trace.TRACE.mark("mqtt_in", message.topic)
         try:
-            self._on_message(message.topic, message.payload, bool(message.retain), arrived)
+            # paho types payload bytes | bytearray; a received message's is always bytes (struct.unpack)
+            self._on_message(message.topic, message.payload, bool(message.retain), arrived)  # type: ignore[arg-type]
         except Exception:  # a bug in one handler must not kill the network thread
             log.exception("error handling %s", message.topic)

@@ -24,8 +24,9 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..config.model import EXECUTORS
 from ..connection_options import (
@@ -37,6 +38,9 @@ from ..connection_options import (
     resolve_url,
 )
 from ..connection_options import resolve_password as resolve_login_password
+
+if TYPE_CHECKING:
+    from ..mqtt import BrokerUrl
 
 PROG = "roslink-mqtt-bridge"
 ENV_EXECUTOR = "ROSLINK_EXECUTOR"
@@ -108,7 +112,7 @@ def reload_grants(bridge: Any, config: str) -> None:
 class StartCheck(threading.Thread):
     """The one-bridge check (bridge/claim.py), run while ROS starts: it needs the broker, not ROS."""
 
-    def __init__(self, robot: Any, urls: list, password: str, ca_file: str | None, take_over: bool,
+    def __init__(self, robot: Any, urls: Sequence[BrokerUrl], password: str, ca_file: str | None, take_over: bool,
                  topic: str, announce_topic: str) -> None:
         super().__init__(name="claim-check", daemon=True)
         from .claim import Claim

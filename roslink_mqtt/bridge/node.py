@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -22,12 +22,13 @@ from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
 from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
-from ..topics import Verb, split_first
+from ..topics import Verb, state_name
 from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
+from .capabilities import CallService
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
@@ -42,7 +43,7 @@ from .routes import Inbound
 from .rules import Outbound, RuleError, compile_rules, ros_qos
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .sdk_params import SdkParameterNodes
-from .service_caller import ServiceCaller
+from .service_caller import RosServices
 from .service_provider import ProvidedServices
 from .spool import Spool, buffer_dir
 from .stops import StopDedup
@@ -239,7 +240,13 @@ class Bridge:
                                             {n for n, r in routes.items() if not r.rule.on_demand},
                                             role_of, self._is_live, self._refuse, robot=robot.name)
         self.actuators = RosActuators(node, robot, routes, self.on_demand)
-        self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim)
+        try:
+            self.services = RosServices(node, robot)
+        except UnknownTypeError as err:
+            raise RuleError(f"services: {err}") from None
+        calls = CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse)
+        self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
+                                        capabilities=[calls])
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
         self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
@@ -247,10 +254,6 @@ class Bridge:
         self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
-        try:
-            self.caller = ServiceCaller(node, robot, self.topics, self._publish_reliable, role_of, budget)
-        except UnknownTypeError as err:
-            raise RuleError(f"services: {err}") from None
         self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
                                          self._is_live, self._refuse, self.on_executor,
                                          max_concurrent=settings.provided_max_calls,
@@ -278,7 +281,6 @@ class Bridge:
             Verb.ACTION_UPDATE: self.provided_actions.update,
             Verb.GOAL: self.actions.goal,
             Verb.CANCEL: self.actions.cancel,
-            Verb.CALL: lambda user, name, _topic, payload: self.caller.handle(user, name, payload),
             Verb.PROVIDE: self.provided.offer,
             Verb.RESPONSE: self.provided.response,
             Verb.ADVERTISE: self.on_demand.advertise,
@@ -464,7 +466,7 @@ class Bridge:
         topic, body = description_message(self.robot, self.topics)
         self.link.publish(topic, body, qos=1, retain=True)
 
-    def publish_access(self, cleared: list[str] = ()) -> None:
+    def publish_access(self, cleared: Sequence[str] = ()) -> None:
         """Retained ``to/<user>/access`` for every granted user (bridge/access.py says why); clear ``cleared``."""
         for topic in cleared:
             self.link.publish(topic, b"", qos=1, retain=True)
@@ -483,7 +485,7 @@ class Bridge:
         offer, topic, serialize = self.uplink.offer, out.topic, out.serialize
         qos, retain = out.rule.mqtt_qos, out.rule.retain
         stream = self.uplink.stream(topic, out.rule.priority, out.rule.latest_only,
-                                    label=split_first(out.rule.mqtt_topic)[1], max_rate=out.rule.max_rate,
+                                    label=state_name(out.rule.mqtt_topic), max_rate=out.rule.max_rate,
                                     buffered=out.rule.buffer == BUFFER_DISK)
 
         def link(topic: str, payload: bytes, qos: int, retain: bool) -> None:
@@ -511,10 +513,10 @@ class Bridge:
             else:
                 self.node.create_timer(out.period / 4, flush)
         if trace.TRACE is not None:
-            untraced, ros_topic = forward, out.rule.ros_topic
+            untraced, ros_topic, tracer = forward, out.rule.ros_topic, trace.TRACE  # set once, at import
 
             def forward(msg: Any) -> None:
-                trace.TRACE.mark("ros_in", ros_topic)
+                tracer.mark("ros_in", ros_topic)
                 untraced(msg)
 
         self.node.create_subscription(out.ros_cls, out.rule.ros_topic, forward, ros_qos(out.rule.ros_qos))
@@ -532,7 +534,11 @@ class Bridge:
             return
         self._ticks += 1
         if self._ticks % 2 == 0 and actions.busy():
-            self.action_on_executor.run(lambda: (actions.expire(time.monotonic()), actions.refresh()))
+            def tick() -> None:
+                actions.expire(time.monotonic())
+                actions.refresh()
+
+            self.action_on_executor.run(tick)
 
     # -- supervision (executor, 20 Hz) -------------------------------------------------
     def supervise(self) -> None:
@@ -545,7 +551,7 @@ class Bridge:
             self.endpoint.publish_control()
         self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
         self.endpoint.supervise(now)
-        self.caller.expire(now)
+        self.services.expire(now)
         self.provided.expire(now)
         self.actuators.expire(now)
         self.actions.supervise(now)

@@ -26,6 +26,7 @@ from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
+from .. import ros_names
 from ..config import ParameterRule, Robot, Role
 from ..protocol import ProtocolError
 from ..protocol.control import request_id
@@ -120,11 +121,13 @@ class ParameterBridge:
         self.clients: dict[str, _NodeClients] = {}
         for rule in robot.parameters:
             base = rule.node
+
+            def client(srv: Any, name: str, base: str = base) -> Any:
+                return node.create_client(srv, ros_names.child(base, name), callback_group=group)
+
             self.clients[rule.name] = _NodeClients(
-                node.create_client(GetParameters, f"{base}/get_parameters", callback_group=group),
-                node.create_client(SetParameters, f"{base}/set_parameters", callback_group=group),
-                node.create_client(ListParameters, f"{base}/list_parameters", callback_group=group),
-                node.create_client(DescribeParameters, f"{base}/describe_parameters", callback_group=group),
+                client(GetParameters, "get_parameters"), client(SetParameters, "set_parameters"),
+                client(ListParameters, "list_parameters"), client(DescribeParameters, "describe_parameters"),
                 node.resolve_topic_name(base))  # the node's full name, as /parameter_events gives it
         self._by_full_name = {c.full_name: name for name, c in self.clients.items()}
         self.pending: PendingCalls[tuple[_Request, Any]] = PendingCalls()

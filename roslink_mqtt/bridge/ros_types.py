@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 from functools import cache
 
+from ..ros_names import INTERFACE_KINDS, interface_parts
+
 
 class UnknownTypeError(ValueError):
     """The named ROS interface is not installed (or the name is malformed)."""
@@ -13,8 +15,8 @@ class UnknownTypeError(ValueError):
 @cache
 def load_interface(name: str) -> type:
     """The message, service or action class for ``pkg/msg/Type``, ``pkg/srv/Type`` or ``pkg/action/Type``."""
-    parts = name.split("/")
-    if len(parts) != 3 or parts[1] not in ("msg", "srv", "action") or not all(parts):
+    parts = interface_parts(name)
+    if parts is None or parts[1] not in INTERFACE_KINDS:
         raise UnknownTypeError(f"'{name}' is not a ROS type name like geometry_msgs/msg/Twist")
     package, kind, type_name = parts
     try:

@@ -15,11 +15,12 @@ from typing import Any
 import orjson
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from .. import ros_names
 from ..config import Robot, RosQos, Rule
 from ..config.model import ENCODING_CBOR, ENCODING_JSON, ENCODING_RAW, RAW_TYPES, Direction
 from ..protocol import SPECS_BY_NAME, Envelope, encode
 from ..protocol.validate import show_key
-from ..topics import TopicTree, split_first
+from ..topics import TopicTree, state_name
 from .convert import ConversionError, converter_for, raw_bytes
 from .presets import COMMAND_PRESETS, STATE_PRESETS
 from .ros_types import UnknownTypeError, load_interface
@@ -64,7 +65,7 @@ def _load(rule: Rule) -> type:
 
 def _preset(rule: Rule, presets: dict[str, Any], kind: str) -> Any:
     """The rule's preset, checked to exist in ``presets`` and to accept the rule's ROS type."""
-    preset = presets.get(rule.preset)
+    preset = presets.get(rule.preset) if rule.preset is not None else None
     if preset is None:
         raise RuleError(f"{rule.label}: preset '{rule.preset}' is not a {kind} preset "
                         f"({kind} presets: {', '.join(presets)})", rule)
@@ -89,7 +90,7 @@ def _set_path(data: dict[str, Any], path: str, value: Any) -> None:
 
 def _is_nested_message(field_type: str) -> bool:
     """``pkg/Type`` is one nested message; ``sequence<pkg/Type>``, ``pkg/Type[3]`` and primitives are not."""
-    return field_type.count("/") == 1 and not field_type.startswith("sequence<") and not field_type.endswith("]")
+    return ros_names.nested_message(field_type) is not None
 
 
 def _check_field_paths(rule: Rule, ros_cls: type) -> None:
@@ -118,7 +119,7 @@ def _check_field_paths(rule: Rule, ros_cls: type) -> None:
                 raise RuleError(f"{rule.label}: fields.{mqtt_field}: '{ros_path}' is not a field of {rule.ros_type}",
                                 rule)
             try:
-                cls = load_interface(sub.replace("/", "/msg/", 1))
+                cls = load_interface(ros_names.nested_message(sub) or sub)
             except UnknownTypeError as err:
                 raise RuleError(f"{rule.label}: fields.{mqtt_field}: {err}", rule) from None
 
@@ -145,7 +146,7 @@ def _check_encoding(rule: Rule) -> None:
 
 def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
     ros_cls = _load(rule)
-    topic = topics.state(robot.name, split_first(rule.mqtt_topic)[1])
+    topic = topics.state(robot.name, state_name(rule.mqtt_topic))
     period = 1.0 / rule.max_rate if rule.max_rate else 0.0
     _check_encoding(rule)
     if rule.preset is not None:
@@ -189,11 +190,12 @@ def compile_outbound(rule: Rule, robot: Robot, topics: TopicTree) -> Outbound:
 SERVICE_TARGETS = ("std_srvs/srv/Trigger", "std_srvs/srv/SetBool", "std_srvs/srv/Empty")
 
 
-def _service_target(rule: Rule, ros_cls: type, robot: Robot) -> Inbound:
+def _service_target(rule: Rule, ros_cls: type[Any], robot: Robot) -> Inbound:
     """A command preset that calls a std_srvs service; SetBool carries False for disarm, True otherwise."""
     if rule.ros_type not in SERVICE_TARGETS:
         raise RuleError(f"{rule.label}: preset '{rule.preset}' can call {' or '.join(SERVICE_TARGETS)}, "
                         f"not {rule.ros_type}", rule)
+    assert rule.preset is not None  # the fleet file takes a srv ros_type only with a service preset (config.loader)
     value = rule.preset != "disarm"
 
     def build(_payload: Any) -> Any:

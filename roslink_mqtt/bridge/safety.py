@@ -72,8 +72,9 @@ def clamp_components(linear: tuple[float, float, float], angular: tuple[float, f
                      limits: VelocityLimits) -> tuple[Vector, Vector, bool]:
     """Apply ``limits`` (by norm, or per axis); the flag says whether anything was cut (worth telling the user)."""
     if limits.mode == LIMIT_PER_AXIS:
-        lin = tuple(clamp(v, limits.linear) for v in linear)
-        ang = tuple(clamp(v, limits.angular) for v in angular)
+        lx, ly, lz = (clamp(v, limits.linear) for v in linear)
+        ax, ay, az = (clamp(v, limits.angular) for v in angular)
+        lin, ang = (lx, ly, lz), (ax, ay, az)
     else:
         lin, ang = clamp_norm(linear, limits.linear), clamp_norm(angular, limits.angular)
     return lin, ang, lin != tuple(map(float, linear)) or ang != tuple(map(float, angular))

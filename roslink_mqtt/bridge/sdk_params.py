@@ -24,6 +24,7 @@ import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -142,7 +143,7 @@ class SdkParameterNodes:
             call = self._waiting.get(answer.id) if isinstance(answer.id, str) else None
             if call is None or call.user != user or call.node != name:
                 call = None
-            else:
+            elif isinstance(answer.id, str):  # it is: the call was found by it
                 del self._waiting[answer.id]
         if call is None:
             self.refuse(user, topic, f"no pending parameter set with id {answer.id!r} for node '{name}'",
@@ -229,7 +230,7 @@ class SdkParameterNodes:
     def _create(self, item: _Declared, parameters: dict[str, DeclaredParameter]) -> None:
         ros = Node(item.name, namespace=self.namespace, context=self.context, use_global_arguments=False,
                    start_parameter_services=True)
-        ros.add_on_set_parameters_callback(lambda params, item=item: self._on_ros_set(item, params))
+        ros.add_on_set_parameters_callback(partial(self._on_ros_set, item))
         item.ros, item.applied = ros, {}
         self._sync(item, parameters)
         self.executor.add_node(ros)
@@ -250,7 +251,7 @@ class SdkParameterNodes:
         self._syncing = True
         try:
             for name in [n for n in applied if n not in parameters]:
-                self._apply_one(item, name, lambda name=name: ros.undeclare_parameter(name))
+                self._apply_one(item, name, partial(ros.undeclare_parameter, name))
             for name, p in parameters.items():
                 old = applied.get(name)
                 if old == p:
@@ -258,11 +259,11 @@ class SdkParameterNodes:
                 same_kind = old is not None and (old.type, old.description, old.read_only) == (
                     p.type, p.description, p.read_only)
                 if same_kind and not p.read_only and p.value is not None:
-                    self._apply_one(item, name, lambda name=name, p=p: ros.set_parameters([_ros_parameter(name, p)]))
+                    self._apply_one(item, name, partial(_set_parameter, ros, name, p))
                     continue
                 if old is not None:
-                    self._apply_one(item, name, lambda name=name: ros.undeclare_parameter(name))
-                self._apply_one(item, name, lambda name=name, p=p: _declare(ros, name, p))
+                    self._apply_one(item, name, partial(ros.undeclare_parameter, name))
+                self._apply_one(item, name, partial(_declare, ros, name, p))
         finally:
             self._syncing = False
         item.applied = parameters
@@ -307,6 +308,10 @@ class SdkParameterNodes:
 
 def _ros_parameter(name: str, p: DeclaredParameter) -> Parameter:
     return Parameter(name, Parameter.Type(TYPE_CODES[p.type]), p.value)
+
+
+def _set_parameter(ros: Node, name: str, p: DeclaredParameter) -> None:
+    ros.set_parameters([_ros_parameter(name, p)])
 
 
 def _declare(ros: Node, name: str, p: DeclaredParameter) -> None:

@@ -268,10 +268,12 @@ class ProvidedServices:
             else:
                 _SEND_RESPONSE(service, response, header)
 
-        service.send_response = send_response
+        # an instance attribute over rclpy's method, on purpose: the executors call service.send_response
+        service.send_response = send_response  # type: ignore[method-assign]
         return service
 
     def _response_for(self, call: _Waiting) -> Any:
+        reply: Any  # a ProviderResponse when status is "ok", else the reason (str)
         status, reply = call.outcome if call.outcome is not None else ("error", "no outcome")
         response = call.response
         if status == "error":

@@ -15,6 +15,7 @@ A torn record at the end of a segment (a crash while writing) is skipped.
 
 from __future__ import annotations
 
+import builtins  # in Spool's signatures: its `bytes` property hides the built-in there
 import logging
 import os
 import struct
@@ -110,7 +111,7 @@ class Spool:
         return self._sizes.get(self._read_segment, 0) > self._read_offset
 
     # -- writing ---------------------------------------------------------------------------------------------
-    def append(self, topic: str, payload: bytes, qos: int, stamp: float) -> None:
+    def append(self, topic: str, payload: builtins.bytes, qos: int, stamp: float) -> None:
         """Keep one record; the oldest segments go when the queue would outgrow ``max_bytes``."""
         name = topic.encode()
         body = _HEAD.pack(_HEAD.size - 4 + len(name) + len(payload), stamp, qos, len(name)) + name + payload
@@ -141,7 +142,7 @@ class Spool:
         log.warning("disk buffer %s full (%d bytes): dropped %d oldest records", self.name, self.max_bytes, count)
 
     # -- reading ---------------------------------------------------------------------------------------------
-    def _read(self, number: int) -> bytes:
+    def _read(self, number: int) -> builtins.bytes:
         """A segment's bytes, read again only when it has grown since (not once per record)."""
         size = self._sizes.get(number, 0)
         if self._cache is None or self._cache[:2] != (number, size):
@@ -153,7 +154,7 @@ class Spool:
         return self._cache[2]
 
     @staticmethod
-    def _records(data: bytes, offset: int) -> Iterator[tuple[int, Record]]:
+    def _records(data: builtins.bytes, offset: int) -> Iterator[tuple[int, Record]]:
         """(offset after the record, record) from ``offset`` on; stops at a torn record."""
         while offset + _HEAD.size <= len(data):
             size, stamp, qos, topic_len = _HEAD.unpack_from(data, offset)

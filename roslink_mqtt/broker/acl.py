@@ -37,7 +37,7 @@ from enum import IntFlag, StrEnum
 from typing import Any
 
 from ..config import Fleet, Role
-from ..topics import ANY, SYS_TOPICS, Kind, Verb, levels
+from ..topics import ANY, SYS_TOPICS, Kind, Verb, filter_levels
 
 
 class Access(IntFlag):
@@ -68,29 +68,29 @@ class AclEntry:
     levels: tuple[str, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "levels", tuple(levels(self.pattern)))
+        object.__setattr__(self, "levels", filter_levels(self.pattern))
 
 
 # -- MQTT filter algebra --------------------------------------------------------------
 
 
-def topic_matches(filter_levels: tuple[str, ...] | list[str], topic_levels: list[str]) -> bool:
+def topic_matches(pattern: tuple[str, ...] | list[str], topic_levels: tuple[str, ...] | list[str]) -> bool:
     """MQTT 3.1.1 §4.7 matching of a concrete topic against a filter, both split at ``/``.
 
     A topic starting with ``$`` is never matched by a filter whose first level is a
     wildcard (MQTT-4.7.2-1), so ``#`` does not reach ``$SYS``.
     """
-    if topic_levels[0][:1] == "$" and filter_levels[0] in ("+", "#"):
+    if topic_levels[0][:1] == "$" and pattern[0] in ("+", "#"):
         return False
     n = len(topic_levels)
-    for i, level in enumerate(filter_levels):
+    for i, level in enumerate(pattern):
         if level == "#":
             return True  # also matches the parent level: 'a/#' matches 'a'
         if i >= n:
             return False
         if level != "+" and level != topic_levels[i]:
             return False
-    return len(filter_levels) == n
+    return len(pattern) == n
 
 
 def filters_overlap(a: tuple[str, ...] | list[str], b: tuple[str, ...] | list[str]) -> bool:
@@ -115,7 +115,7 @@ def is_valid_filter(topic_filter: str) -> bool:
     """MQTT-4.7.1: ``#`` only as the whole last level, ``+`` only as a whole level."""
     if not topic_filter:
         return False
-    parts = levels(topic_filter)
+    parts = filter_levels(topic_filter)
     for i, level in enumerate(parts):
         if "#" in level and (level != "#" or i != len(parts) - 1):
             return False
@@ -201,14 +201,14 @@ class FleetAcl:
         if action == Action.SUBSCRIBE:
             if not is_valid_filter(topic):
                 return False
-            wanted = levels(topic)
+            wanted = filter_levels(topic)
             return any(filters_overlap(wanted, pattern) for pattern in self._read.get(login, ()))
         if "+" in topic or "#" in topic:
             return False  # a concrete topic never contains wildcards
         patterns = self._write if action == Action.PUBLISH else self._read if action == Action.RECEIVE else None
         if patterns is None:
             return False
-        concrete = levels(topic)
+        concrete = filter_levels(topic)
         return any(topic_matches(pattern, concrete) for pattern in patterns.get(login, ()))
 
 

@@ -36,7 +36,7 @@ import yaml
 
 from ..config import Fleet
 from ..config.passwords import verify_password
-from ..topics import levels
+from ..topics import filter_levels
 from .acl import Access, AclEntry, FleetAcl
 from .export import HEADER, ExportError, _write_private, owner_ids
 
@@ -73,7 +73,7 @@ def _level_regex(level: str) -> str:
 
 def filter_regex(pattern: str) -> str:
     """One MQTT filter as a regex over routing keys; ``a/#`` matches ``a``, ``a.x.y`` and a binding ``a.#``."""
-    parts = levels(pattern)
+    parts = filter_levels(pattern)
     if parts[-1] == "#":
         head = r"\.".join(_level_regex(p) for p in parts[:-1])
         return rf"{head}(\..*)?" if head else ".*"

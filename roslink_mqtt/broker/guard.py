@@ -169,6 +169,8 @@ class PacketGate(ReaderAdapter):
 class SafeWebSocketsReader(WebSocketsReader):
     """amqtt's WebSocket reader, except that a closed connection ends the read (no busy loop)."""
 
+    _stream: io.BytesIO  # set by amqtt's WebSocketsReader (untyped)
+
     async def _feed_buffer(self, n: int = 1) -> None:
         buffer = bytearray(self._stream.read())
         while len(buffer) < n:

@@ -451,7 +451,7 @@ class HardenedBroker(Broker):
         session.attributes[ATTR_KEEPALIVE] = session.keep_alive
         if session.keep_alive > 0:
             # the handler's reader loop uses session.keep_alive as its read timeout
-            session.keep_alive = session.keep_alive * KEEPALIVE_FACTOR  # type: ignore[assignment]
+            session.keep_alive = session.keep_alive * KEEPALIVE_FACTOR
         session.attributes[ATTR_AUTH_OK] = True
         if isinstance(reader, PacketGate):
             reader.pacer = self._pacer_of(session.username)
@@ -461,7 +461,7 @@ class HardenedBroker(Broker):
 
     async def _admit(self, session: Session) -> str | None:
         """None when the session may connect, else why not (fixes 4 and 7)."""
-        if not await Broker._authenticate(self, session, None):  # type: ignore[arg-type]
+        if not await Broker._authenticate(self, session, None):
             return session.attributes.pop(ATTR_DENY_REASON, None) or "authentication failed"
         if session.will_flag and session.will_topic is not None:
             will = session.will_topic

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any
 
-from ..topics import levels
+from ..topics import filter_levels
 
 KIB, MIB = 1024, 1024 * 1024
 
@@ -59,8 +59,8 @@ class BrokerLimits:
         return tuple(f.name for f in fields(cls))
 
 
-def split_topic(topic: str) -> list[str]:
-    return levels(topic)
+def split_topic(topic: str) -> tuple[str, ...]:
+    return filter_levels(topic)
 
 
 class RetainedIndex:
@@ -75,7 +75,7 @@ class RetainedIndex:
     __slots__ = ("_root", "_size")
 
     def __init__(self) -> None:
-        self._root: dict[str, Any] = {}
+        self._root: dict[str | None, Any] = {}  # level → child node; None → the retained topic ending here
         self._size = 0
 
     def __len__(self) -> int:
@@ -90,7 +90,7 @@ class RetainedIndex:
             self._size += 1
 
     def discard(self, topic: str) -> None:
-        path: list[tuple[dict[str, Any], str]] = []
+        path: list[tuple[dict[str | None, Any], str]] = []
         node = self._root
         for level in split_topic(topic):
             child = node.get(level)
@@ -111,7 +111,7 @@ class RetainedIndex:
         levels = split_topic(topic_filter)
         yield from self._walk(self._root, levels, 0)
 
-    def _walk(self, node: dict[str, Any], levels: list[str], i: int) -> Iterator[str]:
+    def _walk(self, node: dict[str | None, Any], levels: tuple[str, ...], i: int) -> Iterator[str]:
         if i == len(levels):
             topic = node.get(None)
             if topic is not None:
@@ -131,7 +131,7 @@ class RetainedIndex:
         if child is not None:
             yield from self._walk(child, levels, i + 1)
 
-    def _subtree(self, node: dict[str, Any], *, skip_dollar: bool) -> Iterator[str]:
+    def _subtree(self, node: dict[str | None, Any], *, skip_dollar: bool) -> Iterator[str]:
         # 'a/#' also matches 'a' itself (MQTT-4.7.1-2); iterative, so deep topics cannot exhaust the stack
         stack = [(node, skip_dollar)]
         while stack:

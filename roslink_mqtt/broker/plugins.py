@@ -25,6 +25,7 @@ from amqtt.session import Session
 
 from .. import __version__
 from ..config import verify_password
+from ..topics import sys_topic
 from .acl import DecisionCache, LiveFleet
 from .hardened import AMQTT_VERSION, ATTR_DENY_REASON, describe_session
 from .ratelimit import REFUSE, LoginThrottle
@@ -169,7 +170,7 @@ class SysInfoPlugin(BasePlugin[BrokerContext]):
             await asyncio.gather(self._task, return_exceptions=True)
 
     async def _set(self, name: str, value: str) -> None:
-        topic, data = f"$SYS/broker/{name}", value.encode()
+        topic, data = sys_topic("broker", name), value.encode()
         await self.context.retain_message(topic, data, 0)
         await self.context.broadcast_message(topic, data, 0)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..topics import levels
+from ..topics import filter_levels
 
 _END = None  # key marking "a filter ends at this node"; holds the filter string
 
@@ -34,15 +34,16 @@ class SubscriptionIndex:
 
     def __contains__(self, topic_filter: str) -> bool:
         node = self._root
-        for level in levels(topic_filter):
-            node = node.get(level)
-            if node is None:
+        for level in filter_levels(topic_filter):
+            child = node.get(level)
+            if child is None:
                 return False
+            node = child
         return _END in node
 
     def add(self, topic_filter: str) -> None:
         node = self._root
-        for level in levels(topic_filter):
+        for level in filter_levels(topic_filter):
             node = node.setdefault(level, {})
         if _END not in node:
             node[_END] = topic_filter
@@ -51,7 +52,7 @@ class SubscriptionIndex:
     def discard(self, topic_filter: str) -> None:
         path: list[tuple[dict[Any, Any], str]] = []
         node = self._root
-        for level in levels(topic_filter):
+        for level in filter_levels(topic_filter):
             child = node.get(level)
             if child is None:
                 return
@@ -71,7 +72,7 @@ class SubscriptionIndex:
         ``#`` matches the parent level too (``a/#`` matches ``a``); topics starting with ``$`` are not
         matched by a filter starting with a wildcard (MQTT-4.7.2-1).
         """
-        parts = levels(topic)
+        parts = filter_levels(topic)
         found: list[str] = []
         dollar = topic.startswith("$")
         # iterative walk: (node, index of the next level to match)

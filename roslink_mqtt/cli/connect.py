@@ -7,6 +7,7 @@ import getpass
 import signal
 import sys
 import threading
+from collections.abc import Iterable
 
 import orjson
 
@@ -29,7 +30,7 @@ def add_connection_options(p: argparse.ArgumentParser) -> None:
     _add_options(p)
 
 
-def open_client(args: argparse.Namespace, *, robots: list[str] = (), presence: bool = True) -> RobotClient:
+def open_client(args: argparse.Namespace, *, robots: Iterable[str] = (), presence: bool = True) -> RobotClient:
     """Connect, or exit with a clear message (no traceback for a refused login or a dead broker).
 
     The resolved URL and username are written back to ``args`` because commands show them (monitor's title).
@@ -66,6 +67,7 @@ def _exit_when_login_refused(client: RobotClient) -> None:
     if threading.current_thread() is not threading.main_thread():
         return  # signal handlers belong to the main thread (commands always run there)
     reasons: list[LoginRefused] = []
+    main_ident = threading.get_ident()  # the main thread's (checked above)
 
     def raise_in_main(_signum: int, _frame: object) -> None:
         raise SystemExit(f"roslink-mqtt: {reasons[0] if reasons else 'the broker refused our login'}")
@@ -74,7 +76,7 @@ def _exit_when_login_refused(client: RobotClient) -> None:
 
     def on_failure(failure: LoginRefused) -> None:
         reasons.append(failure)
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGUSR1)
+        signal.pthread_kill(main_ident, signal.SIGUSR1)
 
     client.connection.on_failure.append(on_failure)
 

@@ -28,7 +28,7 @@ from ..client import RobotClient, RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, ProtocolError, loads
 from ..protocol.messages import Direction
-from ..topics import Kind, TopicError, TopicTree, check_filter_path, check_name, state_name
+from ..topics import Kind, TopicError, TopicTree, check_filter_path, check_name, state_name, trimmed
 from .connect import add_connection_options, open_client
 
 EXIT_OK = 0
@@ -73,7 +73,8 @@ class FieldMissing(LookupError):
 
 def field_value(message: Any, path: str) -> Any:
     """The value at dotted ``path`` in ``message`` (list items by number); FieldMissing saying what is there."""
-    value, done = message, []
+    value = message
+    done: list[str] = []  # the path read so far
     for key in path.split("."):
         if isinstance(value, dict) and key in value:
             value = value[key]
@@ -201,7 +202,7 @@ def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, st
 
 def run(args: argparse.Namespace) -> int:
     try:
-        name, pattern = (HEARTBEAT, False) if args.name.strip("/") == HEARTBEAT else check_state_name(args.name)
+        name, pattern = (HEARTBEAT, False) if trimmed(args.name) == HEARTBEAT else check_state_name(args.name)
         check_name(args.robot, "robot")
     except TopicError as err:
         return _fail(EXIT_USAGE, str(err))

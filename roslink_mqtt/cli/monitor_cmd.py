@@ -13,6 +13,7 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from ..client import RobotClient
@@ -105,8 +106,8 @@ class StateFollower:
             self.followed.add(robot)
             for name in STATE_NAMES:
                 self.client.subscribe(robot, name, self.view.record)
-            self.client.subscribe(robot, LINK, lambda report, robot=robot: self.view.record_link(robot, report))
-            self.client.subscribe(robot, CONTROL, lambda state, robot=robot: self.view.record_control(robot, state))
+            self.client.subscribe(robot, LINK, partial(self.view.record_link, robot))
+            self.client.subscribe(robot, CONTROL, partial(self.view.record_control, robot))
 
 
 def _collect(follower: StateFollower, seconds: float, period: float) -> None:

@@ -340,7 +340,7 @@ def _ack_text(ack: Any) -> str:
     """``failsafe: operator alice went away``; the result alone when the robot gave no text."""
     if ack is None:
         return MISSING
-    result = getattr(ack, "result", None)
+    result: Any = getattr(ack, "result", None)  # None, or a number that is no AckResult: "result …" below
     try:
         label = AckResult(result).name.lower()
     except ValueError:

@@ -38,9 +38,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     print(f"{'robot':<12} {'status':<10} {'type':<10} {'driven by':<28} {'session':<11} bridge")
     for name, info in sorted(robots.items()):
-        status = SystemStatus(info.system_status).name.lower() if info.system_status in iter(SystemStatus) \
+        status = SystemStatus(info.system_status).name.lower() if info.system_status in list(SystemStatus) \
             else str(info.system_status)
-        rtype = RobotType(info.type).name.lower() if info.type in iter(RobotType) else str(info.type)
+        rtype = RobotType(info.type).name.lower() if info.type in list(RobotType) else str(info.type)
         bridge = f"{info.host} (pid {info.pid})" if info.online and info.host else "-"
         print(f"{name:<12} {status if info.online else 'offline':<10} {rtype:<10} "
               f"{drivers.get(name, info.owner or '-'):<28} {info.session:<11} {bridge}")

@@ -28,6 +28,7 @@ from ..protocol.provided_actions import (
     ActionRequest,
     ActionUpdate,
 )
+from ..ros_names import is_interface
 from ..topics import TopicTree, Verb, check_path
 from .connection import Connection
 from .errors import InvalidArgument
@@ -100,7 +101,7 @@ class ActionServers:
               goal_callback: GoalCallback | None = None, accept_timeout: float = DEFAULT_ACCEPT_TIMEOUT,
               result_timeout: float = DEFAULT_RESULT_TIMEOUT) -> ServedAction:
         check_path(name, "action")
-        if not isinstance(action_type, str) or action_type.count("/") != 2 or "/action/" not in action_type:
+        if not isinstance(action_type, str) or not is_interface(action_type, "action"):
             raise InvalidArgument(f"action type must look like 'test_msgs/action/Fibonacci', got {action_type!r}")
         if self.connection.presence is None:
             raise InvalidArgument("serving an action needs operator presence: the robot keeps the ROS action "

@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 
 from ..protocol.control import Advertisement
+from ..ros_names import is_interface
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .errors import InvalidArgument
@@ -31,7 +32,7 @@ class Advertisements:
 
     def advertise(self, robot: str, name: str, ros_type: str) -> None:
         check_path(name, "topic")
-        if not isinstance(ros_type, str) or ros_type.count("/") != 2 or "/msg/" not in ros_type:
+        if not isinstance(ros_type, str) or not is_interface(ros_type, "msg"):
             raise InvalidArgument(f"message type must look like 'std_msgs/msg/String', got {ros_type!r}")
         key = (robot, name)
         with self._lock:

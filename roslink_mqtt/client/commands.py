@@ -28,7 +28,7 @@ import orjson
 
 from ..protocol import SPECS, Direction, encode_message, spec_for
 from ..protocol.control import GENERIC_SENDER_KEY
-from ..topics import TopicTree, Verb, check_path, join_leaf, split_leaf
+from ..topics import TopicTree, Verb, check_path, join_leaf, split_leaf, trimmed
 from .errors import InvalidArgument
 
 MASK, HALF = 0xFFFFFFFF, 2**31
@@ -43,7 +43,7 @@ COMMAND_NAMES = frozenset(spec.name for spec in SPECS if spec.direction is Direc
 
 def command_leaf(name: str) -> str:
     """``"twist"`` → ``"cmd/twist"``; ``"cmd/twist"`` and generic rule names (``"led"``) stay as they are."""
-    name = name.strip("/")
+    name = trimmed(name)
     leaf = join_leaf(Verb.CMD, name) if name in COMMAND_NAMES else check_path(name, "command")
     verb, _ = split_leaf(leaf)
     if verb is not None and verb is not Verb.CMD:

@@ -89,7 +89,7 @@ class Connection:
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
         self.client.on_subscribe = self._on_subscribe
-        self.client.on_connect_fail = lambda _client, _userdata: self._move_on()
+        self.client.on_connect_fail = self._on_connect_fail
 
     @property
     def url(self) -> BrokerUrl:
@@ -98,6 +98,9 @@ class Connection:
 
     def _move_on(self) -> BrokerUrl | None:
         return None if self._closing else self.brokers.advance()
+
+    def _on_connect_fail(self, _client: mqtt.Client, _userdata: Any) -> None:
+        self._move_on()
 
     # -- lifecycle --------------------------------------------------------------------
     def connect(self, timeout: float = 10.0) -> None:
@@ -172,7 +175,7 @@ class Connection:
             subs = sorted(self._subs.items(), key=lambda item: item[0] in self._unanswered)
             for topic, sub in subs:
                 result, mid = client.subscribe(topic, sub.qos)
-                if result == mqtt.MQTT_ERR_SUCCESS:
+                if result == mqtt.MQTT_ERR_SUCCESS and mid is not None:  # paho: a mid with every success
                     event, box, _ = self._unanswered.get(topic, (threading.Event(), [], 0))
                     self._pending_suback[mid] = (topic, event, box)
         if self.presence is not None:
@@ -255,7 +258,8 @@ class Connection:
                         handlers.setdefault(id(handler), handler)
         for handler in handlers.values():
             try:
-                handler(topic, msg.payload, bool(msg.retain))
+                # paho types payload bytes | bytearray; a received message's is always bytes (struct.unpack)
+                handler(topic, msg.payload, bool(msg.retain))  # type: ignore[arg-type]
             except Exception:
                 log.exception("handler for %s failed", topic)
 
@@ -275,9 +279,10 @@ class Connection:
                 return True
             self._subs[topic] = _Subscription(qos, [handler])
             result, mid = self.client.subscribe(topic, qos)
-            if result != mqtt.MQTT_ERR_SUCCESS:
+            if result != mqtt.MQTT_ERR_SUCCESS or mid is None:  # paho: a mid with every success
                 return False  # not connected: _on_connect subscribes it
-            event, box = threading.Event(), []
+            event = threading.Event()
+            box: list[bool] = []  # the SUBACK's verdict: granted or not
             self._pending_suback[mid] = (topic, event, box)
         if self.on_network_thread():
             return True  # cannot wait for our own thread; the SUBACK is handled when it comes

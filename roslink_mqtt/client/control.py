@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from ..protocol import AckResult, MessageId, ProtocolError, decode
 from ..protocol.lease import CONTROL, ControlOp, ControlState, control_request
+from ..topics import Verb, join_leaf
 from .errors import CommandRefused, RobotError, RoslinkError, WaitTimeout
 
 if TYPE_CHECKING:
@@ -73,7 +74,7 @@ def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: flo
     try:
         client.connection.subscribe(state_topic, on_state, timeout=timeout)
         sent[0] = True
-        client._send(topic, control_request(client.client_id), 1, f"control/{op.value}")
+        client._send(topic, control_request(client.client_id), 1, join_leaf(Verb.CONTROL, op.value))
         if not done.wait(timeout):
             raise WaitTimeout(f"{robot} did not answer control/{op.value} within {timeout:g} s (is it online, and "
                               "its bridge recent enough to have control leases?)")

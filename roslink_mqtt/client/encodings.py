@@ -23,9 +23,12 @@ import array
 import base64
 import math
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..protocol import ProtocolError, loads
+
+if TYPE_CHECKING:
+    from cbor2 import CBORTag
 
 JSON, CBOR, RAW = "json", "cbor", "raw"
 ENCODINGS = (JSON, CBOR, RAW)
@@ -85,7 +88,7 @@ def cbor_loads(payload: bytes) -> Any:
     return _untag(value, cbor2.CBORTag)
 
 
-def _untag(value: Any, tag_cls: type) -> Any:
+def _untag(value: Any, tag_cls: type[CBORTag]) -> Any:
     if isinstance(value, dict):
         return {k: _untag(v, tag_cls) for k, v in value.items()}
     if isinstance(value, list):

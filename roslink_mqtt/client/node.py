@@ -24,9 +24,10 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
+from .. import ros_names
 from ..connection_options import env_username
 from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
-from ..topics import DEFAULT_PREFIX, Verb, check_name, join
+from ..topics import DEFAULT_PREFIX, Verb, check_name, state_leaf
 from .calls import Values
 from .commands import command_leaf, roslink_command
 from .context import default_context
@@ -75,7 +76,7 @@ class Publisher:
         # a generic rule's ROS publisher may exist only while someone advertises it (on_demand rules)
         self.advertised = bool(self.command is None and isinstance(msg_type, str)
                                and node.robot_client.connection.presence)
-        if self.advertised:
+        if self.advertised and isinstance(msg_type, str):  # (advertised implies a str: the checker cannot see it)
             node.robot_client.advertise(node.robot, self.leaf, msg_type)
 
     @property
@@ -133,7 +134,7 @@ class Subscription:
         self.typed = isinstance(msg_type, type) and issubclass(msg_type, RoslinkMessage)
         self._sub: StateSubscription = node.robot_client.subscribe(node.robot, topic, self._deliver,
                                                                    encoding=encoding)
-        self.topic_name = join("state", self._sub.name)
+        self.topic_name = state_leaf(self._sub.name)
 
     def _deliver(self, item: StateItem) -> None:
         if self.typed:
@@ -158,7 +159,7 @@ class Service:
 
     def __init__(self, node: Node, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any],
                  timeout: float) -> None:
-        self._node, self.srv_type, self.srv_name, self.callback = node, srv_type, srv_name.strip("/"), callback
+        self._node, self.srv_type, self.srv_name, self.callback = node, srv_type, ros_names.relative(srv_name), callback
         self._offer = node.robot_client.provide(node.robot, self.srv_name, srv_type, self._handle, timeout=timeout)
 
     def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -182,7 +183,7 @@ class Client:
     """Calls a ROS service on the robot through its bridge (``call``, ``call_async``)."""
 
     def __init__(self, node: Node, srv_type: str, srv_name: str, timeout: float) -> None:
-        self._node, self.srv_type, self.srv_name, self.timeout = node, srv_type, srv_name.strip("/"), timeout
+        self._node, self.srv_type, self.srv_name, self.timeout = node, srv_type, ros_names.relative(srv_name), timeout
 
     def call_async(self, request: dict[str, Any] | None = None) -> Future[Values]:
         """A future with the response dict (``result()``, ``done()``); ServiceError on failure."""

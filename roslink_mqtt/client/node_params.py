@@ -201,6 +201,7 @@ class NodeParameters:
         except ProtocolError as err:
             raise InvalidArgument(str(err)) from None
         desc = _descriptor(name, descriptor)
+        static: Parameter.Type | None
         if isinstance(value, Parameter.Type):  # rclpy: declare_parameter("x", Parameter.Type.DOUBLE)
             static, value = value, None
         else:

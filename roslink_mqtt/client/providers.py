@@ -19,6 +19,7 @@ from typing import Any
 
 from ..protocol import ProtocolError
 from ..protocol.control import ProviderRequest, ProviderResponse, ServiceOffer
+from ..ros_names import is_interface
 from ..topics import TopicTree, check_path
 from .connection import Connection
 from .dispatch import CallbackQueue
@@ -68,7 +69,7 @@ class ServiceProviders:
         the returned offer says why and nothing is published.
         """
         check_path(name, "service")
-        if not isinstance(srv_type, str) or srv_type.count("/") != 2 or "/srv/" not in srv_type:
+        if not isinstance(srv_type, str) or not is_interface(srv_type, "srv"):
             raise InvalidArgument(f"service type must look like 'std_srvs/srv/Trigger', got {srv_type!r}")
         if not 0 < timeout <= 3600:
             raise InvalidArgument("timeout must be in (0, 3600] seconds")

@@ -384,7 +384,7 @@ class RobotClient:
         if qos is None:
             qos = 0 if roslink_command(leaf) == "twist" else 1  # a velocity stream repeats itself
         deadline = None if confirm is None else time.monotonic() + confirm
-        waiter = None
+        waiter: tuple[str, int | None, threading.Event, list[RobotError]] | None = None
         if check is not None:
             waiter = (topic, seq, threading.Event(), [])
             with self._waiters_lock:

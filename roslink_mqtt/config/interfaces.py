@@ -19,7 +19,9 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 from functools import cache
+from typing import TypedDict, cast
 
+from ..ros_names import interface_name, interface_parts, nested_message, package_of
 from .interface_table import TABLE
 
 # What each ROSLink preset accepts as ros_type (bridge/presets/{state,command}.py hold the converters).
@@ -54,6 +56,15 @@ VELOCITY_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 UNCHECKED = "cannot be checked here; the bridge checks it at start"
 
 
+class _GeneratedTable(TypedDict):
+    """The shape of the generated TABLE (tools/ros_interfaces.py writes it; a plain dict literal infers loosely)."""
+
+    source: str
+    packages: list[str]
+    msg: dict[str, dict[str, str]]
+    srv: dict[str, dict[str, dict[str, str]]]
+
+
 @dataclass(frozen=True)
 class InterfaceTable:
     """The shipped table: which packages it covers, and every msg/srv type in them with its fields."""
@@ -65,7 +76,7 @@ class InterfaceTable:
 
     def covers(self, name: str) -> bool:
         """Whether ``name``'s package is one the table lists completely (so a missing type is a mistake)."""
-        return name.split("/", 1)[0] in self.packages
+        return package_of(name) in self.packages
 
     def known(self, name: str) -> bool:
         return name in self.messages or name in self.services
@@ -74,12 +85,16 @@ class InterfaceTable:
         """Why ``name`` (``pkg/msg/Type`` or ``pkg/srv/Type``) is wrong, or None when it exists or is unchecked."""
         if not self.covers(name) or self.known(name):
             return None
-        package, kind, type_name = name.split("/")
-        same_kind = sorted(n.rsplit("/", 1)[1] for n in (self.messages if kind == "msg" else self.services)
-                           if n.startswith(f"{package}/{kind}/"))
+        parts = interface_parts(name)
+        if parts is None:
+            return f"'{name}' is not a ROS type name like geometry_msgs/msg/Twist"
+        package, kind, type_name = parts
+        same_kind = sorted(p[2] for p in map(interface_parts, self.messages if kind == "msg" else self.services)
+                           if p is not None and p[:2] == (package, kind))
         hint = difflib.get_close_matches(type_name, same_kind, n=1, cutoff=0.6)
         other_kind = "srv" if kind == "msg" else "msg"
-        if not hint and f"{package}/{other_kind}/{type_name}" in (self.services if kind == "msg" else self.messages):
+        other_table = self.services if kind == "msg" else self.messages
+        if not hint and interface_name((package, other_kind), type_name) in other_table:
             hint_text = f" ({package}/{other_kind}/{type_name} is a{'' if kind == 'msg' else 'n'} " \
                         f"{'service' if kind == 'msg' else 'message'})"
         elif hint:
@@ -98,15 +113,17 @@ class InterfaceTable:
                 return f"'{path}' is not a field of {name}"
             sub = fields[part]
             # nested messages are 'pkg/Type'; sequences, arrays and primitives end the walk (as in the bridge)
-            fields = self.messages.get(sub.replace("/", "/msg/", 1)) if sub.count("/") == 1 else None
+            nested = nested_message(sub)
+            fields = self.messages.get(nested) if nested is not None else None
         return None
 
 
 @cache
 def interface_table() -> InterfaceTable:
     """The table, built once from the generated module."""
-    return InterfaceTable(source=TABLE["source"], packages=frozenset(TABLE["packages"]), messages=TABLE["msg"],
-                          services=TABLE["srv"])
+    table = cast(_GeneratedTable, TABLE)
+    return InterfaceTable(source=table["source"], packages=frozenset(table["packages"]), messages=table["msg"],
+                          services=table["srv"])
 
 
 def preset_type_problem(preset: str, ros_type: str) -> str | None:

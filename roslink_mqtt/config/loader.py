@@ -8,9 +8,11 @@ from collections.abc import Callable
 from pathlib import Path as FsPath
 from typing import Any
 
+from .. import ros_names
 from ..protocol.enums import RobotType
 from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
+from ..ros_names import well_formed
 from ..topics import (
     BRIDGE_STATE_NAMES,
     OPERATORS,
@@ -20,10 +22,11 @@ from ..topics import (
     Verb,
     check_name,
     check_path,
-    join,
+    first_level,
     join_leaf,
     last_level,
-    split_first,
+    state_leaf,
+    state_rule_name,
 )
 from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_table, preset_type_problem
 from .model import (
@@ -61,7 +64,6 @@ from .passwords import PasswordHashError, check_hash_format
 from .yamlsource import ConfigError, Path, Source, load_yaml
 
 _REQUIRED: Any = object()
-_ROS_TYPE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg|srv|action)/[A-Z][A-Za-z0-9]*$")
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
@@ -178,7 +180,7 @@ class _FleetReader:
 
     def ros_type(self, kind: str) -> Callable[[Path, Any], str]:
         def check(path: Path, v: Any) -> str:
-            if not isinstance(v, str) or not _ROS_TYPE.match(v) or f"/{kind}/" not in v:
+            if not well_formed(v, kind):
                 example = {"msg": "geometry_msgs/msg/Twist", "srv": "std_srvs/srv/Trigger",
                            "action": "nav2_msgs/action/NavigateToPose"}[kind]
                 raise self.err(path, f"expected a ROS {kind} type like {example}, got {_show(v)}")
@@ -398,13 +400,14 @@ class _FleetReader:
                             "latest_only", "buffer"))
         direction = Direction(self.value(path, "direction", self.choice(tuple(d.value for d in Direction))))
         mqtt_topic = self.value(path, "mqtt_topic", self.topic_path)
-        first, _ = split_first(mqtt_topic)
-        if direction is Direction.ROS_TO_MQTT and (first != "state" or first == mqtt_topic):
+        first = first_level(mqtt_topic)
+        if direction is Direction.ROS_TO_MQTT and state_rule_name(mqtt_topic) is None:
             raise self.err(path + ("mqtt_topic",), f"a ros_to_mqtt rule publishes under state/, e.g. "
-                                                   f"{join('state', last_level(mqtt_topic))}; got '{mqtt_topic}'")
-        if direction is Direction.ROS_TO_MQTT and split_first(mqtt_topic)[1] in BRIDGE_STATE_NAMES:
-            raise self.err(path + ("mqtt_topic",), f"'{mqtt_topic}' is written by the bridge itself (state/"
-                                                   f"{', state/'.join(BRIDGE_STATE_NAMES)}); choose another name")
+                                                   f"{state_leaf(last_level(mqtt_topic))}; got '{mqtt_topic}'")
+        if direction is Direction.ROS_TO_MQTT and state_rule_name(mqtt_topic) in BRIDGE_STATE_NAMES:
+            written = ", ".join(state_leaf(name) for name in BRIDGE_STATE_NAMES)
+            raise self.err(path + ("mqtt_topic",), f"'{mqtt_topic}' is written by the bridge itself "
+                                                   f"({written}); choose another name")
         if direction is Direction.MQTT_TO_ROS and first in RESERVED_RULE_LEVELS:
             example = TopicTree().from_user("<robot>", "<user>", "<mqtt_topic>")
             raise self.err(path + ("mqtt_topic",), f"'{first}/' is reserved; an mqtt_to_ros rule reads {example}, "
@@ -480,7 +483,7 @@ class _FleetReader:
     def encoding(self, path: Path, direction: Direction, ros_type: str, preset: str | None,
                  fields: dict[str, str]) -> str:
         """A rule's ``encoding``: json (default), cbor or raw, where each makes sense (docs/config.md)."""
-        encoding = self.value(path, "encoding", self.choice(ENCODINGS), ENCODING_JSON)
+        encoding: str = self.value(path, "encoding", self.choice(ENCODINGS), ENCODING_JSON)
         if encoding == ENCODING_JSON:
             return encoding
         ep = path + ("encoding",)
@@ -507,7 +510,7 @@ class _FleetReader:
             sp = path + (i,)
             self.mapping(sp, ("name", "ros_service", "ros_type", "read_only", "timeout"))
             ros_service = self.value(sp, "ros_service", self.ros_name)
-            name = self.value(sp, "name", self.topic_path, None) or ros_service.strip("/~").replace("/", "_")
+            name = self.value(sp, "name", self.topic_path, None) or ros_names.flat(ros_service)
             if name in names:
                 raise self.err(sp + ("name",), f"service name '{name}' is used twice")
             names.add(name)
@@ -526,7 +529,7 @@ class _FleetReader:
             ap = path + (i,)
             self.mapping(ap, ("name", "ros_action", "ros_type", "viewers", "timeout", "feedback_rate"))
             ros_action = self.value(ap, "ros_action", self.ros_name)
-            name = self.value(ap, "name", self.topic_path, None) or ros_action.strip("/~").replace("/", "_")
+            name = self.value(ap, "name", self.topic_path, None) or ros_names.flat(ros_action)
             if name in names:
                 raise self.err(ap + ("name",), f"action name '{name}' is used twice")
             names.add(name)
@@ -546,7 +549,7 @@ class _FleetReader:
             pp = path + (i,)
             self.mapping(pp, ("node", "name", "viewers_may_set", "timeout"))
             node = self.value(pp, "node", self.ros_name)
-            name = self.value(pp, "name", self.topic_name("parameter name"), None) or node.strip("/~").replace("/", "_")
+            name = self.value(pp, "name", self.topic_name("parameter name"), None) or ros_names.flat(node)
             if name in names:
                 raise self.err(pp + ("name",), f"parameter node name '{name}' is used twice")
             names.add(name)

@@ -20,7 +20,7 @@ some) and strict about the shape of those it does, with the exact reason in the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, overload
 
 import orjson
 
@@ -46,6 +46,10 @@ def _where(path: str, what: str, value: Any) -> ProtocolError:
     return ProtocolError(f"description: {path}: expected {what}, got {describe(value)}")
 
 
+@overload
+def _str(body: dict[str, Any], key: str, path: str, *, required: Literal[True] = True) -> str: ...
+@overload
+def _str(body: dict[str, Any], key: str, path: str, *, required: bool) -> str | None: ...
 def _str(body: dict[str, Any], key: str, path: str, *, required: bool = True) -> str | None:
     value = body.get(key)
     if value is None and not required:
@@ -73,7 +77,7 @@ def _bool(body: dict[str, Any], key: str, path: str) -> bool:
 
 def _who(body: dict[str, Any], path: str, default: str) -> str:
     value = body.get("who", default)
-    if value not in WHO:
+    if not isinstance(value, str) or value not in WHO:
         raise _where(f"{path}.who", f"{OPERATORS} or {VIEWERS}", value)
     return value
 

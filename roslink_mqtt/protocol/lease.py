@@ -18,7 +18,7 @@ from typing import Any
 
 import orjson
 
-from ..topics import TopicTree
+from ..topics import TopicTree, Verb, join_leaf
 from .control import BodyField, _object
 from .errors import ProtocolError
 
@@ -41,7 +41,7 @@ class ControlOp(Enum):
             return cls(name)
         except ValueError:
             raise ProtocolError(f"control/{name}: unknown request; one of "
-                                f"{', '.join('control/' + o.value for o in cls)}") from None
+                                f"{', '.join(join_leaf(Verb.CONTROL, o.value) for o in cls)}") from None
 
 
 @dataclass(frozen=True, slots=True)

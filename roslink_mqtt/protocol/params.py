@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 from ..topics import TopicTree, Verb
 from .codec import MAX_CLIENT_ID
@@ -30,7 +30,7 @@ TYPE_NAMES = {0: "not_set", 1: "bool", 2: "integer", 3: "double", 4: "string", 5
 TYPE_CODES = {name: code for code, name in TYPE_NAMES.items()}
 
 
-def _is_int(v: Any) -> bool:
+def _is_int(v: object) -> TypeGuard[int]:
     return isinstance(v, int) and not isinstance(v, bool)
 
 

@@ -9,6 +9,7 @@ Run ``python -m roslink_mqtt.protocol.reference --write docs/protocol.md`` to re
 from __future__ import annotations
 
 import base64
+from typing import Protocol
 
 import orjson
 
@@ -19,6 +20,7 @@ from .control import (
     MAX_CALL_ID,
     AccessReport,
     Advertisement,
+    BodyField,
     CallReply,
     CallRequest,
     ErrorReport,
@@ -48,7 +50,21 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
                      ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES)
 
-_CONTROL_EXAMPLES: dict[type, object] = {
+
+
+class _DocumentedBody(Protocol):
+    """What the reference reads of a control body: its type's FIELDS, QOS and RETAINED, and its JSON."""
+
+    @property
+    def FIELDS(self) -> tuple[BodyField, ...]: ...
+    @property
+    def QOS(self) -> int: ...
+    @property
+    def RETAINED(self) -> bool: ...
+    def to_json(self) -> bytes: ...
+
+
+_CONTROL_EXAMPLES: dict[type, _DocumentedBody] = {
     ParamDeclaration: ParamDeclaration("alice-legacy_arm-5f2c9e0a1b3d4c6e", {
         "max_force": DeclaredParameter(2.5, "double", "gripper force limit (N)"),
         "serial_port": DeclaredParameter("/dev/ttyUSB0", "string", read_only=True)}),
@@ -175,12 +191,13 @@ def render_control() -> str:
     out = [BEGIN_CONTROL, "", *_RULES.format(version=ROSLINK_VERSION, low=low, high=high,
                                              max_id=MAX_CALL_ID).splitlines(), ""]
     for title, topic, cls in DOCUMENTED_BODIES:
-        flags = f"QoS {cls.QOS}, {'retained' if cls.RETAINED else 'not retained'}"
+        example = _CONTROL_EXAMPLES[cls]  # an instance of cls: its class constants and its JSON
+        flags = f"QoS {example.QOS}, {'retained' if example.RETAINED else 'not retained'}"
         out += [f"#### {title}", "", f"Topic: {topic}. Published with {flags}.", "",
                 "| field | type | | meaning |", "|---|---|---|---|"]
         out += [f"| `{f.name}` | {f.type} | {'required' if f.required else 'optional'} | {f.doc} |"
-                for f in cls.FIELDS]
-        out += ["", "```json", _CONTROL_EXAMPLES[cls].to_json().decode(), "```", ""]
+                for f in example.FIELDS]
+        out += ["", "```json", example.to_json().decode(), "```", ""]
     out.append(END_CONTROL)
     return "\n".join(out)
 

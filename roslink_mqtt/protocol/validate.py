@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import binascii
 import math
-from typing import Any
+from typing import Any, TypeGuard
 
 from .errors import ProtocolError
 from .messages import Field, Kind, MessageSpec
@@ -47,11 +47,11 @@ def describe(value: Any) -> str:
     return type(value).__name__
 
 
-def _is_number(value: Any) -> bool:
+def _is_number(value: object) -> TypeGuard[int | float]:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _check_number(path: str, value: Any) -> float:
+def _check_number(path: str, value: object) -> float:
     if not _is_number(value):
         raise ProtocolError(f"{path}: expected number, got {describe(value)}")
     if isinstance(value, float) and not math.isfinite(value):
@@ -59,7 +59,7 @@ def _check_number(path: str, value: Any) -> float:
     return value
 
 
-def _check_int(path: str, value: Any, bounds: tuple[int, int] | None) -> int:
+def _check_int(path: str, value: object, bounds: tuple[int, int] | None) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         if isinstance(value, float) and value.is_integer():
             value = int(value)

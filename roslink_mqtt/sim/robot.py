@@ -66,13 +66,25 @@ class SimRobot(Node):
         self.create_subscription(String, "mode", self.on_mode, 10)
         self.create_subscription(Float64, "takeoff", self.on_takeoff, 10)
         self.create_subscription(Bool, "lights", self.on_lights, 10)
-        self.create_subscription(PoseStamped, "goal_pose", lambda m: log.info(
-            f"goal ({m.pose.position.x:g}, {m.pose.position.y:g}) in {m.header.frame_id or '?'}: no planner here, "
-            "drive with cmd_vel"), 10)
-        self.create_subscription(Bool, "armed", lambda m: log.info(f"armed: {m.data}"), 10)
-        self.create_subscription(Bool, "disarmed", lambda m: log.info(f"disarmed: {m.data}"), 10)
+        # rclpy types a subscription callback's message as an unbound TypeVar: these say what arrives
+        def on_goal(m: PoseStamped) -> None:
+            log.info(f"goal ({m.pose.position.x:g}, {m.pose.position.y:g}) in {m.header.frame_id or '?'}: no "
+                     "planner here, drive with cmd_vel")
+
+        def on_armed(m: Bool) -> None:
+            log.info(f"armed: {m.data}")
+
+        def on_disarmed(m: Bool) -> None:
+            log.info(f"disarmed: {m.data}")
+
+        def on_emergency_stop(m: Bool) -> None:
+            log.warning(f"emergency stop: {m.data}")
+
+        self.create_subscription(PoseStamped, "goal_pose", on_goal, 10)
+        self.create_subscription(Bool, "armed", on_armed, 10)
+        self.create_subscription(Bool, "disarmed", on_disarmed, 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # as the bridge publishes it
-        self.create_subscription(Bool, "emergency_stop", lambda m: log.warning(f"emergency stop: {m.data}"), latched)
+        self.create_subscription(Bool, "emergency_stop", on_emergency_stop, latched)
         self.fibonacci = FibonacciServer(self)  # a ROS action: goals with feedback, cancelable
         self.create_service(Trigger, "land", self.on_land)
         self.create_service(Trigger, "get_map", self.on_get_map)

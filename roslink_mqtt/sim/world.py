@@ -7,7 +7,7 @@ walls and casts laser rays against them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 EARTH_RADIUS = 6_378_137.0  # m, WGS-84 equatorial
 
@@ -23,13 +23,13 @@ class Pose:
 class World:
     half_size: float = 5.0  # the room spans ±half_size in x and y
     robot_radius: float = 0.2
-    pose: Pose | None = None
+    pose: Pose = field(default_factory=Pose)
     v: float = 0.0  # commanded forward speed, m/s
     w: float = 0.0  # commanded turn rate, rad/s
     max_speed: float = 1.0  # m/s the motors can do: faster commands are driven at this speed (a parameter)
 
     def __post_init__(self) -> None:
-        if self.pose is None:
+        if self.pose is None:  # World(pose=None), the old default spelled out, still gets a fresh pose
             self.pose = Pose()
 
     def command(self, v: float, w: float) -> None:

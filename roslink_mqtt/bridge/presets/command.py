@@ -49,7 +49,7 @@ class CommandPreset:
     behaviour: CommandBehaviour = ORDINARY
 
 
-def _is_stamped(cls: type) -> bool:
+def _is_stamped(cls: type[Any]) -> bool:
     return "header" in cls.get_fields_and_field_types()
 
 

@@ -1,0 +1,16 @@
+"""One module per operation a user sends the robot (as rosbridge_suite's ``capabilities/``). ROS-free.
+
+Each capability owns its body type, its gate (role, presence, control lease, budget: a decision) and its port
+to ROS (a typed Protocol the ROS adapter implements). The command endpoint runs every registered verb the
+same way (:mod:`.base`). docs/architecture.md says how to add one. Verbs not moved here yet are still handed
+to their rclpy modules whole (``CommandEndpoint.handlers``).
+"""
+
+from __future__ import annotations
+
+from .base import Capability, Gates, Refusal, Report, Request
+from .call import CallService, ServicePort
+from .control import Control, LeaseDesk
+
+__all__ = ["Capability", "CallService", "Control", "Gates", "LeaseDesk", "Refusal", "Report", "Request",
+           "ServicePort"]
