@@ -195,8 +195,6 @@ class CommandEndpoint:
             return
         if verb is Verb.GOAL and not self._goal_gates(user, topic, payload, parsed.name or ""):
             return
-        if verb is Verb.PARAM and not self._request_lease_gate(user, verb, parsed.name or "", topic, payload):
-            return
         if verb is not None and verb is not Verb.CMD:
             handler = self.handlers.get(verb)
             if handler is None:
@@ -225,7 +223,8 @@ class CommandEndpoint:
         try:
             body = capability.parse(name, payload)
         except ProtocolError as err:
-            capability.refuse(Request(user, name, topic, payload, None, role), Refusal(str(err)))
+            capability.refuse(Request(user, name, topic, payload, None, role),
+                              Refusal(str(err), request_id=err.request_id, client_id=err.client_id))
             return
         request = Request(user, name, topic, payload, body, role)
         refused = capability.gate(request, self)
@@ -268,24 +267,6 @@ class CommandEndpoint:
                 if why:
                     self.refuse(user, topic, why, payload=payload, request_id=request_id(payload))
                     return False
-        return True
-
-    def _request_lease_gate(self, user: str, verb: Verb, name: str, topic: str, payload: bytes) -> bool:
-        """Parameter sets change the robot: only from the lease's holder (service calls: capabilities/call.py).
-        Viewers are left to the verb's own handler (it refuses what they may not do, with its own reason)."""
-        if self.role_of(user) is not Role.OPERATOR:
-            return True
-        try:
-            body = loads(payload)
-        except ProtocolError:
-            return True  # the parameter bridge reports the malformed body
-        if not isinstance(body, dict) or body.get("op") != "set":
-            return True
-        with self.lock:
-            why = self._lease_gate(user)
-        if why:
-            self.refuse(user, topic, why, payload=payload, request_id=request_id(payload))
-            return False
         return True
 
     # -- the control lease (bridge/lease.py) --------------------------------------------------

@@ -28,14 +28,14 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
-from .capabilities import CallService
+from .capabilities import CallService, Capability, Parameters
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
 from .on_executor import OnExecutor
-from .parameters import ParameterBridge
+from .parameters import RosParameters
 from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
 from .rosout import RosoutForwarder
@@ -244,9 +244,13 @@ class Bridge:
             self.services = RosServices(node, robot)
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
-        calls = CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse)
+        self.parameters = RosParameters(node, robot, self.topics, self.link_publish_qos, self.on_executor)
+        # calls and parameter requests share the request budget (bridge.max_requests_per_user)
+        capabilities: list[Capability[Any]] = [
+            CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
+            Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse)]
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
-                                        capabilities=[calls])
+                                        capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
         self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
@@ -264,16 +268,12 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(str(err)) from None
         self.actuators.actions = self.actions
-        self.parameters = ParameterBridge(node, robot, self.topics, self.link_publish_qos, role_of,
-                                          lambda user: self._is_live(user), self._refuse, self.on_executor,
-                                          budget)
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
         self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
                                                 role_of, self._is_live, self._refuse, self.action_on_executor)
         self.endpoint.handlers.update({
-            Verb.PARAM: self.parameters.handle,
             Verb.LOG: self.rosout.handle,
             Verb.DECLARE: self.sdk_params.declare,
             Verb.PARAM_RESULT: self.sdk_params.result,

@@ -1,15 +1,10 @@
-"""Parameters of the robot's ROS nodes over MQTT (docs/protocol.md, "Parameters").
+"""Parameters of the robot's ROS nodes with rclpy: the port of the ``param`` capability, and parameter events.
 
-robots.yaml ``parameters`` names the nodes whose parameters are exposed. ``from/<user>/param/<name>``
-``{"id", "op", …}`` is answered on ``to/<user>/param_reply/<name>``: get, list and describe for every granted
-user, set for operators (and viewers where ``viewers_may_set``), with a live presence as for commands. A set
-is checked against the declared types first (a refusal names the parameter and both types); the node's own
-validation then answers per parameter. ``/parameter_events`` of the exposed nodes is forwarded to
-``state/parameter_events/<name>``.
-
-Refused requests (malformed, not exposed, not allowed, wrong type) go to ``to/<user>/error`` with the
-request's id and never reach ROS; what ROS answers (or does not: not available, timeout) goes to the reply.
-Every rclpy call runs on the executor, woken by a guard condition, as in :mod:`.action_caller`.
+Who may read or set what, and the replies, are :mod:`roslink_mqtt.bridge.capabilities.params`' (ROS-free).
+Here: the exposed nodes' parameter service clients (robots.yaml ``parameters``), each request carried out on the
+executor (woken by a guard condition, as in :mod:`.action_caller`): a set is checked against the declared types
+first (a refusal names the parameter and both types), then the node's own validation answers per parameter.
+``/parameter_events`` of the exposed nodes is forwarded to ``state/parameter_events/<name>``.
 """
 
 from __future__ import annotations
@@ -27,23 +22,19 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from .. import ros_names
-from ..config import ParameterRule, Robot, Role
+from ..config import ParameterRule, Robot
 from ..protocol import ProtocolError
-from ..protocol.control import request_id
 from ..protocol.params import (
-    READ_OPS,
     TYPE_CODES,
     TYPE_NAMES,
     ParamEvent,
-    ParamReply,
     ParamRequest,
     check_value,
     ros_type_of,
 )
 from ..protocol.validate import show_key
-from ..topics import TopicTree, Verb
-from .authorize import refusal
-from .budget import RequestBudget
+from ..topics import TopicTree
+from .capabilities.params import ParamOutcome
 from .on_executor import OnExecutor
 from .pending import PendingCalls
 
@@ -91,11 +82,9 @@ def _describe(descriptor: Any) -> dict[str, Any]:
 
 @dataclass
 class _Request:
-    user: str
     rule: ParameterRule
     request: ParamRequest
-    topic: str  # where it came from (for error reports)
-    answered: bool = False  # its request slot is given back once, on the first answer
+    done: ParamOutcome  # called once (the capability makes sure): the reply, a failure or a refusal
 
 
 @dataclass
@@ -107,15 +96,13 @@ class _NodeClients:
     full_name: str
 
 
-class ParameterBridge:
-    """The exposed nodes' parameter service clients, the requests in flight and the event forwarding."""
+class RosParameters:
+    """The :class:`~roslink_mqtt.bridge.capabilities.params.ParameterPort` with rclpy: the exposed nodes' parameter
+    service clients and the requests in flight; and the forwarding of their parameter events."""
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Callable[[str, bytes, int], None],
-                 role_of: Callable[[str], Role | None], is_live: Callable[[str], bool],
-                 refuse: Callable[..., None], on_executor: OnExecutor, budget: RequestBudget | None = None) -> None:
+                 on_executor: OnExecutor) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
-        self.role_of, self.is_live, self.refuse = role_of, is_live, refuse
-        self.budget = budget or RequestBudget(robot.bridge.max_requests_per_user)
         group = ReentrantCallbackGroup()
         self.rules = {rule.name: rule for rule in robot.parameters}
         self.clients: dict[str, _NodeClients] = {}
@@ -137,33 +124,10 @@ class ParameterBridge:
             node.create_subscription(ParameterEvent, "/parameter_events", self._on_event, 100,
                                      callback_group=group)
 
-    # -- MQTT thread ---------------------------------------------------------------------------------
-    def handle(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        try:
-            request = ParamRequest.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
-            return
-        rule = self.rules.get(name)
-        ids = {"client_id": request.client_id, "request_id": request.id}
-        if rule is None:
-            self.refuse(user, topic, f"node '{name}' does not expose parameters here (parameters: "
-                                     f"{', '.join(sorted(self.rules)) or 'none'})", **ids)
-            return
-        reading = request.op in READ_OPS
-        why = refusal(user, self.role_of(user), Verb.PARAM, name, robot=self.robot.name,
-                      read_only=reading or rule.viewers_may_set)
-        if why:
-            self.refuse(user, topic, why, **ids)
-            return
-        if not reading and not self.is_live(user):
-            self.refuse(user, topic, f"no live operator heartbeat from '{user}': setting parameters needs your "
-                                     f"presence, as commands do", **ids)
-            return
-        if not self.budget.acquire(user):  # bounded: a flood of reads never queues unbounded ROS calls
-            self.refuse(user, topic, self.budget.refusal(user), **ids)
-            return
-        self._inbox.append(_Request(user, rule, request, topic))
+    # -- ParameterPort (MQTT thread) -------------------------------------------------------------------
+    def request(self, rule: ParameterRule, request: ParamRequest, done: ParamOutcome) -> None:
+        """Queue the request for the executor (every rclpy call runs there)."""
+        self._inbox.append(_Request(rule, request, done))
         self.on_executor.run(self._drain)
 
     # -- executor ----------------------------------------------------------------------------------------
@@ -243,10 +207,8 @@ class ParameterBridge:
                 if kind == "not_set":
                     kind = ros_type_of(value)  # undeclared: the node says whether it takes it
             except ProtocolError as err:
-                self._answered_once(req)
-                self.refuse(req.user, req.topic, f"values.{show_key(name)}: {err} (node "
-                                                 f"{self.clients[req.rule.name].full_name})",
-                            client_id=req.request.client_id, request_id=req.request.id)
+                req.done(error=f"values.{show_key(name)}: {err} (node {self.clients[req.rule.name].full_name})",
+                         refused=True)
                 return
             parameters.append(Parameter(name=name, value=from_json(checked, kind)))
         self._call(req, self.clients[req.rule.name].set, SetParameters.Request(parameters=parameters),
@@ -268,25 +230,11 @@ class ParameterBridge:
                           tuple(p.name for p in event.deleted_parameters))
         self.publish(self.topics.param_events(self.robot.name, name), body.to_json(), ParamEvent.QOS)
 
-    # -- MQTT out ------------------------------------------------------------------------------------------
-    def _answered_once(self, req: _Request) -> bool:
-        """Give the request's slot back; False when it was already answered (nothing more to say)."""
-        if req.answered:
-            return False
-        req.answered = True
-        self.budget.release(req.user)
-        return True
+    # -- outcomes ----------------------------------------------------------------------------------------
+    @staticmethod
+    def _reply(req: _Request, values: dict[str, Any]) -> None:
+        req.done(values)
 
-    def _reply(self, req: _Request, values: dict[str, Any]) -> None:
-        if not self._answered_once(req):
-            return
-        body = ParamReply(req.request.id, True, values, client_id=req.request.client_id)
-        self.publish(self.topics.user_topic(self.robot.name, req.user, Verb.PARAM_REPLY, req.rule.name),
-                     body.to_json(), ParamReply.QOS)
-
-    def _fail(self, req: _Request, reason: str) -> None:
-        if not self._answered_once(req):
-            return
-        body = ParamReply(req.request.id, False, error=reason, client_id=req.request.client_id)
-        self.publish(self.topics.user_topic(self.robot.name, req.user, Verb.PARAM_REPLY, req.rule.name),
-                     body.to_json(), ParamReply.QOS)
+    @staticmethod
+    def _fail(req: _Request, reason: str) -> None:
+        req.done(error=reason)

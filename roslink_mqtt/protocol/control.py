@@ -298,16 +298,19 @@ class CallRequest:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallRequest:
         body = _object(data, 'expected a JSON object {"id": …, "args": {…}}')
-        _no_unknown(body, ("id", "args", "client_id"))
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
         call_id = body.get("id")
         if isinstance(call_id, bool) or (call_id is not None and not isinstance(call_id, (str, int))):
-            raise ProtocolError("id: expected a string or integer")
+            raise ProtocolError("id: expected a string or integer").naming(None, client_id)
         if isinstance(call_id, str) and len(call_id) > MAX_CALL_ID:
-            raise ProtocolError(f"id: longer than {MAX_CALL_ID} characters")
-        args = body.get("args", {})
-        if not isinstance(args, dict):
-            raise ProtocolError("args: expected an object")
+            raise ProtocolError(f"id: longer than {MAX_CALL_ID} characters").naming(None, client_id)
+        try:
+            _no_unknown(body, ("id", "args", "client_id"))
+            args = body.get("args", {})
+            if not isinstance(args, dict):
+                raise ProtocolError("args: expected an object")
+        except ProtocolError as err:
+            raise err.naming(call_id, client_id) from None
         return cls(call_id, args, client_id)
 
 

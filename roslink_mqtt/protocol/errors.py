@@ -1,5 +1,7 @@
 """The root of roslink-mqtt's exceptions, and the one error type that decoding untrusted input may raise."""
 
+from __future__ import annotations
+
 
 class RoslinkError(Exception):
     """Base of every exception roslink-mqtt raises on purpose: ``except RoslinkError`` catches them all.
@@ -18,4 +20,15 @@ class ProtocolError(RoslinkError, ValueError):
     Decoders raise nothing else, so a caller can answer every bad input with
     ``str(err)`` on the sender's error topic and carry on. The message names
     what is wrong and where (``payload.lx: expected number, got "fast"``).
+
+    ``request_id`` and ``client_id``: what the malformed request said about itself, when its parser got that
+    far, so the refusal is addressed to its sender and names the request without parsing the payload again.
     """
+
+    request_id: str | int | None = None
+    client_id: str | None = None
+
+    def naming(self, request_id: str | int | None, client_id: str | None) -> ProtocolError:
+        """This error, saying which request it is about (``raise err.naming(rid, sender)``)."""
+        self.request_id, self.client_id = request_id, client_id
+        return self

@@ -112,11 +112,19 @@ class ParamRequest:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamRequest:
         body = _object(data, 'expected a JSON object {"id": …, "op": "get", "names": […]}')
-        _no_unknown(body, ("id", "op", "names", "values", "client_id"))
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
         rid = body.get("id")
         if not (isinstance(rid, str) and 0 < len(rid) <= MAX_CALL_ID or _is_int(rid)):
-            raise ProtocolError(f"id: expected a string of 1..{MAX_CALL_ID} characters or an integer")
+            raise ProtocolError(f"id: expected a string of 1..{MAX_CALL_ID} characters or an integer").naming(
+                None, client_id)
+        try:
+            return cls._checked(rid, body, client_id)
+        except ProtocolError as err:
+            raise err.naming(rid, client_id) from None
+
+    @classmethod
+    def _checked(cls, rid: str | int, body: dict[str, Any], client_id: str | None) -> ParamRequest:
+        _no_unknown(body, ("id", "op", "names", "values", "client_id"))
         op = body.get("op")
         if op not in OPS:
             raise ProtocolError(f"op: expected one of {', '.join(OPS)}, got {op!r}"[:200])

@@ -11,6 +11,7 @@ from __future__ import annotations
 from .base import Capability, Gates, Refusal, Report, Request
 from .call import CallService, ServicePort
 from .control import Control, LeaseDesk
+from .params import ParameterPort, Parameters
 
-__all__ = ["Capability", "CallService", "Control", "Gates", "LeaseDesk", "Refusal", "Report", "Request",
-           "ServicePort"]
+__all__ = ["Capability", "CallService", "Control", "Gates", "LeaseDesk", "ParameterPort", "Parameters", "Refusal",
+           "Report", "Request", "ServicePort"]

@@ -48,6 +48,9 @@ class Refusal:
 
     reason: str
     report: bool = False
+    # what a body that did not parse said about itself (ProtocolError.naming), so nothing parses it again
+    request_id: str | int | None = None
+    client_id: str | None = None
 
 
 class Gates(Protocol):

@@ -13,7 +13,6 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from ...config import Robot, Role, ServiceRule
-from ...protocol import sender_id
 from ...protocol.control import CallReply, CallRequest
 from ...topics import TopicTree, Verb
 from ..authorize import refusal
@@ -91,11 +90,12 @@ class CallService:
         call = request.body
         if refusal.report:
             if call is None:
-                self.report(request.user, request.topic, refusal.reason, payload=request.payload)
+                self.report(request.user, request.topic, refusal.reason, client_id=refusal.client_id,
+                            request_id=refusal.request_id)
             else:
                 self.report(request.user, request.topic, refusal.reason, client_id=call.client_id,
                             request_id=None if call.id == "" else call.id)
             return
-        client_id = call.client_id if call is not None else sender_id(request.payload)
+        call_id, client_id = (call.id, call.client_id) if call is not None else (refusal.request_id, refusal.client_id)
         self.publish(self.topics.reply(self.robot.name, request.user, request.name),
-                     reply(call.id if call is not None else None, error=refusal.reason, client_id=client_id))
+                     reply(call_id, error=refusal.reason, client_id=client_id))
