@@ -1,10 +1,10 @@
-"""MQTT users send goals to the robot's ROS actions (docs/protocol.md, "Actions").
+"""The robot's ROS actions with rclpy: the port of the goal and cancel capabilities (docs/protocol.md, "Actions").
 
-``from/<user>/goal/<action>`` ``{"id", "goal"}`` → ``to/<user>/goal_status/<action>`` (accepted / rejected),
-``to/<user>/feedback/<action>`` (at most ``feedback_rate`` per second, newest wins) and one
-``to/<user>/result/<action>``; ``from/<user>/cancel/<action>`` ``{"id"}`` cancels. Goals are keyed by
-(user, action, id): ids are the user's own, so two users' ids never collide and nobody can cancel another
-user's goal. Malformed or refused goals are reported on ``to/<user>/error`` and never reach ROS.
+Who may send or cancel what is :mod:`roslink_mqtt.bridge.capabilities.goals`' (ROS-free). Here: one
+``ActionClient`` per configured action and the goals in flight, keyed by (user, action, id): ids are the user's
+own, so two users' ids never collide and nobody can cancel another user's goal. Each goal is answered on
+``to/<user>/goal_status/<action>`` (accepted / rejected), ``to/<user>/feedback/<action>`` (at most
+``feedback_rate`` per second, newest wins) and one ``to/<user>/result/<action>``.
 
 Safety: :meth:`ActionCaller.cancel_goals` cancels a user's goals (their presence ended) or everyone's (the
 broker was lost, an emergency stop); the command endpoint calls it exactly where it stops velocity. A goal
@@ -30,9 +30,7 @@ from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from ..config import ActionRule, Robot, Role
-from ..protocol import ProtocolError
-from ..protocol.control import request_id
+from ..config import ActionRule, Robot
 from ..protocol.goals import (
     ACCEPTED,
     CANCELED,
@@ -41,14 +39,12 @@ from ..protocol.goals import (
     REJECTED,
     ROS_STATUS,
     TIMEOUT,
-    GoalCancel,
     GoalFeedback,
     GoalRequest,
     GoalResult,
     GoalStatus,
 )
 from ..topics import TopicTree, Verb
-from .authorize import refusal
 from .convert import ConversionError, converter_for
 from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
@@ -90,9 +86,8 @@ Publish = Callable[[str, bytes, int], None]
 class ActionCaller:
     """One rclpy ActionClient per configured action, and the table of goals in flight."""
 
-    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None], refuse: Callable[..., None], on_executor: OnExecutor) -> None:
-        self.robot, self.topics, self.publish, self.role_of, self.refuse = robot, topics, publish, role_of, refuse
+    def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish, on_executor: OnExecutor) -> None:
+        self.robot, self.topics, self.publish = robot, topics, publish
         self.on_executor = on_executor
         group = ReentrantCallbackGroup()
         self.actions: dict[str, tuple[ActionRule, Any, ActionClient]] = {}
@@ -106,65 +101,33 @@ class ActionCaller:
         self._lock = threading.Lock()
         self._inbox: collections.deque[Callable[[], None]] = collections.deque()
 
-    # -- MQTT thread: check, then queue for the executor ---------------------------------------------
-    def goal(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``from/<user>/goal/<name>`` (the endpoint has checked presence and the motion gate)."""
-        try:
-            request = GoalRequest.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
-            return
-        entry = self.actions.get(name)
-        if entry is None:
-            self.refuse(user, topic, f"unknown action '{name}' (actions: {', '.join(sorted(self.actions)) or 'none'})",
-                        client_id=request.client_id, request_id=request.id)
-            return
-        rule, cls, _client = entry
-        why = refusal(user, self.role_of(user), Verb.GOAL, name, robot=self.robot.name, read_only=rule.viewers)
-        if why:
-            self.refuse(user, topic, why, client_id=request.client_id, request_id=request.id)
-            return
+    # -- ActionPort (MQTT thread): check, then queue for the executor ------------------------------------
+    def send_goal(self, user: str, rule: ActionRule, request: GoalRequest) -> str | None:
+        """A goal the capability let through (bridge/capabilities/goals.py): why not, or None once queued."""
+        _rule, cls, _client = self.actions[rule.name]
         try:
             msg = converter_for(cls.Goal).from_dict(request.goal)
         except ConversionError as err:
-            self.refuse(user, topic, f"goal.{err} ({rule.ros_type})", client_id=request.client_id,
-                        request_id=request.id)
-            return
-        goal = _Goal(user, name, request.id, request.client_id, rule, msg)
+            return f"goal.{err} ({rule.ros_type})"
+        goal = _Goal(user, rule.name, request.id, request.client_id, rule, msg)
         with self._lock:
             if goal.key in self._goals:
-                self.refuse(user, topic, f"goal id '{request.id}' is already in use on '{name}': choose an id that "
-                                         "is unique among your goals that have not ended", client_id=request.client_id,
-                            request_id=request.id)
-                return
+                return (f"goal id '{request.id}' is already in use on '{rule.name}': choose an id that is unique "
+                        "among your goals that have not ended")
             if sum(1 for g in self._goals.values() if g.user == user) >= MAX_GOALS_PER_USER:
-                self.refuse(user, topic, f"too many goals in flight ({MAX_GOALS_PER_USER}) for {user} on "
-                                         f"{self.robot.name}", client_id=request.client_id, request_id=request.id)
-                return
+                return f"too many goals in flight ({MAX_GOALS_PER_USER}) for {user} on {self.robot.name}"
             self._goals[goal.key] = goal
         self._queue(lambda: self._send(goal))
+        return None
 
-    def cancel(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``from/<user>/cancel/<name>``: cancel one of ``user``'s own goals."""
-        try:
-            request = GoalCancel.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
-            return
-        rule = self.actions.get(name)
-        if rule is not None:
-            why = refusal(user, self.role_of(user), Verb.CANCEL, name, robot=self.robot.name,
-                          read_only=rule[0].viewers)
-            if why:
-                self.refuse(user, topic, why, client_id=request.client_id, request_id=request.id)
-                return
+    def cancel_goal(self, user: str, action: str, goal_id: str) -> str | None:
+        """Cancel one of ``user``'s own goals: why not, or None once queued."""
         with self._lock:
-            goal = self._goals.get((user, name, request.id))
+            goal = self._goals.get((user, action, goal_id))
         if goal is None:
-            self.refuse(user, topic, f"no goal '{request.id}' of yours on '{name}' is in flight (ended, never sent, "
-                                     "or another user's)", client_id=request.client_id, request_id=request.id)
-            return
+            return f"no goal '{goal_id}' of yours on '{action}' is in flight (ended, never sent, or another user's)"
         self._queue(lambda: self._cancel(goal, None, None))
+        return None
 
     def cancel_goals(self, user: str | None, reason: str) -> int:
         """Cancel every goal of ``user`` (None: of everyone); the results say ``reason``. Any thread."""

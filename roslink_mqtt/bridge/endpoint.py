@@ -42,7 +42,7 @@ from ..protocol import (
     loads,
     sender_id,
 )
-from ..protocol.control import ErrorReport, pop_generic_sender, request_id
+from ..protocol.control import ErrorReport, pop_generic_sender
 from ..protocol.errors import ProtocolError
 from ..protocol.lease import CONTROL, ControlState
 from ..topics import Kind, TopicTree, Verb
@@ -193,8 +193,6 @@ class CommandEndpoint:
         if capability is not None:
             self._dispatch(capability, user, parsed.name or "", topic, payload)
             return
-        if verb is Verb.GOAL and not self._goal_gates(user, topic, payload, parsed.name or ""):
-            return
         if verb is not None and verb is not Verb.CMD:
             handler = self.handlers.get(verb)
             if handler is None:
@@ -247,27 +245,6 @@ class CommandEndpoint:
 
     def cancel_goals(self, user: str | None, why: str) -> None:
         self._cancel_goals(user, why)
-
-    def _goal_gates(self, user: str, topic: str, payload: bytes, action: str) -> bool:
-        """A goal may move the robot: it needs the sender's live presence, motion not blocked, and (unless the
-        action is open to viewers) the control lease."""
-        with self.lock:
-            if not self.operators.is_live(user):
-                self.refuse(user, topic, f"no live operator heartbeat from '{user}': publish a retained heartbeat "
-                                         f"on {self.topics.operator(user, '<client_id>')} every second",
-                            payload=payload, request_id=request_id(payload))
-                return False
-            if self.motion_blocked:
-                self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", payload=payload,
-                            request_id=request_id(payload))
-                return False
-            rule = self.robot.action(action)
-            if rule is not None and not rule.viewers and self.role_of(user) is Role.OPERATOR:
-                why = self._lease_gate(user)
-                if why:
-                    self.refuse(user, topic, why, payload=payload, request_id=request_id(payload))
-                    return False
-        return True
 
     # -- the control lease (bridge/lease.py) --------------------------------------------------
     def _lease_gate(self, user: str, *, claim: bool = True) -> str | None:

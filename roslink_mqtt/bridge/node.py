@@ -28,7 +28,7 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
-from .capabilities import CallService, Capability, Parameters
+from .capabilities import CallService, CancelGoal, Capability, Parameters, SendGoal
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
@@ -245,10 +245,16 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(f"services: {err}") from None
         self.parameters = RosParameters(node, robot, self.topics, self.link_publish_qos, self.on_executor)
+        try:
+            self.actions = ActionCaller(node, robot, self.topics, self.link_publish_qos, self.on_executor)
+        except UnknownTypeError as err:
+            raise RuleError(str(err)) from None
         # calls and parameter requests share the request budget (bridge.max_requests_per_user)
         capabilities: list[Capability[Any]] = [
             CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
-            Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse)]
+            Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse),
+            SendGoal(robot, self.topics, self.actions, self._refuse),
+            CancelGoal(robot, self.topics, self.actions, self._refuse)]
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
@@ -262,11 +268,6 @@ class Bridge:
                                          self._is_live, self._refuse, self.on_executor,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
-        try:
-            self.actions = ActionCaller(node, robot, self.topics, self.link_publish_qos, role_of, self._refuse,
-                                        self.on_executor)
-        except UnknownTypeError as err:
-            raise RuleError(str(err)) from None
         self.actuators.actions = self.actions
         self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
@@ -279,8 +280,6 @@ class Bridge:
             Verb.PARAM_RESULT: self.sdk_params.result,
             Verb.PROVIDE_ACTION: self.provided_actions.offer,
             Verb.ACTION_UPDATE: self.provided_actions.update,
-            Verb.GOAL: self.actions.goal,
-            Verb.CANCEL: self.actions.cancel,
             Verb.PROVIDE: self.provided.offer,
             Verb.RESPONSE: self.provided.response,
             Verb.ADVERTISE: self.on_demand.advertise,

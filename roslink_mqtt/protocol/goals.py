@@ -79,12 +79,24 @@ class GoalRequest:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalRequest:
         body = _object(data, 'expected a JSON object {"id": "…", "goal": {…}}')
-        _no_unknown(body, ("id", "goal", "client_id"))
         client_id = _client_id(body)
-        goal = body.get("goal", {})
-        if not isinstance(goal, dict):
-            raise ProtocolError("goal: expected an object")
-        return cls(check_goal_id(body.get("id")), goal, client_id)
+        goal_id = _named_id(body, client_id)
+        try:
+            _no_unknown(body, ("id", "goal", "client_id"))
+            goal = body.get("goal", {})
+            if not isinstance(goal, dict):
+                raise ProtocolError("goal: expected an object")
+        except ProtocolError as err:
+            raise err.naming(goal_id, client_id) from None
+        return cls(goal_id, goal, client_id)
+
+
+def _named_id(body: dict[str, Any], client_id: str | None) -> str:
+    """The goal id of a request body; a bad one is refused naming the sender (it names no request)."""
+    try:
+        return check_goal_id(body.get("id"))
+    except ProtocolError as err:
+        raise err.naming(None, client_id) from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,9 +116,13 @@ class GoalCancel:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalCancel:
         body = _object(data, 'expected a JSON object {"id": "…"}')
-        _no_unknown(body, ("id", "client_id"))
         client_id = _client_id(body)
-        return cls(check_goal_id(body.get("id")), client_id)
+        goal_id = _named_id(body, client_id)
+        try:
+            _no_unknown(body, ("id", "client_id"))
+        except ProtocolError as err:
+            raise err.naming(goal_id, client_id) from None
+        return cls(goal_id, client_id)
 
 
 @dataclass(frozen=True, slots=True)

@@ -161,7 +161,7 @@ class Harness:
         self.link, self.ros = RecordingLink(), RecordingActuators()
         self.handled: list[tuple[Verb, str, str]] = []
         handlers = {verb: (lambda user, name, _t, _p, verb=verb: self.handled.append((verb, user, name)))
-                    for verb in (Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL)}
+                    for verb in (Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE)}  # not yet capabilities
         self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES, handlers)
         self.endpoint.link_up()
         self.seq = 1000
@@ -231,17 +231,15 @@ def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
     assert [(name, m.data) for _, name, m in h.ros.published] == [("lights", True)]
 
 
-@pytest.mark.parametrize("verb", [Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL])
-def test_service_action_and_advertise_verbs_go_to_their_handlers(h: Harness, verb: Verb) -> None:
+@pytest.mark.parametrize("verb", [Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE])
+def test_verbs_not_moved_to_capabilities_go_to_their_handlers(h: Harness, verb: Verb) -> None:
     h.present()
     h.endpoint.on_mqtt(T.user_topic("turtle1", "alice", verb, "nav/reset"), CallRequest("1").to_json(),
                        retained=verb.retained_by_sender)
     assert h.handled == [(verb, "alice", "nav/reset")] and h.link.errors("alice") == []
 
 
-def test_a_verb_without_a_handler_is_refused_not_dropped() -> None:
-    h = Harness()
-    h.endpoint.handlers.pop(Verb.CALL)
+def test_a_verb_without_a_handler_is_refused_not_dropped(h: Harness) -> None:
     h.endpoint.on_mqtt(T.call("turtle1", "alice", "reset"), CallRequest("1").to_json())
     assert [e.error for e in h.link.errors("alice")] == ["'call' is not served by this bridge"]
 
@@ -449,24 +447,6 @@ def test_refusals_name_the_sender_and_use_the_error_qos(h: Harness) -> None:
 
 
 # -- action goals: the same gates as motion, canceled where velocity stops ---------------------------------
-def _goal(h: Harness, user: str = "alice") -> None:
-    h.endpoint.on_mqtt(T.goal("turtle1", user, "fibonacci"), b'{"id": "g1", "goal": {"order": 5}}')
-
-
-def test_a_goal_needs_presence_and_unblocked_motion_a_cancel_does_not(h: Harness) -> None:
-    _goal(h)
-    assert h.handled == [] and h.link.errors("alice")[0].error.startswith("no live operator heartbeat")
-    h.endpoint.on_mqtt(T.cancel("turtle1", "alice", "fibonacci"), b'{"id": "g1"}')
-    assert h.handled == [(Verb.CANCEL, "alice", "fibonacci")]
-    h.present()
-    h.command("emergency_stop")
-    _goal(h)
-    assert h.link.errors("alice")[-1].error == "emergency stop by alice: send cmd/arm to resume"
-    h.command("arm")
-    _goal(h)
-    assert h.handled[-1] == (Verb.GOAL, "alice", "fibonacci")
-
-
 @pytest.mark.parametrize(("end", "whose", "why"), [
     ("last-will", "alice", "operator alice went away (last-will)"),
     ("signoff", "alice", "operator alice went away (signed off)"),

@@ -11,7 +11,8 @@ from __future__ import annotations
 from .base import Capability, Gates, Refusal, Report, Request
 from .call import CallService, ServicePort
 from .control import Control, LeaseDesk
+from .goals import ActionPort, CancelGoal, SendGoal
 from .params import ParameterPort, Parameters
 
-__all__ = ["Capability", "CallService", "Control", "Gates", "LeaseDesk", "ParameterPort", "Parameters", "Refusal",
-           "Report", "Request", "ServicePort"]
+__all__ = ["ActionPort", "CallService", "CancelGoal", "Capability", "Control", "Gates", "LeaseDesk", "ParameterPort",
+           "Parameters", "Refusal", "Report", "Request", "SendGoal", "ServicePort"]

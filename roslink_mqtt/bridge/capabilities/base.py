@@ -67,6 +67,11 @@ class Gates(Protocol):
         """Whether the user's presence heartbeat is live."""
         ...
 
+    @property
+    def motion_blocked(self) -> str | None:
+        """Why motion is refused now (an emergency stop, a disarm); None when it is not."""
+        ...
+
     def lease_gate(self, user: str) -> str | None:
         """None when ``user`` may change the robot now (a free control lease is claimed on the way); else why not."""
         ...
