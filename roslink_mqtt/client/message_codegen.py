@@ -16,17 +16,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..protocol import SPECS, Kind, MessageSpec
+from ..protocol import SPECS, FieldKind, MessageSpec
 from .errors import InvalidArgument
 
 TARGET = Path(__file__).with_name("messages.py")
 BEGIN = "# BEGIN GENERATED: message classes (python -m roslink_mqtt.client.message_codegen)\n"
 END = "# END GENERATED: message classes\n"
 
-_ANNOTATIONS: dict[Kind, str] = {
-    Kind.INT: "int", Kind.FLOAT: "float", Kind.STR: "str", Kind.BOOL: "bool",
-    Kind.FLOAT_LIST: "tuple[float, ...]", Kind.RANGE_LIST: "tuple[float | None, ...]",
-    Kind.INT_LIST: "tuple[int, ...]", Kind.BASE64: "bytes",
+_ANNOTATIONS: dict[FieldKind, str] = {
+    FieldKind.INT: "int", FieldKind.FLOAT: "float", FieldKind.STR: "str", FieldKind.BOOL: "bool",
+    FieldKind.FLOAT_LIST: "tuple[float, ...]", FieldKind.RANGE_LIST: "tuple[float | None, ...]",
+    FieldKind.INT_LIST: "tuple[int, ...]", FieldKind.BASE64: "bytes",
 }
 
 

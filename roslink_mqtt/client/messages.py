@@ -20,9 +20,9 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
-from ..protocol import SPECS, SPECS_BY_NAME, Envelope, Kind, MessageId, MessageSpec, decode, spec_for
+from ..protocol import SPECS, SPECS_BY_NAME, Envelope, FieldKind, MessageId, MessageSpec, decode, spec_for
 
-_SEQUENCES = (Kind.FLOAT_LIST, Kind.RANGE_LIST, Kind.INT_LIST)
+_SEQUENCES = (FieldKind.FLOAT_LIST, FieldKind.RANGE_LIST, FieldKind.INT_LIST)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -43,7 +43,7 @@ class RoslinkMessage:
         out: dict[str, Any] = {}
         for field in self.SPEC.fields:
             value = getattr(self, field.name)
-            if field.kind is Kind.BASE64:
+            if field.kind is FieldKind.BASE64:
                 value = base64.b64encode(value).decode("ascii")
             elif field.kind in _SEQUENCES:
                 value = list(value)
@@ -357,7 +357,7 @@ def from_envelope(envelope: Envelope, *, robot: str = "", state_name: str = "") 
     values: dict[str, Any] = {}
     for f in spec.fields:
         value = envelope.payload[f.name]
-        if f.kind is Kind.BASE64:
+        if f.kind is FieldKind.BASE64:
             value = base64.b64decode(value)
         elif f.kind in _SEQUENCES:
             value = tuple(value)

@@ -17,14 +17,14 @@ from .codec import (
 from .control import AccessReport, ErrorReport, error_reply, sender_id
 from .enums import AckResult, FlightMode, RobotType, SystemStatus
 from .errors import ProtocolError
-from .messages import SPECS, SPECS_BY_ID, SPECS_BY_NAME, Direction, Field, Kind, MessageId, MessageSpec, spec_for
+from .messages import SPECS, SPECS_BY_ID, SPECS_BY_NAME, Direction, Field, FieldKind, MessageId, MessageSpec, spec_for
 from .sequence import SequenceTracker, Verdict
 from .validate import validate_payload
 
 __all__ = [
     "DEFAULT_MAX_BYTES", "ROSLINK_VERSION", "ROS_VERSION", "SPECS", "SPECS_BY_ID", "SPECS_BY_NAME",
-    "AccessReport", "AckResult", "Direction", "Envelope", "ErrorReport", "Field", "FlightMode", "Kind", "MessageId",
-    "MessageSpec",
+    "AccessReport", "AckResult", "Direction", "Envelope", "ErrorReport", "Field", "FieldKind", "FlightMode",
+    "MessageId", "MessageSpec",
     "ProtocolError", "RobotType", "SequenceTracker", "SystemStatus", "Verdict",
     "decode", "decode_object", "encode", "encode_message", "error_reply", "loads", "sender_id", "spec_for",
     "validate_payload",

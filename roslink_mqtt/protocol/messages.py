@@ -34,7 +34,7 @@ class MessageId(IntEnum):
     ACK = 109
 
 
-class Kind(Enum):
+class FieldKind(Enum):
     """Wire type of a payload field (what JSON value is accepted)."""
 
     INT = "integer"
@@ -58,7 +58,7 @@ UINT64 = (0, 2**64 - 1)
 @dataclass(frozen=True, slots=True)
 class Field:
     name: str
-    kind: Kind
+    kind: FieldKind
     default: Any = _REQUIRED
     bounds: tuple[int, int] | None = None  # inclusive, for INT and INT_LIST items
     doc: str = ""
@@ -91,15 +91,15 @@ def _copy(value: Any) -> Any:
 
 
 def _f(name: str, doc: str = "", default: Any = _REQUIRED) -> Field:
-    return Field(name, Kind.FLOAT, default, None, doc)
+    return Field(name, FieldKind.FLOAT, default, None, doc)
 
 
 def _i(name: str, bounds: tuple[int, int], doc: str = "", default: Any = _REQUIRED) -> Field:
-    return Field(name, Kind.INT, default, bounds, doc)
+    return Field(name, FieldKind.INT, default, bounds, doc)
 
 
 def _s(name: str, doc: str = "", default: Any = _REQUIRED) -> Field:
-    return Field(name, Kind.STR, default, None, doc)
+    return Field(name, FieldKind.STR, default, None, doc)
 
 
 _STATE, _CMD = Direction.STATE, Direction.COMMAND
@@ -153,28 +153,28 @@ SPECS: tuple[MessageSpec, ...] = (
         _f("range_min", "m"), _f("range_max", "m"),
         _f("angle_min", "rad"), _f("angle_max", "rad"), _f("angle_increment", "rad"),
         _f("time_increment", "s", default=0.0), _f("scan_time", "s", default=0.0),
-        Field("ranges", Kind.RANGE_LIST, _REQUIRED, None, "m; null where nothing was hit"),
-        Field("intensities", Kind.FLOAT_LIST, [], None),
+        Field("ranges", FieldKind.RANGE_LIST, _REQUIRED, None, "m; null where nothing was hit"),
+        Field("intensities", FieldKind.FLOAT_LIST, [], None),
     )),
     MessageSpec(MessageId.IMAGE, "image", _STATE, (
         _i("time_usec", UINT64, default=0),
         _i("width", UINT32, default=0), _i("height", UINT32, default=0),
         _s("format", "jpeg, png, …"),
-        Field("data", Kind.BASE64, _REQUIRED, None, "compressed image bytes"),
+        Field("data", FieldKind.BASE64, _REQUIRED, None, "compressed image bytes"),
     )),
     MessageSpec(MessageId.MAP, "map", _STATE, (
         _i("time_usec", UINT64, default=0),
         _i("width", UINT32, "cells"), _i("height", UINT32, "cells"),
         _f("resolution", "m/cell"),
         _f("origin_x", "m"), _f("origin_y", "m"), _f("origin_yaw", "rad", default=0.0),
-        Field("data", Kind.INT_LIST, _REQUIRED, (-1, 100), "row-major occupancy, -1 unknown"),
+        Field("data", FieldKind.INT_LIST, _REQUIRED, (-1, 100), "row-major occupancy, -1 unknown"),
     )),
     MessageSpec(MessageId.GEO_TAGGED_IMAGE, "geo_tagged_image", _STATE, (
         _i("time_usec", UINT64, default=0),
         _f("lat", "degrees"), _f("lon", "degrees"), _f("alt", "m"),
         _i("width", UINT32, default=0), _i("height", UINT32, default=0),
         _s("format", "jpeg, png, …"),
-        Field("data", Kind.BASE64, _REQUIRED, None, "compressed image bytes"),
+        Field("data", FieldKind.BASE64, _REQUIRED, None, "compressed image bytes"),
     )),
     MessageSpec(MessageId.TWIST, "twist", _CMD, (
         _f("lx", "m/s", 0.0), _f("ly", "m/s", 0.0), _f("lz", "m/s", 0.0),

@@ -33,7 +33,7 @@ from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .lease import LEASE_BODIES, ControlState
 from .link import LINK_BODIES, LinkReport, StreamReport
-from .messages import SPECS, Direction, Field, Kind, MessageSpec
+from .messages import SPECS, Direction, Field, FieldKind, MessageSpec
 from .node_params import NODE_PARAM_BODIES, DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
 from .provided_actions import PROVIDED_ACTION_BODIES, ActionOffer, ActionRequest, ActionUpdate
@@ -131,7 +131,7 @@ def example(spec: MessageSpec) -> dict:
 
 def _field_row(f: Field) -> str:
     kind = f.kind.value
-    if f.bounds and f.kind in (Kind.INT, Kind.INT_LIST):
+    if f.bounds and f.kind in (FieldKind.INT, FieldKind.INT_LIST):
         kind += f" {f.bounds[0]}..{f.bounds[1]}"
     default = "required" if f.required else f"default `{orjson.dumps(f.default).decode()}`"
     return f"| `{f.name}` | {kind} | {default} | {f.doc} |"

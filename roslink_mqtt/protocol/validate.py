@@ -11,7 +11,7 @@ import math
 from typing import Any, TypeGuard
 
 from .errors import ProtocolError
-from .messages import Field, Kind, MessageSpec
+from .messages import Field, FieldKind, MessageSpec
 
 MAX_LIST_ITEMS = 1_000_000
 
@@ -81,32 +81,32 @@ def _check_list(path: str, value: Any) -> list:
 def check_field(path: str, field: Field, value: Any) -> Any:
     """Return the value in canonical form, or raise ProtocolError naming ``path``."""
     kind = field.kind
-    if kind is Kind.FLOAT:
+    if kind is FieldKind.FLOAT:
         return _check_number(path, value)
-    if kind is Kind.INT:
+    if kind is FieldKind.INT:
         return _check_int(path, value, field.bounds)
-    if kind is Kind.STR:
+    if kind is FieldKind.STR:
         if not isinstance(value, str):
             raise ProtocolError(f"{path}: expected string, got {describe(value)}")
         return value
-    if kind is Kind.BOOL:
+    if kind is FieldKind.BOOL:
         if not isinstance(value, bool):
             raise ProtocolError(f"{path}: expected boolean, got {describe(value)}")
         return value
-    if kind is Kind.FLOAT_LIST:
+    if kind is FieldKind.FLOAT_LIST:
         for i, item in enumerate(_check_list(path, value)):
             _check_number(f"{path}[{i}]", item)
         return value
-    if kind is Kind.RANGE_LIST:
+    if kind is FieldKind.RANGE_LIST:
         for i, item in enumerate(_check_list(path, value)):
             if item is not None:
                 _check_number(f"{path}[{i}]", item)
         return value
-    if kind is Kind.INT_LIST:
+    if kind is FieldKind.INT_LIST:
         for i, item in enumerate(_check_list(path, value)):
             _check_int(f"{path}[{i}]", item, field.bounds)
         return value
-    if kind is Kind.BASE64:
+    if kind is FieldKind.BASE64:
         if not isinstance(value, str):
             raise ProtocolError(f"{path}: expected base64 string, got {describe(value)}")
         try:
@@ -114,7 +114,7 @@ def check_field(path: str, field: Field, value: Any) -> Any:
         except (binascii.Error, ValueError) as err:
             raise ProtocolError(f"{path}: invalid base64 ({err})") from None
         return value
-    raise AssertionError(kind)  # pragma: no cover - every Kind is handled above
+    raise AssertionError(kind)  # pragma: no cover - every FieldKind is handled above
 
 
 def validate_payload(spec: MessageSpec, payload: Any, path: str = "payload") -> dict[str, Any]:

@@ -28,7 +28,12 @@ def test_context_does_not_import_node() -> None:
 
 
 def test_package_exports_still_resolve() -> None:
+    import types
+
     import roslink_mqtt.client as sdk
 
+    assert len(set(sdk.__all__)) == len(sdk.__all__), "a name exported twice"
     for name in sdk.__all__:
-        assert getattr(sdk, name) is not None, name
+        value = getattr(sdk, name)  # AttributeError: __all__ names something the package does not define
+        assert not isinstance(value, types.ModuleType), f"{name}: a module, not part of the API"
+        assert getattr(value, "__module__", "roslink_mqtt").startswith("roslink_mqtt"), (name, value)

@@ -15,6 +15,7 @@ documented behaviour, so docs/safety.md stays true.
 
 from __future__ import annotations
 
+import re
 import socket
 import threading
 import time
@@ -104,9 +105,11 @@ def test_mosquitto_lets_any_login_take_over_a_known_client_id(tmp_path, clients)
 def test_our_programs_use_unguessable_client_ids() -> None:
     from roslink_mqtt.client import RobotClient
 
-    client = RobotClient("alice", "alice-demo", presence=False)
-    suffix = client.client_id.rsplit("-", 1)[1]
-    assert len(suffix) >= 16 and int(suffix, 16) >= 0, client.client_id  # 64 random bits
+    suffixes = [RobotClient("alice", "alice-demo", presence=False).client_id.rsplit("-", 1)[1] for _ in range(64)]
+    # 64 random bits each: hexadecimal, at least 16 digits, never the same twice, and every digit position varies
+    assert all(re.fullmatch(r"[0-9a-f]{16,}", s) for s in suffixes), suffixes[:3]
+    assert len(set(suffixes)) == len(suffixes), suffixes
+    assert all(len({s[i] for s in suffixes}) > 1 for i in range(16)), suffixes[:3]
     from roslink_mqtt.bridge.link import bridge_client_id
 
     ids = {bridge_client_id("turtle1") for _ in range(3)}

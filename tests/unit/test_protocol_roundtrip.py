@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from roslink_mqtt.protocol import (
     SPECS,
     Envelope,
-    Kind,
+    FieldKind,
     MessageSpec,
     decode,
     encode,
@@ -24,14 +24,14 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 def field_strategy(field) -> st.SearchStrategy:
     lo, hi = field.bounds or (-(2**31), 2**31 - 1)
     return {
-        Kind.INT: st.integers(lo, hi),
-        Kind.FLOAT: finite | st.integers(-(10**6), 10**6),
-        Kind.STR: st.text(max_size=40),
-        Kind.BOOL: st.booleans(),
-        Kind.FLOAT_LIST: st.lists(finite, max_size=50),
-        Kind.RANGE_LIST: st.lists(st.none() | finite, max_size=50),
-        Kind.INT_LIST: st.lists(st.integers(lo, hi), max_size=50),
-        Kind.BASE64: st.binary(max_size=200).map(lambda b: base64.b64encode(b).decode()),
+        FieldKind.INT: st.integers(lo, hi),
+        FieldKind.FLOAT: finite | st.integers(-(10**6), 10**6),
+        FieldKind.STR: st.text(max_size=40),
+        FieldKind.BOOL: st.booleans(),
+        FieldKind.FLOAT_LIST: st.lists(finite, max_size=50),
+        FieldKind.RANGE_LIST: st.lists(st.none() | finite, max_size=50),
+        FieldKind.INT_LIST: st.lists(st.integers(lo, hi), max_size=50),
+        FieldKind.BASE64: st.binary(max_size=200).map(lambda b: base64.b64encode(b).decode()),
     }[field.kind]
 
 

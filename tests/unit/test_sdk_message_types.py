@@ -14,7 +14,7 @@ import dataclasses
 import pytest
 
 from roslink_mqtt.client import message_codegen, messages
-from roslink_mqtt.protocol import SPECS, Field, Kind
+from roslink_mqtt.protocol import SPECS, Field, FieldKind
 
 
 def test_generated_block_matches_the_schema() -> None:
@@ -25,7 +25,7 @@ def test_generated_block_matches_the_schema() -> None:
 
 def test_a_schema_change_is_caught(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     first = SPECS[0]
-    grown = dataclasses.replace(first, fields=(*first.fields, Field("extra", Kind.FLOAT, 0.0, None, "new")))
+    grown = dataclasses.replace(first, fields=(*first.fields, Field("extra", FieldKind.FLOAT, 0.0, None, "new")))
     monkeypatch.setattr(message_codegen, "SPECS", (grown, *SPECS[1:]))
     assert message_codegen.main(["--check"]) == 1  # --check never writes
     assert "stale" in capsys.readouterr().err
