@@ -28,7 +28,7 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
-from .capabilities import CallService, CancelGoal, Capability, Parameters, SendGoal
+from .capabilities import Advertise, CallService, CancelGoal, Capability, LogLines, Parameters, SendGoal
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
@@ -38,7 +38,7 @@ from .on_executor import OnExecutor
 from .parameters import RosParameters
 from .pending import PendingCalls
 from .ros_types import UnknownTypeError, load_interface
-from .rosout import RosoutForwarder
+from .rosout import RosRosout
 from .routes import Inbound
 from .rules import Outbound, RuleError, compile_rules, ros_qos
 from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
@@ -236,9 +236,9 @@ class Bridge:
         self.action_on_executor = OnExecutor() if action_node is not None else self.on_executor
         self._ticks = 0
         role_of = self._role_of
-        self.on_demand = OnDemandPublishers(node, {n: r for n, r in routes.items() if r.rule.on_demand},
-                                            {n for n, r in routes.items() if not r.rule.on_demand},
-                                            role_of, self._is_live, self._refuse, robot=robot.name)
+        on_demand = {n: r for n, r in routes.items() if r.rule.on_demand}
+        self.on_demand = OnDemandPublishers(node, on_demand, self._is_live)
+        self.rosout = RosRosout(node)
         self.actuators = RosActuators(node, robot, routes, self.on_demand)
         try:
             self.services = RosServices(node, robot)
@@ -254,7 +254,10 @@ class Bridge:
             CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
             Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse),
             SendGoal(robot, self.topics, self.actions, self._refuse),
-            CancelGoal(robot, self.topics, self.actions, self._refuse)]
+            CancelGoal(robot, self.topics, self.actions, self._refuse),
+            LogLines(robot.name, self.rosout, self._refuse),
+            Advertise(robot.name, {n: r.rule.ros_type for n, r in on_demand.items()},
+                      {n for n in routes if n not in on_demand}, self.on_demand, self._refuse)]
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
@@ -269,20 +272,17 @@ class Bridge:
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
         self.actuators.actions = self.actions
-        self.rosout = RosoutForwarder(node, robot.name, role_of, self._refuse)
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
         self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
                                                 role_of, self._is_live, self._refuse, self.action_on_executor)
         self.endpoint.handlers.update({
-            Verb.LOG: self.rosout.handle,
             Verb.DECLARE: self.sdk_params.declare,
             Verb.PARAM_RESULT: self.sdk_params.result,
             Verb.PROVIDE_ACTION: self.provided_actions.offer,
             Verb.ACTION_UPDATE: self.provided_actions.update,
             Verb.PROVIDE: self.provided.offer,
             Verb.RESPONSE: self.provided.response,
-            Verb.ADVERTISE: self.on_demand.advertise,
         })
         self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)

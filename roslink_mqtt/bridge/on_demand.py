@@ -1,16 +1,10 @@
-"""ROS publishers that exist only while someone publishes through them (``on_demand`` rules).
+"""ROS publishers that exist only while someone publishes through them (``on_demand`` rules), with rclpy.
 
-The legacy-ROSLink promise: ROS endpoints come and go with the programs behind
-them. For a generic mqtt_to_ros rule marked ``on_demand``, the bridge's ROS
-publisher exists while at least one live operator *advertises* it:
-
-* explicitly, with a retained ``from/<user>/advertise/<name>``
-  ``{"type": "pkg/msg/T", "client_id": "<presence id>"}`` (the SDK's
-  ``create_publisher``); an empty retained message withdraws it
-  (``destroy_publisher``), and the advertiser's presence ending (last-will,
-  silence) withdraws it too;
-* implicitly, by publishing on the rule: a plain MQTT client needs no extra step,
-  and the publisher then lives while any client of that user is live.
+The port of the ``advertise`` capability (:mod:`roslink_mqtt.bridge.capabilities.advertise`, which decides who
+may advertise what). For a generic mqtt_to_ros rule marked ``on_demand``, the bridge's ROS publisher exists while
+at least one live operator advertises it: explicitly (a retained advertisement naming the client, withdrawn by an
+empty one or by that client's presence ending), or implicitly by publishing on the rule (the publisher then lives
+while any client of that user is live).
 
 Velocity and ROSLink command rules are never on demand: the failsafe must always
 be able to publish on them. ROS entities are created and destroyed under one
@@ -26,11 +20,6 @@ from typing import Any
 
 from rclpy.node import Node
 
-from ..config import Role
-from ..protocol import ProtocolError
-from ..protocol.control import Advertisement
-from ..topics import Verb
-from .authorize import refusal
 from .routes import Inbound
 from .rules import ros_qos
 
@@ -42,44 +31,22 @@ IMPLICIT = ""  # client_id of an implicit advertisement: any live client of the 
 class OnDemandPublishers:
     """The advertisements per on-demand rule, and the ROS publishers they keep alive."""
 
-    def __init__(self, node: Node, rules: dict[str, Inbound], always_there: set[str],
-                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[..., None], *, robot: str) -> None:
-        """``rules``: the on-demand rules by MQTT name; ``always_there``: the other mqtt_to_ros names;
-        ``robot``: this robot's name, for refusals."""
-        self.node, self.rules, self.always_there, self.robot = node, rules, always_there, robot
-        self.role_of, self.is_live, self.error = role_of, is_live, error
+    def __init__(self, node: Node, rules: dict[str, Inbound], is_live: Callable[[str, str | None], bool]) -> None:
+        """``rules``: the on-demand rules by MQTT name; ``is_live``: whether a user's client is present."""
+        self.node, self.rules, self.is_live = node, rules, is_live
         self._lock = threading.RLock()
         self._adverts: dict[str, dict[str, str]] = {name: {} for name in rules}  # name -> user -> client_id
         self._publishers: dict[str, Any] = {}
 
-    def advertise(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """A retained ``advertise/<name>`` from ``user`` (MQTT thread); empty = withdrawn."""
-        rule = self.rules.get(name)
-        if rule is None:
-            if name not in self.always_there:  # advertising a rule whose publisher always exists is harmless
-                known = ", ".join(sorted({*self.rules, *self.always_there})) or "none"
-                self.error(user, topic, f"no mapping '{name}' on this robot (mqtt_to_ros rules: {known})",
-                           payload=payload)
-            return
-        if not payload:
-            with self._lock:
-                self._adverts[name].pop(user, None)
-            return
-        why = refusal(user, self.role_of(user), Verb.ADVERTISE, name, robot=self.robot)
-        if why:
-            self.error(user, topic, why, payload=payload)
-            return
-        try:
-            advert = Advertisement.from_json(payload)
-            if advert.type != rule.rule.ros_type:
-                raise ProtocolError(f"'{name}' carries {rule.rule.ros_type}, not {advert.type}")
-        except ProtocolError as err:
-            self.error(user, topic, str(err), payload=payload)
-            return
-        client_id = advert.client_id if advert.client_id is not None else IMPLICIT
+    # -- AdvertisePort (MQTT thread) ---------------------------------------------------------------
+    def advertise(self, user: str, name: str, client_id: str | None) -> None:
+        """``user`` advertises ``name`` from ``client_id`` (None: implicitly, from any of their live clients)."""
         with self._lock:
-            self._adverts[name][user] = client_id
+            self._adverts[name][user] = client_id if client_id is not None else IMPLICIT
+
+    def withdraw(self, user: str, name: str) -> None:
+        with self._lock:
+            self._adverts[name].pop(user, None)
 
     def publisher(self, user: str, name: str) -> Any:
         """The ROS publisher for a message from ``user`` on ``name`` (MQTT thread), created if need be.

@@ -524,12 +524,15 @@ class Advertisement:
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> Advertisement:
         shape = 'expected {"type": "pkg/msg/Type", "client_id": "<presence client id>"}'
         body = _object(data, shape)
-        if not isinstance(body.get("type"), str):
-            raise ProtocolError(shape)
-        _no_unknown(body, ("type", "client_id"))
         client_id = body.get("client_id")
         if "client_id" in body and not isinstance(client_id, str):  # null too: it would mean "implicit" silently
             raise ProtocolError("client_id: expected a string")
+        if not isinstance(body.get("type"), str):
+            raise ProtocolError(shape).naming(None, client_id)
+        try:
+            _no_unknown(body, ("type", "client_id"))
+        except ProtocolError as err:
+            raise err.naming(None, client_id) from None
         return cls(body["type"], client_id)
 
 

@@ -52,8 +52,15 @@ class LogLine:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LogLine:
         body = _object(data, 'expected a JSON object {"level": 20, "msg": "…"}')
-        _no_unknown(body, ("level", "msg", "file", "function", "line", "client_id"))
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
+        try:
+            return cls._checked(body, client_id)
+        except ProtocolError as err:
+            raise err.naming(None, client_id) from None
+
+    @classmethod
+    def _checked(cls, body: dict[str, Any], client_id: str | None) -> LogLine:
+        _no_unknown(body, ("level", "msg", "file", "function", "line", "client_id"))
         level, msg = body.get("level"), body.get("msg")
         if level not in LEVELS or isinstance(level, bool):
             raise ProtocolError(f"level: expected one of {', '.join(map(str, LEVELS))}, got {level!r}"[:200])

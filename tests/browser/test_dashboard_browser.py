@@ -632,7 +632,7 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
 
 
 def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None:
-    """~15 s of 10 Hz motion (the bridge's max_rate), 5 Hz scans and a moving robot: heap and DOM stay bounded.
+    """~9 s of 10 Hz motion (the bridge's max_rate), 5 Hz scans and a moving robot: heap and DOM stay bounded.
 
     Samples are taken after a forced garbage collection (DevTools), so they measure what the page keeps, not
     what it has not collected yet. Another client drives turtle1 in a circle, so the trail and scan drawing
@@ -664,8 +664,8 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         samples: list[tuple[float, float, int, int, int]] = []
         t0 = time.monotonic()
         try:
-            for i in range(6):  # every 2.5 s for 15 s
-                time.sleep(max(0.0, t0 + 2.5 * (i + 1) - time.monotonic()) if i else 2.5)
+            for i in range(5):  # every 1.8 s for 9 s
+                time.sleep(max(0.0, t0 + 1.8 * (i + 1) - time.monotonic()) if i else 1.8)
                 driver.execute_cdp_cmd("HeapProfiler.collectGarbage", {})
                 heap = driver.execute_script("return performance.memory.usedJSHeapSize")
                 dom = driver.execute_script("return document.getElementsByTagName('*').length")
@@ -673,7 +673,7 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
                            for m in driver.execute_cdp_cmd("Performance.getMetrics", {})["metrics"]}
                 n = (pose(driver) or (0, 0, 0))[2]
                 samples.append((time.monotonic() - t0, heap / 1e6, dom, int(metrics.get("Nodes", -1)), n))
-                if time.monotonic() - t0 > 16:
+                if time.monotonic() - t0 > 10:
                     break
             shot = tmp_path / "dashboard.png"  # circles: trail, scan, rates (docs/dashboard.png)
             driver.save_screenshot(str(shot))
@@ -694,7 +694,7 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         assert last[3] <= first[3] + 400, f"DOM nodes grew from {first[3]} to {last[3]}"
         trail = driver.execute_script("return window.dashboard.robots.get('turtle1').trail.length")
         print(f"trail points kept: {trail}")
-        assert 100 < trail <= 600
+        assert 50 < trail <= 600
 
 
 # -- panels built from the robot description (services with arguments, actions, parameters) ------------------

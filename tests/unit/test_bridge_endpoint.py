@@ -161,7 +161,7 @@ class Harness:
         self.link, self.ros = RecordingLink(), RecordingActuators()
         self.handled: list[tuple[Verb, str, str]] = []
         handlers = {verb: (lambda user, name, _t, _p, verb=verb: self.handled.append((verb, user, name)))
-                    for verb in (Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE)}  # not yet capabilities
+                    for verb in (Verb.PROVIDE, Verb.RESPONSE)}  # not yet capabilities
         self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES, handlers)
         self.endpoint.link_up()
         self.seq = 1000
@@ -231,7 +231,7 @@ def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
     assert [(name, m.data) for _, name, m in h.ros.published] == [("lights", True)]
 
 
-@pytest.mark.parametrize("verb", [Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE])
+@pytest.mark.parametrize("verb", [Verb.PROVIDE, Verb.RESPONSE])
 def test_verbs_not_moved_to_capabilities_go_to_their_handlers(h: Harness, verb: Verb) -> None:
     h.present()
     h.endpoint.on_mqtt(T.user_topic("turtle1", "alice", verb, "nav/reset"), CallRequest("1").to_json(),

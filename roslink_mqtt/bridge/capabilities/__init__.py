@@ -8,11 +8,14 @@ to their rclpy modules whole (``CommandEndpoint.handlers``).
 
 from __future__ import annotations
 
+from .advertise import Advertise, AdvertisePort
 from .base import Capability, Gates, Refusal, Report, Request
 from .call import CallService, ServicePort
 from .control import Control, LeaseDesk
 from .goals import ActionPort, CancelGoal, SendGoal
+from .logs import LogLines, RosoutPort
 from .params import ParameterPort, Parameters
 
-__all__ = ["ActionPort", "CallService", "CancelGoal", "Capability", "Control", "Gates", "LeaseDesk", "ParameterPort",
-           "Parameters", "Refusal", "Report", "Request", "SendGoal", "ServicePort"]
+__all__ = ["ActionPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability", "Control", "Gates",
+           "LeaseDesk", "LogLines", "ParameterPort", "Parameters", "Refusal", "Report", "Request", "RosoutPort",
+           "SendGoal", "ServicePort"]

@@ -1,0 +1,80 @@
+"""The log and advertise capabilities (bridge/capabilities/logs.py, advertise.py) through the command endpoint,
+with recording ports. Real /rosout and on-demand publishers: tests/integration/test_rosout.py, test_on_demand.py.
+"""
+
+from __future__ import annotations
+
+import orjson
+import pytest
+
+from roslink_mqtt.bridge.capabilities import Advertise, LogLines
+from roslink_mqtt.bridge.capabilities.logs import BURST
+from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.protocol.rosout import LogLine
+from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T
+
+
+class RecordingPorts:
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+        self.adverts: list[tuple[str, str, str | None]] = []
+
+    def publish_log(self, node_name: str, line: LogLine) -> None:
+        self.lines.append((node_name, line.msg))
+
+    def advertise(self, user: str, name: str, client_id: str | None) -> None:
+        self.adverts.append((user, name, client_id))
+
+    def withdraw(self, user: str, name: str) -> None:
+        self.adverts.append((user, name, "withdrawn"))
+
+
+@pytest.fixture
+def h() -> Harness:
+    harness = Harness()
+    harness.ports = RecordingPorts()
+    caps = [LogLines("turtle1", harness.ports, harness.endpoint.refuse),
+            Advertise("turtle1", {"lights": "std_msgs/msg/Bool"}, {"twist"}, harness.ports, harness.endpoint.refuse)]
+    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES, harness.endpoint.handlers,
+                                       capabilities=caps)
+    harness.endpoint.link_up()
+    return harness
+
+
+def log(h: Harness, body: object, user: str = "alice") -> None:
+    h.endpoint.on_mqtt(T.log("turtle1", user, "planner"), body if isinstance(body, bytes) else orjson.dumps(body))
+
+
+def advertise(h: Harness, body: object, user: str = "alice", name: str = "lights") -> None:
+    payload = body if isinstance(body, bytes) else orjson.dumps(body)
+    h.endpoint.on_mqtt(T.advertise("turtle1", user, name), payload, retained=True)
+
+
+def test_operators_log_viewers_do_not_and_a_flood_is_cut_and_said_once(h: Harness) -> None:
+    log(h, {"level": 20, "msg": "hello"})
+    log(h, {"level": 20, "msg": "from a viewer", "client_id": "phone"}, user="bob")
+    log(h, {"level": 7, "msg": "bad level", "client_id": "laptop"})
+    assert h.ports.lines == [("planner", "hello")]
+    assert h.link.errors("bob")[0].client_id == "phone" and "operator" in h.link.errors("bob")[0].error
+    assert h.link.errors("alice")[0].client_id == "laptop" and "level" in h.link.errors("alice")[0].error
+    for i in range(BURST + 50):
+        log(h, {"level": 20, "msg": f"{i}"})
+    assert BURST - 5 <= len(h.ports.lines) <= BURST + 5  # the burst, plus what refilled meanwhile
+    dropped = [e for e in h.link.errors("alice") if "dropped" in e.error]
+    assert len(dropped) == 1  # told once per episode
+
+
+def test_advertisements_come_and_go_and_are_checked(h: Harness) -> None:
+    advertise(h, {"type": "std_msgs/msg/Bool", "client_id": "laptop"})
+    advertise(h, {"type": "std_msgs/msg/Bool"})
+    advertise(h, b"")  # withdrawn
+    advertise(h, {"type": "std_msgs/msg/String", "client_id": "laptop"})
+    advertise(h, {"type": "std_msgs/msg/Bool"}, user="bob")
+    advertise(h, {"type": "geometry_msgs/msg/Twist"}, name="twist")  # always there: nothing to do, no error
+    advertise(h, {"type": "std_msgs/msg/Bool"}, name="warp")
+    assert h.ports.adverts == [("alice", "lights", "laptop"), ("alice", "lights", None),
+                               ("alice", "lights", "withdrawn")]
+    alice = h.link.errors("alice")
+    assert [e.client_id for e in alice] == ["laptop", None]
+    assert "carries std_msgs/msg/Bool, not std_msgs/msg/String" in alice[0].error
+    assert "no mapping 'warp'" in alice[1].error and "operator" in h.link.errors("bob")[0].error
