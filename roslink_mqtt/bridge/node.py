@@ -28,7 +28,17 @@ from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
 from .action_provider import ProvidedActions
 from .budget import RequestBudget
-from .capabilities import Advertise, CallService, CancelGoal, Capability, LogLines, Parameters, SendGoal
+from .capabilities import (
+    Advertise,
+    CallService,
+    CancelGoal,
+    Capability,
+    LogLines,
+    Parameters,
+    ProvideService,
+    RespondToCall,
+    SendGoal,
+)
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
@@ -250,6 +260,10 @@ class Bridge:
         except UnknownTypeError as err:
             raise RuleError(str(err)) from None
         # calls and parameter requests share the request budget (bridge.max_requests_per_user)
+        self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, self._is_live,
+                                         self.on_executor,
+                                         max_concurrent=settings.provided_max_calls,
+                                         queue_depth=settings.provided_queue_depth)
         capabilities: list[Capability[Any]] = [
             CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
             Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse),
@@ -257,7 +271,9 @@ class Bridge:
             CancelGoal(robot, self.topics, self.actions, self._refuse),
             LogLines(robot.name, self.rosout, self._refuse),
             Advertise(robot.name, {n: r.rule.ros_type for n, r in on_demand.items()},
-                      {n for n in routes if n not in on_demand}, self.on_demand, self._refuse)]
+                      {n for n in routes if n not in on_demand}, self.on_demand, self._refuse),
+            ProvideService(robot.name, self.provided, self._refuse),
+            RespondToCall(self.provided, self._refuse)]
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
@@ -267,10 +283,6 @@ class Bridge:
         self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
-        self.provided = ProvidedServices(node, robot, self.topics, self._publish_reliable, role_of,
-                                         self._is_live, self._refuse, self.on_executor,
-                                         max_concurrent=settings.provided_max_calls,
-                                         queue_depth=settings.provided_queue_depth)
         self.actuators.actions = self.actions
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
                                             self._refuse)
@@ -281,8 +293,6 @@ class Bridge:
             Verb.PARAM_RESULT: self.sdk_params.result,
             Verb.PROVIDE_ACTION: self.provided_actions.offer,
             Verb.ACTION_UPDATE: self.provided_actions.update,
-            Verb.PROVIDE: self.provided.offer,
-            Verb.RESPONSE: self.provided.response,
         })
         self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)

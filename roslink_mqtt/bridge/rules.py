@@ -209,7 +209,7 @@ def _service_target(rule: Rule, ros_cls: type[Any], robot: Robot) -> Inbound:
 
 def compile_inbound(rule: Rule, robot: Robot) -> Inbound:
     ros_cls = _load(rule)
-    if "/srv/" in rule.ros_type:
+    if ros_names.is_interface(rule.ros_type, "srv"):
         return _service_target(rule, ros_cls, robot)
     limits = rule.limits or robot.bridge.limits
     is_velocity = rule.ros_type in VELOCITY_TYPES

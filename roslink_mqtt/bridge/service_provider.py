@@ -1,11 +1,10 @@
-"""Services provided by MQTT clients to ROS (docs/protocol.md, "Services provided by MQTT clients").
+"""Services provided by MQTT clients to ROS, with rclpy: the port of the provide and response capabilities.
 
-An MQTT client *provides* a service: the bridge creates the ROS service while
-the provider is live, forwards each call as ``to/<provider>/request/<name>``
-and answers with the provider's ``from/<provider>/response/<name>``. When the
-provider withdraws or goes away, the ROS service is destroyed and waiting ROS
-calls fail cleanly. The other direction, MQTT users calling ROS services, is
-:mod:`.service_caller`.
+Who may provide is :mod:`roslink_mqtt.bridge.capabilities.provide`'s (ROS-free). Here: the bridge creates the
+ROS service while the provider is live, forwards each call as ``to/<provider>/request/<name>`` and answers with
+the provider's ``from/<provider>/response/<name>``. When the provider withdraws or goes away, the ROS service is
+destroyed and waiting ROS calls fail cleanly (docs/protocol.md, "Services provided by MQTT clients"). The other
+direction, MQTT users calling ROS services, is :mod:`.service_caller`.
 """
 
 from __future__ import annotations
@@ -24,11 +23,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_services_default
 from rclpy.service import Service
 
-from ..config import Robot, Role
-from ..protocol import ProtocolError
+from ..config import Robot
 from ..protocol.control import ProviderRequest, ProviderResponse, ServiceOffer
-from ..topics import TopicTree, Verb
-from .authorize import refusal
+from ..topics import TopicTree
 from .convert import ConversionError, converter_for
 from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
@@ -89,12 +86,10 @@ class ProvidedServices:
     """
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 error: Callable[..., None], on_executor: OnExecutor, max_concurrent: int = 64,
+                 is_live: Callable[[str, str | None], bool], on_executor: OnExecutor, max_concurrent: int = 64,
                  queue_depth: int = 100) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
-        self.on_executor = on_executor
-        self.role_of, self.is_live, self.error = role_of, is_live, error
+        self.on_executor, self.is_live = on_executor, is_live
         self.group = ReentrantCallbackGroup()
         self._lock = threading.RLock()
         self.max_concurrent = max_concurrent
@@ -107,40 +102,29 @@ class ProvidedServices:
         self._ids = itertools.count(1)
 
     # -- provider side (MQTT thread) ------------------------------------------------
-    def offer(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """A retained ``provide/<name>``: ``{"type": "pkg/srv/T", "timeout": s, "client_id": …}``, or empty.
+    def offer(self, user: str, name: str, offer: ServiceOffer) -> str | None:
+        """``user`` provides ``name`` (ProviderPort; the capability checked the grant). Why not, or None.
 
-        ``client_id`` names the provider's operator-presence client: the ROS
-        service exists while that client is live (else while any client of the
-        user is), so the provider's death removes it even if the same user is
-        logged in elsewhere.
+        ``offer.client_id`` names the provider's operator-presence client: the ROS service exists while that
+        client is live (else while any client of the user is), so the provider's death removes it even if the
+        same user is logged in elsewhere.
         """
-        if not payload:
-            self.withdraw(user, name, "withdrawn by the provider")
-            return
-        why = refusal(user, self.role_of(user), Verb.PROVIDE, name, robot=self.robot.name)
-        if why:
-            self.error(user, topic, why, payload=payload)
-            return
         try:
-            parsed = ServiceOffer.from_json(payload)
-            srv = load_interface(parsed.type)
-        except (ProtocolError, UnknownTypeError) as err:
-            self.error(user, topic, str(err), payload=payload)
-            return
-        timeout, client_id = parsed.timeout, parsed.client_id
+            srv = load_interface(offer.type)
+        except UnknownTypeError as err:
+            return str(err)
         with self._lock:
             taken = [u for (u, n), o in self.offers.items() if n == name and u != user]
             if taken:
-                self.error(user, topic, f"service '{name}' is already provided by {taken[0]}", client_id=client_id)
-                return
+                return f"service '{name}' is already provided by {taken[0]}"
             old = self.offers.get((user, name))
             if old is not None and old.srv is srv:
-                old.timeout, old.client_id = float(timeout), client_id
-                return  # the same offer again (e.g. retained redelivery after a reconnect)
+                old.timeout, old.client_id = float(offer.timeout), offer.client_id
+                return None  # the same offer again (e.g. retained redelivery after a reconnect)
             if old is not None:
                 self._retire(old, "re-offered with another type")
-            self.offers[(user, name)] = _Provided(user, name, srv, float(timeout), client_id)
+            self.offers[(user, name)] = _Provided(user, name, srv, float(offer.timeout), offer.client_id)
+        return None
 
     def withdraw(self, user: str, name: str, reason: str) -> None:
         with self._lock:
@@ -235,20 +219,15 @@ class ProvidedServices:
             log.info("removed ROS service %s: %s", offer.name, offer.ending[1])
         return True
 
-    def response(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``from/<provider>/response/<name>``: wake the ROS call waiting for it."""
-        try:
-            answer = ProviderResponse.from_json(payload)
-        except ProtocolError as err:
-            self.error(user, topic, str(err), payload=payload)
-            return
+    def respond(self, user: str, name: str, answer: ProviderResponse) -> str | None:
+        """``from/<provider>/response/<name>``: wake the ROS call waiting for it (ProviderPort). Why not, or None."""
         with self._lock:
             offer = self.offers.get((user, name))
             call = offer.waiting.pop(answer.id, None) if offer is not None and isinstance(answer.id, str) else None
         if call is None:
-            self.error(user, topic, f"no pending request with id {answer.id!r} for '{name}'", payload=payload)
-            return
+            return f"no pending request with id {answer.id!r} for '{name}'"
         self._resolve(call, ("ok", answer))
+        return None
 
     # -- ROS side (executor thread) --------------------------------------------------------
     def _create_service(self, offer: _Provided) -> Any:

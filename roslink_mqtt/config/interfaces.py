@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import TypedDict, cast
 
-from ..ros_names import interface_name, interface_parts, nested_message, package_of
+from ..ros_names import interface_name, interface_parts, is_interface, nested_message, package_of
 from .interface_table import TABLE
 
 # What each ROSLink preset accepts as ros_type (bridge/presets/{state,command}.py hold the converters).
@@ -128,7 +128,7 @@ def interface_table() -> InterfaceTable:
 
 def preset_type_problem(preset: str, ros_type: str) -> str | None:
     """Why a rule with ``preset`` cannot carry ``ros_type`` (the bridge's words), or None."""
-    if "/srv/" in ros_type:
+    if is_interface(ros_type, "srv"):
         if preset not in SERVICE_PRESETS:
             return f"preset '{preset}' publishes a message; a ROS service ({ros_type}) cannot carry it"
         if ros_type not in SERVICE_TARGETS:

@@ -40,6 +40,7 @@ from typing import Any
 
 import orjson
 
+from ..ros_names import is_interface
 from ..topics import TopicTree
 from .codec import MAX_CLIENT_ID, loads
 from .errors import ProtocolError
@@ -395,17 +396,20 @@ class ServiceOffer:
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ServiceOffer:
         shape = 'expected {"type": "pkg/srv/Type"} (optional "timeout", "client_id")'
         body = _object(data, shape)
-        if not isinstance(body.get("type"), str):
-            raise ProtocolError(shape)
-        _no_unknown(body, ("type", "timeout", "client_id"))
         client_id = body.get("client_id")
         if client_id is not None and not isinstance(client_id, str):
             raise ProtocolError("client_id: expected a string")
-        timeout = body.get("timeout", DEFAULT_PROVIDER_TIMEOUT)
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
-            raise ProtocolError("timeout: expected seconds, 0 < timeout <= 3600")
-        if "/srv/" not in body["type"]:
-            raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
+        try:
+            if not isinstance(body.get("type"), str):
+                raise ProtocolError(shape)
+            _no_unknown(body, ("type", "timeout", "client_id"))
+            timeout = body.get("timeout", DEFAULT_PROVIDER_TIMEOUT)
+            if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
+                raise ProtocolError("timeout: expected seconds, 0 < timeout <= 3600")
+            if not is_interface(body["type"], "srv"):
+                raise ProtocolError(f"'{body['type']}' is not a service type (pkg/srv/Type)")
+        except ProtocolError as err:
+            raise err.naming(None, client_id) from None
         return cls(body["type"], float(timeout), client_id)
 
 
@@ -490,9 +494,9 @@ class ProviderResponse:
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderResponse:
         shape = 'expected {"id": …, "result": true, "values": {…}}'
         body = _object(data, shape)
-        if "id" not in body:
-            raise ProtocolError(shape)
         cid = body.get("client_id")
+        if "id" not in body:
+            raise ProtocolError(shape).naming(None, cid if isinstance(cid, str) else None)
         return cls(body["id"], body.get("result") is not False, body.get("values"),
                    str(body["error"]) if "error" in body else None, cid if isinstance(cid, str) else None)
 

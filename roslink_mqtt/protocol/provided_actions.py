@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..ros_names import is_interface
 from ..topics import TopicTree, Verb
 from .codec import MAX_CLIENT_ID
 from .control import BodyField, _dump, _no_unknown, _object, check_client_id
@@ -68,7 +69,7 @@ class ActionOffer:
         kind = body.get("type")
         if not isinstance(kind, str):
             raise ProtocolError(shape)
-        if "/action/" not in kind:
+        if not is_interface(kind, "action"):
             raise ProtocolError(f"'{kind}' is not an action type (pkg/action/Type)")
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
         return cls(kind, _seconds(body, "accept_timeout", DEFAULT_ACCEPT_TIMEOUT),

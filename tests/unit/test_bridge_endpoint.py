@@ -161,7 +161,7 @@ class Harness:
         self.link, self.ros = RecordingLink(), RecordingActuators()
         self.handled: list[tuple[Verb, str, str]] = []
         handlers = {verb: (lambda user, name, _t, _p, verb=verb: self.handled.append((verb, user, name)))
-                    for verb in (Verb.PROVIDE, Verb.RESPONSE)}  # not yet capabilities
+                    for verb in (Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.DECLARE, Verb.PARAM_RESULT)}
         self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES, handlers)
         self.endpoint.link_up()
         self.seq = 1000
@@ -231,7 +231,7 @@ def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
     assert [(name, m.data) for _, name, m in h.ros.published] == [("lights", True)]
 
 
-@pytest.mark.parametrize("verb", [Verb.PROVIDE, Verb.RESPONSE])
+@pytest.mark.parametrize("verb", [Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.DECLARE, Verb.PARAM_RESULT])
 def test_verbs_not_moved_to_capabilities_go_to_their_handlers(h: Harness, verb: Verb) -> None:
     h.present()
     h.endpoint.on_mqtt(T.user_topic("turtle1", "alice", verb, "nav/reset"), CallRequest("1").to_json(),
@@ -278,8 +278,9 @@ def test_retained_commands_are_refused_but_retained_offers_are_not(h: Harness) -
     h.raw("cmd/twist", b"", retained=True)  # the clearing message itself: silently nothing
     errors = _refused(h)
     assert len(errors) == 1 and errors[0].startswith("ignored a retained command from the broker")
-    h.endpoint.on_mqtt(T.provide("turtle1", "alice", "plan"), b'{"type": "std_srvs/srv/Trigger"}', True)
-    assert h.handled == [(Verb.PROVIDE, "alice", "plan")]
+    offer = T.user_topic("turtle1", "alice", Verb.PROVIDE_ACTION, "plan")
+    h.endpoint.on_mqtt(offer, b'{"type": "test_msgs/action/Fibonacci"}', True)
+    assert h.handled == [(Verb.PROVIDE_ACTION, "alice", "plan")]
 
 
 @pytest.mark.parametrize(("user", "why"), [

@@ -78,3 +78,42 @@ def test_advertisements_come_and_go_and_are_checked(h: Harness) -> None:
     assert [e.client_id for e in alice] == ["laptop", None]
     assert "carries std_msgs/msg/Bool, not std_msgs/msg/String" in alice[0].error
     assert "no mapping 'warp'" in alice[1].error and "operator" in h.link.errors("bob")[0].error
+
+
+class RecordingProvider:
+    def __init__(self) -> None:
+        self.events: list[tuple[str, ...]] = []
+
+    def offer(self, user: str, name: str, offer: object) -> str | None:
+        self.events.append(("offer", user, name))
+        return "service 'plan' is already provided by carol" if name == "taken" else None
+
+    def withdraw(self, user: str, name: str, reason: str) -> None:
+        self.events.append(("withdraw", user, name, reason))
+
+    def respond(self, user: str, name: str, answer: object) -> str | None:
+        self.events.append(("respond", user, name))
+        return f"no pending request with id 'x' for '{name}'"
+
+
+def test_offers_withdrawals_and_responses_of_provided_services() -> None:
+    from roslink_mqtt.bridge.capabilities import ProvideService, RespondToCall
+
+    h = Harness()
+    port = RecordingProvider()
+    h.endpoint = CommandEndpoint(FLEET, ROBOT, h.link, h.ros, ROUTES, {},
+                                 capabilities=[ProvideService("turtle1", port, h.endpoint.refuse),
+                                               RespondToCall(port, h.endpoint.refuse)])
+    offer = orjson.dumps({"type": "std_srvs/srv/Trigger", "client_id": "laptop"})
+    h.endpoint.on_mqtt(T.provide("turtle1", "alice", "plan"), offer, retained=True)
+    h.endpoint.on_mqtt(T.provide("turtle1", "alice", "taken"), offer, retained=True)
+    h.endpoint.on_mqtt(T.provide("turtle1", "bob", "plan"), offer, retained=True)  # a viewer may not provide
+    h.endpoint.on_mqtt(T.provide("turtle1", "alice", "plan"), b"", retained=True)
+    h.endpoint.on_mqtt(T.provide("turtle1", "alice", "plan"), b'{"type": "std_srvs/Trigger", "client_id": "pc"}')
+    h.endpoint.on_mqtt(T.response("turtle1", "alice", "plan"), b'{"id": "x", "result": true, "client_id": "pc"}')
+    assert port.events == [("offer", "alice", "plan"), ("offer", "alice", "taken"),
+                           ("withdraw", "alice", "plan", "withdrawn by the provider"), ("respond", "alice", "plan")]
+    alice = h.link.errors("alice")
+    assert [e.client_id for e in alice] == ["laptop", "pc", "pc"]
+    assert "already provided by carol" in alice[0].error and "not a service type" in alice[1].error
+    assert "no pending request" in alice[2].error and "operator" in h.link.errors("bob")[0].error

@@ -6,7 +6,8 @@ Topics, filters and ACL patterns are built with :class:`roslink_mqtt.topics.Topi
 examples (not their text: a regular expression is easy to walk around) and fails on each way of restating the
 grammar:
 
-* splitting, partitioning, stripping, counting or testing a string at ``/`` (``t.split("/")``, ``SEPARATOR``);
+* splitting, partitioning, stripping, counting or testing a string at ``/`` (``t.split("/")``, ``SEPARATOR``,
+  ``"/srv/" in name``);
 * joining with ``/`` (``"/".join([...])``);
 * formatting a path: an f-string or a ``+`` whose text has ``/`` and no space (``f"{p}/{robot}/state"``,
   ``prefix + "/" + robot``), whatever names or constants fill it in;
@@ -111,6 +112,9 @@ def offences_in(source: str, rel: str) -> list[str]:
                 say(node, "formats a path with +")
         elif isinstance(node, ast.Compare):
             sides = [node.left, *node.comparators]
+            if any(isinstance(op, ast.In | ast.NotIn) for op in node.ops) and _is_slash(node.left) \
+                    and not _is_prose(_text(node.left) or ""):
+                say(node, "tests a string for '/' levels")
             words = [s for s in sides for w in _words(s) if w in TREE_WORDS]
             if words and any(isinstance(s, ast.Subscript) and not _keyed_by_string(s) for s in sides):
                 say(node, "reads a level of the tree by its position")
@@ -172,6 +176,7 @@ EVASIONS = [
     'from roslink_mqtt.topics import _levels',
     'from ..topics import SEPARATOR',
     'n = name.count("/")',
+    'ok = "/srv/" not in name',
 ]
 PROSE = [
     'message = f"{robot}/{service}: {reason}"',

@@ -9,13 +9,16 @@ to their rclpy modules whole (``CommandEndpoint.handlers``).
 from __future__ import annotations
 
 from .advertise import Advertise, AdvertisePort
-from .base import Capability, Gates, Refusal, Report, Request
+from .base import Capability, Gates, Refusal, Report, Request, Withdrawal
 from .call import CallService, ServicePort
 from .control import Control, LeaseDesk
 from .goals import ActionPort, CancelGoal, SendGoal
 from .logs import LogLines, RosoutPort
 from .params import ParameterPort, Parameters
+from .provide import ProviderPort, ProvideService, RespondToCall
 
-__all__ = ["ActionPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability", "Control", "Gates",
-           "LeaseDesk", "LogLines", "ParameterPort", "Parameters", "Refusal", "Report", "Request", "RosoutPort",
-           "SendGoal", "ServicePort"]
+__all__ = [
+    "ActionPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability", "Control", "Gates",
+    "LeaseDesk", "LogLines", "ParameterPort", "Parameters", "ProvideService", "ProviderPort", "Refusal", "Report",
+    "Request", "RespondToCall", "RosoutPort", "SendGoal", "ServicePort", "Withdrawal",
+]

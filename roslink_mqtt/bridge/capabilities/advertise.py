@@ -10,18 +10,12 @@ advertiser's presence ending. Publishing on the rule advertises implicitly. The 
 from __future__ import annotations
 
 from collections.abc import Mapping, Set
-from dataclasses import dataclass
 from typing import Protocol
 
 from ...protocol.control import Advertisement
 from ...topics import Verb
 from ..authorize import refusal
-from .base import Gates, Refusal, Report, Request
-
-
-@dataclass(frozen=True, slots=True)
-class Withdrawal:
-    """An empty retained advertisement: the user no longer publishes there."""
+from .base import Gates, Refusal, Report, Request, Withdrawal
 
 
 class AdvertisePort(Protocol):

@@ -53,6 +53,11 @@ class Refusal:
     client_id: str | None = None
 
 
+@dataclass(frozen=True, slots=True)
+class Withdrawal:
+    """An empty retained offer or advertisement: the user withdraws what they offered."""
+
+
 class Gates(Protocol):
     """What a gate may ask about the robot's state (the command endpoint answers)."""
 
