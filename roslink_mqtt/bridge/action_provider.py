@@ -29,9 +29,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
 
-from ..config import Robot, Role
-from ..protocol import ProtocolError
-from ..protocol.control import request_id
+from ..config import Robot
 from ..protocol.provided_actions import (
     ACCEPTED,
     CANCELED,
@@ -43,7 +41,6 @@ from ..protocol.provided_actions import (
     ActionUpdate,
 )
 from ..topics import TopicTree, Verb
-from .authorize import refusal
 from .convert import ConversionError, converter_for
 from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
@@ -78,11 +75,10 @@ class ProvidedActions:
     """Action servers whose implementation lives in MQTT clients."""
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Callable[[str, bytes], None],
-                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 refuse: Callable[..., None], on_executor: OnExecutor) -> None:
+                 is_live: Callable[[str, str | None], bool], on_executor: OnExecutor) -> None:
         self.node, self.robot, self.topics, self.publish = node, robot, topics, publish
         self.on_executor = on_executor
-        self.role_of, self.is_live, self.refuse = role_of, is_live, refuse
+        self.is_live = is_live
         self.group = ReentrantCallbackGroup()
         self.offers: dict[tuple[str, str], _Offer] = {}
         self._retired: list[_Offer] = []
@@ -91,37 +87,23 @@ class ProvidedActions:
         self._inbox: collections.deque[Callable[[], None]] = collections.deque()
 
     # -- MQTT thread ------------------------------------------------------------------------------------
-    def offer(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """A retained ``provide_action/<name>`` (empty: withdrawn)."""
-        if not payload:
-            self._queue(lambda: self.withdraw(user, name, "withdrawn by the provider"))
-            return
-        why = refusal(user, self.role_of(user), Verb.PROVIDE_ACTION, name, robot=self.robot.name)
-        if why:
-            self.refuse(user, topic, why, payload=payload)
-            return
+    # -- ActionProviderPort (MQTT thread) --------------------------------------------------------------
+    def offer(self, user: str, name: str, offer: ActionOffer) -> str | None:
+        """``user`` provides ``name`` (the capability checked the grant): why not, or None once queued."""
         try:
-            offer = ActionOffer.from_json(payload)
             cls = load_interface(offer.type)
-        except (ProtocolError, UnknownTypeError) as err:
-            self.refuse(user, topic, str(err), payload=payload)
-            return
+        except UnknownTypeError as err:
+            return str(err)
         with self._lock:
             taken = [u for (u, n) in self.offers if n == name and u != user]
             if taken:
-                self.refuse(user, topic, f"action '{name}' is already provided by {taken[0]}",
-                            client_id=offer.client_id)
-                return
+                return f"action '{name}' is already provided by {taken[0]}"
         self._queue(lambda: self._take_offer(user, name, cls, offer))
+        return None
 
-    def update(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``action_update/<name>`` from the provider."""
-        try:
-            update = ActionUpdate.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload, request_id=request_id(payload))
-            return
-        self._queue(lambda: self._on_update(user, name, topic, update))
+    def update(self, user: str, name: str, update: ActionUpdate, refused: Callable[[str], None]) -> None:
+        """``action_update/<name>`` from the provider: carried out on the executor."""
+        self._queue(lambda: self._on_update(user, name, update, refused))
 
     def _queue(self, work: Callable[[], None]) -> None:
         self._inbox.append(work)
@@ -146,6 +128,10 @@ class ProvidedActions:
             self.offers[(user, name)] = _Offer(user, name, cls, offer)
 
     def withdraw(self, user: str, name: str, reason: str) -> None:
+        """``user`` withdraws ``name`` (ActionProviderPort): on the executor, after what is queued."""
+        self._queue(lambda: self._withdraw(user, name, reason))
+
+    def _withdraw(self, user: str, name: str, reason: str) -> None:
         with self._lock:
             offer = self.offers.pop((user, name), None)
             if offer is not None:
@@ -182,12 +168,11 @@ class ProvidedActions:
     def _wake_executor(self) -> None:
         self.on_executor.wake()  # a goal's coroutine awaits the future just set
 
-    def _on_update(self, user: str, name: str, topic: str, update: ActionUpdate) -> None:
+    def _on_update(self, user: str, name: str, update: ActionUpdate, refused: Callable[[str], None]) -> None:
         offer = self.offers.get((user, name))
         goal = offer.goals.get(update.id) if offer is not None else None
         if offer is None or goal is None:
-            self.refuse(user, topic, f"no goal {update.id!r} waits for you on '{name}' (ended, timed out, or never "
-                                     "sent)", client_id=update.client_id, request_id=update.id)
+            refused(f"no goal {update.id!r} waits for you on '{name}' (ended, timed out, or never sent)")
             return
         if update.status in (ACCEPTED, REJECTED):
             if not goal.accepted.done():
@@ -199,7 +184,7 @@ class ProvidedActions:
                 try:
                     goal.handle.publish_feedback(converter_for(offer.cls.Feedback).from_dict(update.feedback))
                 except ConversionError as err:
-                    self.refuse(user, topic, f"feedback.{err}", client_id=update.client_id, request_id=update.id)
+                    refused(f"feedback.{err}")
         elif goal.done is not None and not goal.done.done():
             goal.done.set_result(("ok", update))
         elif not goal.accepted.done():  # an end without accepting first: accept, then end

@@ -24,7 +24,7 @@ import itertools
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -95,23 +95,20 @@ class Actuators(Protocol):
         """Cancel the action goals of ``user`` (None: of everyone), results saying ``reason``; how many."""
 
 
-# (user, name, topic, payload): the verbs the endpoint hands on whole (services, offers, advertisements)
-VerbHandler = Callable[[str, str, str, bytes], None]
 
 
 class CommandEndpoint:
     """Decides what to do with every input of one robot, and keeps its motion state."""
 
     def __init__(self, fleet: Fleet, robot: Robot, link: Link, actuators: Actuators,
-                 routes: Mapping[str, Inbound], handlers: Mapping[Verb, VerbHandler] | None = None,
-                 claim: Claim | None = None, capabilities: Iterable[Capability[Any]] = ()) -> None:
-        """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``handlers``: call, provide,
-        response and advertise, each given (user, name, topic, payload); ``claim``: this bridge's, carried by
+                 routes: Mapping[str, Inbound], *, claim: Claim | None = None,
+                 capabilities: Iterable[Capability[Any]] = ()) -> None:
+        """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``capabilities``: every other verb a user
+        sends (bridge/capabilities/; the lease verbs are the endpoint's own); ``claim``: this bridge's, carried by
         every heartbeat (bridge/claim.py)."""
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
         self.link, self.actuators, self.routes = link, actuators, dict(routes)
-        self.handlers: dict[Verb, VerbHandler] = dict(handlers or {})
-        # every verb moved to its capability (bridge/capabilities/) runs through _dispatch; the lease verbs always
+        # every verb but cmd/* runs through _dispatch: parse, gate, run (bridge/capabilities/)
         self.capabilities: dict[Verb, Capability[Any]] = {Verb.CONTROL: Control(robot.name, self, self.refuse)}
         self.capabilities.update((c.verb, c) for c in capabilities)
         settings = robot.bridge
@@ -194,11 +191,7 @@ class CommandEndpoint:
             self._dispatch(capability, user, parsed.name or "", topic, payload)
             return
         if verb is not None and verb is not Verb.CMD:
-            handler = self.handlers.get(verb)
-            if handler is None:
-                self.refuse(user, topic, f"'{verb.value}' is not served by this bridge", payload=payload)
-            else:
-                handler(user, parsed.name or "", topic, payload)
+            self.refuse(user, topic, f"'{verb.value}' is not served by this bridge", payload=payload)
             return
         name = parsed.leaf
         route = self.routes.get(name)

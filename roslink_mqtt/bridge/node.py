@@ -22,7 +22,7 @@ from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
 from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
-from ..topics import Verb, state_name
+from ..topics import state_name
 from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
@@ -33,11 +33,15 @@ from .capabilities import (
     CallService,
     CancelGoal,
     Capability,
+    DeclareParameters,
     LogLines,
     Parameters,
+    ParameterSetResult,
+    ProvideAction,
     ProvideService,
     RespondToCall,
     SendGoal,
+    UpdateProvidedGoal,
 )
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
@@ -264,6 +268,9 @@ class Bridge:
                                          self.on_executor,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
+        self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live)
+        self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
+                                                self._is_live, self.action_on_executor)
         capabilities: list[Capability[Any]] = [
             CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
             Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse),
@@ -273,7 +280,11 @@ class Bridge:
             Advertise(robot.name, {n: r.rule.ros_type for n, r in on_demand.items()},
                       {n for n in routes if n not in on_demand}, self.on_demand, self._refuse),
             ProvideService(robot.name, self.provided, self._refuse),
-            RespondToCall(self.provided, self._refuse)]
+            RespondToCall(self.provided, self._refuse),
+            ProvideAction(robot.name, self.provided_actions, self._refuse),
+            UpdateProvidedGoal(self.provided_actions, self._refuse),
+            DeclareParameters(robot.name, self.sdk_params, self._refuse),
+            ParameterSetResult(robot.name, self.sdk_params, self._refuse)]
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
@@ -284,16 +295,6 @@ class Bridge:
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         self.actuators.actions = self.actions
-        self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live,
-                                            self._refuse)
-        self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
-                                                role_of, self._is_live, self._refuse, self.action_on_executor)
-        self.endpoint.handlers.update({
-            Verb.DECLARE: self.sdk_params.declare,
-            Verb.PARAM_RESULT: self.sdk_params.result,
-            Verb.PROVIDE_ACTION: self.provided_actions.offer,
-            Verb.ACTION_UPDATE: self.provided_actions.update,
-        })
         self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)

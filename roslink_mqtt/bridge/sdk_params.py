@@ -33,11 +33,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..config import Robot, Role
-from ..protocol import ProtocolError
-from ..protocol.node_params import DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult, check_node_name
+from ..protocol.node_params import DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
 from ..protocol.params import TYPE_CODES
-from ..topics import TopicTree, Verb
-from .authorize import refusal
+from ..topics import TopicTree
 from .parameters import to_json
 
 log = logging.getLogger("roslink_mqtt.bridge.sdk_params")
@@ -73,9 +71,9 @@ class SdkParameterNodes:
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
                  role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
-                 refuse: Callable[..., None], timeout: float = SET_TIMEOUT) -> None:
+                 timeout: float = SET_TIMEOUT) -> None:
         self.robot, self.topics, self.publish = robot, topics, publish
-        self.role_of, self.is_live, self.refuse, self.timeout = role_of, is_live, refuse, timeout
+        self.role_of, self.is_live, self.timeout = role_of, is_live, timeout
         self.context, self.namespace = node.context, node.get_namespace()
         self._lock = threading.RLock()
         self.declared: dict[str, _Declared] = {}  # by node name (one ROS node per name, whoever declares it)
@@ -89,27 +87,12 @@ class SdkParameterNodes:
         self.context.on_shutdown(self.close)
 
     # -- MQTT thread ------------------------------------------------------------------------------
-    def declare(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """A retained ``declare/<node>``: the SDK node's parameters, or empty (withdrawn)."""
-        if not payload:
-            self.withdraw(user, name, f"{name} withdrawn by {user}")
-            return
-        why = refusal(user, self.role_of(user), Verb.DECLARE, name, robot=self.robot.name)
-        if why:
-            self.refuse(user, topic, why, payload=payload)
-            return
-        try:
-            check_node_name(name)
-            declaration = ParamDeclaration.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload)
-            return
+    def declare(self, user: str, name: str, declaration: ParamDeclaration) -> str | None:
+        """``user``'s program holds node ``name``'s parameters (SdkParameterPort): why not, or None."""
         with self._lock:
             old = self.declared.get(name)
             if old is not None and old.user != user:
-                self.refuse(user, topic, f"node '{name}' is already declared on {self.robot.name} by {old.user}",
-                            client_id=declaration.client_id)
-                return
+                return f"node '{name}' is already declared on {self.robot.name} by {old.user}"
             if old is None:
                 self.declared[name] = _Declared(user, name, declaration.client_id, declaration.parameters)
             else:
@@ -117,6 +100,7 @@ class SdkParameterNodes:
                     old.live = False  # another program of the user took the name: live once refresh says so
                 old.client_id, old.parameters = declaration.client_id, declaration.parameters
         self._start()
+        return None
 
     def withdraw(self, user: str, name: str, reason: str) -> None:
         with self._lock:
@@ -128,17 +112,8 @@ class SdkParameterNodes:
             self._fail_waiting(name, reason)
         self._wake()
 
-    def result(self, user: str, name: str, topic: str, payload: bytes) -> None:
-        """``from/<user>/param_result/<node>``: the SDK node's answer; wakes the ROS set waiting for it."""
-        why = refusal(user, self.role_of(user), Verb.PARAM_RESULT, name, robot=self.robot.name)
-        if why:
-            self.refuse(user, topic, why, payload=payload)
-            return
-        try:
-            answer = ParamSetResult.from_json(payload)
-        except ProtocolError as err:
-            self.refuse(user, topic, str(err), payload=payload)
-            return
+    def result(self, user: str, name: str, answer: ParamSetResult) -> str | None:
+        """The SDK node's answer (SdkParameterPort): wakes the ROS set waiting for it. Why not, or None."""
         with self._lock:
             call = self._waiting.get(answer.id) if isinstance(answer.id, str) else None
             if call is None or call.user != user or call.node != name:
@@ -146,11 +121,10 @@ class SdkParameterNodes:
             elif isinstance(answer.id, str):  # it is: the call was found by it
                 del self._waiting[answer.id]
         if call is None:
-            self.refuse(user, topic, f"no pending parameter set with id {answer.id!r} for node '{name}'",
-                        client_id=answer.client_id)
-            return
+            return f"no pending parameter set with id {answer.id!r} for node '{name}'"
         call.outcome = (answer.successful, answer.reason)
         call.done.set()
+        return None
 
     # -- supervision (the bridge's executor) ---------------------------------------------------------------
     def refresh(self) -> None:

@@ -65,15 +65,18 @@ class ActionOffer:
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionOffer:
         shape = 'expected {"type": "pkg/action/Type"} (optional "accept_timeout", "result_timeout", "client_id")'
         body = _object(data, shape)
-        _no_unknown(body, ("type", "accept_timeout", "result_timeout", "client_id"))
-        kind = body.get("type")
-        if not isinstance(kind, str):
-            raise ProtocolError(shape)
-        if not is_interface(kind, "action"):
-            raise ProtocolError(f"'{kind}' is not an action type (pkg/action/Type)")
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        return cls(kind, _seconds(body, "accept_timeout", DEFAULT_ACCEPT_TIMEOUT),
-                   _seconds(body, "result_timeout", DEFAULT_RESULT_TIMEOUT), client_id)
+        try:
+            _no_unknown(body, ("type", "accept_timeout", "result_timeout", "client_id"))
+            kind = body.get("type")
+            if not isinstance(kind, str):
+                raise ProtocolError(shape)
+            if not is_interface(kind, "action"):
+                raise ProtocolError(f"'{kind}' is not an action type (pkg/action/Type)")
+            return cls(kind, _seconds(body, "accept_timeout", DEFAULT_ACCEPT_TIMEOUT),
+                       _seconds(body, "result_timeout", DEFAULT_RESULT_TIMEOUT), client_id)
+        except ProtocolError as err:
+            raise err.naming(None, client_id) from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,11 +149,19 @@ class ActionUpdate:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionUpdate:
         body = _object(data, 'expected a JSON object {"id": "…", "status": "…"}')
-        _no_unknown(body, ("id", "status", "feedback", "result", "error", "client_id"))
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        rid, status = body.get("id"), body.get("status")
+        rid = body.get("id")
         if not isinstance(rid, str) or not rid:
-            raise ProtocolError("id: expected the request's id (a string)")
+            raise ProtocolError("id: expected the request's id (a string)").naming(None, client_id)
+        try:
+            return cls._checked(rid, body, client_id)
+        except ProtocolError as err:
+            raise err.naming(rid, client_id) from None
+
+    @classmethod
+    def _checked(cls, rid: str, body: dict[str, Any], client_id: str | None) -> ActionUpdate:
+        _no_unknown(body, ("id", "status", "feedback", "result", "error", "client_id"))
+        status = body.get("status")
         if status not in UPDATE_STATUSES:
             raise ProtocolError(f"status: expected one of {', '.join(UPDATE_STATUSES)}, got {status!r}"[:200])
         feedback, result, error = body.get("feedback"), body.get("result"), body.get("error")

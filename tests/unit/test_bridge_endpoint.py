@@ -159,10 +159,8 @@ class RecordingActuators:
 class Harness:
     def __init__(self) -> None:
         self.link, self.ros = RecordingLink(), RecordingActuators()
-        self.handled: list[tuple[Verb, str, str]] = []
-        handlers = {verb: (lambda user, name, _t, _p, verb=verb: self.handled.append((verb, user, name)))
-                    for verb in (Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.DECLARE, Verb.PARAM_RESULT)}
-        self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES, handlers)
+        # no capabilities: the verbs' own tests (test_capability_*.py) build the endpoint with theirs
+        self.endpoint = CommandEndpoint(FLEET, ROBOT, self.link, self.ros, ROUTES)
         self.endpoint.link_up()
         self.seq = 1000
 
@@ -231,15 +229,7 @@ def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
     assert [(name, m.data) for _, name, m in h.ros.published] == [("lights", True)]
 
 
-@pytest.mark.parametrize("verb", [Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.DECLARE, Verb.PARAM_RESULT])
-def test_verbs_not_moved_to_capabilities_go_to_their_handlers(h: Harness, verb: Verb) -> None:
-    h.present()
-    h.endpoint.on_mqtt(T.user_topic("turtle1", "alice", verb, "nav/reset"), CallRequest("1").to_json(),
-                       retained=verb.retained_by_sender)
-    assert h.handled == [(verb, "alice", "nav/reset")] and h.link.errors("alice") == []
-
-
-def test_a_verb_without_a_handler_is_refused_not_dropped(h: Harness) -> None:
+def test_a_verb_without_a_capability_is_refused_not_dropped(h: Harness) -> None:
     h.endpoint.on_mqtt(T.call("turtle1", "alice", "reset"), CallRequest("1").to_json())
     assert [e.error for e in h.link.errors("alice")] == ["'call' is not served by this bridge"]
 
@@ -279,8 +269,8 @@ def test_retained_commands_are_refused_but_retained_offers_are_not(h: Harness) -
     errors = _refused(h)
     assert len(errors) == 1 and errors[0].startswith("ignored a retained command from the broker")
     offer = T.user_topic("turtle1", "alice", Verb.PROVIDE_ACTION, "plan")
-    h.endpoint.on_mqtt(offer, b'{"type": "test_msgs/action/Fibonacci"}', True)
-    assert h.handled == [(Verb.PROVIDE_ACTION, "alice", "plan")]
+    h.endpoint.on_mqtt(offer, b'{"type": "test_msgs/action/Fibonacci"}', True)  # offers are meant to be retained
+    assert len(_refused(h)) == 2 and "retained" not in _refused(h)[1]
 
 
 @pytest.mark.parametrize(("user", "why"), [

@@ -41,7 +41,7 @@ def h() -> Harness:
     harness.actions = RecordingActions()
     caps = [SendGoal(ROBOT, T, harness.actions, harness.endpoint.refuse),
             CancelGoal(ROBOT, T, harness.actions, harness.endpoint.refuse)]
-    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES, harness.endpoint.handlers,
+    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES,
                                        capabilities=caps)
     harness.endpoint.link_up()
     return harness

@@ -35,7 +35,7 @@ def h() -> Harness:
     harness.ports = RecordingPorts()
     caps = [LogLines("turtle1", harness.ports, harness.endpoint.refuse),
             Advertise("turtle1", {"lights": "std_msgs/msg/Bool"}, {"twist"}, harness.ports, harness.endpoint.refuse)]
-    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES, harness.endpoint.handlers,
+    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES,
                                        capabilities=caps)
     harness.endpoint.link_up()
     return harness
@@ -101,7 +101,7 @@ def test_offers_withdrawals_and_responses_of_provided_services() -> None:
 
     h = Harness()
     port = RecordingProvider()
-    h.endpoint = CommandEndpoint(FLEET, ROBOT, h.link, h.ros, ROUTES, {},
+    h.endpoint = CommandEndpoint(FLEET, ROBOT, h.link, h.ros, ROUTES,
                                  capabilities=[ProvideService("turtle1", port, h.endpoint.refuse),
                                                RespondToCall(port, h.endpoint.refuse)])
     offer = orjson.dumps({"type": "std_srvs/srv/Trigger", "client_id": "laptop"})

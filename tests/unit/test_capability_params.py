@@ -37,7 +37,7 @@ def h() -> Harness:
     harness.budget = RequestBudget(1)
     params = Parameters(ROBOT, T, lambda topic, payload, qos: harness.link.publish(topic, payload, qos),
                         harness.nodes, harness.budget, harness.endpoint.refuse)
-    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES, harness.endpoint.handlers,
+    harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES,
                                        capabilities=[params])
     harness.endpoint.link_up()
     return harness

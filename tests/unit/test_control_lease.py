@@ -58,7 +58,7 @@ def _harness(**robot_changes) -> Harness:
     if robot_changes:
         robot = dataclasses.replace(ROBOT, **robot_changes)
         fleet = dataclasses.replace(FLEET, robots={**FLEET.robots, "turtle1": robot})
-        h.endpoint = CommandEndpoint(fleet, robot, h.link, h.ros, ROUTES, h.endpoint.handlers)
+        h.endpoint = CommandEndpoint(fleet, robot, h.link, h.ros, ROUTES)
         h.endpoint.link_up()
     return h
 

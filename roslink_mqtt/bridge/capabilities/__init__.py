@@ -2,8 +2,7 @@
 
 Each capability owns its body type, its gate (role, presence, control lease, budget: a decision) and its port
 to ROS (a typed Protocol the ROS adapter implements). The command endpoint runs every registered verb the
-same way (:mod:`.base`). docs/architecture.md says how to add one. Verbs not moved here yet are still handed
-to their rclpy modules whole (``CommandEndpoint.handlers``).
+same way (:mod:`.base`). docs/architecture.md says how to add one. Every verb a user sends is one of them.
 """
 
 from __future__ import annotations
@@ -16,9 +15,12 @@ from .goals import ActionPort, CancelGoal, SendGoal
 from .logs import LogLines, RosoutPort
 from .params import ParameterPort, Parameters
 from .provide import ProviderPort, ProvideService, RespondToCall
+from .provide_action import ActionProviderPort, ProvideAction, UpdateProvidedGoal
+from .sdk_params import DeclareParameters, ParameterSetResult, SdkParameterPort
 
 __all__ = [
-    "ActionPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability", "Control", "Gates",
-    "LeaseDesk", "LogLines", "ParameterPort", "Parameters", "ProvideService", "ProviderPort", "Refusal", "Report",
-    "Request", "RespondToCall", "RosoutPort", "SendGoal", "ServicePort", "Withdrawal",
+    "ActionPort", "ActionProviderPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability",
+    "Control", "DeclareParameters", "Gates", "LeaseDesk", "LogLines", "ParameterPort", "ParameterSetResult",
+    "Parameters", "ProvideAction", "ProvideService", "ProviderPort", "Refusal", "Report", "Request", "RespondToCall",
+    "RosoutPort", "SdkParameterPort", "SendGoal", "ServicePort", "UpdateProvidedGoal", "Withdrawal",
 ]
