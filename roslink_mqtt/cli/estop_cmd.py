@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from .connect import add_connection_options, open_client
+
+if TYPE_CHECKING:
+    from ..client import RobotClient
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,8 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reason", default="", help="said in the stop (and the robot's log)")
     p.add_argument("--timeout", type=float, default=1.0, help="seconds each robot has to acknowledge "
                                                               "(default %(default)s)")
-    p.add_argument("--wait", type=float, default=1.5, help="with --all: seconds to collect heartbeats first "
-                                                           "(default %(default)s)")
+    p.add_argument("--wait", type=float, default=1.5, help="with --all: at most this many seconds to collect the "
+                                                           "robots' heartbeats first; it stops as soon as they have "
+                                                           "come (default %(default)s)")
     add_connection_options(p)
     p.set_defaults(run=run)
 
@@ -33,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     client = open_client(args, robots=args.robots, presence=False)
     try:
         if args.all:
-            time.sleep(args.wait)  # retained heartbeats arrive right after the subscription
+            _wait_for_heartbeats(client, args.wait)
             if not client.robots():
                 print("roslink-mqtt estop: no robots seen (name them if your broker refuses wildcards)",
                       file=sys.stderr)
@@ -45,3 +50,21 @@ def run(args: argparse.Namespace) -> int:
     for report in reports.values():
         print(report.line())
     return 0 if reports and all(r.acknowledged for r in reports.values()) else 1
+
+
+QUIET = 0.25  # s without a new robot: the broker has sent every retained heartbeat (they come in one burst)
+
+
+def _wait_for_heartbeats(client: RobotClient, longest: float) -> None:
+    """Until the robots' retained heartbeats have arrived: they follow the subscription in one burst, so once
+    some came and no new robot appeared for QUIET, every robot is known (a stop must not wait longer)."""
+    start = last_change = time.monotonic()
+    seen = 0
+    while time.monotonic() - start < longest:
+        count = len(client.robots())
+        now = time.monotonic()
+        if count != seen:
+            seen, last_change = count, now
+        elif seen and now - last_change >= QUIET:
+            return
+        time.sleep(0.02)
