@@ -35,6 +35,12 @@ def well_formed(name: object, kind: str) -> TypeGuard[str]:
     return isinstance(name, str) and bool(_WELL_FORMED.match(name)) and is_interface(name, kind)
 
 
+def mentions_kind(name: str, kind: str) -> bool:
+    """Whether ``name`` looks meant as a ``kind`` type, well formed or not (``/std_srvs/srv/SetBool``): which
+    example an error message should show."""
+    return f"{SEPARATOR}{kind}{SEPARATOR}" in name
+
+
 def package_of(name: str) -> str:
     """The package of an interface name (``std_srvs/srv/Trigger`` → ``std_srvs``)."""
     return name.partition(SEPARATOR)[0]

@@ -20,6 +20,7 @@ Threads: MQTT messages arrive on paho's network thread, supervision and ROS call
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
 import threading
@@ -218,11 +219,14 @@ class CommandEndpoint:
                               Refusal(str(err), request_id=err.request_id, client_id=err.client_id))
             return
         request = Request(user, name, topic, payload, body, role)
-        refused = capability.gate(request, self)
+        # an operation that may move the robot (MOVES_ROBOT) is gated and handed over under the motion lock, so an
+        # emergency stop is either before it (the gate refuses) or after it (the stop cancels it), never between
+        with self.lock if getattr(capability, "MOVES_ROBOT", False) else contextlib.nullcontext():
+            refused = capability.gate(request, self)
+            if refused is None:
+                capability.run(request)
         if refused is not None:
             capability.refuse(request, refused)
-        else:
-            capability.run(request)
 
     # -- Gates and LeaseDesk (bridge/capabilities/): what capabilities ask of the robot's state ----------------
     def is_live(self, user: str) -> bool:

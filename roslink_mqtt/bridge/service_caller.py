@@ -64,10 +64,17 @@ class RosServices:
         if future.cancelled() or future.exception() is not None:
             pending.done(None, f"service failed: {future.exception()}")
             return
-        pending.done(converter_for(pending.srv.Response).to_dict(future.result()), None)
+        try:
+            values = converter_for(pending.srv.Response).to_dict(future.result())
+        except Exception as err:  # the call is answered (and its request slot given back) whatever happens
+            pending.done(None, f"the bridge could not read the service's response: {err}")
+            return
+        pending.done(values, None)
 
     def expire(self, now: float) -> None:
         """Answer calls past their timeout (called from the bridge's supervision timer)."""
         for p in self.pending.expire(now):
-            p.client.remove_pending_request(p.future)
-            p.done(None, f"timeout: no answer within {p.timeout:g} s")
+            try:
+                p.client.remove_pending_request(p.future)
+            finally:  # answered (and its request slot given back) whatever rclpy says
+                p.done(None, f"timeout: no answer within {p.timeout:g} s")

@@ -422,7 +422,7 @@ class _FleetReader:
         service_ok = direction is Direction.MQTT_TO_ROS and preset in SERVICE_PRESETS
         raw_type = self.get(path).get("ros_type")
         ros_type = self.value(path, "ros_type", self.ros_type(
-            "srv" if service_ok and isinstance(raw_type, str) and ros_names.is_interface(raw_type, "srv") else "msg"))
+            "srv" if service_ok and isinstance(raw_type, str) and ros_names.mentions_kind(raw_type, "srv") else "msg"))
         self.interface(path + ("ros_type",), ros_type)
         if preset is not None and (problem := preset_type_problem(preset, ros_type)):
             raise self.err(path + ("preset",), problem)

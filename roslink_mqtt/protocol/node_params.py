@@ -128,6 +128,13 @@ class ParamDeclaration:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamDeclaration:
         body = _object(data, 'expected a JSON object {"client_id": …, "parameters": {…}}')
+        try:
+            return cls._checked(body)
+        except ProtocolError as err:
+            raise err.naming(None, _sender(body)) from None
+
+    @classmethod
+    def _checked(cls, body: dict[str, Any]) -> ParamDeclaration:
         _no_unknown(body, ("client_id", "parameters"))
         if "client_id" not in body:
             raise ProtocolError("client_id: required (the presence client the ROS node lives with)")
@@ -203,6 +210,13 @@ class ParamSetResult:
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetResult:
         body = _object(data, 'expected a JSON object {"id": …, "successful": true}')
+        try:
+            return cls._checked(body)
+        except ProtocolError as err:
+            raise err.naming(None, _sender(body)) from None
+
+    @classmethod
+    def _checked(cls, body: dict[str, Any]) -> ParamSetResult:
         _no_unknown(body, ("id", "successful", "reason", "client_id"))
         client_id = check_client_id(body["client_id"]) if "client_id" in body else None
         successful, reason = body.get("successful"), body.get("reason", "")
@@ -211,6 +225,14 @@ class ParamSetResult:
         if not isinstance(reason, str) or len(reason) > MAX_REASON:
             raise ProtocolError(f"reason: expected a string of at most {MAX_REASON} characters")
         return cls(_id(body.get("id")), successful, reason, client_id)
+
+
+def _sender(body: dict[str, Any]) -> str | None:
+    """The body's client id if it is a valid one: whom a refusal of a malformed body is addressed to."""
+    try:
+        return check_client_id(body["client_id"]) if "client_id" in body else None
+    except ProtocolError:
+        return None
 
 
 NODE_PARAM_BODIES: tuple[tuple[str, str, type], ...] = (

@@ -21,8 +21,11 @@ class RecordingActions:
     def __init__(self) -> None:
         self.goals: list[tuple[str, str, str]] = []
         self.cancels: list[tuple[str, str, str]] = []
+        self.lock: Any = None  # the endpoint's motion lock: a goal is handed over holding it
+        self.locked: list[bool] = []
 
     def send_goal(self, user: str, rule: ActionRule, request: GoalRequest) -> str | None:
+        self.locked.append(self.lock is not None and self.lock._is_owned())
         if (user, rule.name, request.id) in self.goals:
             return f"goal id '{request.id}' is already in use on '{rule.name}'"
         self.goals.append((user, rule.name, request.id))
@@ -44,6 +47,7 @@ def h() -> Harness:
     harness.endpoint = CommandEndpoint(FLEET, ROBOT, harness.link, harness.ros, ROUTES,
                                        capabilities=caps)
     harness.endpoint.link_up()
+    harness.actions.lock = harness.endpoint.lock
     return harness
 
 
@@ -66,6 +70,7 @@ def test_a_goal_needs_presence_and_unblocked_motion_a_cancel_does_not(h: Harness
     h.command("arm")
     goal(h, {"id": "g1", "goal": {"order": 5}})
     assert h.actions.goals == [("alice", "fibonacci", "g1")]
+    assert h.actions.locked == [True]  # an emergency stop cannot come between the gate and the hand-over
     h.endpoint.on_mqtt(T.operator("alice", "laptop"), b"")  # presence ended: a cancel still goes through
     cancel(h, "g1")
     assert h.actions.cancels == [("alice", "fibonacci", "g1")]

@@ -71,6 +71,7 @@ def test_advertisements_come_and_go_and_are_checked(h: Harness) -> None:
     advertise(h, {"type": "std_msgs/msg/String", "client_id": "laptop"})
     advertise(h, {"type": "std_msgs/msg/Bool"}, user="bob")
     advertise(h, {"type": "geometry_msgs/msg/Twist"}, name="twist")  # always there: nothing to do, no error
+    advertise(h, {"type": 5}, name="twist")  # whatever it says
     advertise(h, {"type": "std_msgs/msg/Bool"}, name="warp")
     assert h.ports.adverts == [("alice", "lights", "laptop"), ("alice", "lights", None),
                                ("alice", "lights", "withdrawn")]

@@ -85,8 +85,10 @@ def test_sdk_parameter_declarations_and_results() -> None:
     send(h, Verb.DECLARE, "bad/name", declaration, retained=True)
     send(h, Verb.DECLARE, "planner", declaration, user="bob", retained=True)
     send(h, Verb.PARAM_RESULT, "planner", {"id": "s1", "successful": True, "reason": ""})
+    send(h, Verb.PARAM_RESULT, "planner", {"id": "s2", "successful": False, "reason": "x" * 5000, "client_id": "pc"})
     assert ports.events == [("declare", "alice", "planner"), ("declare", "alice", "taken"),
                             ("result", "alice", "planner")]
     alice = h.link.errors("alice")
     assert "already declared" in alice[0].error and alice[0].client_id == "pc"
-    assert len(alice) == 2 and "operator" in h.link.errors("bob")[0].error
+    assert len(alice) == 3 and "operator" in h.link.errors("bob")[0].error
+    assert "reason: expected a string" in alice[2].error and alice[2].client_id == "pc"  # a malformed body's sender

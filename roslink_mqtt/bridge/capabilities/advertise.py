@@ -39,7 +39,9 @@ class Advertise:
             robot, dict(on_demand), frozenset(always_there), port, report
 
     def parse(self, name: str, payload: bytes) -> Advertisement | Withdrawal:
-        return Advertisement.from_json(payload) if payload else Withdrawal()
+        if not payload or (name not in self.on_demand and name in self.always_there):
+            return Withdrawal()  # empty: withdrawn; a rule whose publisher always exists: nothing to read
+        return Advertisement.from_json(payload)
 
     def gate(self, request: Request[Advertisement | Withdrawal], gates: Gates) -> Refusal | None:
         name, advert = request.name, request.body

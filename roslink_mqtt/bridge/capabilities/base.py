@@ -10,6 +10,10 @@ and runs the same three steps for every one of them:
 3. :meth:`Capability.run` carries it out through the capability's port: a narrow typed interface that the ROS
    adapter implements (``ServicePort`` for services...) or, for the lease, the endpoint's motion state.
 
+A capability whose operation may move the robot sets ``MOVES_ROBOT = True``: its gate and run then happen under the
+endpoint's motion lock, so an emergency stop comes either before (the gate refuses) or after (the stop cancels
+what was handed over), never between.
+
 A refusal goes where the operation's user looks for it: :meth:`Capability.refuse` decides (a call's reply topic,
 or ``to/<user>/error``). docs/architecture.md shows how to add an operation.
 """

@@ -47,6 +47,7 @@ class _GoalVerb:
 
 class SendGoal(_GoalVerb):
     verb = Verb.GOAL
+    MOVES_ROBOT = True  # gate and hand-over under the endpoint's motion lock: a stop never slips between them
 
     def parse(self, name: str, payload: bytes) -> GoalRequest:
         return GoalRequest.from_json(payload)
