@@ -7,12 +7,19 @@ test starts inherits them.
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 from roslink_mqtt.ros_env import apply_local_ros_env
 from tests.support.measure import MEASUREMENTS
 
 ROS_ENV = apply_local_ros_env()
+
+# Tests stop the programs they start with Ctrl-C (SIGINT), as a user would. A shell that runs the suite as a
+# background job starts it with SIGINT ignored, and an ignored signal stays ignored in every child (Python then
+# installs no KeyboardInterrupt handler): take SIGINT back here, so children start with its default again.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # Each folder is a kind of test, and its marker: `pytest tests/unit` (or `-m unit`) runs the pure logic in seconds,
 # without ROS or a broker (tests/unit/conftest.py refuses an rclpy import there).

@@ -87,7 +87,7 @@ class SdkParameterNodes:
         self.context.on_shutdown(self.close)
 
     # -- MQTT thread ------------------------------------------------------------------------------
-    def declare(self, user: str, name: str, declaration: ParamDeclaration) -> str | None:
+    def offer(self, user: str, name: str, declaration: ParamDeclaration) -> str | None:
         """``user``'s program holds node ``name``'s parameters (SdkParameterPort): why not, or None."""
         with self._lock:
             old = self.declared.get(name)

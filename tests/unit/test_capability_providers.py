@@ -27,7 +27,10 @@ class RecordingPorts:
         self.events: list[tuple[str, ...]] = []
         self.late: list[Callable[[str], None]] = []
 
-    def offer(self, user: str, name: str, offer: ActionOffer) -> str | None:
+    def offer(self, user: str, name: str, offer: ActionOffer | ParamDeclaration) -> str | None:
+        if isinstance(offer, ParamDeclaration):
+            self.events.append(("declare", user, name))
+            return f"node '{name}' is already declared on turtle1 by carol" if name == "taken" else None
         self.events.append(("offer", user, name, offer.type))
         return None
 
@@ -37,10 +40,6 @@ class RecordingPorts:
     def update(self, user: str, name: str, update: ActionUpdate, refused: Callable[[str], None]) -> None:
         self.events.append(("update", user, name, update.status))
         self.late.append(refused)
-
-    def declare(self, user: str, node: str, declaration: ParamDeclaration) -> str | None:
-        self.events.append(("declare", user, node))
-        return f"node '{node}' is already declared on turtle1 by carol" if node == "taken" else None
 
     def result(self, user: str, node: str, answer: ParamSetResult) -> str | None:
         self.events.append(("result", user, node))

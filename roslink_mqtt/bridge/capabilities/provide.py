@@ -13,10 +13,8 @@ from typing import Protocol
 
 from ...protocol.control import ProviderResponse, ServiceOffer
 from ...topics import Verb
-from ..authorize import refusal
-from .base import Gates, Refusal, Report, Request, Withdrawal
-
-WITHDRAWN = "withdrawn by the provider"
+from .base import Gates, Refusal, Report, Request
+from .offers import Offers
 
 
 class ProviderPort(Protocol):
@@ -33,39 +31,11 @@ class ProviderPort(Protocol):
         ...
 
 
-def _report(report: Report, request: Request[ServiceOffer | Withdrawal] | Request[ProviderResponse],
-            refusal: Refusal) -> None:
-    body = request.body
-    client_id = body.client_id if isinstance(body, ServiceOffer | ProviderResponse) else refusal.client_id
-    report(request.user, request.topic, refusal.reason, client_id=client_id)
-
-
-class ProvideService:
+class ProvideService(Offers[ServiceOffer]):
     verb = Verb.PROVIDE
 
-    def __init__(self, robot: str, port: ProviderPort, report: Report) -> None:
-        self.robot, self.port, self.report = robot, port, report
-
-    def parse(self, name: str, payload: bytes) -> ServiceOffer | Withdrawal:
-        return ServiceOffer.from_json(payload) if payload else Withdrawal()
-
-    def gate(self, request: Request[ServiceOffer | Withdrawal], gates: Gates) -> Refusal | None:
-        if isinstance(request.body, Withdrawal):
-            return None  # anyone may stop providing
-        why = refusal(request.user, request.role, Verb.PROVIDE, request.name, robot=self.robot)
-        return Refusal(why) if why else None
-
-    def run(self, request: Request[ServiceOffer | Withdrawal]) -> None:
-        body = request.body
-        if isinstance(body, Withdrawal):
-            self.port.withdraw(request.user, request.name, WITHDRAWN)
-        elif body is not None:
-            why = self.port.offer(request.user, request.name, body)
-            if why:
-                self.refuse(request, Refusal(why))
-
-    def refuse(self, request: Request[ServiceOffer | Withdrawal], refusal: Refusal) -> None:
-        _report(self.report, request, refusal)
+    def read(self, name: str, payload: bytes) -> ServiceOffer:
+        return ServiceOffer.from_json(payload)
 
 
 class RespondToCall:
@@ -87,4 +57,6 @@ class RespondToCall:
             self.refuse(request, Refusal(why))
 
     def refuse(self, request: Request[ProviderResponse], refusal: Refusal) -> None:
-        _report(self.report, request, refusal)
+        body = request.body
+        self.report(request.user, request.topic, refusal.reason,
+                    client_id=body.client_id if body is not None else refusal.client_id)

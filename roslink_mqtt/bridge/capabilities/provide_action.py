@@ -14,10 +14,8 @@ from typing import Protocol
 
 from ...protocol.provided_actions import ActionOffer, ActionUpdate
 from ...topics import Verb
-from ..authorize import refusal
-from .base import Gates, Refusal, Report, Request, Withdrawal
-
-WITHDRAWN = "withdrawn by the provider"
+from .base import Gates, Refusal, Report, Request
+from .offers import Offers
 
 
 class ActionProviderPort(Protocol):
@@ -35,34 +33,11 @@ class ActionProviderPort(Protocol):
         ...
 
 
-class ProvideAction:
+class ProvideAction(Offers[ActionOffer]):
     verb = Verb.PROVIDE_ACTION
 
-    def __init__(self, robot: str, port: ActionProviderPort, report: Report) -> None:
-        self.robot, self.port, self.report = robot, port, report
-
-    def parse(self, name: str, payload: bytes) -> ActionOffer | Withdrawal:
-        return ActionOffer.from_json(payload) if payload else Withdrawal()
-
-    def gate(self, request: Request[ActionOffer | Withdrawal], gates: Gates) -> Refusal | None:
-        if isinstance(request.body, Withdrawal):
-            return None
-        why = refusal(request.user, request.role, Verb.PROVIDE_ACTION, request.name, robot=self.robot)
-        return Refusal(why) if why else None
-
-    def run(self, request: Request[ActionOffer | Withdrawal]) -> None:
-        body = request.body
-        if isinstance(body, Withdrawal):
-            self.port.withdraw(request.user, request.name, WITHDRAWN)
-        elif body is not None:
-            why = self.port.offer(request.user, request.name, body)
-            if why:
-                self.refuse(request, Refusal(why))
-
-    def refuse(self, request: Request[ActionOffer | Withdrawal], refusal: Refusal) -> None:
-        body = request.body
-        client_id = body.client_id if isinstance(body, ActionOffer) else refusal.client_id
-        self.report(request.user, request.topic, refusal.reason, client_id=client_id)
+    def read(self, name: str, payload: bytes) -> ActionOffer:
+        return ActionOffer.from_json(payload)
 
 
 class UpdateProvidedGoal:

@@ -15,11 +15,12 @@ from typing import Protocol
 from ...protocol.node_params import ParamDeclaration, ParamSetResult, check_node_name
 from ...topics import Verb
 from ..authorize import refusal
-from .base import Gates, Refusal, Report, Request, Withdrawal
+from .base import Gates, Refusal, Report, Request
+from .offers import Offers
 
 
 class SdkParameterPort(Protocol):
-    def declare(self, user: str, node: str, declaration: ParamDeclaration) -> str | None:
+    def offer(self, user: str, node: str, declaration: ParamDeclaration) -> str | None:
         """``user``'s program holds ``node``'s parameters; why not instead (another user declared it)."""
         ...
 
@@ -32,42 +33,15 @@ class SdkParameterPort(Protocol):
         ...
 
 
-def _report(report: Report, request: Request[ParamDeclaration | Withdrawal] | Request[ParamSetResult],
-            refusal: Refusal) -> None:
-    body = request.body
-    client_id = body.client_id if isinstance(body, ParamDeclaration | ParamSetResult) else refusal.client_id
-    report(request.user, request.topic, refusal.reason, client_id=client_id)
-
-
-class DeclareParameters:
+class DeclareParameters(Offers[ParamDeclaration]):
     verb = Verb.DECLARE
 
-    def __init__(self, robot: str, port: SdkParameterPort, report: Report) -> None:
-        self.robot, self.port, self.report = robot, port, report
-
-    def parse(self, name: str, payload: bytes) -> ParamDeclaration | Withdrawal:
-        if not payload:
-            return Withdrawal()
+    def read(self, name: str, payload: bytes) -> ParamDeclaration:
         check_node_name(name)
         return ParamDeclaration.from_json(payload)
 
-    def gate(self, request: Request[ParamDeclaration | Withdrawal], gates: Gates) -> Refusal | None:
-        if isinstance(request.body, Withdrawal):
-            return None  # a program may always take its parameters back
-        why = refusal(request.user, request.role, Verb.DECLARE, request.name, robot=self.robot)
-        return Refusal(why) if why else None
-
-    def run(self, request: Request[ParamDeclaration | Withdrawal]) -> None:
-        body = request.body
-        if isinstance(body, Withdrawal):
-            self.port.withdraw(request.user, request.name, f"{request.name} withdrawn by {request.user}")
-        elif body is not None:
-            why = self.port.declare(request.user, request.name, body)
-            if why:
-                self.refuse(request, Refusal(why))
-
-    def refuse(self, request: Request[ParamDeclaration | Withdrawal], refusal: Refusal) -> None:
-        _report(self.report, request, refusal)
+    def withdrawn(self, user: str, name: str) -> str:
+        return f"{name} withdrawn by {user}"
 
 
 class ParameterSetResult:
@@ -90,4 +64,6 @@ class ParameterSetResult:
             self.refuse(request, Refusal(why))
 
     def refuse(self, request: Request[ParamSetResult], refusal: Refusal) -> None:
-        _report(self.report, request, refusal)
+        body = request.body
+        self.report(request.user, request.topic, refusal.reason,
+                    client_id=body.client_id if body is not None else refusal.client_id)
