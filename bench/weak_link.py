@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -295,14 +296,14 @@ class StopWatch:
 def stopper(operator: Any, watch: StopWatch, stop: threading.Event, run_: list[Run | None]) -> None:
     """alice presses the emergency stop every STOP_PERIOD s, times it to the robot's ROS topic, and arms again."""
     while not stop.wait(STOP_PERIOD):
-        sent = time.monotonic()
+        sent, row = time.monotonic(), run_[0]  # the row it was sent in (a stop sent between rows meets no bridge)
         try:
             operator.emergency_stop(ROBOT, "bench")
         except Exception:  # noqa: BLE001 - a stop the broker did not confirm: counted as not arrived below
             pass
         arrived = watch.wait_after(sent, 5.0)
-        if run_[0] is not None:
-            run_[0].stops.append(float("inf") if arrived is None else arrived - sent)
+        if row is not None and (arrived is not None or row is run_[0]):  # an ended row's bridge may be gone
+            row.stops.append(float("inf") if arrived is None else arrived - sent)
         try:
             operator.arm(ROBOT)
         except Exception:  # noqa: BLE001 - the next stop is measured all the same
@@ -441,6 +442,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                                           "camera + map row)")
     p.add_argument("--modes", default="fifo,scheduled", help="bridge.uplink modes (default: %(default)s)")
     p.add_argument("--plot-dir", type=Path, default=PLOT_DIR, help="where weak_link.png goes (default: %(default)s)")
+    p.add_argument("--keep-logs", type=Path, help="copy the broker's, bridges' and links' logs here")
     p.add_argument("--load", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     try:
@@ -508,6 +510,8 @@ def main(argv: list[str] | None = None) -> int:
             warned = [line for line in (work / "broker.log").read_text(errors="replace").splitlines()
                       if " WARNING " in line or " ERROR " in line]
             print("".join(f"  broker log: {line[:160]}\n" for line in warned[-8:]), end="")
+        if args.keep_logs is not None:
+            shutil.copytree(work, args.keep_logs, dirs_exist_ok=True)
     report(runs)
     written = plot(runs, args.plot_dir)
     if written is not None:

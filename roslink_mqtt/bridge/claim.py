@@ -43,7 +43,8 @@ from typing import TYPE_CHECKING
 
 import orjson
 
-from ..protocol import MessageId, ProtocolError, SystemStatus, decode
+from ..protocol import SPECS_BY_ID, MessageId, ProtocolError, SystemStatus, decode, loads
+from ..protocol.validate import check_field
 
 if TYPE_CHECKING:
     from ..mqtt import BrokerUrl
@@ -168,13 +169,20 @@ def announcement(me: Claim) -> bytes:
     return orjson.dumps(me.fields())
 
 
+# An announcement carries the heartbeat's claim fields, declared (and so checked) by the heartbeat's message spec
+CLAIM_FIELDS = tuple(f for f in SPECS_BY_ID[MessageId.HEARTBEAT].fields if f.name in Claim.__slots__)
+
+
 def read_announcement(payload: bytes) -> Claim | None:
     """The claim in a ``state/bridge`` message; None for anything else."""
     try:
-        body = orjson.loads(payload)
-        return Claim.of(body) if isinstance(body, dict) and body.get("instance") else None
-    except (orjson.JSONDecodeError, TypeError, ValueError):
+        body = loads(payload)
+        if not isinstance(body, dict):
+            return None
+        claim = Claim.of({f.name: check_field(f.name, f, body[f.name]) for f in CLAIM_FIELDS if f.name in body})
+    except ProtocolError:
         return None
+    return claim if claim.instance else None
 
 
 Publish = Callable[[str, bytes], object]  # what it returns (paho's MQTTMessageInfo) is not used

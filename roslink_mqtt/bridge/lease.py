@@ -23,10 +23,9 @@ from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
 
-from ..protocol.lease import ControlOp, ControlState
+from ..protocol.lease import CONTROL_MODES, ControlOp, ControlState
 
-CONTROL_AUTO, CONTROL_EXPLICIT = "auto", "explicit"
-CONTROL_MODES = (CONTROL_AUTO, CONTROL_EXPLICIT)
+CONTROL_AUTO, CONTROL_EXPLICIT = CONTROL_MODES
 
 
 def clock_text(since: float) -> str:

@@ -26,7 +26,7 @@ import orjson
 
 from ..client import RobotClient, RoslinkMessage
 from ..client.subscriptions import parse_state_item
-from ..protocol import SPECS_BY_NAME, ProtocolError, loads
+from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
 from ..protocol.messages import Direction
 from ..topics import Kind, TopicError, TopicTree, check_filter_path, check_name, state_name, trimmed
 from .connect import add_connection_options, open_client
@@ -130,12 +130,12 @@ class _Stream:
         arrived = time.monotonic()
         if not payload:  # a cleared retained message (e.g. a deleted heartbeat): nothing to show
             return
+        line: Any
         if self.heartbeat:
-            try:
-                body = loads(payload)
+            try:  # a ROSLink heartbeat: its payload is what people read
+                line = decode(payload, MessageId.HEARTBEAT).payload
             except ProtocolError:
                 return
-            line = body.get("payload", body) if isinstance(body, dict) else body
         else:
             parsed = self.topics.parse(topic)
             if parsed is None or parsed.kind is not Kind.STATE or not parsed.name:

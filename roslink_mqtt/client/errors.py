@@ -102,7 +102,8 @@ class RobotError:
 
     @classmethod
     def from_json(cls, robot: str, body: Any) -> RobotError:
-        """A report from ``robot``'s error topic; a malformed one is still shown, as what it is."""
+        """A report from ``robot``'s error topic (its payload, or the body decoded); a malformed one is still shown,
+        as what it is."""
         try:
             report = ErrorReport.from_body(body)
         except ProtocolError as err:

@@ -41,7 +41,7 @@ from ..connection_options import (
     env_username,
 )
 from ..mqtt import BrokerUrl
-from ..protocol import ProtocolError, loads
+from ..protocol import ProtocolError
 from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
@@ -651,10 +651,7 @@ class RobotClient:
         elif verb is Verb.REQUEST:
             self._providers.on_request(robot, name, payload)
         elif verb is Verb.ERROR:
-            try:
-                error = RobotError.from_json(robot, loads(payload))
-            except ProtocolError:
-                error = RobotError(robot, "", f"unreadable error report: {payload[:200]!r}")
+            error = RobotError.from_json(robot, payload)  # a malformed report is shown as what it is
             if error.client_id is not None and error.client_id != self.client_id and not self.all_errors:
                 log.debug("%s: ignoring an error report for %s: %s", self.client_id, error.client_id, error.error)
                 return  # another program of the same user sent what was refused

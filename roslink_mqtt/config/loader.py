@@ -10,6 +10,8 @@ from typing import Any
 
 from .. import ros_names
 from ..protocol.enums import RobotType
+from ..protocol.lease import CONTROL_MODES, ESTOP_MODES  # robots.<name>.control, .estop: state/control says them
+from ..protocol.link import UPLINK_MODES  # bridge.uplink: state/link says it
 from ..protocol.messages import SPECS_BY_NAME
 from ..protocol.messages import Direction as MsgDirection
 from ..ros_names import well_formed
@@ -32,16 +34,13 @@ from .interfaces import SERVICE_PRESETS, UNCHECKED, VELOCITY_TYPES, interface_ta
 from .model import (
     BUFFER_NONE,
     BUFFERS,
-    CONTROL_MODES,
     ENCODING_JSON,
     ENCODING_RAW,
     ENCODINGS,
-    ESTOP_MODES,
     EXECUTORS,
     LIMIT_MODES,
     PRIORITY_NAMES,
     RAW_TYPES,
-    UPLINK_MODES,
     ActionRule,
     BridgeSettings,
     BrokerSettings,

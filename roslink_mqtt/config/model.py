@@ -28,9 +28,6 @@ class Direction(StrEnum):
 ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW = "json", "cbor", "raw"
 ENCODINGS = (ENCODING_JSON, ENCODING_CBOR, ENCODING_RAW)
 RAW_TYPES = ("sensor_msgs/msg/CompressedImage",)  # the types whose payload can be their bytes alone
-UPLINK_MODES = ("scheduled", "fifo")
-CONTROL_MODES = ("auto", "explicit")  # robots.<name>.control
-ESTOP_MODES = ("viewers", "operators")  # robots.<name>.estop
 ESTOP_PRESET = "emergency_stop"  # the preset whose rules are emergency stops
 BUFFER_NONE, BUFFER_DISK = "none", "disk"
 BUFFERS = (BUFFER_NONE, BUFFER_DISK)

@@ -59,6 +59,8 @@ def _routes(mqtt_js: Path, config: PageConfig) -> dict[str, tuple[str, Path | by
         "/": ("text/html; charset=utf-8", STATIC / "index.html"),
         "/index.html": ("text/html; charset=utf-8", STATIC / "index.html"),
         "/app.js": ("text/javascript; charset=utf-8", STATIC / "app.js"),
+        "/protocol.js": ("text/javascript; charset=utf-8", STATIC / "protocol.js"),
+        "/body.js": ("text/javascript; charset=utf-8", STATIC / "body.js"),
         "/style.css": ("text/css; charset=utf-8", STATIC / "style.css"),
         "/vendor/mqtt.min.js": ("text/javascript; charset=utf-8", mqtt_js),
         "/config.json": ("application/json", config.to_json()),

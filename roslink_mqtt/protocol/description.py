@@ -25,8 +25,8 @@ from typing import Any, Literal, overload
 import orjson
 
 from ..topics import TopicTree, Verb, join_leaf
-from .codec import ROS_VERSION, ROSLINK_VERSION, loads
-from .control import BodyField
+from .body import BodyField, Integer, Obj, Objects, Text, read
+from .codec import ROS_VERSION, ROSLINK_VERSION
 from .errors import ProtocolError
 from .validate import describe
 
@@ -227,13 +227,6 @@ class ParameterEntry:
                    _who(body, path, VIEWERS))
 
 
-def _entries(body: dict[str, Any], key: str, cls: Any) -> tuple[Any, ...]:
-    items = body.get(key, [])
-    if not isinstance(items, list):
-        raise _where(key, "an array", items)
-    return tuple(cls.from_body(item, f"{key}[{i}]") for i, item in enumerate(items))
-
-
 @dataclass(frozen=True, slots=True)
 class RobotDescription:
     """What one robot maps, retained on ``state/description`` by its bridge (read by every granted user)."""
@@ -252,45 +245,47 @@ class RobotDescription:
     parameters: tuple[ParameterEntry, ...] = ()
 
     FIELDS = (
-        BodyField("robot", "string", True, "the robot's name"),
-        BodyField("system_id", "integer", True, "its ROSLink system id"),
-        BodyField("type", "string", True, "its ROSLink robot type: `generic`, `ground`, `quadrotor`, …"),
-        BodyField("protocol_version", "integer", True, "the ROSLink protocol version its bridge speaks "
-                                                       f"({ROSLINK_VERSION})"),
-        BodyField("ros_version", "integer", True, f"the envelope's `ros_version` ({ROS_VERSION}: ROS 2 Jazzy)"),
-        BodyField("limits", "object", True, "the bridge's velocity limits: `linear` (m/s), `angular` (rad/s), "
+        BodyField("robot", Text(1), True, "the robot's name"),
+        BodyField("system_id", Integer(), True, "its ROSLink system id"),
+        BodyField("type", Text(), True, "its ROSLink robot type: `generic`, `ground`, `quadrotor`, …",
+                  "generic"),
+        BodyField("protocol_version", Integer(), True, "the ROSLink protocol version its bridge speaks "
+                                                      f"({ROSLINK_VERSION})", ROSLINK_VERSION),
+        BodyField("ros_version", Integer(), True, f"the envelope's `ros_version` ({ROS_VERSION}: ROS 2 Jazzy)",
+                  ROS_VERSION),
+        BodyField("limits", Obj(), True, "the bridge's velocity limits: `linear` (m/s), `angular` (rad/s), "
                                             "`mode` (`norm` or `per_axis`); a velocity command may have its "
-                                            "own (`limits` in its entry)"),
-        BodyField("state", "array of objects", True, "what the robot publishes on `state/<name>`: `name`, "
+                                            "own (`limits` in its entry)", {}),
+        BodyField("state", Objects(), True, "what the robot publishes on `state/<name>`: `name`, "
                                                      "`message` (the ROSLink message, for presets), `ros_type` "
                                                      "(the ROS type it comes from; without `message` the body is "
                                                      "that message as JSON), optional `retained`, `max_rate` "
                                                      "(Hz), `fields` (MQTT field → ROS field path), `encoding` "
                                                      "(`cbor` or `raw`, see \"State encodings\"; left out for "
                                                      "JSON), and `who`: `viewers`. Includes the bridge's own "
-                                                     "`ack`"),
-        BodyField("commands", "array of objects", True, "what the robot takes on `from/<user>/<name>`: `name` "
+                                                     "`ack`", ()),
+        BodyField("commands", Objects(), True, "what the robot takes on `from/<user>/<name>`: `name` "
                                                         "(`cmd/twist`, a generic rule's `lights`), `message` "
                                                         "(ROSLink command) or the ROS JSON of `ros_type`, optional "
                                                         "`on_demand`, `fields`, `limits` (velocity inputs: what "
-                                                        "the bridge clamps to), and `who`: `operators`"),
-        BodyField("services", "array of objects", True, "ROS services to `call/<name>`: `name`, `ros_type`, "
+                                                        "the bridge clamps to), and `who`: `operators`", ()),
+        BodyField("services", Objects(), True, "ROS services to `call/<name>`: `name`, `ros_type`, "
                                                         "`read_only`, `timeout` (s), `who` (`viewers` when "
-                                                        "read-only, else `operators`)"),
-        BodyField("actions", "array of objects", True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
+                                                        "read-only, else `operators`)", ()),
+        BodyField("actions", Objects(), True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
                                                        "`viewers`, `timeout` (s), `feedback_rate` (Hz), `who` "
-                                                       "(`viewers` when open to viewers, else `operators`)"),
-        BodyField("parameters", "array of objects", True, "ROS nodes whose parameters `param/<name>` reads "
+                                                       "(`viewers` when open to viewers, else `operators`)", ()),
+        BodyField("parameters", Objects(), True, "ROS nodes whose parameters `param/<name>` reads "
                                                           "(get, list, describe: `who` is `viewers`) and sets "
                                                           "(`set_by`: `operators`, or `viewers` where the fleet "
                                                           "file opens it): `name`, `node` (the ROS node), "
-                                                          "`set_by`, `timeout` (s), `who`"),
-        BodyField("types", "object", True, "every ROS type named above → its field layout: field → primitive "
+                                                          "`set_by`, `timeout` (s), `who`", ()),
+        BodyField("types", Obj(), True, "every ROS type named above → its field layout: field → primitive "
                                            "type as a .msg file spells it (`float64`, `string`, `float64[36]`, "
                                            "`int32[]`, `string<=10`) or, "
                                            "for a nested message, `{\"type\": \"pkg/msg/Type\", \"fields\": "
                                            "{…}}`; a service is `{\"request\", \"response\"}`, an action "
-                                           "`{\"goal\", \"result\", \"feedback\"}`"),
+                                           "`{\"goal\", \"result\", \"feedback\"}`", {}),
     )
     QOS = 1
     RETAINED = True
@@ -306,28 +301,13 @@ class RobotDescription:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> RobotDescription:
-        body = loads(data)
-        if not isinstance(body, dict):
-            raise ProtocolError(f"description: expected a JSON object, got {describe(body)}")
-        robot = _str(body, "robot", "")
-        system_id = body.get("system_id")
-        if isinstance(system_id, bool) or not isinstance(system_id, int):
-            raise _where("system_id", "an integer", system_id)
-        versions = []
-        for key, default in (("protocol_version", ROSLINK_VERSION), ("ros_version", ROS_VERSION)):
-            value = body.get(key, default)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise _where(key, "an integer", value)
-            versions.append(value)
-        limits, types = body.get("limits", {}), body.get("types", {})
-        if not isinstance(limits, dict):
-            raise _where("limits", "an object", limits)
-        if not isinstance(types, dict) or not all(isinstance(v, dict) for v in types.values()):
-            raise _where("types", "an object of ROS type → field layout", types)
-        return cls(robot, system_id, _str(body, "type", "", required=False) or "generic", versions[0], versions[1],
-                   limits, _entries(body, "state", StateEntry), _entries(body, "commands", CommandEntry),
-                   _entries(body, "services", ServiceEntry), _entries(body, "actions", ActionEntry), types,
-                   _entries(body, "parameters", ParameterEntry))
+        got = read(cls.FIELDS, data, shape="description: expected a JSON object", strict=False, what="description")
+        if not all(isinstance(v, dict) for v in got["types"].values()):
+            raise _where("types", "an object of ROS type → field layout", got["types"])
+        for key, entry in (("state", StateEntry), ("commands", CommandEntry), ("services", ServiceEntry),
+                           ("actions", ActionEntry), ("parameters", ParameterEntry)):
+            got[key] = tuple(entry.from_body(item, f"{key}[{i}]") for i, item in enumerate(got[key]))
+        return cls(**{**got, "type": got["type"] or "generic"})
 
     # -- reading it --------------------------------------------------------------------------------------
     def entry(self, name: str) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | ParameterEntry | None:

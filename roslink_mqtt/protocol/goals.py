@@ -13,9 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree, Verb
-from .codec import MAX_CLIENT_ID
-from .control import BodyField, _dump, _no_unknown, _object, check_client_id
-from .errors import ProtocolError
+from .body import SENDER, BodyField, Choice, Id, Obj, Text, read
+from .control import _dump
 
 MAX_GOAL_ID = 128  # characters
 _DOC, _R, _U = TopicTree(), "<robot>", "<user>"
@@ -28,36 +27,14 @@ ROS_STATUS = {4: SUCCEEDED, 5: CANCELED, 6: ABORTED}  # action_msgs/msg/GoalStat
 RESULT_STATUSES = (SUCCEEDED, ABORTED, CANCELED, TIMEOUT, FAILED)
 
 
-def check_goal_id(value: Any, where: str = "id") -> str:
-    if not isinstance(value, str) or not 0 < len(value) <= MAX_GOAL_ID:
-        raise ProtocolError(f"{where}: expected a string of 1..{MAX_GOAL_ID} characters (your name for the goal), "
-                            f"got {value!r}"[:300])
-    return value
-
-
-def _client_id(body: dict[str, Any]) -> str | None:
-    return check_client_id(body["client_id"]) if "client_id" in body else None
-
-
-def _lenient_client_id(body: dict[str, Any]) -> str | None:
-    cid = body.get("client_id")
-    return cid if isinstance(cid, str) else None
-
-
-def _lenient_id(body: dict[str, Any], what: str) -> str:
-    goal_id = body.get("id")
-    if not isinstance(goal_id, str):
-        raise ProtocolError(f"{what}: id: expected a string")
-    return goal_id
-
-
-_ID = BodyField("id", f"string, 1..{MAX_GOAL_ID} characters", True,
+_ID = BodyField("id", Id(MAX_GOAL_ID, strings_only=True), True,
                 "the goal's id, chosen by the sender: unique among its own goals on that action that have not "
-                "ended; every status, feedback and result of the goal carries it")
-_SENDER = BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False,
+                "ended; every status, feedback and result of the goal carries it", names="request")
+_SENDER = BodyField("client_id", SENDER, False,
                     "the sender's id, repeated in everything about the goal (every program of the user reads "
-                    "the user's topics)")
-_ECHO = BodyField("client_id", "string", False, "the goal's `client_id`, when it had one")
+                    "the user's topics)", None, names="sender")
+_ECHO = BodyField("client_id", Text(), False, "the goal's `client_id`, when it had one", None)
+_ITS_ID = BodyField("id", Text(), True, "the goal's id")
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,8 +45,8 @@ class GoalRequest:
     goal: dict[str, Any] = field(default_factory=dict)
     client_id: str | None = None
 
-    FIELDS = (_ID, BodyField("goal", "object", False, "the ROS action's goal as JSON (see Generic ROS messages); "
-                                                     "missing: `{}`"), _SENDER)
+    FIELDS = (_ID, BodyField("goal", Obj(), False, "the ROS action's goal as JSON (see Generic ROS messages); "
+                                                  "missing: `{}`", {}), _SENDER)
     QOS = 1
     RETAINED = False
 
@@ -78,25 +55,7 @@ class GoalRequest:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalRequest:
-        body = _object(data, 'expected a JSON object {"id": "…", "goal": {…}}')
-        client_id = _client_id(body)
-        goal_id = _named_id(body, client_id)
-        try:
-            _no_unknown(body, ("id", "goal", "client_id"))
-            goal = body.get("goal", {})
-            if not isinstance(goal, dict):
-                raise ProtocolError("goal: expected an object")
-        except ProtocolError as err:
-            raise err.naming(goal_id, client_id) from None
-        return cls(goal_id, goal, client_id)
-
-
-def _named_id(body: dict[str, Any], client_id: str | None) -> str:
-    """The goal id of a request body; a bad one is refused naming the sender (it names no request)."""
-    try:
-        return check_goal_id(body.get("id"))
-    except ProtocolError as err:
-        raise err.naming(None, client_id) from None
+        return cls(**read(cls.FIELDS, data, shape='expected a JSON object {"id": "…", "goal": {…}}'))
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,7 +65,8 @@ class GoalCancel:
     id: str
     client_id: str | None = None
 
-    FIELDS = (BodyField("id", "string", True, "the id the goal was sent with"), _SENDER)
+    FIELDS = (BodyField("id", Id(MAX_GOAL_ID, strings_only=True), True, "the id the goal was sent with",
+                        names="request"), _SENDER)
     QOS = 1
     RETAINED = False
 
@@ -115,14 +75,7 @@ class GoalCancel:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalCancel:
-        body = _object(data, 'expected a JSON object {"id": "…"}')
-        client_id = _client_id(body)
-        goal_id = _named_id(body, client_id)
-        try:
-            _no_unknown(body, ("id", "client_id"))
-        except ProtocolError as err:
-            raise err.naming(goal_id, client_id) from None
-        return cls(goal_id, client_id)
+        return cls(**read(cls.FIELDS, data, shape='expected a JSON object {"id": "…"}'))
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,11 +88,11 @@ class GoalStatus:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string", True, "the goal's id"),
-        BodyField("status", "string", True, "`accepted` (the action server took it), `rejected` (it did not, or "
-                                            "the server is not available: see `error`), `canceling` (your cancel "
-                                            "was accepted; the result follows)"),
-        BodyField("error", "string", False, "with `rejected`: why"),
+        _ITS_ID,
+        BodyField("status", Choice((ACCEPTED, REJECTED, CANCELING)), True,
+                  "`accepted` (the action server took it), `rejected` (it did not, or the server is not available: "
+                  "see `error`), `canceling` (your cancel was accepted; the result follows)"),
+        BodyField("error", Text(), False, "with `rejected`: why", None),
         _ECHO,
     )
     QOS = 1
@@ -153,12 +106,8 @@ class GoalStatus:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalStatus:
-        body = _object(data, "goal status: expected a JSON object")
-        status = body.get("status")
-        if status not in (ACCEPTED, REJECTED, CANCELING):
-            raise ProtocolError(f"goal status: status: expected accepted, rejected or canceling, got {status!r}")
-        error = body.get("error")
-        return cls(_lenient_id(body, "goal status"), status, str(error) if error else None, _lenient_client_id(body))
+        values = read(cls.FIELDS, data, shape="goal status: expected a JSON object", strict=False, what="goal status")
+        return cls(**{**values, "error": values["error"] or None})
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,8 +118,7 @@ class GoalFeedback:
     feedback: dict[str, Any]
     client_id: str | None = None
 
-    FIELDS = (BodyField("id", "string", True, "the goal's id"),
-              BodyField("feedback", "object", True, "the ROS action's feedback as JSON"), _ECHO)
+    FIELDS = (_ITS_ID, BodyField("feedback", Obj(), True, "the ROS action's feedback as JSON", {}), _ECHO)
     QOS = 0  # newest wins: a lost feedback is replaced by the next one
     RETAINED = False
 
@@ -179,10 +127,7 @@ class GoalFeedback:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalFeedback:
-        body = _object(data, "feedback: expected a JSON object")
-        feedback = body.get("feedback")
-        return cls(_lenient_id(body, "feedback"), feedback if isinstance(feedback, dict) else {},
-                   _lenient_client_id(body))
+        return cls(**read(cls.FIELDS, data, shape="feedback: expected a JSON object", strict=False, what="feedback"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -196,13 +141,13 @@ class GoalResult:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string", True, "the goal's id"),
-        BodyField("status", "string", True, "`succeeded`, `aborted`, `canceled` (the ROS terminal states), "
-                                            "`timeout` (no result within the action's `timeout`: the bridge "
-                                            "canceled it) or `failed` (the bridge could not get a result)"),
-        BodyField("result", "object", False, "the ROS action's result as JSON, when the server sent one"),
-        BodyField("error", "string", False, "why, when the bridge ended the goal (timeout, your presence ended, "
-                                            "the broker was lost, an emergency stop)"),
+        _ITS_ID,
+        BodyField("status", Text(), True, "`succeeded`, `aborted`, `canceled` (the ROS terminal states), "
+                                          "`timeout` (no result within the action's `timeout`: the bridge "
+                                          "canceled it) or `failed` (the bridge could not get a result)"),
+        BodyField("result", Obj(), False, "the ROS action's result as JSON, when the server sent one", None),
+        BodyField("error", Text(), False, "why, when the bridge ended the goal (timeout, your presence ended, "
+                                          "the broker was lost, an emergency stop)", None),
         _ECHO,
     )
     QOS = 1
@@ -218,13 +163,8 @@ class GoalResult:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalResult:
-        body = _object(data, "result: expected a JSON object")
-        status = body.get("status")
-        if not isinstance(status, str):
-            raise ProtocolError("result: status: expected a string")
-        result, error = body.get("result"), body.get("error")
-        return cls(_lenient_id(body, "result"), status, result if isinstance(result, dict) else None,
-                   str(error) if error else None, _lenient_client_id(body))
+        values = read(cls.FIELDS, data, shape="result: expected a JSON object", strict=False, what="result")
+        return cls(**{**values, "error": values["error"] or None})
 
 
 # (title, topic, type) for the rendered reference, after the control bodies of protocol.control

@@ -14,17 +14,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
-from typing import Any
 
 import orjson
 
 from ..topics import TopicTree, Verb, join_leaf
-from .control import BodyField, _object
+from .body import SENDER, BodyField, Boolean, Choice, Nullable, Number, Strings, Text, read
 from .errors import ProtocolError
 
 CONTROL = "control"  # the state name (roslink/<robot>/state/control) and the verb (from/<user>/control/<op>)
 ESTOP_VIEWERS, ESTOP_OPERATORS = "viewers", "operators"
 ESTOP_MODES = (ESTOP_VIEWERS, ESTOP_OPERATORS)
+CONTROL_MODES = ("auto", "explicit")
 _DOC = TopicTree()
 
 
@@ -57,18 +57,19 @@ class ControlState:
     event: str = ""  # the last change, for people: "taken over by admin from alice"
 
     FIELDS = (
-        BodyField("holder", "string or null", True, "the user who holds control (drives the robot); null: nobody"),
-        BodyField("since", "number or null", True, "when the holder's lease began, s since the Unix epoch"),
-        BodyField("supervisor", "boolean", True, "the holder is a supervisor: only another supervisor can take "
-                                                 "over"),
-        BodyField("mode", '"auto" or "explicit"', True, "robots.yaml `control`: `auto` lets an operator's first "
-                                                        "command claim a free lease; `explicit` needs "
-                                                        "`control/claim` first"),
-        BodyField("supervisors", "array of strings", True, "robots.yaml `supervisors`: they take over by claiming"),
-        BodyField("estop", '"viewers" or "operators"', True, "who may press the emergency stop: every granted user "
-                                                             "(`viewers`, the default) or operators only"),
-        BodyField("event", "string", True, "the last change, for people (`claimed by alice`, `taken over by admin "
-                                           "from alice`, `alice's lease ended: last-will`)"),
+        BodyField("holder", Nullable(Text(1)), True, "the user who holds control (drives the robot); null: nobody",
+                  None, docs_type="string or null"),
+        BodyField("since", Nullable(Number()), True, "when the holder's lease began, s since the Unix epoch", None),
+        BodyField("supervisor", Boolean(), True, "the holder is a supervisor: only another supervisor can take "
+                                                 "over", False),
+        BodyField("mode", Choice(CONTROL_MODES), True, "robots.yaml `control`: `auto` lets an operator's first "
+                                                       "command claim a free lease; `explicit` needs "
+                                                       "`control/claim` first", "auto"),
+        BodyField("supervisors", Strings(), True, "robots.yaml `supervisors`: they take over by claiming", ()),
+        BodyField("estop", Choice(ESTOP_MODES), True, "who may press the emergency stop: every granted user "
+                                                      "(`viewers`, the default) or operators only", ESTOP_VIEWERS),
+        BodyField("event", Text(), True, "the last change, for people (`claimed by alice`, `taken over by admin "
+                                         "from alice`, `alice's lease ended: last-will`)", ""),
     )
     QOS = 1
     RETAINED = True
@@ -80,15 +81,8 @@ class ControlState:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ControlState:
-        body = _object(data, 'expected a JSON object {"holder": "alice", "since": 1764158585.2, …}')
-        try:
-            holder, since = body.get("holder"), body.get("since")
-            return cls(None if holder is None else str(holder), None if since is None else float(since),
-                       bool(body.get("supervisor", False)), str(body.get("mode", "auto")),
-                       tuple(str(s) for s in body.get("supervisors", ())), str(body.get("estop", ESTOP_VIEWERS)),
-                       str(body.get("event", "")))
-        except (TypeError, ValueError) as err:
-            raise ProtocolError(f"missing or malformed field ({err})") from None
+        return cls(**read(cls.FIELDS, data, shape='expected a JSON object {"holder": "alice", "since": 1764158585.2, '
+                                                  '…}', strict=False, what="control state"))
 
     def summary(self) -> str:
         """``driven by alice since 12:03:05`` or ``free``, as ``robots``, ``info`` and ``monitor`` print it."""
@@ -103,11 +97,18 @@ def control_request(client_id: str | None = None) -> bytes:
     return orjson.dumps({"client_id": client_id} if client_id else {})
 
 
-def read_request(payload: bytes) -> dict[str, Any]:
-    """A ``control/<op>`` body: empty, or a JSON object (ProtocolError otherwise)."""
+REQUEST_FIELDS = (BodyField("client_id", SENDER, False, "the program that asks (its refusal finds it)", None,
+                            names="sender"),)
+
+
+def read_request(payload: bytes) -> str | None:
+    """The sender a ``control/<op>`` body names: empty, or a JSON object (ProtocolError otherwise)."""
     if not payload.strip():
-        return {}
-    return _object(payload, 'expected an empty message or a JSON object {"client_id": "…"}')
+        return None
+    got = read(REQUEST_FIELDS, payload, shape='expected an empty message or a JSON object {"client_id": "…"}',
+               strict=False)
+    sender: str | None = got["client_id"]
+    return sender
 
 
 LEASE_BODIES: tuple[tuple[str, str, type], ...] = (

@@ -14,12 +14,12 @@ from typing import Any
 import orjson
 
 from ..topics import TopicTree
-from .control import BodyField, _object
-from .errors import ProtocolError
+from .body import BodyField, Boolean, Choice, Integer, Nullable, Number, Obj, read
 
 LINK = "link"  # the state name: roslink/<robot>/state/link
 LINK_REPORT_PERIOD = 2.0  # s between reports
 PRIORITY_NAMES = ("control", "motion", "state", "bulk")
+UPLINK_MODES = ("scheduled", "fifo")  # robots.yaml bridge.uplink
 _DOC = TopicTree()
 
 
@@ -36,6 +36,17 @@ class StreamReport:
     max_rate: float | None = None  # the rule's max_rate (Hz), if any
     kbit_s: float = 0.0  # sent
 
+    FIELDS = (  # documented in LinkReport's `streams`
+        BodyField("priority", Choice(PRIORITY_NAMES), True, "the stream's priority class"),
+        BodyField("latest_only", Boolean(), True, "a newer message replaces one that waits"),
+        BodyField("offered_hz", Number(), True, "what the rule produced, after `max_rate`"),
+        BodyField("sent_hz", Number(), True, "what left"),
+        BodyField("superseded", Integer(0), False, "replaced by a newer one in the period", 0),
+        BodyField("dropped", Integer(0), False, "dropped in the period", 0),
+        BodyField("max_rate", Nullable(Number()), False, "the rule's max_rate", None),
+        BodyField("kbit_s", Number(), False, "sent", 0.0),
+    )
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"priority": self.priority, "latest_only": self.latest_only,
                                "offered_hz": self.offered_hz, "sent_hz": self.sent_hz, "superseded": self.superseded,
@@ -46,18 +57,8 @@ class StreamReport:
 
     @classmethod
     def from_dict(cls, name: str, body: Any) -> StreamReport:
-        if not isinstance(body, dict):
-            raise ProtocolError(f"streams.{name}: expected an object")
-        try:
-            priority = body["priority"]
-            if priority not in PRIORITY_NAMES:
-                raise ProtocolError(f"streams.{name}.priority: expected one of {', '.join(PRIORITY_NAMES)}")
-            max_rate = body.get("max_rate")
-            return cls(priority, bool(body["latest_only"]), float(body["offered_hz"]), float(body["sent_hz"]),
-                       int(body.get("superseded", 0)), int(body.get("dropped", 0)),
-                       None if max_rate is None else float(max_rate), float(body.get("kbit_s", 0.0)))
-        except (KeyError, TypeError, ValueError) as err:
-            raise ProtocolError(f"streams.{name}: missing or malformed field ({err})") from None
+        return cls(**read(cls.FIELDS, body, shape=f"streams.{name}: expected an object", strict=False,
+                          what=f"streams.{name}"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,18 +74,19 @@ class LinkReport:
     streams: dict[str, StreamReport] = field(default_factory=dict)
 
     FIELDS = (
-        BodyField("mode", '"scheduled" or "fifo"', True, "the bridge's `uplink` setting"),
-        BodyField("rate_kbit_s", "number", True, "the uplink's estimated rate, kbit/s (all the bridge's connections)"),
-        BodyField("measured", "boolean", True, "true: measured while the link was full (its capacity); false: the "
+        BodyField("mode", Choice(UPLINK_MODES), True, "the bridge's `uplink` setting"),
+        BodyField("rate_kbit_s", Number(), True, "the uplink's estimated rate, kbit/s (all the bridge's "
+                                                 "connections)"),
+        BodyField("measured", Boolean(), True, "true: measured while the link was full (its capacity); false: the "
                                                "link had room, so the rate is at least this"),
-        BodyField("budget_bytes", "integer", True, "bytes the bridge lets wait in the network (rate × (round trip "
+        BodyField("budget_bytes", Integer(), True, "bytes the bridge lets wait in the network (rate × (round trip "
                                                    "+ `uplink_target_delay`))"),
-        BodyField("rtt_ms", "number", True, "the least round trip the kernel measured to the broker, ms"),
-        BodyField("period", "number", True, "seconds the rates and counts below cover"),
-        BodyField("streams", "object", True, "per state name: `priority`, `latest_only`, `offered_hz` (what the "
-                                             "rule produced, after `max_rate`), `sent_hz`, `superseded` and "
-                                             "`dropped` (counts in the period), `kbit_s` sent, and `max_rate` "
-                                             "when the rule has one"),
+        BodyField("rtt_ms", Number(), True, "the least round trip the kernel measured to the broker, ms"),
+        BodyField("period", Number(), True, "seconds the rates and counts below cover"),
+        BodyField("streams", Obj(), True, "per state name: `priority`, `latest_only`, `offered_hz` (what the "
+                                          "rule produced, after `max_rate`), `sent_hz`, `superseded` and "
+                                          "`dropped` (counts in the period), `kbit_s` sent, and `max_rate` "
+                                          "when the rule has one", {}),
     )
     QOS = 0  # a snapshot, replaced every period
     RETAINED = True
@@ -96,16 +98,10 @@ class LinkReport:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LinkReport:
-        body = _object(data, 'expected a JSON object {"mode": "scheduled", "rate_kbit_s": 240, …}')
-        streams = body.get("streams", {})
-        if not isinstance(streams, dict):
-            raise ProtocolError("streams: expected an object")
-        try:
-            return cls(str(body["mode"]), float(body["rate_kbit_s"]), bool(body["measured"]),
-                       int(body["budget_bytes"]), float(body["rtt_ms"]), float(body["period"]),
-                       {str(n): StreamReport.from_dict(str(n), s) for n, s in streams.items()})
-        except (KeyError, TypeError, ValueError) as err:
-            raise ProtocolError(f"missing or malformed field ({err})") from None
+        got = read(cls.FIELDS, data, shape='expected a JSON object {"mode": "scheduled", "rate_kbit_s": 240, …}',
+                   strict=False, what="link report")
+        got["streams"] = {str(n): StreamReport.from_dict(str(n), s) for n, s in got["streams"].items()}
+        return cls(**got)
 
     def summary(self) -> str:
         """One line for people: ``link 240 kbit/s — range_finder_data 1.2 Hz of 5 (14 superseded)``."""

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree
-from .codec import MAX_CLIENT_ID
-from .control import MAX_CALL_ID, BodyField, _dump, _no_unknown, _object, check_client_id
+from .body import SENDER, BodyField, Boolean, Id, Obj, Text, read, refuse
+from .control import MAX_CALL_ID, _dump
 from .errors import ProtocolError
 from .params import TYPE_CODES, check_value
 
@@ -51,13 +51,6 @@ def check_parameter_name(name: str) -> str:
         raise ProtocolError(f"parameter name {name!r} is not a ROS parameter name (letters, digits, underscores, "
                             "dot-separated tokens, e.g. 'pid.kp')"[:300])
     return name
-
-
-def _id(value: Any) -> str | int:
-    if isinstance(value, str) and 0 < len(value) <= MAX_CALL_ID or isinstance(value, int) and not isinstance(
-            value, bool):
-        return value
-    raise ProtocolError(f"id: expected a string of 1..{MAX_CALL_ID} characters or an integer")
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,9 +104,9 @@ class ParamDeclaration:
     parameters: dict[str, DeclaredParameter] = field(default_factory=dict)
 
     FIELDS = (
-        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", True,
-                  "the SDK node's presence client: the ROS node exists while it is live"),
-        BodyField("parameters", "object", True,
+        BodyField("client_id", SENDER, True,
+                  "the SDK node's presence client: the ROS node exists while it is live", names="sender"),
+        BodyField("parameters", Obj(MAX_PARAMETERS), True,
                   f"name → `{{\"value\", \"type\", \"description\", \"read_only\"}}` (at most {MAX_PARAMETERS}): "
                   "`type` is a ROS parameter type (`bool`, `integer`, `double`, `string`, `bool_array`, "
                   "`integer_array`, `double_array`, `string_array`, or `not_set` for a dynamically typed "
@@ -127,29 +120,16 @@ class ParamDeclaration:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamDeclaration:
-        body = _object(data, 'expected a JSON object {"client_id": …, "parameters": {…}}')
-        try:
-            return cls._checked(body)
-        except ProtocolError as err:
-            raise err.naming(None, _sender(body)) from None
-
-    @classmethod
-    def _checked(cls, body: dict[str, Any]) -> ParamDeclaration:
-        _no_unknown(body, ("client_id", "parameters"))
-        if "client_id" not in body:
-            raise ProtocolError("client_id: required (the presence client the ROS node lives with)")
-        client_id = check_client_id(body["client_id"])
-        parameters = body.get("parameters")
-        if not isinstance(parameters, dict) or len(parameters) > MAX_PARAMETERS:
-            raise ProtocolError(f"parameters: expected an object of at most {MAX_PARAMETERS} parameters")
+        got = read(cls.FIELDS, data, shape='expected a JSON object {"client_id": …, "parameters": {…}}')
         out = {}
-        for name, spec in parameters.items():
+        for name, spec in got["parameters"].items():
             try:
                 check_parameter_name(name)
+                out[name] = DeclaredParameter.from_dict(name, spec)
             except ProtocolError as err:
-                raise ProtocolError(f"parameters: {err}") from None
-            out[name] = DeclaredParameter.from_dict(name, spec)
-        return cls(client_id, out)
+                why = f"parameters: {err}" if not str(err).startswith("parameters.") else str(err)
+                raise refuse(why, got, cls.FIELDS) from None
+        return cls(got["client_id"], out)
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,11 +141,12 @@ class ParamSetRequest:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string", True, "the bridge's, `<robot>-p<n>`: echo it in the result"),
-        BodyField("parameters", "object", True, "name → new value, as one ROS `set_parameters` call asked "
-                                                "(all or none: the SDK node accepts or refuses them together)"),
-        BodyField("client_id", "string", False, "the declaring program's presence id (other programs of the "
-                                                "user ignore the request)"),
+        BodyField("id", Id(MAX_CALL_ID), True, "the bridge's, `<robot>-p<n>`: echo it in the result",
+                  docs_type="string"),
+        BodyField("parameters", Obj(), True, "name → new value, as one ROS `set_parameters` call asked "
+                                             "(all or none: the SDK node accepts or refuses them together)"),
+        BodyField("client_id", Text(), False, "the declaring program's presence id (other programs of the "
+                                              "user ignore the request)", None),
     )
     QOS = 1
     RETAINED = False
@@ -175,11 +156,8 @@ class ParamSetRequest:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetRequest:
-        body = _object(data, "param_set: expected a JSON object")
-        parameters, cid = body.get("parameters"), body.get("client_id")
-        if not isinstance(parameters, dict):
-            raise ProtocolError("param_set: parameters: expected an object")
-        return cls(_id(body.get("id")), parameters, cid if isinstance(cid, str) else None)
+        return cls(**read(cls.FIELDS, data, shape="param_set: expected a JSON object", strict=False,
+                          what="param_set"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,11 +170,11 @@ class ParamSetResult:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string or integer", True, "the request's id"),
-        BodyField("successful", "boolean", True, "true: the node took every value; false: none (see `reason`)"),
-        BodyField("reason", "string", False, f"why it refused (at most {MAX_REASON} characters); the ROS client "
-                                             "receives it"),
-        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False, "the sender's id"),
+        BodyField("id", Id(MAX_CALL_ID), True, "the request's id", docs_type="string or integer"),
+        BodyField("successful", Boolean(), True, "true: the node took every value; false: none (see `reason`)"),
+        BodyField("reason", Text(0, MAX_REASON), False, f"why it refused (at most {MAX_REASON} characters); the "
+                                                        "ROS client receives it", "", docs_type="string"),
+        BodyField("client_id", SENDER, False, "the sender's id", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
@@ -209,30 +187,7 @@ class ParamSetResult:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetResult:
-        body = _object(data, 'expected a JSON object {"id": …, "successful": true}')
-        try:
-            return cls._checked(body)
-        except ProtocolError as err:
-            raise err.naming(None, _sender(body)) from None
-
-    @classmethod
-    def _checked(cls, body: dict[str, Any]) -> ParamSetResult:
-        _no_unknown(body, ("id", "successful", "reason", "client_id"))
-        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        successful, reason = body.get("successful"), body.get("reason", "")
-        if not isinstance(successful, bool):
-            raise ProtocolError("successful: expected a boolean")
-        if not isinstance(reason, str) or len(reason) > MAX_REASON:
-            raise ProtocolError(f"reason: expected a string of at most {MAX_REASON} characters")
-        return cls(_id(body.get("id")), successful, reason, client_id)
-
-
-def _sender(body: dict[str, Any]) -> str | None:
-    """The body's client id if it is a valid one: whom a refusal of a malformed body is addressed to."""
-    try:
-        return check_client_id(body["client_id"]) if "client_id" in body else None
-    except ProtocolError:
-        return None
+        return cls(**read(cls.FIELDS, data, shape='expected a JSON object {"id": …, "successful": true}'))
 
 
 NODE_PARAM_BODIES: tuple[tuple[str, str, type], ...] = (

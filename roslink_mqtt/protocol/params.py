@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 from ..topics import TopicTree, Verb
-from .codec import MAX_CLIENT_ID
-from .control import MAX_CALL_ID, BodyField, _dump, _no_unknown, _object, check_client_id
+from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, read, refuse
+from .control import MAX_CALL_ID, _dump
 from .errors import ProtocolError
 from .validate import show_key
 
@@ -89,14 +89,14 @@ class ParamRequest:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", f"string (≤ {MAX_CALL_ID} characters) or integer", True, "yours, echoed in the reply"),
-        BodyField("op", "string", True, "`get` (the `names`), `set` (the `values`), `list` (every name; `names` "
-                                        "are prefixes, optional), `describe` (the `names`)"),
-        BodyField("names", "array of strings", False, "parameter names, for get and describe (and list prefixes)"),
-        BodyField("values", "object", False, "for set: name → value (boolean, integer, double, string, or an "
-                                             "array of one of those)"),
-        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False, "the sender's id, repeated in "
-                                                                                "the reply"),
+        BodyField("id", Id(MAX_CALL_ID), True, "yours, echoed in the reply", names="request"),
+        BodyField("op", Choice(OPS), True, "`get` (the `names`), `set` (the `values`), `list` (every name; "
+                                           "`names` are prefixes, optional), `describe` (the `names`)"),
+        BodyField("names", Strings(MAX_NAMES, non_empty=True), False,
+                  "parameter names, for get and describe (and list prefixes)", ()),
+        BodyField("values", Obj(MAX_NAMES), False, "for set: name → value (boolean, integer, double, string, or "
+                                                   "an array of one of those)", {}),
+        BodyField("client_id", SENDER, False, "the sender's id, repeated in the reply", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
@@ -111,39 +111,17 @@ class ParamRequest:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamRequest:
-        body = _object(data, 'expected a JSON object {"id": …, "op": "get", "names": […]}')
-        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        rid = body.get("id")
-        if not (isinstance(rid, str) and 0 < len(rid) <= MAX_CALL_ID or _is_int(rid)):
-            raise ProtocolError(f"id: expected a string of 1..{MAX_CALL_ID} characters or an integer").naming(
-                None, client_id)
-        try:
-            return cls._checked(rid, body, client_id)
-        except ProtocolError as err:
-            raise err.naming(rid, client_id) from None
-
-    @classmethod
-    def _checked(cls, rid: str | int, body: dict[str, Any], client_id: str | None) -> ParamRequest:
-        _no_unknown(body, ("id", "op", "names", "values", "client_id"))
-        op = body.get("op")
-        if op not in OPS:
-            raise ProtocolError(f"op: expected one of {', '.join(OPS)}, got {op!r}"[:200])
-        names = body.get("names", [])
-        if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names) or len(names) > MAX_NAMES:
-            raise ProtocolError(f"names: expected an array of at most {MAX_NAMES} non-empty strings")
-        values = body.get("values", {})
-        if not isinstance(values, dict) or len(values) > MAX_NAMES:
-            raise ProtocolError(f"values: expected an object of at most {MAX_NAMES} parameters")
-        for name, value in values.items():
+        got = read(cls.FIELDS, data, shape='expected a JSON object {"id": …, "op": "get", "names": […]}')
+        for name, value in got["values"].items():
             try:
                 ros_type_of(value)
             except ProtocolError as err:
-                raise ProtocolError(f"values.{show_key(name)}: {err}") from None
-        if op in ("get", "describe") and not names:
-            raise ProtocolError(f"names: '{op}' needs the parameter names")
-        if op == "set" and not values:
-            raise ProtocolError("values: 'set' needs at least one name → value")
-        return cls(rid, op, tuple(names), values, client_id)
+                raise refuse(f"values.{show_key(name)}: {err}", got, cls.FIELDS) from None
+        if got["op"] in ("get", "describe") and not got["names"]:
+            raise refuse(f"names: '{got['op']}' needs the parameter names", got, cls.FIELDS)
+        if got["op"] == "set" and not got["values"]:
+            raise refuse("values: 'set' needs at least one name → value", got, cls.FIELDS)
+        return cls(**got)
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,14 +135,14 @@ class ParamReply:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string or integer", True, "the request's id"),
-        BodyField("result", "boolean", True, "true: the node answered (see `values`); false: see `error`"),
-        BodyField("values", "object", False, "get: name → value (null: not set); set: name → `{\"successful\": "
-                                             "…, \"reason\": …}` (the node's own validation); list: "
-                                             "`{\"names\": […]}`; describe: name → `{\"type\", \"description\", "
-                                             "\"read_only\", …}`"),
-        BodyField("error", "string", False, "with `result` false: why (node not available, timeout)"),
-        BodyField("client_id", "string", False, "the request's `client_id`, when it had one"),
+        BodyField("id", AnyJson(), True, "the request's id", None, docs_type="string or integer"),
+        BodyField("result", Boolean(), True, "true: the node answered (see `values`); false: see `error`", False),
+        BodyField("values", Obj(), False, "get: name → value (null: not set); set: name → `{\"successful\": "
+                                          "…, \"reason\": …}` (the node's own validation); list: "
+                                          "`{\"names\": […]}`; describe: name → `{\"type\", \"description\", "
+                                          "\"read_only\", …}`", {}),
+        BodyField("error", Text(), False, "with `result` false: why (node not available, timeout)", None),
+        BodyField("client_id", Text(), False, "the request's `client_id`, when it had one", None),
     )
     QOS = 1
     RETAINED = False
@@ -179,11 +157,8 @@ class ParamReply:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamReply:
-        body = _object(data, "param reply: expected a JSON object")
-        cid = body.get("client_id")
-        values, error = body.get("values"), body.get("error")
-        return cls(body.get("id"), body.get("result") is True, values if isinstance(values, dict) else {},
-                   str(error) if error else None, cid if isinstance(cid, str) else None)
+        got = read(cls.FIELDS, data, shape="param reply: expected a JSON object", strict=False, what="param reply")
+        return cls(**{**got, "error": got["error"] or None})
 
 
 @dataclass(frozen=True, slots=True)
@@ -196,10 +171,10 @@ class ParamEvent:
     deleted: tuple[str, ...] = ()
 
     FIELDS = (
-        BodyField("node", "string", True, "the ROS node's full name"),
-        BodyField("new", "object", True, "parameters declared since: name → value"),
-        BodyField("changed", "object", True, "parameters set since: name → new value"),
-        BodyField("deleted", "array of strings", True, "parameters undeclared since"),
+        BodyField("node", Text(), True, "the ROS node's full name"),
+        BodyField("new", Obj(), True, "parameters declared since: name → value", {}),
+        BodyField("changed", Obj(), True, "parameters set since: name → new value", {}),
+        BodyField("deleted", Strings(), True, "parameters undeclared since", ()),
     )
     QOS = 0
     RETAINED = False
@@ -210,13 +185,8 @@ class ParamEvent:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamEvent:
-        body = _object(data, "parameter event: expected a JSON object")
-        node = body.get("node")
-        if not isinstance(node, str):
-            raise ProtocolError("parameter event: node: expected a string")
-        new, changed, deleted = body.get("new"), body.get("changed"), body.get("deleted")
-        return cls(node, new if isinstance(new, dict) else {}, changed if isinstance(changed, dict) else {},
-                   tuple(d for d in deleted if isinstance(d, str)) if isinstance(deleted, list) else ())
+        return cls(**read(cls.FIELDS, data, shape="parameter event: expected a JSON object", strict=False,
+                          what="parameter event"))
 
 
 PARAM_BODIES: tuple[tuple[str, str, type], ...] = (

@@ -14,9 +14,8 @@ from typing import Any
 
 from ..ros_names import is_interface
 from ..topics import TopicTree, Verb
-from .codec import MAX_CLIENT_ID
-from .control import BodyField, _dump, _no_unknown, _object, check_client_id
-from .errors import ProtocolError
+from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, read, refuse
+from .control import _dump
 
 DEFAULT_ACCEPT_TIMEOUT = 5.0  # s for the provider to accept or reject a goal
 DEFAULT_RESULT_TIMEOUT = 600.0  # s from acceptance to the final update
@@ -26,13 +25,6 @@ SUCCEEDED, ABORTED, CANCELED = "succeeded", "aborted", "canceled"
 FINAL = (SUCCEEDED, ABORTED, CANCELED)
 UPDATE_STATUSES = (ACCEPTED, REJECTED, FEEDBACK, *FINAL)
 _DOC, _R, _U = TopicTree(), "<robot>", "<user>"
-
-
-def _seconds(body: dict[str, Any], key: str, default: float) -> float:
-    value = body.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= MAX_TIMEOUT:
-        raise ProtocolError(f"{key}: expected seconds, 0 < {key} <= {MAX_TIMEOUT:g}")
-    return float(value)
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,14 +37,16 @@ class ActionOffer:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("type", "string `pkg/action/Type`", True, "the ROS action type; the bridge must know it"),
-        BodyField("accept_timeout", f"number, 0 < s ≤ {MAX_TIMEOUT:g}", False,
-                  f"seconds a ROS goal waits for your accepted/rejected (default {DEFAULT_ACCEPT_TIMEOUT:g})"),
-        BodyField("result_timeout", f"number, 0 < s ≤ {MAX_TIMEOUT:g}", False,
+        BodyField("type", Text(1, wording="string `pkg/action/Type`"), True,
+                  "the ROS action type; the bridge must know it"),
+        BodyField("accept_timeout", Number(0, MAX_TIMEOUT, low_open=True), False,
+                  f"seconds a ROS goal waits for your accepted/rejected (default {DEFAULT_ACCEPT_TIMEOUT:g})",
+                  DEFAULT_ACCEPT_TIMEOUT),
+        BodyField("result_timeout", Number(0, MAX_TIMEOUT, low_open=True), False,
                   f"seconds from acceptance to your final update; then the goal is aborted (default "
-                  f"{DEFAULT_RESULT_TIMEOUT:g})"),
-        BodyField("client_id", "string", False, "your presence client id: the action server exists while that "
-                                                "client is live"),
+                  f"{DEFAULT_RESULT_TIMEOUT:g})", DEFAULT_RESULT_TIMEOUT),
+        BodyField("client_id", SENDER, False, "your presence client id: the action server exists while that "
+                                              "client is live", None, names="sender"),
     )
     QOS = 1
     RETAINED = True
@@ -63,20 +57,11 @@ class ActionOffer:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionOffer:
-        shape = 'expected {"type": "pkg/action/Type"} (optional "accept_timeout", "result_timeout", "client_id")'
-        body = _object(data, shape)
-        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        try:
-            _no_unknown(body, ("type", "accept_timeout", "result_timeout", "client_id"))
-            kind = body.get("type")
-            if not isinstance(kind, str):
-                raise ProtocolError(shape)
-            if not is_interface(kind, "action"):
-                raise ProtocolError(f"'{kind}' is not an action type (pkg/action/Type)")
-            return cls(kind, _seconds(body, "accept_timeout", DEFAULT_ACCEPT_TIMEOUT),
-                       _seconds(body, "result_timeout", DEFAULT_RESULT_TIMEOUT), client_id)
-        except ProtocolError as err:
-            raise err.naming(None, client_id) from None
+        got = read(cls.FIELDS, data, shape='expected {"type": "pkg/action/Type"} (optional "accept_timeout", '
+                                           '"result_timeout", "client_id")')
+        if not is_interface(got["type"], "action"):
+            raise refuse(f"'{got['type']}' is not an action type (pkg/action/Type)", got, cls.FIELDS)
+        return cls(**got)
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,11 +74,12 @@ class ActionRequest:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string", True, "the bridge's id for the goal (`<robot>-g<n>`): echo it in every update"),
-        BodyField("op", "string", True, "`goal` (accept or reject it, then work on it) or `cancel` (a ROS client "
-                                        "asked to cancel it: finish it with `canceled`)"),
-        BodyField("goal", "object", False, "with `goal`: the ROS goal as JSON"),
-        BodyField("client_id", "string", False, "the offer's `client_id`"),
+        BodyField("id", Text(), True, "the bridge's id for the goal (`<robot>-g<n>`): echo it in every update"),
+        BodyField("op", Choice(("goal", "cancel")), True, "`goal` (accept or reject it, then work on it) or "
+                                                          "`cancel` (a ROS client asked to cancel it: finish it "
+                                                          "with `canceled`)"),
+        BodyField("goal", Obj(), False, "with `goal`: the ROS goal as JSON", {}),
+        BodyField("client_id", Text(), False, "the offer's `client_id`", None),
     )
     QOS = 1
     RETAINED = False
@@ -106,11 +92,8 @@ class ActionRequest:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionRequest:
-        body = _object(data, "action request: expected a JSON object")
-        rid, op, goal, cid = body.get("id"), body.get("op"), body.get("goal", {}), body.get("client_id")
-        if not isinstance(rid, str) or op not in ("goal", "cancel") or not isinstance(goal, dict):
-            raise ProtocolError('action request: expected {"id": "…", "op": "goal"|"cancel", "goal": {…}}')
-        return cls(rid, op, goal, cid if isinstance(cid, str) else None)
+        return cls(**read(cls.FIELDS, data, shape="action request: expected a JSON object", strict=False,
+                          what="action request"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,13 +108,17 @@ class ActionUpdate:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("id", "string", True, "the request's id"),
-        BodyField("status", "string", True, "`accepted` or `rejected` (answer to a goal), `feedback`, then one "
-                                            "of `succeeded`, `aborted`, `canceled` (the end)"),
-        BodyField("feedback", "object", False, "with `feedback`: the action's feedback as JSON"),
-        BodyField("result", "object", False, "with the end: the action's result as JSON (missing: defaults)"),
-        BodyField("error", "string", False, "with `rejected` or `aborted`: why (logged by the bridge)"),
-        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False, "names you in an error report"),
+        BodyField("id", Text(1), True, "the request's id", names="request"),
+        BodyField("status", Choice(UPDATE_STATUSES), True, "`accepted` or `rejected` (answer to a goal), "
+                                                           "`feedback`, then one of `succeeded`, `aborted`, "
+                                                           "`canceled` (the end)"),
+        BodyField("feedback", AnyJson(), False, "with `feedback`: the action's feedback as JSON", None,
+                  docs_type="object"),
+        BodyField("result", Nullable(Obj()), False, "with the end: the action's result as JSON (missing: "
+                                                    "defaults)", None, docs_type="object"),
+        BodyField("error", Nullable(Text()), False, "with `rejected` or `aborted`: why (logged by the bridge)", None,
+                  docs_type="string"),
+        BodyField("client_id", SENDER, False, "names you in an error report", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
@@ -148,30 +135,10 @@ class ActionUpdate:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionUpdate:
-        body = _object(data, 'expected a JSON object {"id": "…", "status": "…"}')
-        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        rid = body.get("id")
-        if not isinstance(rid, str) or not rid:
-            raise ProtocolError("id: expected the request's id (a string)").naming(None, client_id)
-        try:
-            return cls._checked(rid, body, client_id)
-        except ProtocolError as err:
-            raise err.naming(rid, client_id) from None
-
-    @classmethod
-    def _checked(cls, rid: str, body: dict[str, Any], client_id: str | None) -> ActionUpdate:
-        _no_unknown(body, ("id", "status", "feedback", "result", "error", "client_id"))
-        status = body.get("status")
-        if status not in UPDATE_STATUSES:
-            raise ProtocolError(f"status: expected one of {', '.join(UPDATE_STATUSES)}, got {status!r}"[:200])
-        feedback, result, error = body.get("feedback"), body.get("result"), body.get("error")
-        if status == FEEDBACK and not isinstance(feedback, dict):
-            raise ProtocolError("feedback: expected an object with status feedback")
-        if result is not None and not isinstance(result, dict):
-            raise ProtocolError("result: expected an object")
-        if error is not None and not isinstance(error, str):
-            raise ProtocolError("error: expected a string")
-        return cls(rid, status, feedback if status == FEEDBACK else None, result, error, client_id)
+        got = read(cls.FIELDS, data, shape='expected a JSON object {"id": "…", "status": "…"}')
+        if got["status"] == FEEDBACK and not isinstance(got["feedback"], dict):
+            raise refuse("feedback: expected an object with status feedback", got, cls.FIELDS)
+        return cls(**{**got, "feedback": got["feedback"] if got["status"] == FEEDBACK else None})
 
 
 PROVIDED_ACTION_BODIES: tuple[tuple[str, str, type], ...] = (

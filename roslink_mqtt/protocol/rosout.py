@@ -12,12 +12,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..topics import TopicTree
-from .codec import MAX_CLIENT_ID
-from .control import BodyField, _dump, _no_unknown, _object, check_client_id
-from .errors import ProtocolError
+from .body import SENDER, BodyField, Integer, Levels, Text, read, refuse
+from .control import _dump
 
 LEVELS = {10: "debug", 20: "info", 30: "warn", 40: "error", 50: "fatal"}
 MAX_MSG = 16 * 1024  # characters of one log line; longer ones are cut (with a mark) by the sender
+MAX_SOURCE = 1024  # characters of file and function, together
 _DOC = TopicTree()
 
 
@@ -33,12 +33,13 @@ class LogLine:
     client_id: str | None = None
 
     FIELDS = (
-        BodyField("level", "integer", True, "10 debug, 20 info, 30 warn, 40 error, 50 fatal"),
-        BodyField("msg", "string", True, f"the text (at most {MAX_MSG} characters)"),
-        BodyField("file", "string", False, "source file of the call"),
-        BodyField("function", "string", False, "function of the call"),
-        BodyField("line", "integer", False, "line of the call"),
-        BodyField("client_id", f"string, 1..{MAX_CLIENT_ID} characters", False, "the sender's id"),
+        BodyField("level", Levels(tuple(LEVELS)), True, "10 debug, 20 info, 30 warn, 40 error, 50 fatal",
+                  docs_type="integer"),
+        BodyField("msg", Text(0, MAX_MSG), True, f"the text (at most {MAX_MSG} characters)", docs_type="string"),
+        BodyField("file", Text(0, MAX_SOURCE), False, "source file of the call", ""),
+        BodyField("function", Text(0, MAX_SOURCE), False, "function of the call", ""),
+        BodyField("line", Integer(0, 2**31 - 1), False, "line of the call", 0, docs_type="integer"),
+        BodyField("client_id", SENDER, False, "the sender's id", None, names="sender"),
     )
     QOS = 0  # a log stream: a lost line is not worth a retransmission queue
     RETAINED = False
@@ -51,27 +52,10 @@ class LogLine:
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LogLine:
-        body = _object(data, 'expected a JSON object {"level": 20, "msg": "…"}')
-        client_id = check_client_id(body["client_id"]) if "client_id" in body else None
-        try:
-            return cls._checked(body, client_id)
-        except ProtocolError as err:
-            raise err.naming(None, client_id) from None
-
-    @classmethod
-    def _checked(cls, body: dict[str, Any], client_id: str | None) -> LogLine:
-        _no_unknown(body, ("level", "msg", "file", "function", "line", "client_id"))
-        level, msg = body.get("level"), body.get("msg")
-        if level not in LEVELS or isinstance(level, bool):
-            raise ProtocolError(f"level: expected one of {', '.join(map(str, LEVELS))}, got {level!r}"[:200])
-        if not isinstance(msg, str) or len(msg) > MAX_MSG:
-            raise ProtocolError(f"msg: expected a string of at most {MAX_MSG} characters")
-        file, function, line = body.get("file", ""), body.get("function", ""), body.get("line", 0)
-        if not isinstance(file, str) or not isinstance(function, str) or len(file) + len(function) > 1024:
-            raise ProtocolError("file, function: expected strings (together at most 1024 characters)")
-        if not isinstance(line, int) or isinstance(line, bool) or not 0 <= line < 2**31:
-            raise ProtocolError("line: expected a non-negative integer")
-        return cls(level, msg, file, function, line, client_id)
+        got = read(cls.FIELDS, data, shape='expected a JSON object {"level": 20, "msg": "…"}')
+        if len(got["file"]) + len(got["function"]) > MAX_SOURCE:
+            raise refuse(f"file, function: together at most {MAX_SOURCE} characters", got, cls.FIELDS)
+        return cls(**got)
 
 
 ROSOUT_BODIES: tuple[tuple[str, str, type], ...] = (

@@ -82,7 +82,7 @@ def test_refusals_are_answered_on_the_reply_topic(h: Harness) -> None:
     errors = dict(answered[:1] + answered[2:])
     assert errors[1] == "unknown service 'warp' (services: reset, status)"
     assert "operator" in errors[2]
-    assert errors[3] == "args: expected an object"
+    assert errors[3] == "args: expected object, got an array of 1"
     assert replies(h, "reset")[-1].client_id == "laptop"
     assert h.services.calls == []
 

@@ -98,7 +98,7 @@ def test_refusals_name_the_goal_and_nothing_malformed_reaches_ros(h: Harness) ->
     alice = h.link.errors("alice")
     assert [(e.id, e.client_id) for e in alice] == [("x", None), ("y", "laptop"), (None, None), ("a", None),
                                                      ("nope", None)]
-    assert "unknown action 'warp'" in alice[0].error and "goal: expected an object" in alice[1].error
+    assert "unknown action 'warp'" in alice[0].error and "goal: expected object" in alice[1].error
     assert "already in use" in alice[3].error and "no goal 'nope'" in alice[4].error
     assert "operator" in h.link.errors("bob")[0].error
     assert h.actions.goals == [("alice", "fibonacci", "a")] and h.endpoint.lease.holder == "alice"

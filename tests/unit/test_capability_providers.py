@@ -90,4 +90,5 @@ def test_sdk_parameter_declarations_and_results() -> None:
     alice = h.link.errors("alice")
     assert "already declared" in alice[0].error and alice[0].client_id == "pc"
     assert len(alice) == 3 and "operator" in h.link.errors("bob")[0].error
-    assert "reason: expected a string" in alice[2].error and alice[2].client_id == "pc"  # a malformed body's sender
+    # a malformed body's sender is named
+    assert "reason: expected string, 0..1024 characters" in alice[2].error and alice[2].client_id == "pc"

@@ -44,8 +44,8 @@ def test_declaration_round_trip_and_typing() -> None:
 
 
 @pytest.mark.parametrize(("body", "reason"), [
-    ({"parameters": {}}, "client_id: required (the presence client the ROS node lives with)"),
-    ({"client_id": CID, "parameters": []}, "parameters: expected an object of at most 256 parameters"),
+    ({"parameters": {}}, 'client_id: missing; expected a JSON object {"client_id": …, "parameters": {…}}'),
+    ({"client_id": CID, "parameters": []}, "parameters: expected object of at most 256 entries, got an array of 0"),
     ({"client_id": CID, "parameters": {"a": {"value": "x", "type": "double"}}},
      "parameters.a.value: expected double, got string 'x'"),
     ({"client_id": CID, "parameters": {"a": {"value": 1, "type": "float"}}},
@@ -73,10 +73,10 @@ def test_set_request_and_result() -> None:
     result = ParamSetResult("turtle1-p3", False, "too strong", CID)
     assert ParamSetResult.from_json(result.to_json()) == result
     assert ParamSetResult.from_json(b'{"id": "turtle1-p3", "successful": true}').reason == ""
-    for bad, reason in ((b'{"id": "x"}', "successful: expected a boolean"),
+    for bad, reason in ((b'{"id": "x"}', 'successful: missing; expected a JSON object {"id": …, "successful": true}'),
                         (b'{"id": "x", "successful": true, "why": 1}', None),
-                        (b'{"id": true, "successful": true}', "id: expected a string of 1..128 characters or an "
-                                                                "integer")):
+                        (b'{"id": true, "successful": true}', "id: expected string, 1..128 characters or integer, "
+                                                                "got true")):
         with pytest.raises(ProtocolError) as err:
             ParamSetResult.from_json(bad)
         if reason:

@@ -64,9 +64,7 @@ class Control:
 
     def parse(self, name: str, payload: bytes) -> ControlBody:
         op = ControlOp.parse(name)
-        body = read_request(payload)
-        sender = body.get("client_id")
-        return ControlBody(op, sender if isinstance(sender, str) else None)
+        return ControlBody(op, read_request(payload))
 
     def gate(self, request: Request[ControlBody], gates: Gates) -> Refusal | None:
         if request.role is not Role.OPERATOR:

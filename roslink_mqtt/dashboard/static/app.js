@@ -6,7 +6,11 @@
 "use strict";
 
 (() => {
-  const STALE_AFTER_MS = 5000;       // as the SDK: a heartbeat older than this is stale (beats come every 1 s)
+  // From the protocol's declarations (protocol.js, generated) and read as the SDK reads them (body.js)
+  const { STALE_AFTER_MS, STATUS, MODES } = window.ROSLINK.constants;
+  const BODIES = window.ROSLINK.bodies;
+  // one body, named as in docs/protocol.md ("control state" → control_state): its declared fields, or null
+  const read = (name, payload) => window.roslinkBody.readBody(BODIES[name], parse(payload));
   const PRESENCE_PERIOD_MS = 500;    // operator heartbeat; robots drop an operator after 1.5 s without one
   const TWIST_PERIOD_MS = 100;       // 10 Hz while a drive button or key is held
   const TRAIL_MAX = 600;             // points kept per robot (60 s at 10 Hz)
@@ -14,9 +18,6 @@
   const RECENT_MAX = 30;             // poses kept to place each scan where it was taken (3 s at 10 Hz)
   const LOG_MAX = 30;                // list items kept in the error and ack lists
   const CALL_TIMEOUT_MS = 10000;
-  const STATUS = ["uninit", "boot", "calibrating", "standby", "active", "critical", "emergency", "power-off",
-                  "offline"];
-  const MODES = ["MANUAL", "STABILIZE", "GUIDED", "AUTO", "LOITER", "RETURN_TO_LAUNCH", "LAND", "TAKEOFF"];
   const CONNACK = {
     1: "login refused: the broker does not accept this MQTT protocol version",
     2: "login refused: client id rejected",
@@ -348,14 +349,12 @@
       return;
     }
     if (name === "control") {  // who drives (docs/protocol.md, "control state")
-      const c = parse(payload);
-      robot.control = c && typeof c === "object" && !Array.isArray(c) && "holder" in c ? c : null;
+      robot.control = read("control_state", payload);
       if (dash.selected === robot.name) showControl(robot);
       return;
     }
     if (name === "link") {  // the bridge's uplink report (docs/protocol.md, "link report")
-      const l = parse(payload);
-      robot.link = l && typeof l.rate_kbit_s === "number" && l.streams && typeof l.streams === "object" ? l : null;
+      robot.link = read("link_report", payload);
       if (dash.selected === robot.name) showUplink(robot);
       return;
     }
@@ -447,48 +446,48 @@
         dash.robots.set(name, robot);
         addFleetRow(robot);
       }
-      const body = payload.length ? parse(payload) : null;
-      robot.access = body && (body.role === "operator" || body.role === "viewer") ? body : null;
+      robot.access = payload.length ? read("access_report", payload) : null;
       presenceIfNeeded(robot);
       if (dash.selected === name) buildControls(robot);
       updateRow(robot, performance.now());
     } else if (kind === "error") {
-      const e = parse(payload);
-      if (!e || typeof e !== "object") { addLog(ui.errors, `${name}: unreadable error report`); return; }
+      const e = read("error_report", payload);
+      if (!e) { addLog(ui.errors, `${name}: unreadable error report`); return; }
       // reports naming another program of ours are theirs; reports naming none may be ours: shown
       if (e.client_id && e.client_id !== dash.clientId) return;
-      const where = String(e.topic || "").split("/from/" + dash.user + "/").pop();
+      const where = e.topic.split("/from/" + dash.user + "/").pop();
       addLog(ui.errors, `${name} refused ${where}: ${e.error}`, { robot: name });
       notice(`${name} refused ${where}: ${e.error}`);
       // a refused goal, cancel or parameter request: said in its panel too (by the request's id)
-      const goal = e.id !== undefined && dash.goals.get(e.id);
+      const goal = e.id !== null && dash.goals.get(e.id);
       if (goal && goal.robot === name) {
-        if (/\/cancel\//.test(String(e.topic || ""))) {
+        if (/\/cancel\//.test(e.topic)) {
           goal.cancelSent = false;
           goal.text = `cancel refused: ${e.error}`;
           renderGoal(goal);
-        } else endGoal(goal, "refused", String(e.error));
+        } else endGoal(goal, "refused", e.error);
       }
-      const preq = e.id !== undefined && dash.pendingParams.get(e.id);
+      const preq = e.id !== null && dash.pendingParams.get(e.id);
       if (preq && preq.robot === name) {
         clearTimeout(preq.timer);
         dash.pendingParams.delete(e.id);
         preq.onReply(null, `refused: ${e.error}`);
       }
     } else if (kind === "reply" && rest.length >= 2) {
-      const r = parse(payload);
+      const r = read("call_reply", payload);
       if (!r || !dash.pendingCalls.has(r.id)) return;
       const call = dash.pendingCalls.get(r.id);
       clearTimeout(call.timer);
       dash.pendingCalls.delete(r.id);
-      const text = r.result ? `${call.service}: ${JSON.stringify(r.values || {})}` : `${call.service} failed: ${r.error}`;
+      const text = r.result ? `${call.service}: ${JSON.stringify(r.values)}` : `${call.service} failed: ${r.error}`;
       ui.serviceResult.textContent = text;
       ui.serviceResult.dataset.result = r.result ? "ok" : "failed";
       if (!r.result) addLog(ui.errors, `${name} call ${call.service}: ${r.error}`, { robot: name });
     } else if ((kind === "goal_status" || kind === "feedback" || kind === "result") && rest.length === 2) {
-      onGoalMessage(name, kind, rest[1], parse(payload));
+      onGoalMessage(name, kind, rest[1], read({ goal_status: "goal_status", feedback: "goal_feedback",
+                                                result: "goal_result" }[kind], payload));
     } else if (kind === "param_reply" && rest.length === 2) {
-      onParamReply(name, parse(payload));
+      onParamReply(name, read("parameter_reply", payload));
     }
     void packet;
   }
@@ -1303,28 +1302,28 @@
   }
 
   function onGoalMessage(name, kind, action, body) {
-    if (!isLayout(body) || (body.client_id && body.client_id !== dash.clientId)) return;  // another program's
+    if (!body || (body.client_id && body.client_id !== dash.clientId)) return;  // unreadable, or another program's
     const g = dash.goals.get(body.id);
     if (!g || g.robot !== name || g.action !== action) return;
     if (kind === "goal_status") {
       clearTimeout(g.timer);
       if (body.status === "rejected") {
-        const why = body.error ? String(body.error) : "the action server refused it";
+        const why = body.error || "the action server refused it";
         endGoal(g, "rejected", why);
         addLog(ui.errors, `${name} rejected goal ${action} ${short(g.goal)}: ${why}`, { robot: name });
         notice(`${name} rejected goal ${action}: ${why}`);
         return;
       }
-      g.status = String(body.status);
+      g.status = body.status;
       g.text = body.status === "canceling" ? "cancel accepted, waiting for the result …" : "";
     } else if (kind === "feedback") {
       g.feedback = body.feedback;
       g.feedbackCount = (g.feedbackCount || 0) + 1;
       if (g.status === "sending") g.status = "accepted";
     } else if (kind === "result") {
-      g.result = body.result === undefined ? null : body.result;
-      const status = String(body.status);
-      endGoal(g, status, body.error ? String(body.error) : "");
+      g.result = body.result;
+      const status = body.status;
+      endGoal(g, status, body.error || "");
       if (status !== "succeeded") {
         addLog(ui.errors, `${name} goal ${action} ended ${status}${body.error ? ": " + body.error : ""}`, { robot: name });
       }
@@ -1497,13 +1496,13 @@
   }
 
   function onParamReply(name, body) {
-    if (!isLayout(body) || (body.client_id && body.client_id !== dash.clientId)) return;
+    if (!body || (body.client_id && body.client_id !== dash.clientId)) return;
     const req = dash.pendingParams.get(body.id);
     if (!req || req.robot !== name) return;
     clearTimeout(req.timer);
     dash.pendingParams.delete(body.id);
     if (body.result) req.onReply(body, null);
-    else req.onReply(null, String(body.error || "failed"));
+    else req.onReply(null, body.error || "failed");
   }
 
   // state/parameter_events/<name>: values changed by anyone (MQTT, ros2 param set, the node itself)
