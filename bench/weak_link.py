@@ -217,20 +217,20 @@ def bench_fleet(work: Path, port: int, mode: str, extras: bool) -> Path:
 
 
 def caller(operator: Any, stop: threading.Event, run_: list[Run | None]) -> None:
-    """alice calls ``reset`` once a second; each reply's round trip goes to the current run."""
+    """alice calls ``reset`` once a second; each reply's round trip goes to the row it was sent in."""
     from roslink_mqtt.client import ServiceError, ServiceTimeout
 
     while not stop.wait(1.0):
-        began = time.monotonic()
+        began, row = time.monotonic(), run_[0]  # the row it was sent in (a call between rows meets no bridge)
         try:
             operator.call(ROBOT, "reset", timeout=10.0)
         except (ServiceError, ServiceTimeout, OSError) as err:
-            if run_[0] is not None:
-                run_[0].failed_calls += 1
-                run_[0].failures.append(str(err)[:120])
+            if row is not None and row is run_[0]:  # its bridge ran the whole time: a real failure
+                row.failed_calls += 1
+                row.failures.append(str(err)[:120])
             continue
-        if run_[0] is not None:
-            run_[0].replies.append(time.monotonic() - began)
+        if row is not None:
+            row.replies.append(time.monotonic() - began)
 
 
 class StopWatch:

@@ -27,6 +27,8 @@ log = logging.getLogger("roslink_mqtt.broker")
 
 CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE = 1, 3, 8, 10
 PACKET_NAMES = {CONNECT: "CONNECT", PUBLISH: "PUBLISH", SUBSCRIBE: "SUBSCRIBE", UNSUBSCRIBE: "UNSUBSCRIBE"}
+MQTT_311 = 4  # the CONNECT protocol level of MQTT 3.1.1, the one this broker speaks
+MAX_PROTOCOL_HEAD = 16  # bytes of a CONNECT read for its protocol name and level ("MQTT": 7)
 
 
 class PacketRefused(Exception):
@@ -44,6 +46,19 @@ class PacketTooLarge(PacketRefused):
 
 class BadTopic(PacketRefused):
     """A PUBLISH topic with a wildcard or U+0000 (MQTT-3.3.2-2, MQTT-1.5.3-2)."""
+
+
+class UnsupportedProtocol(PacketRefused):
+    """A CONNECT for a protocol level other than MQTT 3.1.1's (4): answered with CONNACK 0x01 at once.
+
+    amqtt decodes the whole CONNECT as 3.1.1 before it looks at the level; an MQTT 5 CONNECT's properties shift
+    every field after them, and the decoder waited for bytes that never came (a 10 s hang, then "no CONNECT").
+    """
+
+    def __init__(self, level: int) -> None:
+        self.level = level
+        name = {3: "MQTT 3.1", 5: "MQTT 5"}.get(level, f"protocol level {level}")
+        super().__init__(f"{name} CONNECT; this broker speaks MQTT 3.1.1 (protocol level 4)")
 
 
 class Pacer:
@@ -89,7 +104,7 @@ class PacketGate(ReaderAdapter):
     """
 
     __slots__ = ("inner", "limit_for", "describe", "pacer", "_published", "_state", "_type", "_length", "_shift",
-                 "_left", "_topic")
+                 "_left", "_topic", "_connect")
 
     _TYPE, _LENGTH, _BODY = 0, 1, 2
 
@@ -99,6 +114,7 @@ class PacketGate(ReaderAdapter):
         self._published = 0  # PUBLISH headers seen in the current read
         self._state, self._type, self._length, self._shift, self._left = self._TYPE, 0, 0, 0, 0
         self._topic: bytearray | None = None  # a PUBLISH topic being read (length prefix included)
+        self._connect: bytearray | None = None  # a CONNECT's protocol name and level being read
 
     async def read(self, n: int = -1) -> bytes:
         data = await self.inner.read(n)
@@ -121,6 +137,8 @@ class PacketGate(ReaderAdapter):
                 take = min(self._left, size - i)
                 if self._topic is not None:
                     self._collect_topic(data[i:i + take])
+                elif self._connect is not None:
+                    self._collect_protocol(data[i:i + take])
                 self._left -= take
                 i += take
                 if self._left == 0:
@@ -146,8 +164,29 @@ class PacketGate(ReaderAdapter):
         self._left = self._length
         self._state = self._BODY if self._length else self._TYPE
         self._topic = bytearray() if self._type == PUBLISH and self._length else None
+        self._connect = bytearray() if self._type == CONNECT and self._length else None
         if self._type == PUBLISH:
             self._published += 1
+
+    def _collect_protocol(self, chunk: bytes) -> None:
+        """A CONNECT starts with its protocol name (2-byte length, then the name) and level: refuse any level but
+        MQTT 3.1.1's at once (MQTT-3.1.2-2), before amqtt reads the rest as 3.1.1."""
+        head = self._connect
+        assert head is not None
+        head += chunk[:MAX_PROTOCOL_HEAD - len(head)]
+        if len(head) < 2:
+            return
+        need = 2 + int.from_bytes(head[:2], "big") + 1
+        if need > MAX_PROTOCOL_HEAD:  # no protocol name is that long: amqtt refuses the name
+            self._connect = None
+            return
+        if len(head) < need:
+            return
+        self._connect = None
+        level = head[need - 1]
+        if level != MQTT_311:
+            log.warning("refused %s: %s", self.describe(), UnsupportedProtocol(level))
+            raise UnsupportedProtocol(level)
 
     def _collect_topic(self, chunk: bytes) -> None:
         topic = self._topic

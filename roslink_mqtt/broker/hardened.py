@@ -78,6 +78,15 @@ behaviour.
     deliveries of robots' ``state/…`` topics (not ``state/ack``) wait in one slot per topic, latest wins, and are
     written once the backlog has drained to half. Stock (and Mosquitto) queue them first in, first out until a
     limit, then drop the newest.
+27. **A CONNECT of another protocol level** (MQTT 5, 3.1) is answered at once with CONNACK 0x01 and closed
+    (MQTT-3.1.2-2; :class:`~.guard.UnsupportedProtocol`, seen by the packet gate from its first bytes). Stock
+    decodes an MQTT 5 CONNECT as 3.1.1 (its properties shift every later field) and waits for bytes that never
+    come: a 10 s hang, then "no CONNECT".
+28. **QoS 1 and 2 deliveries stay in flight until acknowledged** (MQTT-4.4.0-1, MQTT-4.3.3): a persistent
+    session that reconnects gets what it had not acknowledged again, with DUP=1, and a QoS 2 message whose
+    PUBREC came gets its PUBREL, never a second PUBLISH. Stock gives up on each acknowledgement after 5 s (a
+    traceback per message) and, then or when the connection is lost, forgets the message. The wait has no
+    timeout: the outbox (17) bounds how many deliveries may wait for one client.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -96,6 +105,10 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
 * ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
   ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
+  ``ProtocolHandler._handle_qos1_message_flow``/``_handle_qos2_message_flow`` (replaced for outgoing messages),
+  ``handle_puback``/``handle_pubcomp`` (wrapped), ``_send_packet``, ``_puback_waiters``/``_pubrec_waiters``/
+  ``_pubcomp_waiters``, ``_retry_deliveries`` (resends ``session.inflight_out`` when a session resumes), the
+  ``*_packet`` slots of ``OutgoingApplicationMessage``;
   the reader loop reads ``session.keep_alive`` once, when the handler starts, as its read
   timeout, and ends the connection on an exception other than MQTTError/NoDataError/
   TimeoutError; packets are read from the reader given to ``_client_connected`` (the
@@ -119,16 +132,27 @@ from amqtt.broker import Broker
 from amqtt.contexts import Action
 from amqtt.errors import AMQTTError, MQTTError, NoDataError
 from amqtt.events import MQTTEvents
-from amqtt.mqtt.connack import NOT_AUTHORIZED, ConnackPacket
+from amqtt.mqtt.connack import NOT_AUTHORIZED, UNACCEPTABLE_PROTOCOL_VERSION, ConnackPacket
 from amqtt.mqtt.constants import QOS_1, QOS_2
 from amqtt.mqtt.disconnect import DisconnectPacket
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
-from amqtt.session import Session
+from amqtt.mqtt.pubrel import PubrelPacket
+from amqtt.session import OUTGOING, Session
 from amqtt.utils import gen_client_id
 
 from .. import netstat
 from .conflate import Conflator
-from .guard import CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE, Pacer, PacketGate, PacketRefused, SafeWebSocketsReader
+from .guard import (
+    CONNECT,
+    PUBLISH,
+    SUBSCRIBE,
+    UNSUBSCRIBE,
+    Pacer,
+    PacketGate,
+    PacketRefused,
+    SafeWebSocketsReader,
+    UnsupportedProtocol,
+)
 from .limits import BrokerLimits, RetainedIndex, RetainedQuota
 from .outbox import Outbox, Verdict
 from .subscriptions import SubscriptionIndex
@@ -321,6 +345,70 @@ class HardenedHandler(BrokerProtocolHandler):
         abort_transport(self.writer)
         self._closing = asyncio.get_running_loop().create_task(self.handle_connection_closed())
 
+    # -- fix 27: MQTT-4.4.0-1, QoS 1 and 2 deliveries survive a lost connection -------------------
+    # Stock 0.12.1 waits 5 s for each acknowledgement and then, or when the connection is lost, forgets the
+    # message (its `finally:` empties inflight_out), so a persistent session has nothing to resend: a subscriber
+    # that reconnects with CleanSession=0 never gets what it had not acknowledged, and a QoS 2 message whose PUBREC
+    # came loses its PUBREL. Here a delivery stays in flight until it is acknowledged: the wait has no timeout (the
+    # outbox, fix 17, bounds how many may wait, and a client that stops acknowledging is dropped as a slow
+    # consumer), and a lost connection leaves it in the session, resent with DUP=1 (or its PUBREL) on reconnect.
+    async def _handle_qos1_message_flow(self, app_message: Any) -> None:
+        if app_message.direction != OUTGOING or self.session is None:
+            await super()._handle_qos1_message_flow(app_message)
+            return
+        pid = app_message.packet_id
+        self.session.inflight_out[pid] = app_message
+        packet = app_message.build_publish_packet(dup=app_message.publish_packet is not None)
+        await self._send_packet(packet)
+        app_message.publish_packet = packet
+        waiter: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        self._puback_waiters[pid] = waiter
+        try:
+            app_message.puback_packet = await waiter
+        finally:
+            self._puback_waiters.pop(pid, None)
+        self.session.inflight_out.pop(pid, None)
+
+    async def _handle_qos2_message_flow(self, app_message: Any) -> None:
+        if app_message.direction != OUTGOING or self.session is None:
+            await super()._handle_qos2_message_flow(app_message)
+            return
+        pid, loop = app_message.packet_id, asyncio.get_running_loop()
+        self.session.inflight_out[pid] = app_message
+        if app_message.pubrec_packet is None:  # first try, or the receiver had not answered the PUBLISH
+            packet = app_message.build_publish_packet(dup=app_message.publish_packet is not None)
+            await self._send_packet(packet)
+            app_message.publish_packet = packet
+            waiter: asyncio.Future[Any] = loop.create_future()
+            self._pubrec_waiters[pid] = waiter
+            try:
+                app_message.pubrec_packet = await waiter
+            finally:
+                self._pubrec_waiters.pop(pid, None)
+        # MQTT-4.3.3: from PUBREC on, only PUBREL is (re)sent: the receiver has the message
+        app_message.pubrel_packet = PubrelPacket.build(pid)
+        await self._send_packet(app_message.pubrel_packet)
+        done: asyncio.Future[Any] = loop.create_future()
+        self._pubcomp_waiters[pid] = done
+        try:
+            app_message.pubcomp_packet = await done
+        finally:
+            self._pubcomp_waiters.pop(pid, None)
+        self.session.inflight_out.pop(pid, None)
+
+    async def handle_puback(self, puback: Any) -> None:
+        pid = puback.variable_header.packet_id if puback.variable_header is not None else None
+        if pid in self._puback_waiters or self.session is None:
+            await super().handle_puback(puback)
+        else:  # the acknowledgement of a resend whose wait was given up (amqtt's retry is bounded): done all the same
+            self.session.inflight_out.pop(pid, None)
+
+    async def handle_pubcomp(self, pubcomp: Any) -> None:
+        if pubcomp.packet_id in self._pubcomp_waiters or self.session is None:
+            await super().handle_pubcomp(pubcomp)
+        else:
+            self.session.inflight_out.pop(pubcomp.packet_id, None)
+
 
 class HardenedBroker(Broker):
     """amqtt ``Broker`` with the fixes listed in the module docstring.
@@ -397,6 +485,13 @@ class HardenedBroker(Broker):
             log.warning("no CONNECT from %s within %.0f s; closing", peer, self.connect_timeout)
             await _close_quietly(writer)
             raise AMQTTError("connect timeout") from exc
+        except UnsupportedProtocol as exc:  # fix 27: an MQTT 5 CONNECT is answered at once (logged by the gate)
+            try:
+                await ConnackPacket.build(0, UNACCEPTABLE_PROTOCOL_VERSION).to_stream(writer)
+            except Exception:  # noqa: BLE001 - the peer may already be gone
+                pass
+            await _close_quietly(writer)
+            raise AMQTTError(str(exc)) from exc
         except PacketRefused as exc:
             abort_transport(writer)
             raise AMQTTError(str(exc)) from exc

@@ -27,7 +27,6 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import pytest
 
@@ -48,7 +47,7 @@ from tests.support.acl_matrix import (
     may_write,
     topic_of,
 )
-from tests.support.broker_setup import ExportedMosquitto, write_fleet
+from tests.support.broker_setup import ExportedMosquitto
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.procs import DEMO_PASSWORDS
 
@@ -183,22 +182,13 @@ def run_matrix(backend: str, port: int) -> Run:
 
 
 @pytest.fixture(scope="module")
-def fleet_file(tmp_path_factory) -> Path:
-    return write_fleet(tmp_path_factory.mktemp("matrix-fleet"))
+def embedded(acl_embedded: EmbeddedBrokerProcess) -> EmbeddedBrokerProcess:
+    return acl_embedded  # shared with test_broker_mqtt_conformance.py (tests/integration/conftest.py)
 
 
 @pytest.fixture(scope="module")
-def embedded(fleet_file: Path, tmp_path_factory) -> Iterator[EmbeddedBrokerProcess]:
-    broker = EmbeddedBrokerProcess(tmp_path_factory.mktemp("matrix-embedded"), fleet_file, "--sys-interval", "1",
-                                   "--login-free-failures", "100")
-    with broker:
-        yield broker
-
-
-@pytest.fixture(scope="module")
-def mosquitto(fleet_file: Path, tmp_path_factory) -> Iterator[ExportedMosquitto]:
-    with ExportedMosquitto(tmp_path_factory.mktemp("matrix-mosquitto"), fleet_file, "sys_interval 1") as broker:
-        yield broker
+def mosquitto(acl_mosquitto: ExportedMosquitto) -> ExportedMosquitto:
+    return acl_mosquitto
 
 
 RUNS: dict[str, Run] = {}
