@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 DEFAULT_PREFIX = "roslink"
 OPERATORS = "operators"
@@ -33,6 +34,8 @@ ANY = "+"  # one level of a subscription filter or ACL pattern
 REST = "#"  # every level below, as the last level of a filter
 SYS_TOPICS = "$SYS/#"  # the broker's own topics (outside the tree; admins may read them)
 PARAM_EVENTS = "parameter_events"  # state/parameter_events/<node>
+# The levels after a robot's name (and the dashboard's topics.js, generated from these)
+HEARTBEAT, STATE, FROM, TO = "heartbeat", "state", "from", "to"
 
 
 class TopicError(ValueError):
@@ -180,7 +183,7 @@ USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.A
                         Verb.CONTROL})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
-RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + ("state",)
+RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + (STATE,)
 # State names the bridge writes itself (acknowledgements, the robot's description, its uplink report, who holds
 # control, a starting bridge's claim): no rule may.
 BRIDGE_STATE_NAMES = ("ack", "description", "link", "control", "bridge")
@@ -226,13 +229,13 @@ def first_level(path: str) -> str:
 
 def state_leaf(name: str) -> str:
     """``global_motion`` → ``state/global_motion``: a ros_to_mqtt rule's mqtt_topic (relative to the robot)."""
-    return _join("state", name)
+    return _join(STATE, name)
 
 
 def state_rule_name(path: str) -> str | None:
     """A rule's ``state/global_motion`` → ``global_motion``; None unless it is a state below ``state/``."""
     head, rest = _split_first(path)
-    return rest if head == "state" and rest else None
+    return rest if head == STATE and rest else None
 
 
 def sys_topic(*names: str) -> str:
@@ -249,7 +252,22 @@ def state_name(name: str) -> str:
     """What a user means by a state name: ``state/global_motion``, ``/global_motion/`` → ``global_motion``."""
     name = name.strip(SEPARATOR)
     head, rest = _split_first(name)
-    return rest if head == "state" else name
+    return rest if head == STATE else name
+
+
+def grammar_words() -> dict[str, Any]:
+    """The words of this grammar as data, for its second implementation: the dashboard's topics.js (generated
+    into its protocol.js by :mod:`roslink_mqtt.dashboard.protocol_js`, checked case by case against this module)."""
+    return {"separator": SEPARATOR, "any": ANY, "rest": REST, "operators": OPERATORS, "heartbeat": HEARTBEAT,
+            "state": STATE, "from": FROM, "to": TO, "param_events": PARAM_EVENTS,
+            "kinds": {k.name.lower(): k.value for k in Kind},
+            "verbs": {v.value: {"named": v.named, "sent_by_user": v.sent_by_user} for v in Verb}}
+
+
+def param_events_node(name: str) -> str | None:
+    """A state name ``parameter_events/planner`` → ``planner``; None for any other state name."""
+    head, rest = _split_first(name)
+    return rest if head == PARAM_EVENTS and rest and SEPARATOR not in rest else None
 
 
 def last_level(path: str) -> str:
@@ -258,10 +276,10 @@ def last_level(path: str) -> str:
 
 
 class Kind(Enum):
-    HEARTBEAT = "heartbeat"
-    STATE = "state"
-    FROM = "from"  # user → robot
-    TO = "to"  # robot → user
+    HEARTBEAT = HEARTBEAT
+    STATE = STATE
+    FROM = FROM  # user → robot
+    TO = TO  # robot → user
     OPERATOR = "operator"
 
 
@@ -296,17 +314,17 @@ class TopicTree:
         return _join(self.prefix, check_name(robot, "robot"))
 
     def heartbeat(self, robot: str) -> str:
-        return _join(self.robot_root(robot), "heartbeat")
+        return _join(self.robot_root(robot), HEARTBEAT)
 
     def state(self, robot: str, name: str) -> str:
-        return _join(self.robot_root(robot), "state", check_path(name, "state name"))
+        return _join(self.robot_root(robot), STATE, check_path(name, "state name"))
 
     def from_user(self, robot: str, user: str, leaf: str) -> str:
         """``leaf`` as :func:`join_leaf` makes it (``cmd/twist``, ``lights``)."""
-        return _join(self.robot_root(robot), "from", check_name(user, "user"), check_path(leaf))
+        return _join(self.robot_root(robot), FROM, check_name(user, "user"), check_path(leaf))
 
     def to_user(self, robot: str, user: str, leaf: str) -> str:
-        return _join(self.robot_root(robot), "to", check_name(user, "user"), check_path(leaf))
+        return _join(self.robot_root(robot), TO, check_name(user, "user"), check_path(leaf))
 
     def user_topic(self, robot: str, user: str, verb: Verb, name: str = "") -> str:
         """The topic of ``verb`` between ``user`` and ``robot``, in the direction the verb goes."""
@@ -379,24 +397,24 @@ class TopicTree:
         return _join(self.prefix, _level_or_any(robot, "robot"))
 
     def heartbeat_filter(self, robot: str = ANY) -> str:
-        return _join(self._root(robot), "heartbeat")
+        return _join(self._root(robot), HEARTBEAT)
 
     def state_filter(self, robot: str = ANY, name: str = REST) -> str:
         """State topics of ``robot`` (every robot with ANY) whose name matches ``name`` (a filter: ``nav/+``)."""
         check_filter_path(name, "state name")
-        return _join(self._root(robot), "state", name)
+        return _join(self._root(robot), STATE, name)
 
     def from_user_filter(self, robot: str, user: str = ANY) -> str:
         """Everything ``user`` (every user with ANY) sends ``robot``: what a bridge subscribes to."""
-        return _join(self._root(robot), "from", _level_or_any(user, "user"), REST)
+        return _join(self._root(robot), FROM, _level_or_any(user, "user"), REST)
 
     def to_user_filter(self, robot: str, user: str = ANY) -> str:
         """Everything ``robot`` sends ``user``: replies, requests, errors, the access report."""
-        return _join(self._root(robot), "to", _level_or_any(user, "user"), REST)
+        return _join(self._root(robot), TO, _level_or_any(user, "user"), REST)
 
     def verb_filter(self, robot: str, user: str, verb: Verb) -> str:
         """Every ``verb`` message between ``user`` and ``robot`` (e.g. all of alice's replies)."""
-        side = "from" if verb.sent_by_user else "to"
+        side = FROM if verb.sent_by_user else TO
         tail = (verb.value, REST) if verb.named else (verb.value,)
         return _join(self._root(robot), side, _level_or_any(user, "user"), *tail)
 
@@ -434,12 +452,12 @@ class TopicTree:
                 return None
             return ParsedTopic(Kind.OPERATOR, user=rest[1], client_id=rest[2])
         robot = rest[0]
-        if len(rest) == 2 and rest[1] == "heartbeat":
+        if len(rest) == 2 and rest[1] == HEARTBEAT:
             return ParsedTopic(Kind.HEARTBEAT, robot=robot)
-        if len(rest) >= 3 and rest[1] == "state":
+        if len(rest) >= 3 and rest[1] == STATE:
             return ParsedTopic(Kind.STATE, robot=robot, name=_join(*rest[2:]))
-        if len(rest) >= 4 and rest[1] in ("from", "to"):
-            kind = Kind.FROM if rest[1] == "from" else Kind.TO
+        if len(rest) >= 4 and rest[1] in (FROM, TO):
+            kind = Kind.FROM if rest[1] == FROM else Kind.TO
             verb, name = split_leaf(_join(*rest[3:]), sent_by_user=kind is Kind.FROM)
             return ParsedTopic(kind, robot=robot, user=rest[2], name=name, verb=verb)
         return None

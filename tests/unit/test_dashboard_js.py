@@ -1,9 +1,11 @@
-"""The dashboard reads bodies from the protocol's own declarations: the generated protocol.js is current, and
-static/body.js (run by node) reads every case as protocol/body.py's lenient reader does."""
+"""The dashboard speaks the protocol from its own declarations: the generated protocol.js is current, static/body.js
+reads every body as protocol/body.py's lenient reader does, and static/topics.js builds and parses every topic as
+roslink_mqtt/topics.py does (run by node, case by case)."""
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -16,11 +18,20 @@ from roslink_mqtt.dashboard.protocol_js import OUTPUT, body_key, render
 from roslink_mqtt.protocol import ProtocolError
 from roslink_mqtt.protocol.body import read
 from roslink_mqtt.protocol.reference import _CONTROL_EXAMPLES, DOCUMENTED_BODIES
+from roslink_mqtt.topics import TopicTree, Verb, param_events_node
 
 pytestmark = pytest.mark.unit
 ROOT = Path(__file__).resolve().parents[2]
 # values that are wrong for most fields; no floats with a zero fraction (JSON in JavaScript cannot tell 1.0 from 1)
 ODD_VALUES: list[Any] = [None, True, 7, -1, 1.5, "", "x", "operator", [], ["a"], [1], {}, {"a": 1}]
+
+
+def test_the_page_has_no_topic_grammar_of_its_own() -> None:
+    """app.js builds and reads topics only through topics.js (a slash joined or split by hand is a second grammar)."""
+    app = (OUTPUT.parent / "app.js").read_text()
+    for pattern in (r'split\("/"\)', r'join\("/"\)', r'"/(from|to|state|heartbeat)/?"', r'kind === "',
+                    r'\+ "/"'):
+        assert not re.search(pattern, app), f"app.js: {pattern}"
 
 
 def test_protocol_js_is_current() -> None:
@@ -47,12 +58,54 @@ def cases() -> list[dict[str, Any]]:
     return out
 
 
-def test_the_dashboard_reads_bodies_as_python_does(tmp_path: Path) -> None:
+def parsed_case(prefix: str, topic: str) -> dict[str, Any]:
+    got = TopicTree(prefix).parse(topic)
+    expected = None if got is None else {"kind": got.kind.value, "robot": got.robot, "user": got.user,
+                                         "name": got.name, "client_id": got.client_id,
+                                         "verb": got.verb.value if got.verb else None}
+    return {"prefix": prefix, "topic": topic, "expected": expected, "leaf": got.leaf if got else None}
+
+
+def topic_cases() -> dict[str, list[dict[str, Any]]]:
+    built: list[dict[str, Any]] = []
+    parsed: list[dict[str, Any]] = []
+    for prefix in ("roslink", "fleet/site-a"):
+        tree = TopicTree(prefix)
+
+        def build(fn: str, args: list[str], expected: str) -> None:
+            built.append({"prefix": prefix, "fn": fn, "args": args, "expected": expected})  # noqa: B023
+
+        build("heartbeatFilter", [], tree.heartbeat_filter())
+        build("heartbeatFilter", ["r1"], tree.heartbeat_filter("r1"))
+        build("stateFilter", [], tree.state_filter())
+        build("stateFilter", ["r1", "nav/+"], tree.state_filter("r1", "nav/+"))
+        build("toUserFilter", ["+", "alice"], tree.to_user_filter("+", "alice"))
+        build("operator", ["alice", "c1"], tree.operator("alice", "c1"))
+        topics = [tree.heartbeat("r1"), tree.state("r1", "global_motion"), tree.param_events("r1", "planner"),
+                  tree.operator("alice", "c1"), tree.from_user("r1", "alice", "lights"),
+                  tree.from_user("r1", "alice", "nav/goal"), tree.from_user("r1", "alice", Verb.CALL.value),
+                  tree.to_user("r1", "alice", "error/x"), tree.from_user("r1", "alice", "reply/x"),
+                  prefix, tree.robot_root("r1"), "elsewhere/r1/heartbeat", tree.heartbeat("r1") + "/x",
+                  tree.state("r1", "a") + "//b", tree.operators_prefix() + "alice", ""]
+        for verb in Verb:
+            name = "x/y" if verb.named else ""
+            build("userTopic", ["r1", "alice", verb.value, name], tree.user_topic("r1", "alice", verb, name))
+            topics.append(tree.user_topic("r1", "alice", verb, name))
+        parsed += [parsed_case(prefix, t) for t in topics]
+    names = ["parameter_events/planner", "parameter_events/a/b", "parameter_events", "parameter_events/",
+             "global_motion", "x/parameter_events/planner"]
+    return {"built": built, "parsed": parsed,
+            "paramEvents": [{"name": n, "expected": param_events_node(n)} for n in names]}
+
+
+def test_the_dashboard_reads_bodies_and_topics_as_python_does(tmp_path: Path) -> None:
     node = shutil.which("node")
     assert node, "node is needed (make install)"
-    table = tmp_path / "cases.json"
-    table.write_bytes(orjson.dumps(cases()))
+    bodies, topics = tmp_path / "bodies.json", tmp_path / "topics.json"
+    bodies.write_bytes(orjson.dumps(cases()))
+    topics.write_bytes(orjson.dumps(topic_cases()))
     run = subprocess.run([node, "--test", str(ROOT / "tests" / "js")], capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "ROSLINK_BODY_CASES": str(table)}, check=False)
+                         env={**os.environ, "ROSLINK_BODY_CASES": str(bodies), "ROSLINK_TOPIC_CASES": str(topics)},
+                         check=False)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
-    assert "# pass 2" in run.stdout and "# skipped 0" in run.stdout, run.stdout[-2000:]
+    assert "# pass 3" in run.stdout and "# skipped 0" in run.stdout, run.stdout[-2000:]

@@ -11,6 +11,9 @@
   const BODIES = window.ROSLINK.bodies;
   // one body, named as in docs/protocol.md ("control state" → control_state): its declared fields, or null
   const read = (name, payload) => window.roslinkBody.readBody(BODIES[name], parse(payload));
+  const { TopicTree, leafOf, paramEventsNode } = window.roslinkTopics;  // topics.py's grammar (topics.js)
+  const KINDS = window.ROSLINK.topics.kinds;  // what a parsed topic is: heartbeat, state, from, to, operator
+  let tree = new TopicTree("roslink");  // the broker's prefix, once config.json has said it
   const PRESENCE_PERIOD_MS = 500;    // operator heartbeat; robots drop an operator after 1.5 s without one
   const TWIST_PERIOD_MS = 100;       // 10 Hz while a drive button or key is held
   const TRAIL_MAX = 600;             // points kept per robot (60 s at 10 Hz)
@@ -94,8 +97,7 @@
     return dash.lastSeq;
   }
   function fmt(v, digits) { return typeof v === "number" && Number.isFinite(v) ? v.toFixed(digits) : "–"; }
-  function topic(...parts) { return [dash.prefix, ...parts].join("/"); }
-  function presenceTopic() { return topic("operators", dash.user, dash.clientId); }
+  function presenceTopic() { return tree.operator(dash.user, dash.clientId); }
 
   // ------------------------------------------------------------------------------------------- login
   async function loadConfig() {
@@ -106,6 +108,7 @@
       dash.config = { ws_port: 8083, ws_url: "", prefix: "roslink" };
     }
     dash.prefix = dash.config.prefix || "roslink";
+    tree = new TopicTree(dash.prefix);
     const host = location.hostname.includes(":") ? `[${location.hostname}]` : (location.hostname || "127.0.0.1");
     ui.wsUrl.value = dash.config.ws_url || `ws://${host}:${dash.config.ws_port}`;
   }
@@ -141,7 +144,7 @@
         // no retry until a first login succeeded: a refused password must not become a loop of attempts
         reconnectPeriod: 0, connectTimeout: 8000, resubscribe: true,
         // operator presence: when this page vanishes without a word, the broker clears its heartbeat
-        will: { topic: topic("operators", user, dash.clientId), payload: "", qos: 1, retain: true },
+        will: { topic: tree.operator(user, dash.clientId), payload: "", qos: 1, retain: true },
       });
     } catch (e) {
       ui.connect.disabled = false;
@@ -202,7 +205,7 @@
     show(ui.login, false);
     show(ui.main, true);
     show(ui.logout, true);
-    const filters = [topic("+", "heartbeat"), topic("+", "state", "#"), topic("+", "to", dash.user, "#")];
+    const filters = [tree.heartbeatFilter(), tree.stateFilter(), tree.toUserFilter("+", dash.user)];
     client.subscribe(filters, { qos: 1 }, (err, granted) => {
       if (err) { notice(`subscribe failed: ${err.message}`); return; }
       const refused = (granted || []).filter((g) => g.qos === 128).map((g) => g.topic);
@@ -279,22 +282,21 @@
 
   // ------------------------------------------------------------------------------------------- messages
   function onMessage(t, payload, packet) {
-    if (!t.startsWith(dash.prefix + "/")) return;
-    const parts = t.slice(dash.prefix.length + 1).split("/");
-    const name = parts[0];
-    if (name === "operators") return;
-    if (parts[1] === "heartbeat") { onHeartbeat(name, payload); return; }
+    const p = tree.parse(t);
+    if (!p || p.kind === KINDS.operator) return;
+    const name = p.robot;
+    if (p.kind === KINDS.heartbeat) { onHeartbeat(name, payload); return; }
     let robot = dash.robots.get(name);
-    if (parts[1] === "state" && parts.length >= 3) {
-      if (!robot && parts.length === 3 && parts[2] === "description" && payload.length) {
+    if (p.kind === KINDS.state) {
+      if (!robot && p.name === "description" && payload.length) {
         robot = newRobot(name);  // the retained description may come before the heartbeat: keep it
         dash.robots.set(name, robot);
         addFleetRow(robot);
       }
       if (!robot) return;  // state before the first heartbeat: counted from the heartbeat on
-      onState(robot, parts.slice(2).join("/"), payload);
-    } else if (parts[1] === "to" && parts[2] === dash.user) {
-      onPersonal(name, robot, parts.slice(3), payload, packet);
+      onState(robot, p.name, payload);
+    } else if (p.kind === KINDS.to && p.user === dash.user) {
+      onPersonal(name, robot, p, payload, packet);
     }
   }
 
@@ -342,7 +344,8 @@
       if (dash.selected === robot.name) buildControls(robot);
       return;
     }
-    if (name.startsWith("parameter_events/")) { onParamEvent(robot, name.slice("parameter_events/".length), payload); return; }
+    const paramNode = paramEventsNode(name);
+    if (paramNode !== null) { onParamEvent(robot, paramNode, payload); return; }
     if (name === "robot_status") {
       const env = parse(payload);
       if (env && env.payload) robot.status = env.payload;
@@ -438,8 +441,8 @@
     return near && Math.abs(near.t - ms) <= 150 ? near : null;
   }
 
-  function onPersonal(name, robot, rest, payload, packet) {
-    const kind = rest[0];
+  function onPersonal(name, robot, p, payload, packet) {
+    const kind = p.verb;
     if (kind === "access") {
       if (!robot) {  // the report can come before the heartbeat: keep it for the robot's first heartbeat
         robot = newRobot(name);
@@ -455,13 +458,14 @@
       if (!e) { addLog(ui.errors, `${name}: unreadable error report`); return; }
       // reports naming another program of ours are theirs; reports naming none may be ours: shown
       if (e.client_id && e.client_id !== dash.clientId) return;
-      const where = e.topic.split("/from/" + dash.user + "/").pop();
+      const about = tree.parse(e.topic);
+      const where = about && about.kind === KINDS.from ? leafOf(about) : e.topic;
       addLog(ui.errors, `${name} refused ${where}: ${e.error}`, { robot: name });
       notice(`${name} refused ${where}: ${e.error}`);
       // a refused goal, cancel or parameter request: said in its panel too (by the request's id)
       const goal = e.id !== null && dash.goals.get(e.id);
       if (goal && goal.robot === name) {
-        if (/\/cancel\//.test(e.topic)) {
+        if (about && about.verb === "cancel") {
           goal.cancelSent = false;
           goal.text = `cancel refused: ${e.error}`;
           renderGoal(goal);
@@ -473,7 +477,7 @@
         dash.pendingParams.delete(e.id);
         preq.onReply(null, `refused: ${e.error}`);
       }
-    } else if (kind === "reply" && rest.length >= 2) {
+    } else if (kind === "reply") {
       const r = read("call_reply", payload);
       if (!r || !dash.pendingCalls.has(r.id)) return;
       const call = dash.pendingCalls.get(r.id);
@@ -483,10 +487,10 @@
       ui.serviceResult.textContent = text;
       ui.serviceResult.dataset.result = r.result ? "ok" : "failed";
       if (!r.result) addLog(ui.errors, `${name} call ${call.service}: ${r.error}`, { robot: name });
-    } else if ((kind === "goal_status" || kind === "feedback" || kind === "result") && rest.length === 2) {
-      onGoalMessage(name, kind, rest[1], read({ goal_status: "goal_status", feedback: "goal_feedback",
+    } else if (kind === "goal_status" || kind === "feedback" || kind === "result") {
+      onGoalMessage(name, kind, p.name, read({ goal_status: "goal_status", feedback: "goal_feedback",
                                                 result: "goal_result" }[kind], payload));
-    } else if (kind === "param_reply" && rest.length === 2) {
+    } else if (kind === "param_reply") {
       onParamReply(name, read("parameter_reply", payload));
     }
     void packet;
@@ -846,7 +850,7 @@
       beat();
     }
     const body = { message_id: messageId, sequence_number: nextSeq(), client_id: dash.clientId, payload };
-    dash.client.publish(topic(robotName, "from", dash.user, "cmd", name), JSON.stringify(body), { qos: name === "twist" ? 0 : 1 });
+    dash.client.publish(tree.userTopic(robotName, dash.user, "cmd", name), JSON.stringify(body), { qos: name === "twist" ? 0 : 1 });
     return true;
   }
   dash.command = command;
@@ -897,7 +901,7 @@
   function claimControl(robotName, op) {
     if (!dash.client || !dash.connected) return;
     if (!dash.commanding) { dash.commanding = true; beat(); }
-    dash.client.publish(topic(robotName, "from", dash.user, "control", op), JSON.stringify({ client_id: dash.clientId }),
+    dash.client.publish(tree.userTopic(robotName, dash.user, "control", op), JSON.stringify({ client_id: dash.clientId }),
                         { qos: 1 });
   }
   dash.claimControl = claimControl;
@@ -923,7 +927,7 @@
       const seq = nextSeq();
       const body = { message_id: 108, sequence_number: seq, client_id: dash.clientId,
                      payload: { reason: `STOP ALL (dashboard, ${dash.user})` } };
-      dash.client.publish(topic(robot.name, "from", dash.user, "cmd", "emergency_stop"), JSON.stringify(body), { qos: 1 });
+      dash.client.publish(tree.userTopic(robot.name, dash.user, "cmd", "emergency_stop"), JSON.stringify(body), { qos: 1 });
       round.sent.set(robot.name, { seq, at: performance.now() });
     }
     addLog(ui.acks, `STOP ALL sent to ${[...round.sent.keys()].join(", ") || "no robot"}`);
@@ -970,7 +974,7 @@
     dash.pendingCalls.set(id, { service, timer });
     ui.serviceResult.textContent = `${service}: calling …`;
     ui.serviceResult.dataset.result = "pending";
-    dash.client.publish(topic(robotName, "from", dash.user, "call", service),
+    dash.client.publish(tree.userTopic(robotName, dash.user, "call", service),
                         JSON.stringify({ id, args, client_id: dash.clientId }), { qos: 1 });
   }
   dash.callService = callService;
@@ -1246,7 +1250,7 @@
     if (!robot.lastGoals) robot.lastGoals = new Map();
     robot.lastGoals.set(action, g);
     if (isOperator(robot) && !dash.commanding) { dash.commanding = true; beat(); }
-    dash.client.publish(topic(robotName, "from", dash.user, "goal", action),
+    dash.client.publish(tree.userTopic(robotName, dash.user, "goal", action),
                         JSON.stringify({ id, goal, client_id: dash.clientId }), { qos: 1 });
     renderGoal(g);
   }
@@ -1256,7 +1260,7 @@
     const g = robot && robot.lastGoals && robot.lastGoals.get(action);
     if (!g || GOAL_ENDED.has(g.status)) return;
     if (!dash.client || !dash.connected) { notice(`not sent (cancel ${action}): not connected to the broker`); return; }
-    dash.client.publish(topic(robotName, "from", dash.user, "cancel", action),
+    dash.client.publish(tree.userTopic(robotName, dash.user, "cancel", action),
                         JSON.stringify({ id: g.id, client_id: dash.clientId }), { qos: 1 });
     g.text = `${g.text}; cancel sent …`;
     g.cancelSent = true;
@@ -1341,7 +1345,7 @@
       onReply(null, `no reply within ${PARAM_TIMEOUT_MS / 1000} s (robot offline, or the broker dropped the request)`);
     }, PARAM_TIMEOUT_MS);
     dash.pendingParams.set(id, { robot: robotName, node, onReply, timer });
-    dash.client.publish(topic(robotName, "from", dash.user, "param", node),
+    dash.client.publish(tree.userTopic(robotName, dash.user, "param", node),
                         JSON.stringify({ id, ...body, client_id: dash.clientId }), { qos: 1 });
   }
 

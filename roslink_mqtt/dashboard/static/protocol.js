@@ -1224,6 +1224,122 @@ const ROSLINK = {
       "poweroff",
       "offline"
     ]
+  },
+  "topics": {
+    "any": "+",
+    "from": "from",
+    "heartbeat": "heartbeat",
+    "kinds": {
+      "from": "from",
+      "heartbeat": "heartbeat",
+      "operator": "operator",
+      "state": "state",
+      "to": "to"
+    },
+    "operators": "operators",
+    "param_events": "parameter_events",
+    "rest": "#",
+    "separator": "/",
+    "state": "state",
+    "to": "to",
+    "verbs": {
+      "access": {
+        "named": false,
+        "sent_by_user": false
+      },
+      "action_request": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "action_update": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "advertise": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "call": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "cancel": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "cmd": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "control": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "declare": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "error": {
+        "named": false,
+        "sent_by_user": false
+      },
+      "feedback": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "goal": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "goal_status": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "log": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "param": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "param_reply": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "param_result": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "param_set": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "provide": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "provide_action": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "reply": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "request": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "response": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "result": {
+        "named": true,
+        "sent_by_user": false
+      }
+    }
   }
 };
 if (typeof module !== "undefined") module.exports = ROSLINK; else window.ROSLINK = ROSLINK;
