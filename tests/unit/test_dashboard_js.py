@@ -29,7 +29,7 @@ ODD_VALUES: list[Any] = [None, True, 7, -1, 1.5, "", "x", "operator", [], ["a"],
 def test_the_page_has_no_topic_grammar_of_its_own() -> None:
     """app.js builds and reads topics only through topics.js (a slash joined or split by hand is a second grammar)."""
     app = (OUTPUT.parent / "app.js").read_text()
-    for pattern in (r'split\("/"\)', r'join\("/"\)', r'"/(from|to|state|heartbeat)/?"', r'kind === "',
+    for pattern in (r'split\("/"\)', r'join\("/"\)', r'"/(from|to|state|heartbeat)/?"', r'\.kind === "',
                     r'\+ "/"'):
         assert not re.search(pattern, app), f"app.js: {pattern}"
 
