@@ -345,7 +345,7 @@ class HardenedHandler(BrokerProtocolHandler):
         abort_transport(self.writer)
         self._closing = asyncio.get_running_loop().create_task(self.handle_connection_closed())
 
-    # -- fix 27: MQTT-4.4.0-1, QoS 1 and 2 deliveries survive a lost connection -------------------
+    # -- fix 28: MQTT-4.4.0-1, QoS 1 and 2 deliveries survive a lost connection -------------------
     # Stock 0.12.1 waits 5 s for each acknowledgement and then, or when the connection is lost, forgets the
     # message (its `finally:` empties inflight_out), so a persistent session has nothing to resend: a subscriber
     # that reconnects with CleanSession=0 never gets what it had not acknowledged, and a QoS 2 message whose PUBREC

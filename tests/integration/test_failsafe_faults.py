@@ -178,9 +178,10 @@ def test_driving_client_killed_stops_robot_while_its_user_watches_elsewhere(stac
 @pytest.mark.parametrize("stack", ["embedded"], indirect=True)  # the dead-man is the bridge's: any broker shows it
 def test_dead_man_stops_silent_stream(stack: Stack) -> None:
     t0 = time.monotonic()
-    with stack.operator("--stream-seconds", "2"):  # stays alive (presence) but stops commanding at ~2 s
+    # stays alive (presence) but stops commanding at ~3 s (a loaded machine may take a second to start moving)
+    with stack.operator("--stream-seconds", "3"):
         stack.wait_moving(t0)
-        time.sleep(2 + COMMAND_TIMEOUT + 1.5)
+        time.sleep(max(0.0, t0 + 3 + COMMAND_TIMEOUT + 1.5 - time.monotonic()))
         seen = stack.probe.cmd_vel.since(t0)
         last_command = max(at for at, m in seen if m.linear.x > 0)
         stop_at = min(at for at, m in seen if at > last_command and _zero(m))
