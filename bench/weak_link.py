@@ -475,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
         port = lat.free_port()
         fleet = bench_fleet(work, port, "scheduled", True)
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
+                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", os.environ.get("WEAK_BROKER_LOG", "WARNING")],
                         work / "broker.log", env, port=port, what="embedded broker")
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
         viewer = Viewer(port, lat.load_fleet(fleet).prefix)

@@ -85,8 +85,10 @@ behaviour.
 28. **QoS 1 and 2 deliveries stay in flight until acknowledged** (MQTT-4.4.0-1, MQTT-4.3.3): a persistent
     session that reconnects gets what it had not acknowledged again, with DUP=1, and a QoS 2 message whose
     PUBREC came gets its PUBREL, never a second PUBLISH. Stock gives up on each acknowledgement after 5 s (a
-    traceback per message) and, then or when the connection is lost, forgets the message. The wait has no
-    timeout: the outbox (17) bounds how many deliveries may wait for one client.
+    traceback per message) and, then or when the connection is lost, forgets the message. The
+    delivery task still stops waiting after 5 s (the outbox, 17, must not be held by a live client's slow
+    acknowledgements), but the message stays in flight (at most 1,000 per session): a late acknowledgement
+    completes it, a reconnect resends it; a resumed session's resends no longer hold up its connection.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -123,6 +125,7 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import itertools
 import logging
 import time
 from typing import Any
@@ -160,6 +163,8 @@ from .subscriptions import SubscriptionIndex
 log = logging.getLogger("roslink_mqtt.broker")
 
 AMQTT_VERSION = "0.12.1"  # the version every override above was written against
+ACK_WAIT = 5.0  # s a delivery task waits for its acknowledgement (as stock); the message stays in flight after (28)
+MAX_IN_FLIGHT = 1000  # unacknowledged QoS 1/2 deliveries kept per session for redelivery (fix 28)
 KEEPALIVE_FACTOR = 1.5  # MQTT-3.1.2-24: drop after 1.5 x keep-alive without a packet
 CONNECT_TIMEOUT = 10.0  # s from TCP accept to a complete CONNECT
 TAKEOVER_WAIT = 2.0  # s to wait for the previous connection of a client id to wind down
@@ -330,6 +335,10 @@ class HardenedHandler(BrokerProtocolHandler):
     _expired = False
     _closing: asyncio.Task[None] | None = None
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._resends: set[asyncio.Future[Any]] = set()  # fix 28: resends of a resumed session, under way
+
     def handle_read_timeout(self) -> None:
         session = self.session
         keep_alive = float(session.keep_alive) if session is not None else 0.0
@@ -349,59 +358,99 @@ class HardenedHandler(BrokerProtocolHandler):
     # Stock 0.12.1 waits 5 s for each acknowledgement and then, or when the connection is lost, forgets the
     # message (its `finally:` empties inflight_out), so a persistent session has nothing to resend: a subscriber
     # that reconnects with CleanSession=0 never gets what it had not acknowledged, and a QoS 2 message whose PUBREC
-    # came loses its PUBREL. Here a delivery stays in flight until it is acknowledged: the wait has no timeout (the
-    # outbox, fix 17, bounds how many may wait, and a client that stops acknowledging is dropped as a slow
-    # consumer), and a lost connection leaves it in the session, resent with DUP=1 (or its PUBREL) on reconnect.
+    # came loses its PUBREL. Here the delivery task still stops waiting after ACK_WAIT (a live client's slow
+    # acknowledgements must not hold the outbox, fix 17), but the message stays in flight until it is
+    # acknowledged: a late PUBACK/PUBREC/PUBCOMP completes it, a reconnect resends it (DUP=1, or its PUBREL).
+    # At most MAX_IN_FLIGHT are kept per session; beyond that the oldest is forgotten, said once.
+    async def _retry_deliveries(self) -> None:
+        """Resend what a resumed session had in flight, in order, without holding up the connection.
+
+        Stock awaits every resend (up to 10 s each) before the broker starts reading the client's PUBLISHes.
+        Each resend runs as a task of its own, started in the original order (MQTT-4.6.0-1)."""
+        if self.session is None:
+            return
+        for message in itertools.chain(self.session.inflight_in.values(), self.session.inflight_out.values()):
+            task = asyncio.ensure_future(self._handle_message_flow(message))
+            self._resends.add(task)
+            task.add_done_callback(self._resent)
+
+    def _resent(self, task: asyncio.Future[Any]) -> None:
+        self._resends.discard(task)
+        if not task.cancelled() and task.exception() is not None:
+            log.debug("a resend ended: %s", task.exception())
+
+    def _keep_in_flight(self, app_message: Any) -> None:
+        session = self.session
+        assert session is not None
+        kept = session.inflight_out
+        if app_message.packet_id not in kept and len(kept) >= MAX_IN_FLIGHT:
+            kept.pop(next(iter(kept)))
+            _log_once(session, "in-flight-full", logging.WARNING, "%s keeps %d unacknowledged QoS 1/2 deliveries; "
+                      "forgetting the oldest", describe_session(session), MAX_IN_FLIGHT)
+        kept[app_message.packet_id] = app_message
+
+    async def _await_ack(self, waiters: dict[int, Any], pid: int) -> Any:
+        """The acknowledgement of ``pid``, or None after ACK_WAIT (the message stays in flight)."""
+        waiter: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        waiters[pid] = waiter
+        try:
+            return await asyncio.wait_for(waiter, ACK_WAIT)
+        except TimeoutError:
+            return None
+        finally:
+            waiters.pop(pid, None)
+
     async def _handle_qos1_message_flow(self, app_message: Any) -> None:
         if app_message.direction != OUTGOING or self.session is None:
             await super()._handle_qos1_message_flow(app_message)
             return
         pid = app_message.packet_id
-        self.session.inflight_out[pid] = app_message
+        self._keep_in_flight(app_message)
         packet = app_message.build_publish_packet(dup=app_message.publish_packet is not None)
         await self._send_packet(packet)
         app_message.publish_packet = packet
-        waiter: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        self._puback_waiters[pid] = waiter
-        try:
-            app_message.puback_packet = await waiter
-        finally:
-            self._puback_waiters.pop(pid, None)
-        self.session.inflight_out.pop(pid, None)
+        app_message.puback_packet = await self._await_ack(self._puback_waiters, pid)
+        if app_message.puback_packet is not None:
+            self.session.inflight_out.pop(pid, None)
 
     async def _handle_qos2_message_flow(self, app_message: Any) -> None:
         if app_message.direction != OUTGOING or self.session is None:
             await super()._handle_qos2_message_flow(app_message)
             return
-        pid, loop = app_message.packet_id, asyncio.get_running_loop()
-        self.session.inflight_out[pid] = app_message
+        pid = app_message.packet_id
+        self._keep_in_flight(app_message)
         if app_message.pubrec_packet is None:  # first try, or the receiver had not answered the PUBLISH
             packet = app_message.build_publish_packet(dup=app_message.publish_packet is not None)
             await self._send_packet(packet)
             app_message.publish_packet = packet
-            waiter: asyncio.Future[Any] = loop.create_future()
-            self._pubrec_waiters[pid] = waiter
-            try:
-                app_message.pubrec_packet = await waiter
-            finally:
-                self._pubrec_waiters.pop(pid, None)
-        # MQTT-4.3.3: from PUBREC on, only PUBREL is (re)sent: the receiver has the message
+            app_message.pubrec_packet = await self._await_ack(self._pubrec_waiters, pid)
+            if app_message.pubrec_packet is None:
+                return  # a late PUBREC gets its PUBREL (handle_pubrec); a reconnect resends the PUBLISH
+        await self._release(app_message)
+
+    async def _release(self, app_message: Any) -> None:
+        """MQTT-4.3.3: from PUBREC on, only PUBREL is (re)sent: the receiver has the message."""
+        pid = app_message.packet_id
         app_message.pubrel_packet = PubrelPacket.build(pid)
         await self._send_packet(app_message.pubrel_packet)
-        done: asyncio.Future[Any] = loop.create_future()
-        self._pubcomp_waiters[pid] = done
-        try:
-            app_message.pubcomp_packet = await done
-        finally:
-            self._pubcomp_waiters.pop(pid, None)
-        self.session.inflight_out.pop(pid, None)
+        app_message.pubcomp_packet = await self._await_ack(self._pubcomp_waiters, pid)
+        if app_message.pubcomp_packet is not None and self.session is not None:
+            self.session.inflight_out.pop(pid, None)
 
     async def handle_puback(self, puback: Any) -> None:
         pid = puback.variable_header.packet_id if puback.variable_header is not None else None
         if pid in self._puback_waiters or self.session is None:
             await super().handle_puback(puback)
-        else:  # the acknowledgement of a resend whose wait was given up (amqtt's retry is bounded): done all the same
+        else:  # a delivery whose wait ended: acknowledged all the same
             self.session.inflight_out.pop(pid, None)
+
+    async def handle_pubrec(self, pubrec: Any) -> None:
+        message = self.session.inflight_out.get(pubrec.packet_id) if self.session is not None else None
+        if pubrec.packet_id in self._pubrec_waiters or message is None:
+            await super().handle_pubrec(pubrec)
+        else:  # a late PUBREC: the receiver has the message, release it
+            message.pubrec_packet = pubrec
+            await self._release(message)
 
     async def handle_pubcomp(self, pubcomp: Any) -> None:
         if pubcomp.packet_id in self._pubcomp_waiters or self.session is None:

@@ -92,7 +92,8 @@ RELIED_ON: dict[str, str] = {
     "amqtt.mqtt.protocol.handler:ProtocolHandler.start": "calls _retry_deliveries when a handler starts (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._stop_waiters": "cancels the acknowledgement waiters; fix 28 "
                                                                  "keeps the message in inflight_out then",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler._retry_deliveries": "resends session.inflight_out on resume (fix 28)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler._retry_deliveries": "replaced: resends inflight_out on resume "
+                                                                     "(fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.mqtt_publish": "called for every delivery not written directly "
                                                                 "(fix 25)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._handle_message_flow": "routes deliveries to the QoS flows we "
@@ -106,8 +107,7 @@ RELIED_ON: dict[str, str] = {
                                                                 "(fixes 1, 13, 14)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_puback": "wrapped (fix 28)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubrec": "completes the _pubrec_waiters our QoS 2 flow "
-                                                                 "awaits (fix 28)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubrec": "wrapped: a late PUBREC is released (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubcomp": "wrapped (fix 28)",
     # -- sessions and messages
     "amqtt.session:Session.__init__": "creates attributes, keep_alive, inflight_out, retained_messages, will_* "
