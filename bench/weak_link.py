@@ -58,6 +58,7 @@ IMAGE_RATE, MAP_PERIOD = 30.0, 10.0
 WARMUP = 4.0  # s after the robot is online before measuring
 MOTION_RATE = 10.0  # the demo fleet's max_rate for global_motion
 ESTOP_TOPIC = "/emergency_stop"  # where the demo fleet's emergency_stop rule publishes (std_msgs/Bool, latched)
+BROKER_LOG_LEVEL = os.environ.get("WEAK_BROKER_LOG", "WARNING")  # INFO shows every connection (with --keep-logs)
 STOP_PERIOD = 3.0  # s between alice's emergency stops
 
 
@@ -475,7 +476,7 @@ def main(argv: list[str] | None = None) -> int:
         port = lat.free_port()
         fleet = bench_fleet(work, port, "scheduled", True)
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", os.environ.get("WEAK_BROKER_LOG", "WARNING")],
+                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", BROKER_LOG_LEVEL],
                         work / "broker.log", env, port=port, what="embedded broker")
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
         viewer = Viewer(port, lat.load_fleet(fleet).prefix)
