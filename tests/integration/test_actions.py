@@ -135,6 +135,7 @@ def test_bad_input_is_refused_on_the_error_topic(stack, leaf: str, body: dict, w
     assert not [m for m in stack.alice.drain(0.3) if "/goal_status/" in m.topic or "/result/" in m.topic]
 
 
+@pytest.mark.parametrize("stack", ["embedded"], indirect=True)  # ids are the bridge's logic: any broker shows it
 def test_two_operators_same_goal_id_no_collision(stack) -> None:
     # goals to an action open to viewers change nothing: no control lease, both operators' goals run at once
     send_goal(stack.alice, "alice", {"order": 3}, goal_id="shared", action="fib_public")

@@ -21,7 +21,7 @@ from tests.support.broker_setup import ExportedMosquitto
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.procs import DEMO_PASSWORDS
-from tests.support.rawmqtt import connect_packet, publish_packet, remaining_length, subscribe_packet, utf8
+from tests.support.rawmqtt import RawClient, connect_packet, publish_packet, remaining_length, subscribe_packet, utf8
 
 BACKENDS = ("embedded", "mosquitto")
 ADMIN = ("admin", DEMO_PASSWORDS["admin"])
@@ -60,14 +60,13 @@ class Packet:
         return struct.unpack("!H", self.body[:2])[0]
 
 
-class Wire:
+class Wire(RawClient):
     """One raw MQTT 3.1.1 connection: send bytes, read whole packets."""
 
     def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=WAIT)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        super().__init__(port, timeout=WAIT)
 
-    def login(self, client_id: str, *, clean: bool = True, keepalive: int = 30,
+    def login(self, client_id: str, *, clean: bool = True, keepalive: int = 30,  # type: ignore[override]
               will: tuple[str, bytes, int, bool] | None = None) -> tuple[int, int]:
         """(session present flag, return code) of the CONNACK."""
         self.sock.sendall(connect_packet(client_id, *ADMIN, clean=clean, keepalive=keepalive, will=will))
@@ -75,29 +74,17 @@ class Wire:
         assert ack.kind == CONNACK, ack
         return ack.body[0] & 0x01, ack.body[1]
 
-    def send(self, data: bytes) -> None:
-        self.sock.sendall(data)
-
-    def _exactly(self, n: int) -> bytes:
-        data = b""
-        while len(data) < n:
-            chunk = self.sock.recv(n - len(data))
-            if not chunk:
-                raise ConnectionError(f"closed after {len(data)} of {n} bytes")
-            data += chunk
-        return data
-
     def read(self, timeout: float = WAIT) -> Packet:
         self.sock.settimeout(timeout)
-        first = self._exactly(1)[0]
+        first = self.recv_exactly(1)[0]
         length, shift = 0, 0
         while True:
-            byte = self._exactly(1)[0]
+            byte = self.recv_exactly(1)[0]
             length |= (byte & 0x7F) << shift
             shift += 7
             if not byte & 0x80:
                 break
-        return Packet(first >> 4, first & 0x0F, self._exactly(length))
+        return Packet(first >> 4, first & 0x0F, self.recv_exactly(length))
 
     def read_kind(self, kind: int, timeout: float = WAIT) -> Packet:
         """The next packet of ``kind`` (PINGRESPs and others in between are skipped)."""
@@ -135,19 +122,6 @@ class Wire:
             self.send(bytes([0xE0, 0]))
         finally:
             self.sock.close()
-
-    def closed_within(self, seconds: float) -> bool:
-        deadline = time.monotonic() + seconds
-        while (left := deadline - time.monotonic()) > 0:
-            self.sock.settimeout(left)
-            try:
-                if not self.sock.recv(65536):
-                    return True
-            except TimeoutError:
-                return False
-            except OSError:
-                return True
-        return False
 
 
 @pytest.fixture(params=BACKENDS)
@@ -317,7 +291,8 @@ def test_mqtt_3_1_2_24_silent_client_is_disconnected_after_one_and_a_half_keepal
     w = wires()
     w.login(wires.cid("quiet"), keepalive=1)
     began = time.monotonic()
-    assert w.closed_within(WAIT), "a client silent past 1.5 × its keep-alive stayed connected"
+    # a generous deadline: Mosquitto checks keep-alives on a coarse timer (seen 1.5-5 s for this 1.5 s)
+    assert w.closed_within(2 * WAIT), "a client silent past 1.5 × its keep-alive stayed connected"
     assert time.monotonic() - began >= 1.0  # not before its keep-alive
 
 

@@ -94,6 +94,7 @@ def test_description_lists_exactly_what_the_fleet_file_maps(port) -> None:
     assert all(d.types[t] == ros_fields_of(t) for t in mentioned)  # what the robot's own ROS types say
 
 
+@EMBEDDED_ONLY  # the SDK's reading: any broker shows it (both carry the retained description in other tests)
 def test_sdk_reads_the_description(port, request) -> None:
     with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as alice:
         d = alice.description("turtle1", timeout=10)

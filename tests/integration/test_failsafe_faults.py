@@ -126,6 +126,7 @@ def test_operator_sigstop_stops_robot(stack: Stack) -> None:
             op.signal(signal.SIGCONT)
 
 
+@pytest.mark.parametrize("stack", ["embedded"], indirect=True)  # the bridge's operator timeout: any broker shows it
 def test_operator_sigstop_during_goal_stops_after_operator_timeout(stack: Stack) -> None:
     """No command stream (a waypoint goal): only operator presence can notice the frozen client."""
     from geometry_msgs.msg import PoseStamped

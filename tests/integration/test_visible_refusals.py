@@ -145,6 +145,7 @@ def test_error_reports_reach_only_their_sender(stack) -> None:
             assert error.client_id is None and "no mapping for 'fly'" in error.error
 
 
+@pytest.mark.parametrize("stack", ["embedded"], indirect=True)  # the CLI's filtering: any broker shows it
 def test_cli_pub_does_not_print_another_programs_errors(stack) -> None:
     env = {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}
     pub = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.cli.main", "pub", "turtle1", "twist", '{"lx": 0.0}',
