@@ -39,7 +39,7 @@ RULES = f"""    rules: &rules
 """
 RATE = 30.0
 BASELINE_S = 2.0  # the normal viewer alone
-SLOW_S = 6.0  # with the slow viewer subscribed (well past its queue limit, short of slow_consumer_timeout 30 s)
+SLOW_S = 4.0  # with the slow viewer subscribed (well past its queue limit, short of slow_consumer_timeout 30 s)
 MARK = b"idx:"
 COMMENT = b"\xff\xfe" + struct.pack(">H", 2 + len(MARK) + 8)  # JPEG COM segment carrying the frame index
 
