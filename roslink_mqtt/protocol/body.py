@@ -410,8 +410,3 @@ def refuse(message: str, values: Mapping[str, Any], fields: tuple[BodyField, ...
     sender = next((values.get(f.name) for f in fields if f.names == "sender"), None)
     return ProtocolError(message).naming(request, sender)
 
-
-def declarations(bodies: tuple[tuple[str, str, type], ...]) -> list[dict[str, Any]]:
-    """Every body's fields as JSON data, by title (the dashboard reads bodies from these)."""
-    return [{"title": title, "fields": [f.as_data() for f in getattr(cls, "FIELDS")]}  # noqa: B009 - any body type
-            for title, _topic, cls in bodies]
