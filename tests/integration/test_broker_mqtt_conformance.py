@@ -162,6 +162,15 @@ def publish(wires, topic: str, payload: bytes, qos: int, *, retain: bool = False
     w.disconnect()
 
 
+def persistent_subscriber(wires, topic_name: str, qos: int) -> tuple[str, str, Wire]:
+    """(client id, topic, connection): a session with CleanSession=0 subscribed to a topic of this test alone."""
+    cid, topic = wires.cid("sub"), wires.topic(topic_name)
+    sub = wires()
+    sub.login(cid, clean=False)
+    assert sub.subscribe(topic, qos) == qos
+    return cid, topic, sub
+
+
 def test_mqtt_3_1_2_2_unsupported_protocol_level_gets_connack_1(wires) -> None:
     """A protocol level the broker does not speak is answered with CONNACK 0x01 and the connection closed."""
     w = wires()
@@ -188,10 +197,7 @@ def test_mqtt_3_2_2_1_and_2_session_present(wires) -> None:
 
 
 def test_mqtt_4_4_0_1_unacknowledged_qos1_is_resent_with_dup_on_reconnect(wires) -> None:
-    cid, topic = wires.cid("sub"), wires.topic("q1")
-    sub = wires()
-    sub.login(cid, clean=False)
-    assert sub.subscribe(topic, 1) == 1
+    cid, topic, sub = persistent_subscriber(wires, "q1", 1)
     publish(wires, topic, b"once", 1)
     first = sub.read_kind(PUBLISH)
     got_topic, pid, payload = first.publish()
@@ -211,10 +217,7 @@ def test_mqtt_4_4_0_1_unacknowledged_qos1_is_resent_with_dup_on_reconnect(wires)
 
 
 def test_mqtt_4_4_0_1_unacknowledged_qos2_publish_is_resent_with_dup(wires) -> None:
-    cid, topic = wires.cid("sub"), wires.topic("q2")
-    sub = wires()
-    sub.login(cid, clean=False)
-    assert sub.subscribe(topic, 2) == 2
+    cid, topic, sub = persistent_subscriber(wires, "q2", 2)
     publish(wires, topic, b"exactly", 2)
     _t, pid, _p = sub.read_kind(PUBLISH).publish()
     sub.drop()  # no PUBREC
@@ -233,10 +236,7 @@ def test_mqtt_4_4_0_1_unacknowledged_qos2_publish_is_resent_with_dup(wires) -> N
 def test_mqtt_4_3_3_qos2_after_pubrec_only_pubrel_is_resent(wires) -> None:
     """Exactly once across a reconnect: once the subscriber sent PUBREC, the broker resends PUBREL, never the
     PUBLISH again (MQTT-4.3.3-1, MQTT-4.4.0-1)."""
-    cid, topic = wires.cid("sub"), wires.topic("q2rel")
-    sub = wires()
-    sub.login(cid, clean=False)
-    assert sub.subscribe(topic, 2) == 2
+    cid, topic, sub = persistent_subscriber(wires, "q2rel", 2)
     publish(wires, topic, b"one", 2)
     _t, pid, _p = sub.read_kind(PUBLISH).publish()
     sub.ack(PUBREC, pid)
