@@ -10,6 +10,12 @@ amqtt's WebSocket reader re-appends the last frame in a loop without yielding wh
 peer closes mid-packet (``recv()`` raises ConnectionClosed, which it suppresses), so one
 connection that announced 1 MB and sent 1 byte held the loop for seconds.
 :class:`SafeWebSocketsReader` ends the read at the close instead.
+
+A packet body is buffered until its last byte arrives, and amqtt's keep-alive does not run
+while a packet is half read: 31 connections of one viewer, each announcing a 4 MiB PUBLISH
+and stopping one byte short, pinned +124 MB until they closed. :class:`PacketGate` reads a
+large body in pieces, charges them to the login's :class:`PartialBudget` and closes a
+connection whose next piece would overdraw it or does not arrive in time.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ CONNECT, PUBLISH, SUBSCRIBE, UNSUBSCRIBE = 1, 3, 8, 10
 PACKET_NAMES = {CONNECT: "CONNECT", PUBLISH: "PUBLISH", SUBSCRIBE: "SUBSCRIBE", UNSUBSCRIBE: "UNSUBSCRIBE"}
 MQTT_311 = 4  # the CONNECT protocol level of MQTT 3.1.1, the one this broker speaks
 MAX_PROTOCOL_HEAD = 16  # bytes of a CONNECT read for its protocol name and level ("MQTT": 7)
+READ_CHUNK = 64 * 1024  # a body read larger than this is read, charged and timed in pieces of this size
 
 
 class PacketRefused(Exception):
@@ -46,6 +53,10 @@ class PacketTooLarge(PacketRefused):
 
 class BadTopic(PacketRefused):
     """A PUBLISH topic with a wildcard or U+0000 (MQTT-3.3.2-2, MQTT-1.5.3-2)."""
+
+
+class PacketStalled(PacketRefused):
+    """A large packet whose next piece did not arrive in time, or would overdraw its login's budget."""
 
 
 class UnsupportedProtocol(PacketRefused):
@@ -92,6 +103,31 @@ class Pacer:
         return wait
 
 
+class PartialBudget:
+    """Bytes that packets still arriving may hold, shared by every connection of one login (``max_partial_bytes``).
+
+    A body is kept in memory until its last byte has arrived; without a bound per login, one viewer's half-sent
+    PUBLISHes pinned 4 MiB per connection for as long as it kept them open.
+    """
+
+    __slots__ = ("limit", "held")
+
+    def __init__(self, limit: int) -> None:
+        if limit < 1:
+            raise ValueError(f"a partial-packet budget needs limit >= 1, got {limit!r}")
+        self.limit, self.held = limit, 0
+
+    def take(self, size: int) -> bool:
+        """Charge ``size`` bytes; False (nothing charged) when that would exceed the limit."""
+        if self.held + size > self.limit:
+            return False
+        self.held += size
+        return True
+
+    def give(self, size: int) -> None:
+        self.held -= size
+
+
 class PacketGate(ReaderAdapter):
     """Pass-through reader that knows where each packet starts and refuses oversized ones.
 
@@ -100,26 +136,35 @@ class PacketGate(ReaderAdapter):
     length of 1-4 bytes (7 bits each, high bit = more), then that many bytes. A PUBLISH
     topic (the first 2 + n bytes of its body) is checked for wildcards and NUL as it passes.
     ``describe`` names the connection in the log line; the broker replaces it after login, and sets
-    ``pacer`` for a login whose PUBLISH rate is bounded (:class:`Pacer`).
+    ``pacer`` for a login whose PUBLISH rate is bounded (:class:`Pacer`) and ``budget`` (:class:`PartialBudget`).
+    A read of more than :data:`READ_CHUNK` bytes (a large body) goes in pieces: each is charged to ``budget``
+    while the body is incomplete and must arrive within ``piece_timeout`` seconds (0: no limit), so a packet
+    may take longer the larger it is, and one that stops arriving is closed instead of held.
     """
 
-    __slots__ = ("inner", "limit_for", "describe", "pacer", "_published", "_state", "_type", "_length", "_shift",
-                 "_left", "_topic", "_connect")
+    __slots__ = ("inner", "limit_for", "describe", "pacer", "budget", "piece_timeout", "_published", "_state",
+                 "_type", "_length", "_shift", "_left", "_topic", "_connect")
 
     _TYPE, _LENGTH, _BODY = 0, 1, 2
 
     def __init__(self, inner: ReaderAdapter, limit_for: Callable[[int], int], describe: Callable[[], str]) -> None:
         self.inner, self.limit_for, self.describe = inner, limit_for, describe
         self.pacer: Pacer | None = None
+        self.budget: PartialBudget | None = None
+        self.piece_timeout = 0.0
         self._published = 0  # PUBLISH headers seen in the current read
         self._state, self._type, self._length, self._shift, self._left = self._TYPE, 0, 0, 0, 0
         self._topic: bytearray | None = None  # a PUBLISH topic being read (length prefix included)
         self._connect: bytearray | None = None  # a CONNECT's protocol name and level being read
 
     async def read(self, n: int = -1) -> bytes:
-        data = await self.inner.read(n)
+        if n > READ_CHUNK:
+            data = await self._read_in_pieces(n)
+        else:
+            data = await self.inner.read(n)
+            if data:
+                self._follow(data)
         if data:
-            self._follow(data)
             if self._published and self.pacer is not None:
                 wait = self.pacer.wait_for(self._published, time.monotonic())
                 self._published = 0
@@ -129,6 +174,42 @@ class PacketGate(ReaderAdapter):
 
     def feed_eof(self) -> None:
         self.inner.feed_eof()
+
+    async def _read_in_pieces(self, n: int) -> bytes:
+        """``n`` bytes read :data:`READ_CHUNK` at a time, charged to the login's budget until all have arrived."""
+        pieces: list[bytes] = []
+        got = charged = 0
+        budget = self.budget
+        try:
+            while got < n:
+                want = min(READ_CHUNK, n - got)
+                if budget is not None:
+                    if not budget.take(want):
+                        why = (f"packets still arriving on this login's connections hold {budget.held} bytes, "
+                               f"limit {budget.limit}")
+                        log.warning("closing %s: %s", self.describe(), why)
+                        raise PacketStalled(why)
+                    charged += want
+                if self.piece_timeout > 0:
+                    try:
+                        piece = await asyncio.wait_for(self.inner.read(want), self.piece_timeout)
+                    except TimeoutError:
+                        why = (f"{want} bytes of a {n}-byte packet body did not arrive within {self.piece_timeout:g} s "
+                               f"({got} arrived)")
+                        log.warning("closing %s: %s", self.describe(), why)
+                        raise PacketStalled(why) from None
+                else:
+                    piece = await self.inner.read(want)
+                if piece:
+                    self._follow(piece)
+                    pieces.append(piece)
+                    got += len(piece)
+                if len(piece) < want:  # the stream ended (a WebSocket closed): return what there is
+                    break
+        finally:
+            if budget is not None:
+                budget.give(charged)
+        return pieces[0] if len(pieces) == 1 else b"".join(pieces)
 
     def _follow(self, data: bytes) -> None:
         i, size = 0, len(data)

@@ -52,7 +52,7 @@ behaviour.
 15. **WebSocket connections closed mid-packet** end the read (stock spins re-appending the
     last frame: ~4 s of stalled loop per connection).
 16. **SUBSCRIBE** is bounded per session (``max_subscriptions``), yields to the loop every
-    32 filters, and finds retained messages through :class:`~.limits.RetainedIndex` (a tree)
+    32 filters, and finds retained messages through :class:`~.subscriptions.RetainedTable` (a tree)
     instead of matching every filter against every retained message.
 17. **Slow consumers** (:class:`~.outbox.Outbox`): deliveries waiting for one client are
     bounded in messages and bytes (socket buffer included); over that, messages to it are
@@ -67,9 +67,11 @@ behaviour.
     one delivery stuck on a client that stopped reading kept every later delivery, with its message, alive.
 23. **User logins are paced** (``user_publish_rate``/``user_publish_burst``, :class:`~.guard.Pacer`): over the
     rate, the broker stops reading the login's connections until its allowance refills.
-24. **Subscription matching in a tree** (:class:`~.subscriptions.SubscriptionIndex`): stock matches every
+24. **Subscription matching in a tree** (:class:`~.subscriptions.SubscriptionTable`): stock matches every
     PUBLISH against every filter in the broker, so a message cost grows with the fleet (a 200-robot fleet
-    collapsed); the index visits only the levels a topic can match.
+    collapsed); the tree visits only the levels a topic can match. It *is* ``Broker._subscriptions`` (as the
+    retained tree is ``_retained_messages``): amqtt's code reads and writes the one table through its mapping
+    interface; filters whose last subscriber unsubscribed are removed (stock keeps them, empty, forever).
 25. **QoS 0 deliveries are written straight to a TCP client's transport**, whole packets in broadcast order,
     bounded by the outbox (17); stock runs a Task per delivery (packet objects, write lock, ``drain()``, a timer
     and a plugin event each). WebSocket clients and QoS 1/2 keep amqtt's path.
@@ -89,19 +91,29 @@ behaviour.
     delivery task still stops waiting after 5 s (the outbox, 17, must not be held by a live client's slow
     acknowledgements), but the message stays in flight (at most 1,000 per session): a late acknowledgement
     completes it, a reconnect resends it; a resumed session's resends no longer hold up its connection.
+29. **Packets still arriving are bounded per login** (:class:`~.guard.PartialBudget`): a body over 64 KiB is read
+    in pieces charged to the login's ``max_partial_bytes`` until it is complete, and each piece must arrive
+    within ``packet_piece_timeout``; a connection that would overdraw the budget or stops mid-packet is closed.
+    Stock buffers every body whole until its last byte, and its keep-alive does not run meanwhile: one viewer's
+    31 PUBLISHes announcing 4 MiB and stopping a byte short pinned +124 MB for as long as it liked.
+30. **A stop does not wait for connections still logging in**: stock ``shutdown`` waits for its listeners to
+    close, and they wait for every connection's handler -- including logins held back by the login throttle
+    (up to 10 s) or still reading their CONNECT. Those are cancelled first, so SIGTERM ends the broker at once
+    even under a password-guessing flood (it took 5 s and a SIGKILL).
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
 * ``Broker``: ``_initialize_client_session`` (replaced; the part after authentication
   mirrors stock), ``_authenticate`` (replaced), ``_client_connected`` (wrapped),
   ``_handle_message_delivery`` (wrapped), ``_broadcast_message`` and ``_run_broadcast``
-  (replaced; the queue of delivery tasks it is given is swept), ``add_subscription`` (wrapped: the filter
-  index follows it; a filter amqtt dropped is pruned from the index when it next matches),
-  ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped),
+  (replaced; the queue of delivery tasks it is given is swept),
+  ``_handle_subscription`` (replaced), ``_handle_unsubscription`` (wrapped: prunes emptied filters),
   ``_publish_retained_messages_for_subscription`` and ``_publish_session_retained_messages``
-  (replaced), ``_topic_filtering`` (replaced), ``_handle_disconnect`` (wrapped), ``start``
+  (replaced), ``_topic_filtering`` (replaced), ``_handle_disconnect`` (wrapped), ``start`` and ``shutdown``
   (wrapped), ``ws_connected`` (replaced), ``retain_message`` and ``_retain_broadcast_message``
-  (wrapped); read or called: ``_sessions``, ``_subscriptions``, ``_retained_messages``,
+  (wrapped); ``_subscriptions`` and ``_retained_messages`` (replaced by our tree tables after
+  ``Broker.__init__``: amqtt's ``add_subscription``, ``_del_subscription``, ``_del_all_subscriptions`` and
+  ``retain_message`` use them only as mappings); read or called: ``_sessions``,
   ``_broadcast_queue``, ``_servers``, ``_get_handler``, ``_matches``, ``_delete_session``,
   ``add_subscription``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
@@ -153,12 +165,13 @@ from .guard import (
     Pacer,
     PacketGate,
     PacketRefused,
+    PartialBudget,
     SafeWebSocketsReader,
     UnsupportedProtocol,
 )
-from .limits import BrokerLimits, RetainedIndex, RetainedQuota
+from .limits import BrokerLimits, RetainedQuota
 from .outbox import Outbox, Verdict
-from .subscriptions import SubscriptionIndex
+from .subscriptions import RetainedTable, SubscriptionTable
 
 log = logging.getLogger("roslink_mqtt.broker")
 
@@ -475,10 +488,16 @@ class HardenedBroker(Broker):
         self.max_payload = max_payload
         self.limits = limits or BrokerLimits()
         self.policy = policy
-        self.retained_index = RetainedIndex()
-        self.filter_index = SubscriptionIndex()  # fix 24: the keys of amqtt's _subscriptions, as a tree
+        # fix 24: the broker's only subscription and retained tables, in the shape of amqtt's dicts
+        self.subscription_table = SubscriptionTable()
+        self.retained_table = RetainedTable()
+        self._subscriptions = self.subscription_table  # a MutableMapping in place of amqtt's dict
+        self._retained_messages = self.retained_table
         self.retained_quota = RetainedQuota(self.limits)
         self._pacers: dict[str, Pacer] = {}  # per login, kept for the broker's life (logins are the fleet's)
+        self._budgets: dict[str, PartialBudget] = {}  # per login, likewise
+        self._connecting: set[asyncio.Task[Any]] = set()  # connections between their first byte and CONNACK
+        self._stopping = False
 
     def _pacer_of(self, login: str | None) -> Pacer | None:
         """The PUBLISH allowance shared by every connection of ``login`` (None: not paced)."""
@@ -490,6 +509,16 @@ class HardenedBroker(Broker):
         if pacer is None:
             pacer = self._pacers[login] = Pacer(rate, max(1, self.limits.user_publish_burst))
         return pacer
+
+    def _budget_of(self, login: str | None) -> PartialBudget | None:
+        """The bytes of partly arrived packets shared by every connection of ``login`` (None: unbounded)."""
+        if not self.limits.max_partial_bytes or login is None:
+            return None
+        budget = self._budgets.get(login)
+        if budget is None:
+            largest = self._packet_limit(PUBLISH)  # one packet the broker accepts always fits
+            budget = self._budgets[login] = PartialBudget(max(self.limits.max_partial_bytes, largest))
+        return budget
 
     def _packet_limit(self, packet_type: int) -> int:
         if packet_type == PUBLISH:
@@ -515,16 +544,39 @@ class HardenedBroker(Broker):
         peer = writer.get_peer_info()
         where = f"{peer[0]}:{peer[1]} via {listener_name}" if peer else f"? via {listener_name}"
         gate = PacketGate(reader, self._packet_limit, lambda: where)  # fix 14: sizes checked from the first byte
+        gate.piece_timeout = self.limits.packet_piece_timeout  # fix 29
         await super()._client_connected(listener_name, gate, writer)
 
     async def ws_connected(self, websocket: Any, listener_name: str) -> None:
         # fix 15: amqtt's WebSocket reader spins on a connection closed mid-packet
         await self._client_connected(listener_name, SafeWebSocketsReader(websocket), WebSocketsWriter(websocket))
 
+    # -- fix 30: a stop does not wait for connections still logging in ---------------------------
+    async def shutdown(self) -> None:
+        self._stopping = True
+        for task in list(self._connecting):
+            task.cancel()
+        await super().shutdown()
+
     # -- fixes 1, 4, 5, 6, 7, 10: CONNECT handling ---------------------------------------
     async def _initialize_client_session(self, reader: ReaderAdapter, writer: WriterAdapter,
                                          remote_address: str, remote_port: int
                                          ) -> tuple[BrokerProtocolHandler, Session]:
+        task = asyncio.current_task()
+        if task is not None:
+            self._connecting.add(task)
+        try:
+            return await self._open_session(reader, writer, remote_address, remote_port)
+        except asyncio.CancelledError:
+            if not self._stopping:
+                raise
+            abort_transport(writer)
+            raise AMQTTError("broker stopping") from None
+        finally:
+            self._connecting.discard(task)
+
+    async def _open_session(self, reader: ReaderAdapter, writer: WriterAdapter, remote_address: str,
+                            remote_port: int) -> tuple[BrokerProtocolHandler, Session]:
         peer = f"{remote_address}:{remote_port}"
         try:
             handler, session = await asyncio.wait_for(
@@ -599,6 +651,7 @@ class HardenedBroker(Broker):
         session.attributes[ATTR_AUTH_OK] = True
         if isinstance(reader, PacketGate):
             reader.pacer = self._pacer_of(session.username)
+            reader.budget = self._budget_of(session.username)  # fix 29
         log.info("connected %s keepalive=%ss clean=%d%s", describe_session(session), session.attributes[ATTR_KEEPALIVE],
                  int(session.clean_session), " (session resumed)" if resumed else "")
         return handler, session
@@ -724,14 +777,10 @@ class HardenedBroker(Broker):
         topic: str = broadcast["topic"]
         pub_qos = broadcast.get("qos", broadcast.get("pub_qos"))
 
-        # Snapshot first: awaiting the ACL while iterating _subscriptions races SUBSCRIBE. The filters that
-        # match come from the index (fix 24), not from matching every filter in the broker.
+        # Snapshot first: awaiting the ACL while iterating the subscribers races SUBSCRIBE. The filters that
+        # match come from the tree (fix 24), not from matching every filter in the broker.
         targets: dict[str, tuple[Session, int]] = {}
-        for topic_filter in self.filter_index.matches(topic):
-            subscribers = self._subscriptions.get(topic_filter)
-            if not subscribers:  # its last subscriber left (amqtt removed it): forget it here too
-                self.filter_index.discard(topic_filter)
-                continue
+        for _filter, subscribers in self.subscription_table.matches(topic):
             for target, sub_qos in subscribers:
                 previous = targets.get(target.client_id)
                 if previous is None or sub_qos > previous[1]:
@@ -899,19 +948,11 @@ class HardenedBroker(Broker):
                 data = b""  # the older retained message on this topic is stale now: clear it, never serve it
             else:
                 self.retained_quota.stored(login or "$broker", topic_name, len(data))
-                self.retained_index.add(topic_name)
         if not data:
             self.retained_quota.cleared(topic_name)
-            self.retained_index.discard(topic_name)
-        await super().retain_message(source_session, topic_name, data, qos)
+        await super().retain_message(source_session, topic_name, data, qos)  # stores into retained_table
 
     # -- fixes 2, 14, 24: SUBSCRIBE --------------------------------------------------------------
-    async def add_subscription(self, subscription: tuple[str, int], session: Session) -> int:
-        code = await super().add_subscription(subscription, session)
-        if code != 0x80:
-            self.filter_index.add(subscription[0])
-        return code
-
     async def _handle_subscription(self, client_session: Session, handler: BrokerProtocolHandler,
                                    subscribe_waiter: asyncio.Future[Any]) -> None:
         # Replaces stock: bounded filters per session, the loop yields between filters, and retained
@@ -948,11 +989,15 @@ class HardenedBroker(Broker):
 
     async def _handle_unsubscription(self, client_session: Session, handler: BrokerProtocolHandler,
                                      unsubscribe_waiter: asyncio.Future[Any]) -> None:
+        topics = unsubscribe_waiter.result().topics
         held = client_session.attributes.get(ATTR_FILTERS)
         if held is not None:
-            for topic_filter in unsubscribe_waiter.result().topics:
+            for topic_filter in topics:
                 held.discard(topic_filter)
         await super()._handle_unsubscription(client_session, handler, unsubscribe_waiter)
+        for topic_filter in topics:  # stock leaves a filter without subscribers in the table for ever
+            if self.subscription_table.get(topic_filter) == []:
+                del self.subscription_table[topic_filter]
 
     async def _publish_retained_messages_for_subscription(self, subscription: tuple[str, int],
                                                           session: Session) -> None:
@@ -965,10 +1010,10 @@ class HardenedBroker(Broker):
         if handler is None:
             return
         tasks = []
-        for visited, topic in enumerate(self.retained_index.matches(topic_filter)):
+        for visited, (topic, retained) in enumerate(self.retained_table.matches(topic_filter)):
             if visited and visited % 256 == 0:
                 await asyncio.sleep(0)
-            retained = self._retained_messages.get(topic)
+            retained = self.retained_table.get(topic)  # the latest: it may have changed while this loop awaited
             if retained is None or not await self._topic_filtering(session, topic=topic, action=Action.RECEIVE):
                 continue
             qos = granted if retained.qos is None else min(granted, retained.qos)

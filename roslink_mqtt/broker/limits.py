@@ -6,17 +6,14 @@ stop commands: packet sizes, subscriptions, retained bytes, messages queued for 
 that does not read, connections. Defaults suit the demo fleet and a few hundred robots;
 robots.yaml ``broker.limits`` overrides them (docs/config.md, docs/safety.md).
 
-Pure logic, no amqtt: :class:`RetainedIndex` and :class:`RetainedQuota` are unit-tested
-alone and used by :mod:`roslink_mqtt.broker.hardened`.
+Pure logic, no amqtt: :class:`RetainedQuota` is unit-tested alone and used by
+:mod:`roslink_mqtt.broker.hardened`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any
-
-from ..topics import filter_levels
 
 KIB, MIB = 1024, 1024 * 1024
 
@@ -29,6 +26,10 @@ class BrokerLimits:
     max_subscribe_bytes: int = 64 * KIB  # a SUBSCRIBE or UNSUBSCRIBE packet
     max_subscriptions: int = 1024  # filters one session may hold
     max_connections_per_login: int = 32  # live connections of one login (0 = unlimited)
+    # bytes of packets still arriving that one login's connections may hold together (0 = unlimited; never less
+    # than one packet of broker.max_payload, so any packet the broker accepts fits)
+    max_partial_bytes: int = 8 * MIB
+    packet_piece_timeout: float = 60.0  # s within which each 64 KiB of a large packet must arrive (0 = no limit)
     max_queued_messages: int = 1000  # deliveries waiting for one slow client
     max_queued_bytes: int = 2 * MIB  # bytes waiting for one slow client (socket buffer included)
     slow_consumer_timeout: float = 30.0  # s a client may stay over the queue limit before it is dropped
@@ -57,90 +58,6 @@ class BrokerLimits:
     @classmethod
     def names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
-
-
-def split_topic(topic: str) -> tuple[str, ...]:
-    return filter_levels(topic)
-
-
-class RetainedIndex:
-    """Retained topics in a tree of levels, so a SUBSCRIBE visits only the branches its filter can match.
-
-    amqtt keeps retained messages in one dict and matches every filter against every
-    entry; with thousands of retained messages a SUBSCRIBE of many filters then held the
-    event loop for seconds. Here a filter without wildcards is one walk down the tree, and
-    ``+``/``#`` visit only what lies below the levels they name.
-    """
-
-    __slots__ = ("_root", "_size")
-
-    def __init__(self) -> None:
-        self._root: dict[str | None, Any] = {}  # level → child node; None → the retained topic ending here
-        self._size = 0
-
-    def __len__(self) -> int:
-        return self._size
-
-    def add(self, topic: str) -> None:
-        node = self._root
-        for level in split_topic(topic):
-            node = node.setdefault(level, {})
-        if None not in node:
-            node[None] = topic  # the key None marks "a retained message ends here"
-            self._size += 1
-
-    def discard(self, topic: str) -> None:
-        path: list[tuple[dict[str | None, Any], str]] = []
-        node = self._root
-        for level in split_topic(topic):
-            child = node.get(level)
-            if child is None:
-                return
-            path.append((node, level))
-            node = child
-        if node.pop(None, None) is None:
-            return
-        self._size -= 1
-        for parent, level in reversed(path):  # prune empty branches so memory follows the live set
-            if parent[level]:
-                break
-            del parent[level]
-
-    def matches(self, topic_filter: str) -> Iterator[str]:
-        """Every retained topic the filter matches (MQTT 3.1.1 §4.7, ``$`` topics excluded from wildcards)."""
-        levels = split_topic(topic_filter)
-        yield from self._walk(self._root, levels, 0)
-
-    def _walk(self, node: dict[str | None, Any], levels: tuple[str, ...], i: int) -> Iterator[str]:
-        if i == len(levels):
-            topic = node.get(None)
-            if topic is not None:
-                yield topic
-            return
-        level = levels[i]
-        if level == "#":
-            yield from self._subtree(node, skip_dollar=(i == 0))
-            return
-        if level == "+":
-            for key, child in list(node.items()):
-                if key is None or (i == 0 and key.startswith("$")):
-                    continue
-                yield from self._walk(child, levels, i + 1)
-            return
-        child = node.get(level)
-        if child is not None:
-            yield from self._walk(child, levels, i + 1)
-
-    def _subtree(self, node: dict[str | None, Any], *, skip_dollar: bool) -> Iterator[str]:
-        # 'a/#' also matches 'a' itself (MQTT-4.7.1-2); iterative, so deep topics cannot exhaust the stack
-        stack = [(node, skip_dollar)]
-        while stack:
-            current, top = stack.pop()
-            for key, child in list(current.items()):
-                if key is None:
-                    yield child
-                elif not (top and key.startswith("$")):
-                    stack.append((child, False))
 
 
 class RetainedQuota:

@@ -197,7 +197,10 @@ def test_a_refused_command_does_not_use_up_its_sequence_number(stack) -> None:
     """The motion gate refuses sequence N; the same N once armed is a new command, not a duplicate."""
     alice, cmd_vel = stack["alice"], stack["cmd_vel"]
     twist = {"message_id": 100, "sequence_number": 9000, "payload": {"lx": 0.35}}
+    t_stop = time.monotonic()
     alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {})
+    # the stop travels on the bridge's own stop connection: the twist may overtake it unless we wait for it
+    cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=t_stop)
     alice.publish("roslink/turtle1/from/alice/cmd/twist", twist)
     err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error") and m.json().get("sequence_number") == 9000)
     assert "emergency stop by alice: send cmd/arm to resume" in err.json()["error"]

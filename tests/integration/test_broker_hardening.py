@@ -336,3 +336,47 @@ def test_failed_start_leaves_no_listener_open(tmp_path: Path) -> None:
                 socket.create_connection(("127.0.0.1", tcp_port), timeout=1).close()
 
     asyncio.run(scenario())
+
+
+# -- 24: one subscription table --------------------------------------------------------------------
+
+
+def test_unsubscribed_filters_leave_the_table(tmp_path: Path) -> None:
+    """Stock amqtt keeps a filter whose last subscriber unsubscribed, empty, for the broker's life; the
+    hardened broker's one table (which *is* amqtt's ``_subscriptions``) drops it, and a disconnect drops the rest."""
+    from roslink_mqtt.broker.hardened import HardenedBroker
+    from tests.support.rawmqtt import connect_packet, remaining_length, subscribe_packet, utf8
+
+    port = free_port()
+    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
+              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
+    filters = [f"a/{i}/+" for i in range(20)]
+
+    async def scenario() -> None:
+        broker = HardenedBroker(config)
+        await broker.start()
+        try:
+            assert broker._subscriptions is broker.subscription_table  # amqtt's code writes the one table
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(connect_packet("lister", None, None))
+            assert (await reader.readexactly(4))[3] == 0
+            writer.write(subscribe_packet(filters, 1) + subscribe_packet(["keep/#"], 2))
+            await reader.readexactly(2 + 2 + len(filters))  # SUBACK
+            await reader.readexactly(5)
+            assert len(broker.subscription_table) == len(filters) + 1
+            body = b"\x00\x03" + b"".join(utf8(f) for f in filters)
+            writer.write(b"\xa2" + remaining_length(len(body)) + body)  # UNSUBSCRIBE
+            assert await reader.readexactly(4) == b"\xb0\x02\x00\x03"  # UNSUBACK
+            assert list(broker.subscription_table) == ["keep/#"]
+            writer.write(b"\xe0\x00")  # DISCONNECT
+            await writer.drain()
+            for _ in range(100):
+                if not broker.subscription_table:
+                    break
+                await asyncio.sleep(0.02)
+            assert len(broker.subscription_table) == 0
+            writer.close()
+        finally:
+            await broker.shutdown()
+
+    asyncio.run(scenario())

@@ -38,9 +38,12 @@ CHANGED, GONE, UNRECORDED, UNLISTED = "changed", "gone", "not recorded", "no lon
 # method that moves to another class counts as gone: whoever calls it may have changed too.
 RELIED_ON: dict[str, str] = {
     # -- amqtt.broker.Broker: overridden or wrapped by HardenedBroker
-    "amqtt.broker:Broker.__init__": "creates _sessions, _subscriptions, _retained_messages, _broadcast_queue, "
-                                    "_tasks_queue, _servers, plugins_manager (all read by hardened.py)",
+    "amqtt.broker:Broker.__init__": "creates _sessions, _broadcast_queue, _tasks_queue, _servers, plugins_manager "
+                                    "(read by hardened.py), and _subscriptions, _retained_messages (replaced by "
+                                    "our tables right after it: fix 24)",
     "amqtt.broker:Broker.start": "wrapped (fix 12); its 'Broker startup failed' log line is filtered by main.py",
+    "amqtt.broker:Broker.shutdown": "wrapped (fix 30: connections still logging in are cancelled first); waits for "
+                                    "its listeners to close",
     "amqtt.broker:Broker.ws_connected": "replaced (fix 15: SafeWebSocketsReader)",
     "amqtt.broker:Broker.stream_connected": "TCP connections reach our _client_connected through it (fix 14)",
     "amqtt.broker:Broker._client_connected": "wrapped (fix 14: the packet gate wraps the reader)",
@@ -55,12 +58,15 @@ RELIED_ON: dict[str, str] = {
     "amqtt.broker:Broker._handle_subscription": "replaced (fixes 2, 16)",
     "amqtt.broker:Broker._handle_unsubscription": "wrapped (fix 16: per-session filter count)",
     "amqtt.broker:Broker._handle_message_delivery": "wrapped (fixes 3, 13)",
-    "amqtt.broker:Broker.retain_message": "wrapped (fixes 2, 18: retained index and quota)",
-    "amqtt.broker:Broker.add_subscription": "wrapped (fix 24: the filter index follows it)",
+    "amqtt.broker:Broker.retain_message": "wrapped (fixes 2, 18: quota); stores into _retained_messages as a "
+                                          "mapping (fix 24: our RetainedTable)",
+    "amqtt.broker:Broker.add_subscription": "called (fix 16); uses _subscriptions as a mapping (fix 24)",
     "amqtt.broker:Broker._topic_filtering": "replaced (fix 11); same semantics as stock required",
     "amqtt.broker:Broker._delete_session": "called (fixes 5, 6, 19)",
-    "amqtt.broker:Broker._del_all_subscriptions": "removes emptied filters from _subscriptions (fix 24 prunes lazily)",
-    "amqtt.broker:Broker._del_subscription": "leaves an empty list in _subscriptions (fix 24 prunes lazily)",
+    "amqtt.broker:Broker._del_all_subscriptions": "iterates _subscriptions, deletes emptied filters (a mapping: "
+                                                  "fix 24)",
+    "amqtt.broker:Broker._del_subscription": "leaves an empty list in _subscriptions (our unsubscription wrapper "
+                                             "prunes it)",
     "amqtt.broker:Broker._session_monitor": "reaps disconnected clean sessions once a second (fix 19 does it at once)",
     "amqtt.broker:Broker._broadcast_loop": "hands _tasks_queue to _run_broadcast, drops finished deliveries only at "
                                            "its front (fix 22); 'Task failed ...' lines filtered by main.py",
@@ -71,7 +77,7 @@ RELIED_ON: dict[str, str] = {
                                                       "_broadcast_message",
     "amqtt.broker:Broker._publish_session_retained_messages": "replaced (fix 9)",
     "amqtt.broker:Broker._publish_retained_messages_for_subscription": "replaced by a no-op (fix 2)",
-    "amqtt.broker:Broker._matches": "called; tests/unit/test_broker_subscriptions.py compares the index with it",
+    "amqtt.broker:Broker._matches": "called; tests/unit/test_broker_subscriptions.py compares the tables with it",
     "amqtt.broker:Broker._get_handler": "called (fixes 2, 9, 17, 25, 26)",
     "amqtt.broker:Server.close_instance": "called on the servers of a failed start (fix 12)",
     "amqtt.broker:RetainedApplicationMessage": "its topic, data and qos are read when retained messages are sent",

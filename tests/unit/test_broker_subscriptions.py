@@ -1,5 +1,6 @@
-"""SubscriptionIndex (roslink_mqtt/broker/subscriptions.py): the embedded broker's filter tree agrees with
-amqtt's own matcher on every topic and filter, and forgets what it is told to."""
+"""The embedded broker's routing tables (roslink_mqtt/broker/subscriptions.py): the subscription tree agrees
+with amqtt's own matcher on every topic and filter, the retained tree with MQTT's matching, and both behave as
+the dicts amqtt's code reads and writes, forgetting what they are told to."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from amqtt.broker import Broker
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roslink_mqtt.broker.subscriptions import SubscriptionIndex
+from roslink_mqtt.broker.acl import topic_matches
+from roslink_mqtt.broker.subscriptions import RetainedTable, SubscriptionTable
 
 _STOCK = SimpleNamespace(logger=logging.getLogger("stock-matcher"))
 
@@ -35,37 +37,71 @@ def topic_filter(draw: st.DrawFn) -> str:
 
 @settings(max_examples=400, deadline=None)
 @given(st.lists(topic_filter(), max_size=30, unique=True), st.lists(TOPIC, min_size=1, max_size=10))
-def test_the_index_finds_exactly_the_filters_amqtt_matches(filters: list[str], topics: list[str]) -> None:
-    index = SubscriptionIndex()
+def test_the_table_finds_exactly_the_filters_amqtt_matches(filters: list[str], topics: list[str]) -> None:
+    table = SubscriptionTable()
     for f in filters:
-        index.add(f)
-    assert len(index) == len(filters)
+        table[f] = [f"subscribers of {f}"]
+    assert len(table) == len(filters)
+    assert sorted(table) == sorted(filters)
     for topic in topics:
-        expected = sorted(f for f in filters if stock_matches(topic, f))
-        assert sorted(index.matches(topic)) == expected, topic
+        expected = sorted((f, [f"subscribers of {f}"]) for f in filters if stock_matches(topic, f))
+        assert sorted(table.matches(topic)) == expected, topic
+
+
+def _filters(found: list[tuple[str, object]]) -> list[str]:
+    return sorted(f for f, _subscribers in found)
 
 
 def test_wildcards_the_standard_names() -> None:
-    index = SubscriptionIndex()
+    table = SubscriptionTable()
     for f in ("roslink/+/heartbeat", "roslink/turtle1/#", "#", "+/+", "roslink/turtle1/state/odom", "$SYS/#"):
-        index.add(f)
-    assert sorted(index.matches("roslink/turtle1/heartbeat")) == ["#", "roslink/+/heartbeat", "roslink/turtle1/#"]
-    assert sorted(index.matches("roslink/turtle1")) == ["#", "+/+", "roslink/turtle1/#"]  # a/# matches a
-    assert index.matches("$SYS/broker/load") == ["$SYS/#"]  # never '#' or '+/+' for a $ topic (MQTT-4.7.2-1)
+        table[f] = []
+    assert _filters(table.matches("roslink/turtle1/heartbeat")) == ["#", "roslink/+/heartbeat", "roslink/turtle1/#"]
+    assert _filters(table.matches("roslink/turtle1")) == ["#", "+/+", "roslink/turtle1/#"]  # a/# matches a
+    assert _filters(table.matches("$SYS/broker/load")) == ["$SYS/#"]  # never '#' or '+/+' for $ (MQTT-4.7.2-1)
 
 
-def test_discard_forgets_the_filter_and_prunes_its_branch() -> None:
-    index = SubscriptionIndex()
-    index.add("roslink/turtle1/from/+/cmd/twist")
-    index.add("roslink/turtle1/from/alice/#")
-    index.add("roslink/turtle1/from/alice/#")  # twice: still one
-    assert len(index) == 2
-    index.discard("roslink/turtle1/from/+/cmd/twist")
-    index.discard("roslink/never/added")
-    assert "roslink/turtle1/from/+/cmd/twist" not in index
-    assert index.matches("roslink/turtle1/from/alice/cmd/twist") == ["roslink/turtle1/from/alice/#"]
-    index.discard("roslink/turtle1/from/alice/#")
-    assert len(index) == 0 and index._root == {}  # nothing left behind
+def test_the_table_is_the_mapping_amqtt_uses_and_prunes_what_it_forgets() -> None:
+    """amqtt's add_subscription and _del_all_subscriptions read and write ``_subscriptions`` as a dict."""
+    table = SubscriptionTable()
+    twist, mine = "roslink/turtle1/from/+/cmd/twist", "roslink/turtle1/from/alice/#"
+    if twist not in table:
+        table[twist] = []
+    table[twist].append(("session", 1))  # amqtt appends to the list it finds
+    table[mine] = [("a", 0)]
+    table[mine] = [("b", 0)]  # replaced: still one entry
+    assert len(table) == 2 and table[twist] == [("session", 1)] and table.get("roslink/nope") is None
+    del table[twist]
+    with pytest.raises(KeyError):
+        del table["roslink/never/added"]
+    with pytest.raises(KeyError):
+        table["roslink/turtle1"]  # a node on the way to a filter is not a filter
+    assert twist not in table
+    assert table.matches("roslink/turtle1/from/alice/cmd/twist") == [(mine, [("b", 0)])]
+    for f in table:  # iterating a snapshot while deleting, as _del_all_subscriptions does
+        del table[f]
+    assert len(table) == 0 and table._root == {}  # nothing left behind
+    table["x"] = []
+    table.clear()
+    assert len(table) == 0 and list(table) == []
+
+
+RETAINED_LEVELS = st.sampled_from(["a", "b", "roslink", "$SYS", "x y", ""])
+RETAINED_TOPICS = st.lists(RETAINED_LEVELS, min_size=1, max_size=4).map("/".join)
+RETAINED_FILTERS = st.lists(st.sampled_from(["a", "b", "roslink", "$SYS", "+", ""]), min_size=0, max_size=3).flatmap(
+    lambda head: st.sampled_from(["", "/#"]).map(lambda tail: "/".join(head) + tail if head else "#"))
+
+
+@given(st.sets(RETAINED_TOPICS, max_size=20), RETAINED_FILTERS)
+def test_the_retained_table_finds_exactly_what_mqtt_matching_finds(topics: set[str], topic_filter: str) -> None:
+    table = RetainedTable()
+    for topic in topics:
+        table[topic] = f"message on {topic}"
+    expected = {(t, f"message on {t}") for t in topics if topic_matches(topic_filter.split("/"), t.split("/"))}
+    assert set(table.matches(topic_filter)) == expected
+    for topic in topics:
+        del table[topic]
+    assert len(table) == 0 and table._root == {}, "empty branches must be pruned"
 
 
 @pytest.mark.parametrize("size", [0, 5, 127 - 12, 200, 20_000, 3_000_000])

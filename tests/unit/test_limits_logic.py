@@ -7,34 +7,13 @@ import re
 from pathlib import Path
 
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from roslink_mqtt.broker.acl import topic_matches
-from roslink_mqtt.broker.guard import BadTopic, PacketGate, PacketTooLarge
-from roslink_mqtt.broker.limits import BrokerLimits, RetainedIndex, RetainedQuota
+from roslink_mqtt.broker.guard import READ_CHUNK, BadTopic, PacketGate, PacketStalled, PacketTooLarge, PartialBudget
+from roslink_mqtt.broker.limits import BrokerLimits, RetainedQuota
 from roslink_mqtt.broker.outbox import Outbox, Verdict
 from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
 
 ROOT = Path(__file__).resolve().parents[2]
-LEVELS = st.sampled_from(["a", "b", "roslink", "$SYS", "x y", ""])
-TOPICS = st.lists(LEVELS, min_size=1, max_size=4).map("/".join)
-FILTERS = st.lists(st.sampled_from(["a", "b", "roslink", "$SYS", "+", ""]), min_size=0, max_size=3).flatmap(
-    lambda head: st.sampled_from(["", "/#"]).map(lambda tail: "/".join(head) + tail if head else "#"))
-
-
-@given(st.sets(TOPICS, max_size=20), FILTERS)
-def test_retained_index_finds_exactly_what_mqtt_matching_finds(topics: set[str], topic_filter: str) -> None:
-    index = RetainedIndex()
-    for topic in topics:
-        index.add(topic)
-    expected = {t for t in topics if topic_matches(topic_filter.split("/"), t.split("/"))}
-    assert set(index.matches(topic_filter)) == expected
-    for topic in topics:
-        index.discard(topic)
-    assert len(index) == 0 and index._root == {}, "empty branches must be pruned"
-
-
 def test_retained_quota_per_login_and_total() -> None:
     quota = RetainedQuota(BrokerLimits(retained_bytes_total=250))
     assert quota.check("bob", 100, "t/1", 60) is None
@@ -100,6 +79,70 @@ def test_packet_gate_follows_the_framing_however_it_is_read(sizes: list[int]) ->
         _read_all(stream + publish_packet("t/+", b"x"), {}, sizes)
     with pytest.raises(BadTopic):
         _read_all(publish_packet(b"t/\x00", b"x"), {}, sizes)
+
+
+class _Trickle(_Bytes):
+    """Hands out ``data``, but only ``open_until`` bytes of it until ``more`` is set (a sender that stopped)."""
+
+    def __init__(self, data: bytes, open_until: int) -> None:
+        super().__init__(data)
+        self.open_until, self.given, self.more = open_until, 0, asyncio.Event()
+
+    async def read(self, n: int = -1) -> bytes:
+        if self.given + n > self.open_until:
+            await self.more.wait()
+        self.given += n
+        return await super().read(n)
+
+
+def test_a_large_body_is_read_in_pieces_charged_to_the_login_until_it_is_complete() -> None:
+    body = bytes(range(256)) * 1024  # 256 KiB: four pieces
+    budget = PartialBudget(8 * READ_CHUNK)
+
+    async def go() -> None:
+        reader = _Trickle(body, 2 * READ_CHUNK)
+        gate = PacketGate(reader, lambda t: 0, lambda: "test")
+        gate.budget = budget
+        read = asyncio.ensure_future(gate.read(len(body)))
+        await asyncio.sleep(0.01)
+        assert budget.held == 3 * READ_CHUNK  # two pieces arrived, the third is charged while it is awaited
+        reader.more.set()
+        assert await read == body
+        assert budget.held == 0
+    asyncio.run(go())
+
+
+def test_a_connection_that_would_overdraw_its_logins_budget_is_refused_and_the_budget_freed() -> None:
+    budget = PartialBudget(3 * READ_CHUNK)
+
+    async def go() -> None:
+        stuck = _Trickle(b"x" * 4 * READ_CHUNK, 2 * READ_CHUNK)  # a half-sent 256 KiB body on one connection
+        first = PacketGate(stuck, lambda t: 0, lambda: "first")
+        first.budget = budget
+        held = asyncio.ensure_future(first.read(4 * READ_CHUNK))
+        await asyncio.sleep(0.01)
+        second = PacketGate(_Bytes(b"y" * 2 * READ_CHUNK), lambda t: 0, lambda: "second")
+        second.budget = budget
+        with pytest.raises(PacketStalled, match="limit"):
+            await second.read(2 * READ_CHUNK)  # its second piece would take the login over 3 pieces
+        assert budget.held == 3 * READ_CHUNK  # the refused one gave back what it had
+        held.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await held
+        assert budget.held == 0
+    asyncio.run(go())
+
+
+def test_a_large_body_that_stops_arriving_is_closed_after_the_piece_timeout() -> None:
+    budget = PartialBudget(8 * READ_CHUNK)
+
+    async def go() -> None:
+        gate = PacketGate(_Trickle(b"z" * 4 * READ_CHUNK, READ_CHUNK), lambda t: 0, lambda: "test")
+        gate.budget, gate.piece_timeout = budget, 0.05
+        with pytest.raises(PacketStalled, match="did not arrive within 0.05 s"):
+            await asyncio.wait_for(gate.read(4 * READ_CHUNK), 5)
+        assert budget.held == 0
+    asyncio.run(go())
 
 
 @pytest.mark.parametrize("doc", ["docs/safety.md", "broker/README.md"])
