@@ -632,7 +632,7 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
 
 
 def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None:
-    """~9 s of 10 Hz motion (the bridge's max_rate), 5 Hz scans and a moving robot: heap and DOM stay bounded.
+    """~7 s of 10 Hz motion (the bridge's max_rate), 5 Hz scans and a moving robot: heap and DOM stay bounded.
 
     Samples are taken after a forced garbage collection (DevTools), so they measure what the page keeps, not
     what it has not collected yet. Another client drives turtle1 in a circle, so the trail and scan drawing
@@ -664,8 +664,8 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         samples: list[tuple[float, float, int, int, int]] = []
         t0 = time.monotonic()
         try:
-            for i in range(5):  # every 1.8 s for 9 s
-                time.sleep(max(0.0, t0 + 1.8 * (i + 1) - time.monotonic()) if i else 1.8)
+            for i in range(5):  # every 1.4 s for 7 s
+                time.sleep(max(0.0, t0 + 1.4 * (i + 1) - time.monotonic()) if i else 1.4)
                 driver.execute_cdp_cmd("HeapProfiler.collectGarbage", {})
                 heap = driver.execute_script("return performance.memory.usedJSHeapSize")
                 dom = driver.execute_script("return document.getElementsByTagName('*').length")
