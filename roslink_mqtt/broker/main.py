@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import logging
 import signal
 import sys
@@ -67,6 +68,19 @@ def run_loop(coroutine: Any, choice: str) -> int:
         else:
             return uvloop.run(coroutine)
     return asyncio.run(coroutine)
+
+
+def tune_gc() -> None:
+    """Keep the cyclic garbage collector from pausing the loop for a tenth of a second.
+
+    With a fleet connected (300 robots and their operators: ~a million objects) a full collection took 60-120 ms
+    -- every client waited that long, the fleet bench's p99 went from ~2 ms to ~100 ms in one run of four. What the
+    broker loaded at start is frozen out of every collection; collections run after 50,000 allocations instead of
+    700, and full ones a tenth as often. Per-message garbage is freed by reference counting, not by the collector.
+    """
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(50_000, 20, 100)
 
 
 def _port(text: str) -> int:
@@ -167,6 +181,7 @@ async def serve(server: EmbeddedBroker) -> int:
     except StartError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return 1
+    tune_gc()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     reloads: set[asyncio.Task[bool]] = set()

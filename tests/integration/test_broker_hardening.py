@@ -380,3 +380,55 @@ def test_unsubscribed_filters_leave_the_table(tmp_path: Path) -> None:
             await broker.shutdown()
 
     asyncio.run(scenario())
+
+
+# -- 31: QoS 0 on the reader's own task ----------------------------------------------------------------
+
+
+def test_qos0_publishes_are_fanned_out_in_order_without_a_task_per_message(tmp_path: Path) -> None:
+    """Stock amqtt starts four Tasks per QoS 0 message (header timeout, handler, client loop, broadcast); the
+    hardened reader hands it to the fan-out on its own task. 300 messages: every one arrives, in order, and the
+    loop creates a bounded number of Tasks whatever the count."""
+    from roslink_mqtt.broker.hardened import HardenedBroker
+    from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
+
+    port = free_port()
+    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
+              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
+    count = 300
+
+    async def scenario() -> int:
+        broker = HardenedBroker(config)
+        await broker.start()
+        try:
+            sub_r, sub_w = await asyncio.open_connection("127.0.0.1", port)
+            sub_w.write(connect_packet("sub", None, None) + subscribe_packet(["fleet/+"], 1))
+            assert (await sub_r.readexactly(4))[3] == 0
+            assert await sub_r.readexactly(5) == b"\x90\x03\x00\x01\x00"  # SUBACK, QoS 0
+            pub_r, pub_w = await asyncio.open_connection("127.0.0.1", port)
+            pub_w.write(connect_packet("pub", None, None))
+            assert (await pub_r.readexactly(4))[3] == 0
+            loop = asyncio.get_running_loop()
+            created = 0
+
+            def counting(loop: asyncio.AbstractEventLoop, coro, **kw) -> asyncio.Task:
+                nonlocal created
+                created += 1
+                return asyncio.Task(coro, loop=loop, **kw)
+
+            loop.set_task_factory(counting)
+            packets = [publish_packet("fleet/r1", str(i).encode()) for i in range(count)]
+            pub_w.write(b"".join(packets))
+            async with asyncio.timeout(5):  # (not wait_for: that is a Task per call of its own)
+                for i in range(count):
+                    assert await sub_r.readexactly(len(packets[i])) == packets[i], i
+            loop.set_task_factory(None)
+            pub_w.close()
+            sub_w.close()
+            return created
+        finally:
+            await broker.shutdown()
+
+    created = asyncio.run(scenario())
+    print(f"{count} QoS 0 messages: {created} Tasks created")
+    assert created < 20, f"{created} Tasks for {count} messages: a Task per message again?"

@@ -459,10 +459,12 @@ def test_an_offline_persistent_session_queues_a_bounded_number(tmp_path, clients
         assert bob.connect() == 0
         assert bob.subscribe("roslink/turtle1/state/#", qos=1) == [1]
         bob.close()
-        robot = clients(broker.port, "turtle1")
+        robot, alice = clients(broker.port, "turtle1"), clients(broker.port, "alice")
+        assert alice.subscribe("roslink/turtle1/state/last", qos=0) == [0]
         for i in range(200):
             robot.client.publish(f"roslink/turtle1/state/n{i}", b"x", qos=1)
         robot.publish("roslink/turtle1/state/last", b"x")
+        alice.wait_for(lambda m: m.topic.endswith("/last"), 5)  # fanned out in order: bob's queue is complete
         again = Probe(broker.port, "bob", PW["bob"], "bob-persistent", clean=False)
         assert again.connect() == 0 and again.session_present
         queued = again.drain(2.0)
