@@ -329,7 +329,7 @@ class CommandEndpoint:
             if route.moves_robot:
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if route.is_velocity:
-                    self.failsafe.velocity_command(user, time.monotonic())
+                    self.failsafe.velocity_command(user, time.monotonic(), standstill=is_standstill(msg))
                 else:
                     self.failsafe.goal_command(user)
             if behaviour.blocks_motion:
@@ -367,8 +367,8 @@ class CommandEndpoint:
                 self._lease_ends(user, "signed off" if presence is Presence.SIGNED_OFF else "last-will")
                 why = self.failsafe.operator_gone(user)
                 if why and presence is Presence.SIGNED_OFF:
-                    # a program that finished: the robot stops all the same, but nothing failed
-                    self.trigger_stop(f"{why} (signed off)", level=logging.INFO)
+                    # a program that finished: the robot stops all the same, but nothing failed (result 0, INFO)
+                    self.trigger_stop(f"{why} (signed off)", level=logging.INFO, result=AckResult.ACCEPTED)
                 elif why:
                     self.trigger_stop(f"{why} (last-will)")
         if gone:
@@ -401,11 +401,12 @@ class CommandEndpoint:
         log.warning("motion blocked on %s: %s", self.robot.name, reason)
         self._cancel_goals(None, reason)
 
-    def trigger_stop(self, reason: str, level: int = logging.WARNING) -> None:
+    def trigger_stop(self, reason: str, level: int = logging.WARNING, result: AckResult = AckResult.FAILSAFE) -> None:
         """Failsafe stop: zero velocity now and a few more times, run on_failsafe actions, tell users why.
 
-        ``level`` INFO is for stops that are the expected end of something (a client that signed off, a
-        requested shutdown): the robot stops exactly the same way, but the log does not cry failure.
+        ``level`` INFO and ``result`` ACCEPTED are for stops that are the expected end of something (a client that
+        signed off): the robot stops exactly the same way, but neither the log nor the acknowledgement cries
+        failure (only a real failsafe is result 3).
         """
         with self.lock:
             self.failsafe.stopped()
@@ -414,7 +415,7 @@ class CommandEndpoint:
             self.actuators.failsafe_actions()
         log.log(level, "%s of %s: %s", "failsafe stop" if level >= logging.WARNING else "stop", self.robot.name,
                 reason)
-        self.publish_ack(0, None, AckResult.FAILSAFE, reason)
+        self.publish_ack(0, None, result, reason)
 
     def operator_gone(self, user: str, why_suffix: str) -> None:
         """Stop if ``user`` owned the motion (their presence ended, their grant went)."""

@@ -26,14 +26,22 @@ class Failsafe:
     command_timeout: float
     motion_owner: str | None = None  # who commanded the current motion
     active: bool = False  # motion in progress since the last stop
-    last_velocity_at: float | None = None  # set while a velocity stream runs
+    last_velocity_at: float | None = None  # set while a velocity stream moves the robot
+    goal_active: bool = False  # an autonomous goal (waypoint, takeoff) was commanded since the last stop
     link_up: bool = False
 
-    def velocity_command(self, user: str, now: float) -> None:
-        self.motion_owner, self.active, self.last_velocity_at = user, True, now
+    def velocity_command(self, user: str, now: float, *, standstill: bool = False) -> None:
+        """A velocity command from ``user``. A standstill (all zero: a released drive pad, the end of a stream) is
+        the operator stopping the robot: the dead-man has nothing left to stop, so it does not fire later and
+        report a failsafe that never happened; the failsafe stays armed only for a goal still under way."""
+        self.motion_owner = user
+        if standstill:
+            self.last_velocity_at, self.active = None, self.goal_active
+        else:
+            self.active, self.last_velocity_at = True, now
 
     def goal_command(self, user: str) -> None:
-        self.motion_owner, self.active = user, True
+        self.motion_owner, self.active, self.goal_active = user, True, True
 
     def tick(self, now: float, live_users: set[str]) -> str | None:
         """The reason to stop now, or None. Only reports while motion is in progress."""
@@ -59,7 +67,7 @@ class Failsafe:
 
     def stopped(self) -> None:
         """A stop was carried out: no motion until a live operator commands again."""
-        self.active, self.last_velocity_at = False, None
+        self.active, self.last_velocity_at, self.goal_active = False, None, False
 
 
 def late_motion(arrived: float | None, now: float, command_timeout: float, *, stop: bool) -> str | None:

@@ -113,7 +113,9 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
         "allow_anonymous false\n",
         f"password_file {passwd.resolve()}\n",
         f"acl_file {acl.resolve()}\n",
-        # payload limit with the embedded broker's semantics: the message is dropped, the client stays
+        # payload limit with the embedded broker's semantics: the message is dropped, the client stays. Mosquitto 2.0
+        # notes at start that it recommends max_packet_size instead; that one disconnects the client, and one camera
+        # frame too large must not cut a robot's bridge off, so both are set (max_packet_size above any PUBLISH)
         f"message_size_limit {b.max_payload}\n",
         # what one login may cost (docs/safety.md, "Limits"): the same numbers as the embedded broker's
         # BrokerLimits where Mosquitto has the option; a packet larger than the largest PUBLISH closes the client

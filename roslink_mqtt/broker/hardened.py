@@ -100,14 +100,21 @@ behaviour.
     close, and they wait for every connection's handler -- including logins held back by the login throttle
     (up to 10 s) or still reading their CONNECT. Those are cancelled first, so SIGTERM ends the broker at once
     even under a password-guessing flood (it took 5 s and a SIGKILL).
-31. **A QoS 0 PUBLISH is fanned out on its connection's own task** (``HardenedHandler._reader_loop`` and
+31. **A QoS 0 or 1 PUBLISH is fanned out on its connection's own task** (``HardenedHandler._reader_loop`` and
     ``handle_publish``, ``HardenedBroker._publish_now``): stock reads each fixed header under ``wait_for`` (a Task
     per packet), runs each PUBLISH in a Task of its own, queues it for the connection's client loop (a Task and a
     wait on four futures per message), which queues it again for the broadcast loop (another Task and wait).
-    Here the same steps (events, fix 13's checks, the ACL, the fan-out, the retained store) run in order on the
-    reader's task, and QoS 0 deliveries to one connection within one turn of the loop leave in one write (fix 25's
-    cork). QoS 1 and 2 keep amqtt's flow (their acknowledgements need it). With the garbage collector tuned
-    (``main.tune_gc``) the embedded broker carries 300 robots with their operators at p99 < 50 ms (was 100).
+    Here the same steps (events, fix 13's checks, the ACL, the fan-out, the retained store, then the PUBACK) run
+    in the order sent on the reader's task, which yields to the loop every 8 messages of a burst; QoS 0
+    deliveries to one connection within one turn of the loop leave in one write (fix 25's cork). QoS 2 keeps
+    amqtt's flow. QoS 0 and 1 share the path because a client's order matters across them: an operator's
+    retained presence (QoS 1) must reach the robot before the twist (QoS 0) sent after it. With the garbage
+    collector tuned (``main.tune_gc``) the embedded broker carries 200 robots with their operators (was 100).
+32. **SUBSCRIBE and UNSUBSCRIBE are handled in the order sent** (``HardenedHandler.handle_unsubscribe`` queues
+    UNSUBSCRIBEs with the SUBSCRIBEs; ``_handle_subscription`` tells them apart): stock keeps two queues that the
+    client loop drains as each is ready, so an UNSUBSCRIBE and a SUBSCRIBE of the same filter read in one turn
+    were handled subscribe first, and the client lost the subscription its SUBACK had just granted (the SDK
+    reads a retained value, unsubscribes, and subscribes again to follow it).
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -180,7 +187,8 @@ from amqtt.mqtt.packet import (
     UNSUBACK,
     MQTTFixedHeader,
 )
-from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
+from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler, UnSubscription
+from amqtt.mqtt.puback import PubackPacket
 from amqtt.mqtt.pubrel import PubrelPacket
 from amqtt.session import OUTGOING, IncomingApplicationMessage, Session
 from amqtt.utils import gen_client_id
@@ -403,6 +411,7 @@ def _log_once(session: Session, key: str, level: int, message: str, *args: Any) 
 
 
 MAX_TOPIC_OVERHEAD = 2 + 65535 + 2  # topic length prefix, longest topic, packet id
+YIELD_EVERY = 8  # PUBLISHes a connection's reader handles in line before it lets the loop run others (fix 31)
 # packet type -> the handler method stock's reader loop runs in a Task of its own for it (fix 31)
 _PACKET_HANDLERS = {CONNACK: "handle_connack", SUBSCRIBE: "handle_subscribe", UNSUBSCRIBE: "handle_unsubscribe",
                     SUBACK: "handle_suback", UNSUBACK: "handle_unsuback", PUBACK: "handle_puback",
@@ -441,6 +450,7 @@ class HardenedHandler(BrokerProtocolHandler):
         if not self._reader_ready:
             raise ProtocolHandlerError("Reader ready is not initialized.")
         running: collections.deque[asyncio.Task[None]] = collections.deque()
+        inline = 0
         keep_alive: float | None = self.session.keep_alive if self.session.keep_alive > 0 else None
         while True:
             try:
@@ -461,8 +471,11 @@ class HardenedHandler(BrokerProtocolHandler):
                 packet = await packet_class(fixed_header).from_stream(self.reader, fixed_header=fixed_header)
                 await self.plugins_manager.fire_event(MQTTEvents.PACKET_RECEIVED, packet=packet, session=self.session)
                 kind = packet.fixed_header.packet_type if packet.fixed_header is not None else None
-                if kind == PUBLISH and self.publish_now is not None and packet.qos == QOS_0:
-                    await self.handle_publish(packet)
+                if kind == PUBLISH and self.publish_now is not None and packet.qos in (QOS_0, QOS_1):
+                    await self.handle_publish(packet)  # in line: a client's QoS 0 and 1 messages keep their order
+                    inline += 1
+                    if inline % YIELD_EVERY == 0:  # a burst read in one turn must not keep the loop from others
+                        await asyncio.sleep(0)
                 elif kind == CONNECT:
                     await self.handle_connect(packet)  # as stock: before anything else of the session
                 elif (method := _PACKET_HANDLERS.get(kind)) is not None:
@@ -486,25 +499,42 @@ class HardenedHandler(BrokerProtocolHandler):
         self._reader_stopped.set()
         await self.stop()
 
+    async def handle_unsubscribe(self, unsubscribe: Any) -> None:
+        """Queued with the SUBSCRIBEs (fix 32): stock keeps two queues that the client loop drains as each is ready,
+        so an UNSUBSCRIBE and the SUBSCRIBE of the same filter sent after it, read in one turn of the loop, were
+        handled subscribe first -- and the client was left without the subscription it had just been granted."""
+        if unsubscribe.variable_header is None or unsubscribe.payload is None:
+            await super().handle_unsubscribe(unsubscribe)  # stock raises the MQTTError
+            return
+        await self._pending_subscriptions.put(UnSubscription(unsubscribe.variable_header.packet_id,
+                                                             unsubscribe.payload.topics))
+
     async def handle_publish(self, publish_packet: Any) -> None:
-        """A QoS 0 PUBLISH goes to the broker's fan-out at once (fix 31); QoS 1 and 2 keep amqtt's flow.
+        """A QoS 0 or 1 PUBLISH goes to the broker's fan-out at once, then gets its PUBACK (fix 31); QoS 2 keeps
+        amqtt's flow (its PUBREC/PUBREL exchange).
 
         Stock queues every message for the connection's client loop, which wakes through a Task and a wait on four
         futures, hands it to the broker's broadcast queue, whose loop starts another Task to fan it out: two
-        queues, two Tasks and two waits per message, a third of the broker's Python time in a fleet.
+        queues, two Tasks and two waits per message, a third of the broker's Python time in a fleet. QoS 0 and 1
+        take the same path here, in the order they came: a client's retained presence (QoS 1) must reach the
+        robot before the twist (QoS 0) it sends next, or the robot refuses the twist.
         """
-        publish_now = self.publish_now
-        if publish_now is None or publish_packet.qos != QOS_0:
+        publish_now, qos = self.publish_now, publish_packet.qos
+        if publish_now is None or qos not in (QOS_0, QOS_1):
             await super().handle_publish(publish_packet)
             return
         topic, data = publish_packet.topic_name, publish_packet.data
         if topic is None or data is None:
             return
-        if publish_packet.dup_flag:  # MQTT-3.3.1-2, as stock: ignored
+        if qos == QOS_0 and publish_packet.dup_flag:  # MQTT-3.3.1-2, as stock: ignored
             return
-        message = IncomingApplicationMessage(None, topic, QOS_0, data, publish_packet.retain_flag)
+        packet_id = publish_packet.variable_header.packet_id if qos == QOS_1 else None
+        message = IncomingApplicationMessage(packet_id, topic, qos, data, publish_packet.retain_flag)
         message.publish_packet = publish_packet
         await publish_now(message)
+        if qos == QOS_1:
+            message.puback_packet = PubackPacket.build(packet_id)
+            await self._send_packet(message.puback_packet)
 
     def handle_read_timeout(self) -> None:
         session = self.session
@@ -921,7 +951,7 @@ class HardenedBroker(Broker):
 
     async def _publish_now(self, client_session: Session, handler: BrokerProtocolHandler,
                            message: IncomingApplicationMessage) -> None:
-        """A client's QoS 0 PUBLISH, checked and fanned out on its connection's own task (fix 31).
+        """A client's QoS 0 or 1 PUBLISH, checked and fanned out on its connection's own task (fix 31).
 
         The same steps as stock ``_handle_message_delivery`` plus fix 13, in the same order (events, ACL,
         broadcast, then the retained store), without the two queues and the Tasks between them.
@@ -938,9 +968,9 @@ class HardenedBroker(Broker):
             await self.plugins_manager.fire_event(BrokerEvents.MESSAGE_BROADCAST, client_id=client_session.client_id,
                                                   message=message)
             await self._fan_out({"session": client_session, "topic": topic, "data": message.data,
-                                 "pub_qos": QOS_0}, self._tasks_queue)
+                                 "pub_qos": message.qos}, self._tasks_queue)
             if message.publish_packet is not None and message.publish_packet.retain_flag:
-                await self.retain_message(client_session, topic, message.data, QOS_0)
+                await self.retain_message(client_session, topic, message.data, message.qos)
         except Exception:  # noqa: BLE001 - one message must not end the connection's reader
             log.exception("publish of %s on %r failed", describe_session(client_session), message.topic)
 
@@ -1147,6 +1177,9 @@ class HardenedBroker(Broker):
         # Replaces stock: bounded filters per session, the loop yields between filters, and retained
         # messages are found through the index and sent for this session's own filters only.
         request = subscribe_waiter.result()
+        if isinstance(request, UnSubscription):  # fix 32: queued with the SUBSCRIBEs, in the order sent
+            await self._handle_unsubscription(client_session, handler, subscribe_waiter)
+            return
         limit = self.limits.max_subscriptions
         held = client_session.attributes.get(ATTR_FILTERS)
         if held is None:

@@ -24,7 +24,7 @@ from typing import Any
 
 import orjson
 
-from ..client import RobotClient, RoslinkMessage
+from ..client import RobotClient, RoslinkError, RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
 from ..protocol.messages import Direction
@@ -33,7 +33,7 @@ from .connect import add_connection_options, open_client
 
 EXIT_OK = 0
 EXIT_TIMEOUT = 1  # some messages came, but fewer than --count before --timeout
-EXIT_USAGE = 2  # a name that cannot be a state, a --field the messages do not have (argparse uses 2 as well)
+EXIT_USAGE = 2  # a name that cannot be a state or the robot does not publish, a --field the messages do not have
 EXIT_NOTHING = 3  # the robot is online but nothing came on this name: it probably publishes no such state
 EXIT_OFFLINE = 4  # the robot was not seen online (offline, or not granted to you): nothing could come
 EXIT_INTERRUPTED = 130  # Ctrl-C before --count messages
@@ -41,9 +41,11 @@ EXIT_INTERRUPTED = 130  # Ctrl-C before --count messages
 HEARTBEAT = "heartbeat"
 HINT_AFTER = 5.0  # s without a message before a run without --timeout says what the robot does publish
 CENSUS_TIME = 1.2  # s to collect the robot's state names (1 Hz streams show up once)
+DESCRIPTION_WAIT = 1.0  # s for the robot's retained description (there at once if its bridge ever connected)
 
 EPILOG = (f"exit status: {EXIT_OK} done (or Ctrl-C without --count); {EXIT_TIMEOUT} fewer than COUNT messages "
-          f"before --timeout; {EXIT_USAGE} bad arguments, or --field names a field the messages do not have; "
+          f"before --timeout; {EXIT_USAGE} bad arguments, a NAME the robot's description does not list, or --field "
+          f"names a field the messages do not have; "
           f"{EXIT_NOTHING} nothing at all on NAME while the robot "
           f"was online (it probably has no such state); {EXIT_OFFLINE} robot not online or not yours to see; "
           f"{EXIT_INTERRUPTED} Ctrl-C before COUNT messages.")
@@ -200,6 +202,15 @@ def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, st
     return EXIT_NOTHING, f"{robot} is online but sent nothing on state/{name}{kind}; it publishes: {published}"
 
 
+def _unknown(client: RobotClient, robot: str, name: str) -> str | None:
+    """Why ``robot`` never sends ``state/<name>`` (with "did you mean"), from its retained description; None when
+    it may (or when there is no description to tell: a robot never seen, an older bridge)."""
+    try:
+        return client.description(robot, DESCRIPTION_WAIT).unknown_state(name)
+    except RoslinkError:
+        return None
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         name, pattern = (HEARTBEAT, False) if trimmed(args.name) == HEARTBEAT else check_state_name(args.name)
@@ -212,6 +223,9 @@ def run(args: argparse.Namespace) -> int:
         return _fail(EXIT_USAGE, "--field needs one state name (not a pattern), no --hz, and a path such as "
                                  "x or pose.position.x")
     client = open_client(args, robots=[args.robot], presence=False)
+    if name != HEARTBEAT and not pattern and (why := _unknown(client, args.robot, name)) is not None:
+        client.close()
+        return _fail(EXIT_USAGE, why)
     topics = client.topics
     topic = topics.heartbeat(args.robot) if name == HEARTBEAT else topics.state_filter(args.robot, name)
     stream = _Stream(args.robot, topics, heartbeat=name == HEARTBEAT, pattern=pattern)

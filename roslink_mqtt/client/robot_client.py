@@ -218,6 +218,22 @@ class RobotClient:
                               "recent enough to publish one?)")
         return RobotDescription.from_json(payload)
 
+    def _unknown_state(self, robot: str, name: str, timeout: float = 1.0) -> str | None:
+        """Why ``robot`` will never send ``state/<name>`` (with the closest names it has), or None.
+
+        Decided from the robot's description when it is at hand: the robot is online, so its bridge's retained
+        description arrives with the subscription. Otherwise (an offline robot, an older bridge) None: the name
+        may yet come. A typo used to wait for ever.
+        """
+        info = self.robot(robot)
+        if "+" in name or "#" in name or info is None or not info.online:
+            return None
+        try:
+            description = self.description(robot, timeout)
+        except (WaitTimeout, ProtocolError, RoslinkError):
+            return None
+        return description.unknown_state(name)
+
     def link(self, robot: str, timeout: float = 2.0) -> Any:
         """What ``robot``'s uplink carries (a :class:`~roslink_mqtt.protocol.link.LinkReport`: its measured rate,
         per state stream the rate offered and sent, how many were superseded), from the bridge's retained
@@ -341,6 +357,8 @@ class RobotClient:
         topic = self.topics.state(robot, name)
         if encoding is not None and encoding not in ENCODINGS:
             raise InvalidArgument(f"encoding must be one of {', '.join(ENCODINGS)}, not {encoding!r}")
+        if (why := self._unknown_state(robot, name)) is not None:
+            raise InvalidArgument(why)
         sub = StateSubscription(robot, name, topic, callback, self.callbacks, maxsize,
                                 on_close=self._unsubscribe_state, encoding=encoding)
         with self._watch_lock:

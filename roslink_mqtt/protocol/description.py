@@ -19,6 +19,7 @@ some) and strict about the shape of those it does, with the exact reason in the 
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from typing import Any, Literal, overload
 
@@ -31,6 +32,8 @@ from .errors import ProtocolError
 from .validate import describe
 
 DESCRIPTION = "description"  # the state name: roslink/<robot>/state/description
+# the retained state every bridge publishes besides its rules' (protocol.link.LINK, protocol.lease.CONTROL)
+BRIDGE_STATES = (DESCRIPTION, "link", "control")
 OPERATORS, VIEWERS = "operators", "viewers"  # who may use an entry (viewers: viewers and operators)
 WHO = (OPERATORS, VIEWERS)
 _DOC = TopicTree()
@@ -289,6 +292,20 @@ class RobotDescription:
     )
     QOS = 1
     RETAINED = True
+
+    def state_names(self) -> tuple[str, ...]:
+        """Every ``state/<name>`` the robot's bridge publishes: its rules' streams and the bridge's own."""
+        return (*(e.name for e in self.state), *BRIDGE_STATES)
+
+    def unknown_state(self, name: str) -> str | None:
+        """None when the robot publishes ``state/<name>``; else why not, with the closest names it has."""
+        names = self.state_names()
+        if name in names:
+            return None
+        close = difflib.get_close_matches(name, names, n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(close)}?" if close else "."
+        return (f"{self.robot} publishes no state/{name}{hint} It publishes: "
+                f"{', '.join(sorted(e.name for e in self.state))} (and the bridge's {', '.join(BRIDGE_STATES)})")
 
     def to_json(self) -> bytes:
         return orjson.dumps({

@@ -387,8 +387,8 @@ def test_unsubscribed_filters_leave_the_table(tmp_path: Path) -> None:
 
 def test_qos0_publishes_are_fanned_out_in_order_without_a_task_per_message(tmp_path: Path) -> None:
     """Stock amqtt starts four Tasks per QoS 0 message (header timeout, handler, client loop, broadcast); the
-    hardened reader hands it to the fan-out on its own task. 300 messages: every one arrives, in order, and the
-    loop creates a bounded number of Tasks whatever the count."""
+    hardened reader hands it to the fan-out on its own task. A QoS 1 message and 300 QoS 0 messages after it: every
+    one arrives, in the order sent, and the loop creates a bounded number of Tasks whatever the count."""
     from roslink_mqtt.broker.hardened import HardenedBroker
     from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
 
@@ -418,8 +418,12 @@ def test_qos0_publishes_are_fanned_out_in_order_without_a_task_per_message(tmp_p
 
             loop.set_task_factory(counting)
             packets = [publish_packet("fleet/r1", str(i).encode()) for i in range(count)]
-            pub_w.write(b"".join(packets))
+            # a QoS 1 message first (an operator's presence), then the QoS 0 stream (its twists): in that order
+            pub_w.write(publish_packet("fleet/presence", b"p", qos=1, packet_id=7) + b"".join(packets))
             async with asyncio.timeout(5):  # (not wait_for: that is a Task per call of its own)
+                assert await pub_r.readexactly(4) == b"\x40\x02\x00\x07"  # PUBACK
+                first = publish_packet("fleet/presence", b"p")  # delivered at the subscription's QoS 0
+                assert await sub_r.readexactly(len(first)) == first, "a QoS 0 message overtook the QoS 1 before it"
                 for i in range(count):
                     assert await sub_r.readexactly(len(packets[i])) == packets[i], i
             loop.set_task_factory(None)
@@ -432,3 +436,43 @@ def test_qos0_publishes_are_fanned_out_in_order_without_a_task_per_message(tmp_p
     created = asyncio.run(scenario())
     print(f"{count} QoS 0 messages: {created} Tasks created")
     assert created < 20, f"{created} Tasks for {count} messages: a Task per message again?"
+
+
+# -- 32: SUBSCRIBE and UNSUBSCRIBE in the order sent ------------------------------------------------------
+
+
+def test_an_unsubscribe_and_a_subscribe_sent_after_it_are_handled_in_that_order(tmp_path: Path) -> None:
+    """What the SDK does when it reads a retained value and then follows the same topic: UNSUBSCRIBE x, SUBSCRIBE x.
+    Stock amqtt takes them from two queues; read in one turn, the SUBSCRIBE went first and the UNSUBSCRIBE then
+    removed it: SUBACK said granted, and nothing ever came (the CLI's control claim waited in vain)."""
+    from roslink_mqtt.broker.hardened import HardenedBroker
+    from tests.support.rawmqtt import connect_packet, publish_packet, remaining_length, subscribe_packet, utf8
+
+    port = free_port()
+    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
+              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
+
+    async def scenario() -> None:
+        broker = HardenedBroker(config)
+        await broker.start()
+        try:
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(connect_packet("follower", None, None) + subscribe_packet(["robot/control"], 1))
+            assert (await reader.readexactly(4))[3] == 0
+            assert await reader.readexactly(5) == b"\x90\x03\x00\x01\x00"
+            body = b"\x00\x02" + utf8("robot/control")
+            writer.write(b"\xa2" + remaining_length(len(body)) + body + subscribe_packet(["robot/control"], 3))
+            async with asyncio.timeout(5):
+                assert await reader.readexactly(4) == b"\xb0\x02\x00\x02"  # UNSUBACK first
+                assert await reader.readexactly(5) == b"\x90\x03\x00\x03\x00"  # then the SUBACK
+            _pr, pw = await asyncio.open_connection("127.0.0.1", port)
+            pw.write(connect_packet("robot", None, None) + publish_packet("robot/control", b"claimed"))
+            expected = publish_packet("robot/control", b"claimed")
+            async with asyncio.timeout(5):
+                assert await reader.readexactly(len(expected)) == expected, "the subscription was lost"
+            writer.close()
+            pw.close()
+        finally:
+            await broker.shutdown()
+
+    asyncio.run(scenario())

@@ -74,9 +74,13 @@ def test_echo_timeout_says_so(stack) -> None:
 
 def test_echo_unknown_state_names_what_the_robot_publishes(stack) -> None:
     out = cli(stack[0], "bob", "echo", "turtle1", "global_motoin", "-n", "1", "--timeout", "1.5")
-    assert out.returncode == echo_cmd.EXIT_NOTHING == 3, out.stderr
-    assert "sent nothing on state/global_motoin" in out.stderr and "global_motion" in out.stderr.split("publishes:")[1]
+    assert out.returncode == echo_cmd.EXIT_USAGE == 2, out.stderr  # the description says it never comes
+    assert "publishes no state/global_motoin; did you mean global_motion?" in out.stderr
+    assert "global_motion" in out.stderr.split("It publishes:")[1]
     assert out.stdout == ""
+    listed = cli(stack[0], "bob", "echo", "turtle1", "ack", "-n", "1", "--timeout", "1.5")  # listed, nothing yet
+    assert listed.returncode == echo_cmd.EXIT_NOTHING == 3, listed.stderr
+    assert "acks come only when something happens" in listed.stderr
 
 
 def test_echo_offline_or_unseen_robot(stack) -> None:
@@ -297,6 +301,25 @@ def test_finished_pub_is_no_warning_but_the_robot_stops(stack) -> None:
         assert cli(port, "alice", "pub", "turtle1", command).returncode == 0
     time.sleep(0.5)
     assert not [line for line in _bridge_lines(log, since) if " WARNING " in line and "failsafe" in line]
+
+
+def test_a_stream_ended_by_a_zero_twist_is_no_failsafe(stack) -> None:
+    """A released drive pad sends one zero twist: the operator stopped the robot; the dead-man used to fire a second
+    later and log (and acknowledge) a failsafe stop that never happened. Nor is signing off then a stop."""
+    from roslink_mqtt.client import RobotClient
+
+    port, log = stack
+    since = len(log.read_text(errors="replace"))
+    with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
+        alice.wait_for_robot("turtle1", timeout=10)
+        for _ in range(5):
+            alice.twist("turtle1", lx=0.2)
+            time.sleep(0.1)
+        alice.twist("turtle1")  # the pad released
+        time.sleep(2.0)  # twice the command_timeout, the operator still present
+    time.sleep(0.5)
+    lines = _bridge_lines(log, since)
+    assert not [line for line in lines if "dead-man" in line or "stop of turtle1" in line], lines
 
 
 def test_killed_commanding_client_still_stops_the_robot_with_a_warning(stack) -> None:

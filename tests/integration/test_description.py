@@ -11,13 +11,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 
 import orjson
 import pytest
 
 from roslink_mqtt.bridge.description import ros_fields_of
 from roslink_mqtt.client import RobotClient
-from roslink_mqtt.client.errors import SubscriptionFailed, WaitTimeout
+from roslink_mqtt.client.errors import InvalidArgument, SubscriptionFailed, WaitTimeout
 from roslink_mqtt.config import Direction, load_fleet
 from roslink_mqtt.protocol.description import OPERATORS, VIEWERS, RobotDescription
 from tests.support.mqtt_client import TestClient
@@ -112,6 +113,21 @@ def test_sdk_reads_the_description(port, request) -> None:
         with pytest.raises(refused) as err:
             carol.description("turtle1", timeout=1.5)
     assert "turtle1" in str(err.value)
+
+
+@EMBEDDED_ONLY
+def test_a_state_name_the_robot_does_not_publish_is_refused_at_once(port) -> None:
+    """A typo used to wait for ever (the CLI until killed, the SDK until its get() timed out)."""
+    with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as bob:
+        bob.wait_for_robot("turtle1", timeout=10)
+        with pytest.raises(InvalidArgument, match="publishes no state/global_motio; did you mean global_motion?"):
+            bob.subscribe("turtle1", "global_motio")
+        assert bob.subscribe("turtle1", "global_motion").get(timeout=10) is not None  # one it has
+    started = time.monotonic()
+    out = cli(port, "bob", "echo", "turtle1", "global_motio")  # no --timeout: it waited until killed
+    assert out.returncode == 2 and "did you mean global_motion?" in out.stderr, out.stderr
+    assert "It publishes: " in out.stderr and time.monotonic() - started < 20
+    assert cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1").returncode == 0
 
 
 @EMBEDDED_ONLY

@@ -65,6 +65,19 @@ def _connect_rc(port: int, username: str, password: str) -> int:
     return result[0]
 
 
+def test_passwd_reads_a_pipe_without_warning_and_refuses_short_passwords() -> None:
+    def passwd(text: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "passwd", "dave"], input=text,
+                              capture_output=True, text=True, timeout=30)
+
+    piped = passwd("dave-is-here\n")  # no --stdin: stdin is not a terminal
+    assert piped.returncode == 0 and piped.stdout.startswith("dave:$7$"), piped.stderr
+    assert "Warning" not in piped.stderr, piped.stderr  # getpass used to warn that it would echo
+    short = passwd("x\n")
+    assert short.returncode == 1 and "a password of 1 character refused: at least 8" in short.stderr
+    assert "empty password refused" in passwd("\n").stderr
+
+
 def test_our_cli_hash_is_accepted_by_mosquitto(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "passwd", "--stdin", "carol"],
                          input="carol-demo\n", capture_output=True, text=True, check=True).stdout.strip()

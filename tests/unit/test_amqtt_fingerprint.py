@@ -52,7 +52,8 @@ RELIED_ON: dict[str, str] = {
     "amqtt.broker:Broker._handle_client_session": "calls _authenticate after _initialize_client_session, takes "
                                                   "over, sends retained messages for every filter (fixes 2, 4, 5)",
     "amqtt.broker:Broker._client_message_loop": "dispatches to the _handle_* methods we wrap; False from "
-                                                "_handle_message_delivery ends it; QoS 0 PUBLISHes bypass it (fix 31)",
+                                                "_handle_message_delivery ends it; QoS 0/1 PUBLISHes bypass it "
+                                                "(fix 31); subscriptions go before unsubscriptions (fix 32)",
     "amqtt.broker:Broker._authenticate": "replaced, and called unbound by HardenedBroker._admit (fix 4)",
     "amqtt.broker:Broker._handle_disconnect": "wrapped (fix 19); publishes the will on an abnormal disconnect",
     "amqtt.broker:Broker._handle_subscription": "replaced (fixes 2, 16)",
@@ -114,8 +115,13 @@ RELIED_ON: dict[str, str] = {
                                                                 "session.keep_alive read once as the header "
                                                                 "timeout, handle_read_timeout, a Task per packet, "
                                                                 "ends on other errors (fixes 1, 13, 14)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_publish": "wrapped: QoS 0 goes to the broker's fan-out on "
-                                                                  "the reader's task (fix 31)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_publish": "wrapped: QoS 0 and 1 go to the broker's "
+                                                                  "fan-out on the reader's task (fix 31)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_unsubscribe": "replaced: queued with the "
+                                                                                   "SUBSCRIBEs (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:UnSubscription": "built by our handle_unsubscribe (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.__init__": "creates _pending_subscriptions, the one "
+                                                                         "queue fix 32 uses for both",
     "amqtt.mqtt.packet:MQTTPacket.from_stream": "packet_class(header).from_stream reads each packet (fix 31)",
 
     "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fix 28)",

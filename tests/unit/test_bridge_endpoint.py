@@ -395,8 +395,21 @@ def test_a_signoff_stops_quietly_and_another_users_presence_does_not(h: Harness)
     h.command("twist", {"lx": 0.2})
     h.endpoint.on_mqtt(T.operator("bob", "tablet"), b"")
     assert _failsafe_acks(h) == []
+    zeros = h.ros.zeros
     h.endpoint.on_mqtt(T.operator("alice", "laptop"), operator_signoff("alice", "laptop"))
-    assert _failsafe_acks(h) == ["operator alice went away (signed off)"]
+    assert h.ros.zeros > zeros  # stopped all the same
+    assert _failsafe_acks(h) == []  # but a program that finished is no failsafe: result 0
+    assert [a["text"] for a in h.link.acks() if a["result"] == AckResult.ACCEPTED] == [
+        "operator alice went away (signed off)"]
+
+
+def test_a_zero_twist_is_the_operators_stop_not_a_dead_man_later(h: Harness) -> None:
+    h.present()
+    h.command("twist", {"lx": 0.2})
+    h.command("twist", {"lx": 0.0})  # a released drive pad
+    h.endpoint.supervise(time.monotonic() + ROBOT.bridge.command_timeout + 0.5)
+    h.endpoint.on_mqtt(T.operator("alice", "laptop"), operator_signoff("alice", "laptop"))
+    assert h.link.acks() == []  # no dead-man, and nothing to stop when she signs off
 
 
 def test_the_dead_man_and_a_lost_broker_stop_the_robot(h: Harness) -> None:

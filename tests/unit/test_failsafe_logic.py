@@ -16,6 +16,21 @@ def test_dead_man_only_while_streaming() -> None:
     assert f.tick(5.0, {"alice"}) is None  # stopped once, not again and again
 
 
+def test_a_stream_that_ends_on_a_standstill_is_a_stop_not_a_failsafe() -> None:
+    """A released drive pad sends one zero twist: the robot is stopped, the dead-man has nothing left to do."""
+    f = Failsafe(command_timeout=1.0, link_up=True)
+    f.velocity_command("alice", 0.0)
+    f.velocity_command("alice", 0.5, standstill=True)
+    assert f.tick(5.0, {"alice"}) is None and f.operator_gone("alice") is None
+    f.velocity_command("alice", 6.0)  # moving again: armed again
+    assert "dead-man" in f.tick(7.1, {"alice"})
+    f.stopped()
+    f.goal_command("carol")  # a goal under way stays guarded whatever twists say
+    f.velocity_command("carol", 8.0, standstill=True)
+    assert f.tick(20.0, {"carol"}) is None  # no dead-man for a goal
+    assert f.operator_gone("carol") == "operator carol went away"
+
+
 def test_operator_gone_and_link_lost() -> None:
     f = Failsafe(command_timeout=1.0, link_up=True)
     f.velocity_command("alice", 0.0)
