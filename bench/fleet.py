@@ -52,7 +52,7 @@ BAR_P99_MS = 50.0
 WARMUP = 2.0
 SETTLE = 2.0
 WORKERS = 2
-DEFAULT_COUNTS = {"embedded": (10, 100, 200, 300), "mosquitto": (10, 300, 1000), "rabbitmq": (10, 100, 300)}
+DEFAULT_COUNTS = {"embedded": (10, 100, 200), "mosquitto": (10, 300, 1000), "rabbitmq": (10, 100, 300)}
 
 
 def robot_name(i: int) -> str:

@@ -100,17 +100,7 @@ behaviour.
     close, and they wait for every connection's handler -- including logins held back by the login throttle
     (up to 10 s) or still reading their CONNECT. Those are cancelled first, so SIGTERM ends the broker at once
     even under a password-guessing flood (it took 5 s and a SIGKILL).
-31. **A QoS 0 or 1 PUBLISH is fanned out on its connection's own task** (``HardenedHandler._reader_loop`` and
-    ``handle_publish``, ``HardenedBroker._publish_now``): stock reads each fixed header under ``wait_for`` (a Task
-    per packet), runs each PUBLISH in a Task of its own, queues it for the connection's client loop (a Task and a
-    wait on four futures per message), which queues it again for the broadcast loop (another Task and wait).
-    Here the same steps (events, fix 13's checks, the ACL, the fan-out, the retained store, then the PUBACK) run
-    in the order sent on the reader's task, which yields to the loop every 8 messages of a burst; QoS 0
-    deliveries to one connection within one turn of the loop leave in one write (fix 25's cork). QoS 2 keeps
-    amqtt's flow. QoS 0 and 1 share the path because a client's order matters across them: an operator's
-    retained presence (QoS 1) must reach the robot before the twist (QoS 0) sent after it. With the garbage
-    collector tuned (``main.tune_gc``) the embedded broker carries 200 robots with their operators (was 100).
-32. **SUBSCRIBE and UNSUBSCRIBE are handled in the order sent** (``HardenedHandler.handle_unsubscribe`` queues
+31. **SUBSCRIBE and UNSUBSCRIBE are handled in the order sent** (``HardenedHandler.handle_unsubscribe`` queues
     UNSUBSCRIBEs with the SUBSCRIBEs; ``_handle_subscription`` tells them apart): stock keeps two queues that the
     client loop drains as each is ready, so an UNSUBSCRIBE and a SUBSCRIBE of the same filter read in one turn
     were handled subscribe first, and the client lost the subscription its SUBACK had just granted (the SDK
@@ -132,9 +122,6 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
   ``_broadcast_queue``, ``_servers``, ``_get_handler``, ``_matches``, ``_delete_session``,
   ``add_subscription``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
-* ``ProtocolHandler._reader_loop`` (replaced, fix 31: same semantics as stock's) and ``handle_publish`` (wrapped);
-  ``MQTTFixedHeader.from_stream``, ``packet_class``, ``_reader_ready``/``_reader_stopped``; the events
-  ``MESSAGE_RECEIVED``/``MESSAGE_BROADCAST`` and the broadcast dict ``_publish_now`` builds for ``_fan_out``.
 * ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
   ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
   ``ProtocolHandler._handle_qos1_message_flow``/``_handle_qos2_message_flow`` (replaced for outgoing messages),
@@ -154,43 +141,23 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextvars
-import functools
 import itertools
 import logging
 import time
-from collections.abc import Awaitable, Callable
 from typing import Any
 
 from amqtt.adapters import ReaderAdapter, StreamWriterAdapter, WebSocketsWriter, WriterAdapter
 from amqtt.broker import Broker
 from amqtt.contexts import Action
-from amqtt.errors import AMQTTError, MQTTError, NoDataError, ProtocolHandlerError
-from amqtt.events import BrokerEvents, MQTTEvents
-from amqtt.mqtt import packet_class
+from amqtt.errors import AMQTTError, MQTTError, NoDataError
+from amqtt.events import MQTTEvents
 from amqtt.mqtt.connack import NOT_AUTHORIZED, UNACCEPTABLE_PROTOCOL_VERSION, ConnackPacket
-from amqtt.mqtt.constants import QOS_0, QOS_1, QOS_2
+from amqtt.mqtt.constants import QOS_1, QOS_2
 from amqtt.mqtt.disconnect import DisconnectPacket
-from amqtt.mqtt.packet import (
-    CONNACK,
-    DISCONNECT,
-    PINGREQ,
-    PINGRESP,
-    PUBACK,
-    PUBCOMP,
-    PUBREC,
-    PUBREL,
-    RESERVED_0,
-    RESERVED_15,
-    SUBACK,
-    UNSUBACK,
-    MQTTFixedHeader,
-)
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler, UnSubscription
-from amqtt.mqtt.puback import PubackPacket
 from amqtt.mqtt.pubrel import PubrelPacket
-from amqtt.session import OUTGOING, IncomingApplicationMessage, Session
+from amqtt.session import OUTGOING, Session
 from amqtt.utils import gen_client_id
 
 from .. import netstat
@@ -307,48 +274,8 @@ def _write_qos0(writer: WriterAdapter | None, topic: str, data: bytes | bytearra
     transport = _transport(writer)
     if transport is None or transport.is_closing():
         return False
-    _CORK.add(transport, publish_packet_qos0(topic, data, retain))
+    transport.write(publish_packet_qos0(topic, data, retain))
     return True
-
-
-class _Cork:
-    """QoS 0 packets for each transport gathered over one turn of the event loop, then written in one call.
-
-    A fleet monitor receives every robot's state: one ``write`` (one system call) per message was a seventh of
-    the broker's time at 300 robots. Packets stay whole and in order per connection; what waits here counts as
-    buffered (:func:`write_buffer_size`), and a connection closed meanwhile gets nothing.
-    """
-
-    __slots__ = ("_waiting", "_scheduled")
-
-    def __init__(self) -> None:
-        self._waiting: dict[Any, list[Any]] = {}  # transport -> [packets, bytes]
-        self._scheduled = False
-
-    def add(self, transport: Any, packet: bytes) -> None:
-        entry = self._waiting.get(transport)
-        if entry is None:
-            self._waiting[transport] = [[packet], len(packet)]
-        else:
-            entry[0].append(packet)
-            entry[1] += len(packet)
-        if not self._scheduled:
-            self._scheduled = True
-            asyncio.get_running_loop().call_soon(self.flush)
-
-    def waiting(self, transport: Any) -> int:
-        entry = self._waiting.get(transport)
-        return entry[1] if entry is not None else 0
-
-    def flush(self) -> None:
-        waiting, self._waiting, self._scheduled = self._waiting, {}, False
-        for transport, (packets, _size) in waiting.items():
-            if transport.is_closing():
-                continue
-            transport.write(packets[0] if len(packets) == 1 else b"".join(packets))
-
-
-_CORK = _Cork()
 
 
 def write_buffer_size(writer: WriterAdapter | None) -> int:
@@ -357,7 +284,7 @@ def write_buffer_size(writer: WriterAdapter | None) -> int:
     if transport is None:
         return 0
     try:
-        return transport.get_write_buffer_size() + _CORK.waiting(transport)
+        return transport.get_write_buffer_size()
     except (AttributeError, RuntimeError):
         return 0
 
@@ -411,13 +338,6 @@ def _log_once(session: Session, key: str, level: int, message: str, *args: Any) 
 
 
 MAX_TOPIC_OVERHEAD = 2 + 65535 + 2  # topic length prefix, longest topic, packet id
-YIELD_EVERY = 8  # PUBLISHes a connection's reader handles in line before it lets the loop run others (fix 31)
-# packet type -> the handler method stock's reader loop runs in a Task of its own for it (fix 31)
-_PACKET_HANDLERS = {CONNACK: "handle_connack", SUBSCRIBE: "handle_subscribe", UNSUBSCRIBE: "handle_unsubscribe",
-                    SUBACK: "handle_suback", UNSUBACK: "handle_unsuback", PUBACK: "handle_puback",
-                    PUBREC: "handle_pubrec", PUBREL: "handle_pubrel", PUBCOMP: "handle_pubcomp",
-                    PINGREQ: "handle_pingreq", PINGRESP: "handle_pingresp", PUBLISH: "handle_publish",
-                    DISCONNECT: "handle_disconnect"}
 
 
 class HardenedHandler(BrokerProtocolHandler):
@@ -432,109 +352,10 @@ class HardenedHandler(BrokerProtocolHandler):
 
     _expired = False
     _closing: asyncio.Task[None] | None = None
-    # fix 31: set by the broker once the session is admitted; a QoS 0 PUBLISH is then handed to it on this task
-    publish_now: Callable[[IncomingApplicationMessage], Awaitable[None]] | None = None
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._resends: set[asyncio.Future[Any]] = set()  # fix 28: resends of a resumed session, under way
-
-    async def _reader_loop(self) -> None:
-        """Stock's reader loop (amqtt 0.12.1), except (fix 31): the keep-alive bounds the wait for a fixed header
-        without a Task per packet (``asyncio.timeout`` instead of ``wait_for``), and a QoS 0 PUBLISH of an admitted
-        session is handled on this task, in order, instead of in a Task of its own. Everything else as stock: a
-        handler Task per packet, MQTTError discards the packet, a timeout calls ``handle_read_timeout``, any other
-        exception ends the connection."""
-        if self.session is None:
-            raise AMQTTError("Session is not initialized.")
-        if not self._reader_ready:
-            raise ProtocolHandlerError("Reader ready is not initialized.")
-        running: collections.deque[asyncio.Task[None]] = collections.deque()
-        inline = 0
-        keep_alive: float | None = self.session.keep_alive if self.session.keep_alive > 0 else None
-        while True:
-            try:
-                self._reader_ready.set()
-                while running and running[0].done():
-                    running.popleft()
-                if self.reader is None:
-                    log.warning("reader of %s is not initialized", self.session.client_id)
-                    break
-                async with asyncio.timeout(keep_alive):
-                    fixed_header = await MQTTFixedHeader.from_stream(self.reader)
-                if not fixed_header:
-                    break  # EOF
-                if fixed_header.packet_type in (RESERVED_0, RESERVED_15):
-                    log.warning("%s sent a reserved packet type: closing", describe_session(self.session))
-                    await self.handle_connection_closed()
-                    continue
-                packet = await packet_class(fixed_header).from_stream(self.reader, fixed_header=fixed_header)
-                await self.plugins_manager.fire_event(MQTTEvents.PACKET_RECEIVED, packet=packet, session=self.session)
-                kind = packet.fixed_header.packet_type if packet.fixed_header is not None else None
-                if kind == PUBLISH and self.publish_now is not None and packet.qos in (QOS_0, QOS_1):
-                    await self.handle_publish(packet)  # in line: a client's QoS 0 and 1 messages keep their order
-                    inline += 1
-                    if inline % YIELD_EVERY == 0:  # a burst read in one turn must not keep the loop from others
-                        await asyncio.sleep(0)
-                elif kind == CONNECT:
-                    await self.handle_connect(packet)  # as stock: before anything else of the session
-                elif (method := _PACKET_HANDLERS.get(kind)) is not None:
-                    running.append(asyncio.create_task(getattr(self, method)(packet)))
-                else:
-                    log.warning("%s: unhandled packet type %s", self.session.client_id, kind)
-            except MQTTError:
-                log.debug("message discarded")
-            except asyncio.CancelledError:
-                break
-            except TimeoutError:
-                self.handle_read_timeout()
-            except NoDataError:
-                log.debug("%s: no data available", self.session.client_id)
-            except Exception as exc:  # noqa: BLE001 - as stock: the connection ends, the broker goes on
-                log.warning("%s: reader ended: %r", describe_session(self.session), exc)
-                break
-        while running:
-            running.popleft().cancel()
-        await self.handle_connection_closed()
-        self._reader_stopped.set()
-        await self.stop()
-
-    async def handle_unsubscribe(self, unsubscribe: Any) -> None:
-        """Queued with the SUBSCRIBEs (fix 32): stock keeps two queues that the client loop drains as each is ready,
-        so an UNSUBSCRIBE and the SUBSCRIBE of the same filter sent after it, read in one turn of the loop, were
-        handled subscribe first -- and the client was left without the subscription it had just been granted."""
-        if unsubscribe.variable_header is None or unsubscribe.payload is None:
-            await super().handle_unsubscribe(unsubscribe)  # stock raises the MQTTError
-            return
-        await self._pending_subscriptions.put(UnSubscription(unsubscribe.variable_header.packet_id,
-                                                             unsubscribe.payload.topics))
-
-    async def handle_publish(self, publish_packet: Any) -> None:
-        """A QoS 0 or 1 PUBLISH goes to the broker's fan-out at once, then gets its PUBACK (fix 31); QoS 2 keeps
-        amqtt's flow (its PUBREC/PUBREL exchange).
-
-        Stock queues every message for the connection's client loop, which wakes through a Task and a wait on four
-        futures, hands it to the broker's broadcast queue, whose loop starts another Task to fan it out: two
-        queues, two Tasks and two waits per message, a third of the broker's Python time in a fleet. QoS 0 and 1
-        take the same path here, in the order they came: a client's retained presence (QoS 1) must reach the
-        robot before the twist (QoS 0) it sends next, or the robot refuses the twist.
-        """
-        publish_now, qos = self.publish_now, publish_packet.qos
-        if publish_now is None or qos not in (QOS_0, QOS_1):
-            await super().handle_publish(publish_packet)
-            return
-        topic, data = publish_packet.topic_name, publish_packet.data
-        if topic is None or data is None:
-            return
-        if qos == QOS_0 and publish_packet.dup_flag:  # MQTT-3.3.1-2, as stock: ignored
-            return
-        packet_id = publish_packet.variable_header.packet_id if qos == QOS_1 else None
-        message = IncomingApplicationMessage(packet_id, topic, qos, data, publish_packet.retain_flag)
-        message.publish_packet = publish_packet
-        await publish_now(message)
-        if qos == QOS_1:
-            message.puback_packet = PubackPacket.build(packet_id)
-            await self._send_packet(message.puback_packet)
 
     def handle_read_timeout(self) -> None:
         session = self.session
@@ -648,6 +469,16 @@ class HardenedHandler(BrokerProtocolHandler):
         else:  # a late PUBREC: the receiver has the message, release it
             message.pubrec_packet = pubrec
             await self._release(message)
+
+    async def handle_unsubscribe(self, unsubscribe: Any) -> None:
+        """Queued with the SUBSCRIBEs (fix 31): stock keeps two queues that the client loop drains as each is ready,
+        so an UNSUBSCRIBE and the SUBSCRIBE of the same filter sent after it, read in one turn of the loop, were
+        handled subscribe first -- and the client was left without the subscription it had just been granted."""
+        if unsubscribe.variable_header is None or unsubscribe.payload is None:
+            await super().handle_unsubscribe(unsubscribe)  # stock raises the MQTTError
+            return
+        await self._pending_subscriptions.put(UnSubscription(unsubscribe.variable_header.packet_id,
+                                                             unsubscribe.payload.topics))
 
     async def handle_pubcomp(self, pubcomp: Any) -> None:
         if pubcomp.packet_id in self._pubcomp_waiters or self.session is None:
@@ -836,8 +667,6 @@ class HardenedBroker(Broker):
         if isinstance(reader, PacketGate):
             reader.pacer = self._pacer_of(session.username)
             reader.budget = self._budget_of(session.username)  # fix 29
-        if isinstance(handler, HardenedHandler):  # fix 31
-            handler.publish_now = functools.partial(self._publish_now, session, handler)
         log.info("connected %s keepalive=%ss clean=%d%s", describe_session(session), session.attributes[ATTR_KEEPALIVE],
                  int(session.clean_session), " (session resumed)" if resumed else "")
         return handler, session
@@ -912,67 +741,37 @@ class HardenedBroker(Broker):
     async def _handle_message_delivery(self, client_session: Session, handler: BrokerProtocolHandler,
                                        wait_deliver: asyncio.Future[Any]) -> bool:
         message = wait_deliver.result()
-        if message is not None and not self._acceptable(client_session, handler, message):
-            return True
+        if message is not None:
+            topic = message.topic
+            if not topic:
+                # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
+                # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
+                _drop_connection(handler, "PUBLISH with an empty topic")
+                return True
+            if topic.startswith("$"):
+                _log_once(client_session, "$" + topic, logging.INFO,
+                          "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
+                          topic)
+                return True
+            size = len(message.data) if message.data is not None else 0
+            limit = self.max_payload
+            if self.policy is not None and (topic_limit := self.policy.payload_limit(topic)):
+                limit = min(limit, topic_limit) if limit else topic_limit
+            if limit and size > limit:
+                _log_once(client_session, "size:" + topic[:200], logging.WARNING,
+                          "dropped publish %s topic=%r: %d bytes > %d", describe_session(client_session), topic,
+                          size, limit)
+                return True
+            retained = message.publish_packet is not None and message.publish_packet.retain_flag
+            if retained and self.policy is not None and (why := self.policy.retain_refusal(topic)):
+                _log_once(client_session, "retain:" + topic[:200], logging.WARNING, "dropped publish %s topic=%r: %s",
+                          describe_session(client_session), topic, why)
+                return True
         token = _PUB_QOS.set(getattr(message, "qos", None))
         try:
             return await super()._handle_message_delivery(client_session, handler, wait_deliver)
         finally:
             _PUB_QOS.reset(token)
-
-    def _acceptable(self, client_session: Session, handler: BrokerProtocolHandler, message: Any) -> bool:
-        """False (logged once) for a PUBLISH the broker drops before the ACL: fix 13."""
-        topic = message.topic
-        if not topic:
-            # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
-            # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
-            _drop_connection(handler, "PUBLISH with an empty topic")
-            return False
-        if topic.startswith("$"):
-            _log_once(client_session, "$" + topic, logging.INFO,
-                      "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
-                      topic)
-            return False
-        size = len(message.data) if message.data is not None else 0
-        limit = self.max_payload
-        if self.policy is not None and (topic_limit := self.policy.payload_limit(topic)):
-            limit = min(limit, topic_limit) if limit else topic_limit
-        if limit and size > limit:
-            _log_once(client_session, "size:" + topic[:200], logging.WARNING,
-                      "dropped publish %s topic=%r: %d bytes > %d", describe_session(client_session), topic,
-                      size, limit)
-            return False
-        retained = message.publish_packet is not None and message.publish_packet.retain_flag
-        if retained and self.policy is not None and (why := self.policy.retain_refusal(topic)):
-            _log_once(client_session, "retain:" + topic[:200], logging.WARNING, "dropped publish %s topic=%r: %s",
-                      describe_session(client_session), topic, why)
-            return False
-        return True
-
-    async def _publish_now(self, client_session: Session, handler: BrokerProtocolHandler,
-                           message: IncomingApplicationMessage) -> None:
-        """A client's QoS 0 or 1 PUBLISH, checked and fanned out on its connection's own task (fix 31).
-
-        The same steps as stock ``_handle_message_delivery`` plus fix 13, in the same order (events, ACL,
-        broadcast, then the retained store), without the two queues and the Tasks between them.
-        """
-        try:
-            await self.plugins_manager.fire_event(BrokerEvents.MESSAGE_RECEIVED, client_id=client_session.client_id,
-                                                  message=message)
-            if not self._acceptable(client_session, handler, message):
-                return
-            topic = message.topic
-            if not await self._topic_filtering(client_session, topic=topic, action=Action.PUBLISH):
-                log.debug("%s not allowed to publish to %r", client_session.client_id, topic)
-                return
-            await self.plugins_manager.fire_event(BrokerEvents.MESSAGE_BROADCAST, client_id=client_session.client_id,
-                                                  message=message)
-            await self._fan_out({"session": client_session, "topic": topic, "data": message.data,
-                                 "pub_qos": message.qos}, self._tasks_queue)
-            if message.publish_packet is not None and message.publish_packet.retain_flag:
-                await self.retain_message(client_session, topic, message.data, message.qos)
-        except Exception:  # noqa: BLE001 - one message must not end the connection's reader
-            log.exception("publish of %s on %r failed", describe_session(client_session), message.topic)
 
     async def _broadcast_message(self, session: Session | None, topic: str | None,
                                  data: bytes | bytearray | None, force_qos: int | None = None) -> None:
@@ -987,12 +786,9 @@ class HardenedBroker(Broker):
     _sweep_at = SWEEP_AT  # sweep when amqtt's queue of deliveries reaches this length (amortized: see fix 22)
 
     async def _run_broadcast(self, running_tasks: Any) -> None:
-        await self._fan_out(await self._broadcast_queue.get(), running_tasks)
-
-    async def _fan_out(self, broadcast: dict[str, Any], running_tasks: Any) -> None:
-        """Deliver one message to every session whose filters match it (fixes 3, 8, 17, 22, 24, 25, 26)."""
         if len(running_tasks) >= self._sweep_at:
             self._sweep_at = max(SWEEP_AT, 2 * _sweep_finished(running_tasks))
+        broadcast = await self._broadcast_queue.get()
         topic: str = broadcast["topic"]
         pub_qos = broadcast.get("qos", broadcast.get("pub_qos"))
 
@@ -1177,7 +973,7 @@ class HardenedBroker(Broker):
         # Replaces stock: bounded filters per session, the loop yields between filters, and retained
         # messages are found through the index and sent for this session's own filters only.
         request = subscribe_waiter.result()
-        if isinstance(request, UnSubscription):  # fix 32: queued with the SUBSCRIBEs, in the order sent
+        if isinstance(request, UnSubscription):  # fix 31: queued with the SUBSCRIBEs, in the order sent
             await self._handle_unsubscription(client_session, handler, subscribe_waiter)
             return
         limit = self.limits.max_subscriptions

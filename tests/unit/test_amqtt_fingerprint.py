@@ -52,14 +52,18 @@ RELIED_ON: dict[str, str] = {
     "amqtt.broker:Broker._handle_client_session": "calls _authenticate after _initialize_client_session, takes "
                                                   "over, sends retained messages for every filter (fixes 2, 4, 5)",
     "amqtt.broker:Broker._client_message_loop": "dispatches to the _handle_* methods we wrap; False from "
-                                                "_handle_message_delivery ends it; QoS 0/1 PUBLISHes bypass it "
-                                                "(fix 31); subscriptions go before unsubscriptions (fix 32)",
+                                                "_handle_message_delivery ends it; subscriptions before "
+                                                "unsubscriptions (fix 31 queues both as one)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_unsubscribe": "replaced: queued with the "
+                                                                                   "SUBSCRIBEs (fix 31)",
+    "amqtt.mqtt.protocol.broker_handler:UnSubscription": "built by our handle_unsubscribe (fix 31)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.__init__": "creates _pending_subscriptions, the one "
+                                                                         "queue fix 31 uses for both",
     "amqtt.broker:Broker._authenticate": "replaced, and called unbound by HardenedBroker._admit (fix 4)",
     "amqtt.broker:Broker._handle_disconnect": "wrapped (fix 19); publishes the will on an abnormal disconnect",
     "amqtt.broker:Broker._handle_subscription": "replaced (fixes 2, 16)",
     "amqtt.broker:Broker._handle_unsubscription": "wrapped (fix 16: per-session filter count)",
-    "amqtt.broker:Broker._handle_message_delivery": "wrapped (fixes 3, 13); its steps (events, ACL, broadcast, "
-                                                    "retain) are repeated by _publish_now (fix 31)",
+    "amqtt.broker:Broker._handle_message_delivery": "wrapped (fixes 3, 13)",
     "amqtt.broker:Broker.retain_message": "wrapped (fixes 2, 18: quota); stores into _retained_messages as a "
                                           "mapping (fix 24: our RetainedTable)",
     "amqtt.broker:Broker.add_subscription": "called (fix 16); uses _subscriptions as a mapping (fix 24)",
@@ -96,8 +100,7 @@ RELIED_ON: dict[str, str] = {
                                                                                   "abnormal: the will fires",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.mqtt_acknowledge_subscription": "called (fix 2)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.__init__": "creates reader, writer, session, _puback_waiters, "
-                                                            "_pubrec_waiters, _pubcomp_waiters (fix 28), "
-                                                            "_reader_ready, _reader_stopped (our reader loop, fix 31)",
+                                                            "_pubrec_waiters, _pubcomp_waiters (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.start": "calls _retry_deliveries when a handler starts (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._stop_waiters": "cancels the acknowledgement waiters; fix 28 "
                                                                  "keeps the message in inflight_out then",
@@ -111,19 +114,9 @@ RELIED_ON: dict[str, str] = {
                                                                              "for incoming (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._handle_qos2_message_flow": "replaced for outgoing messages, called "
                                                                              "for incoming (fix 28)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler._reader_loop": "replaced (fix 31); ours keeps its semantics: "
-                                                                "session.keep_alive read once as the header "
-                                                                "timeout, handle_read_timeout, a Task per packet, "
-                                                                "ends on other errors (fixes 1, 13, 14)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_publish": "wrapped: QoS 0 and 1 go to the broker's "
-                                                                  "fan-out on the reader's task (fix 31)",
-    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_unsubscribe": "replaced: queued with the "
-                                                                                   "SUBSCRIBEs (fix 32)",
-    "amqtt.mqtt.protocol.broker_handler:UnSubscription": "built by our handle_unsubscribe (fix 32)",
-    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.__init__": "creates _pending_subscriptions, the one "
-                                                                         "queue fix 32 uses for both",
-    "amqtt.mqtt.packet:MQTTPacket.from_stream": "packet_class(header).from_stream reads each packet (fix 31)",
-
+    "amqtt.mqtt.protocol.handler:ProtocolHandler._reader_loop": "reads session.keep_alive once as its read timeout, "
+                                                                "calls handle_read_timeout, ends on other errors "
+                                                                "(fixes 1, 13, 14)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_puback": "wrapped (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubrec": "wrapped: a late PUBREC is released (fix 28)",
