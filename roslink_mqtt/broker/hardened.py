@@ -122,7 +122,8 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
   ``_broadcast_queue``, ``_servers``, ``_get_handler``, ``_matches``, ``_delete_session``,
   ``add_subscription``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
-* ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
+* ``BrokerProtocolHandler.handle_unsubscribe`` (replaced, fix 31: an ``UnSubscription`` on ``_pending_subscriptions``),
+  ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
   ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
   ``ProtocolHandler._handle_qos1_message_flow``/``_handle_qos2_message_flow`` (replaced for outgoing messages),
   ``handle_puback``/``handle_pubcomp`` (wrapped), ``_send_packet``, ``_puback_waiters``/``_pubrec_waiters``/

@@ -74,7 +74,8 @@ def tune_gc() -> None:
     """Keep the cyclic garbage collector from pausing the loop for a tenth of a second.
 
     With a fleet connected (300 robots and their operators: ~a million objects) a full collection took 60-120 ms
-    -- every client waited that long, the fleet bench's p99 went from ~2 ms to ~100 ms in one run of four. What the
+    -- every client waited that long (bench/fleet.py, docs/scaling.md: one run in four missed its p99 bar on that
+    alone, measured with an experimental faster message path). What the
     broker loaded at start is frozen out of every collection; collections run after 50,000 allocations instead of
     700, and full ones a tenth as often. Per-message garbage is freed by reference counting, not by the collector.
     """
