@@ -7,6 +7,7 @@ porting the prototype); the numbers refer to the list in hardened.py's docstring
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import signal
 import socket
@@ -15,8 +16,9 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -338,24 +340,35 @@ def test_failed_start_leaves_no_listener_open(tmp_path: Path) -> None:
     asyncio.run(scenario())
 
 
+@contextlib.asynccontextmanager
+async def anonymous_broker() -> AsyncIterator[tuple[Any, int]]:
+    """A hardened broker in this process on a free loopback port, anonymous logins allowed: for tests that look at
+    its tables or speak raw MQTT to it."""
+    from roslink_mqtt.broker.hardened import HardenedBroker
+
+    port = free_port()
+    anonymous = {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}
+    broker = HardenedBroker({"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
+                             "plugins": anonymous})
+    await broker.start()
+    try:
+        yield broker, port
+    finally:
+        await broker.shutdown()
+
+
 # -- 24: one subscription table --------------------------------------------------------------------
 
 
 def test_unsubscribed_filters_leave_the_table(tmp_path: Path) -> None:
     """Stock amqtt keeps a filter whose last subscriber unsubscribed, empty, for the broker's life; the
     hardened broker's one table (which *is* amqtt's ``_subscriptions``) drops it, and a disconnect drops the rest."""
-    from roslink_mqtt.broker.hardened import HardenedBroker
     from tests.support.rawmqtt import connect_packet, remaining_length, subscribe_packet, utf8
 
-    port = free_port()
-    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
-              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
     filters = [f"a/{i}/+" for i in range(20)]
 
     async def scenario() -> None:
-        broker = HardenedBroker(config)
-        await broker.start()
-        try:
+        async with anonymous_broker() as (broker, port):
             assert broker._subscriptions is broker.subscription_table  # amqtt's code writes the one table
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
             writer.write(connect_packet("lister", None, None))
@@ -376,8 +389,6 @@ def test_unsubscribed_filters_leave_the_table(tmp_path: Path) -> None:
                 await asyncio.sleep(0.02)
             assert len(broker.subscription_table) == 0
             writer.close()
-        finally:
-            await broker.shutdown()
 
     asyncio.run(scenario())
 
@@ -389,18 +400,12 @@ def test_a_clients_qos1_and_qos0_messages_are_fanned_out_in_the_order_sent(tmp_p
     """An operator's retained presence (QoS 1) must reach the robot before the twist (QoS 0) it sends next, or the
     robot refuses the twist. A faster path for QoS 0 alone once broke this (the suite's pub and control claim
     failed); any such change must keep this order. 300 messages behind it arrive whole and in order."""
-    from roslink_mqtt.broker.hardened import HardenedBroker
     from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
 
-    port = free_port()
-    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
-              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
     count = 300
 
     async def scenario() -> None:
-        broker = HardenedBroker(config)
-        await broker.start()
-        try:
+        async with anonymous_broker() as (broker, port):
             sub_r, sub_w = await asyncio.open_connection("127.0.0.1", port)
             sub_w.write(connect_packet("sub", None, None) + subscribe_packet(["fleet/+"], 1))
             assert (await sub_r.readexactly(4))[3] == 0
@@ -418,8 +423,6 @@ def test_a_clients_qos1_and_qos0_messages_are_fanned_out_in_the_order_sent(tmp_p
                     assert await sub_r.readexactly(len(packets[i])) == packets[i], i
             pub_w.close()
             sub_w.close()
-        finally:
-            await broker.shutdown()
 
     asyncio.run(scenario())
 
@@ -432,17 +435,11 @@ def test_an_unsubscribe_and_a_subscribe_sent_after_it_are_handled_in_that_order(
     Stock amqtt takes them from two queues; read in one turn, the SUBSCRIBE went first and the UNSUBSCRIBE then
     removed it: SUBACK said granted, and nothing ever came (the CLI's control claim waited in vain once a faster
     reader read both in one turn)."""
-    from roslink_mqtt.broker.hardened import HardenedBroker
     from tests.support.rawmqtt import connect_packet, publish_packet, remaining_length, subscribe_packet, utf8
 
-    port = free_port()
-    config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
-              "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}}
 
     async def scenario() -> None:
-        broker = HardenedBroker(config)
-        await broker.start()
-        try:
+        async with anonymous_broker() as (broker, port):
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
             writer.write(connect_packet("follower", None, None) + subscribe_packet(["robot/control"], 1))
             assert (await reader.readexactly(4))[3] == 0
@@ -459,7 +456,5 @@ def test_an_unsubscribe_and_a_subscribe_sent_after_it_are_handled_in_that_order(
                 assert await reader.readexactly(len(expected)) == expected, "the subscription was lost"
             writer.close()
             pw.close()
-        finally:
-            await broker.shutdown()
 
     asyncio.run(scenario())
