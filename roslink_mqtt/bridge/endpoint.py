@@ -305,13 +305,14 @@ class CommandEndpoint:
                 if why:
                     self.refuse(user, topic, why, message_id, sequence, client_id=sender)
                     return
+            standstill = route.is_velocity and is_standstill(msg)  # a zero twist: the operator stopping the robot
             if route.moves_robot:
                 if self.motion_blocked:
                     self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
                                 client_id=sender)
                     return
                 late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
-                                   stop=route.is_velocity and is_standstill(msg))
+                                   stop=standstill)
                 if late:
                     self.refuse(user, topic, late, message_id, sequence, client_id=sender)
                     return
@@ -329,7 +330,7 @@ class CommandEndpoint:
             if route.moves_robot:
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if route.is_velocity:
-                    self.failsafe.velocity_command(user, time.monotonic(), standstill=is_standstill(msg))
+                    self.failsafe.velocity_command(user, time.monotonic(), standstill=standstill)
                 else:
                     self.failsafe.goal_command(user)
             if behaviour.blocks_motion:

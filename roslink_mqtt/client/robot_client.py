@@ -230,7 +230,7 @@ class RobotClient:
             return None
         try:
             description = self.description(robot, timeout)
-        except (WaitTimeout, ProtocolError, RoslinkError):
+        except RoslinkError:  # WaitTimeout, SubscriptionFailed, ProtocolError, NotConnectedError
             return None
         return description.unknown_state(name)
 
