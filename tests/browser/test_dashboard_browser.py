@@ -283,8 +283,10 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             page_moved = wait_until("the plot's position to change", lambda: (
                 (p := pose(driver)) and math.hypot(p[0] - first[0], p[1] - first[1]) > 0.2 and p))
         finally:
+            # the clock is read before the release: the page's one zero twist can reach /cmd_vel before
+            # Selenium's release() returns, and it is the only one (a zero twist ends the stream: no failsafe)
+            t_release = time.monotonic()
             release(driver, button)
-        t_release = time.monotonic()
         _, stop = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=2, after=t_release)
         time.sleep(0.5)
         late = moving(cmd_vel, t_release + 0.3)
@@ -305,8 +307,8 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         try:
             cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_key)
         finally:
+            t_up = time.monotonic()  # before the key-up, as t_release above
             ActionChains(driver).key_up(Keys.ARROW_UP).perform()
-        t_up = time.monotonic()
         cmd_vel.wait_for(lambda m: m.linear.x == 0.0, timeout=2, after=t_up)
         time.sleep(0.5)
         assert not moving(cmd_vel, t_up + 0.3)
