@@ -5,6 +5,8 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 # MQTT.js (dashboard, starters) and Node-RED 4 (flow test), exactly as package-lock.json says.
 NODE_STAMP := node_modules/.installed
+# Extra arguments for the demo, e.g. `make demo DEMO_ARGS="--logs /tmp/demo"` (python -m roslink_mqtt.demo --help).
+DEMO_ARGS ?=
 
 .PHONY: install demo dashboard test lint bench clean
 
@@ -12,6 +14,7 @@ install: $(STAMP) $(NODE_STAMP)
 
 # Recreated only when missing or when pyproject.toml changed.
 $(STAMP): pyproject.toml
+	@$(SHELL) tools/prereqs.sh python $(PYTHON)
 	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
@@ -19,15 +22,19 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 $(NODE_STAMP): package.json package-lock.json
+	@$(SHELL) tools/prereqs.sh node
 	npm ci --no-audit --no-fund --loglevel=error
 	touch $(NODE_STAMP)
 
-demo: install
-	$(BIN)/python -m roslink_mqtt.demo
+# The demo itself needs no Node.js: without npm it says so and runs (the dashboard and the tests need it).
+demo: $(STAMP)
+	@if $(SHELL) tools/prereqs.sh node --quiet; then $(MAKE) -s --no-print-directory $(NODE_STAMP); else \
+	  echo "Node.js/npm not found: the demo runs without them (make dashboard and make test need Node.js >= 18)"; fi
+	$(BIN)/python -m roslink_mqtt.demo $(DEMO_ARGS)
 
 # The demo, then the web dashboard on http://127.0.0.1:8090/ with everything running until Ctrl-C.
 dashboard: install
-	$(BIN)/python -m roslink_mqtt.demo --dashboard
+	$(BIN)/python -m roslink_mqtt.demo --dashboard $(DEMO_ARGS)
 
 # Lint and types, pure logic (tests/unit refuses ROS imports when run alone: seconds), then everything with real parts.
 test: install

@@ -15,16 +15,19 @@ from __future__ import annotations
 import argparse
 import os
 import queue
+import signal
 import sys
+import threading
 import time
 from contextlib import ExitStack
 from pathlib import Path
+from types import FrameType
 
 import orjson
 
 from .config import load_fleet
 from .fastdds_shm import remove_zombie_segments
-from .localproc import ChildExited, LocalProcess, free_port, port_free, start_child
+from .localproc import ChildExited, LocalProcess, free_port, listener_of, port_free, start_child, tail
 from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, ProtocolError, decode
@@ -128,7 +131,105 @@ def _summary(name: str, p: dict) -> str:
     return orjson.dumps(p).decode()[:100]
 
 
+class Terminated(Exception):
+    """SIGTERM (a ``kill``, ``make`` passing one on) or SIGHUP (the terminal closed): stop everything, like Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class ChildDied(Exception):
+    """One of the demo's processes exited while the scene ran."""
+
+
+def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    raise Terminated(signum)
+
+
+def _exit_status(code: int) -> str:
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class ChildWatch:
+    """Watches the demo's processes from a thread; the first that exits interrupts the scene in the main thread.
+
+    Without it a dead bridge shows only as replies that never come ("(no result seen)") while the
+    demo says all is well. SIGUSR1 to the main thread wakes whatever it blocks in; its handler raises
+    :class:`ChildDied` with the child's name, how it ended and the end of its log.
+    """
+
+    POLL_S = 0.2
+
+    def __init__(self) -> None:
+        self.children: dict[str, LocalProcess] = {}
+        self.death: str | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="demo-child-watch", daemon=True)
+
+    def add(self, name: str, child: LocalProcess) -> None:
+        self.children[name] = child
+
+    def start(self) -> ChildWatch:
+        signal.signal(signal.SIGUSR1, self._raise)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Called before the children are stopped on purpose: their exit is then no news."""
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.POLL_S):
+            for name, child in self.children.items():
+                code = child.poll()
+                if code is not None and not self._stop.is_set():
+                    self.death = (f"the {name} exited ({_exit_status(code)}) while the scene ran; the end of "
+                                  f"{child.log}:\n{tail(child.log)}")
+                    signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGUSR1)
+                    return
+
+    def _raise(self, signum: int, frame: FrameType | None) -> None:
+        if self.death is not None:
+            raise ChildDied(self.death)
+
+
+def _pick_port(wanted: int, what: str) -> int:
+    """``wanted`` when free; otherwise another port, saying plainly who holds ``wanted``."""
+    if port_free(wanted):
+        return wanted
+    port = free_port()
+    holder = listener_of(wanted) or "a process in TIME_WAIT or not visible here"
+    print(f"demo: port {wanted} ({what}) is taken by {holder}\n"
+          f"      an earlier demo still running? This demo uses port {port} instead: commands that name "
+          f"127.0.0.1:{wanted} reach the other one.", flush=True)
+    return port
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the demo; stop every process it started on return, Ctrl-C, SIGTERM, SIGHUP or a child's death."""
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _raise_terminated)
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:
+        print("\ndemo: interrupted; everything it started is stopped.", flush=True)
+        return 130
+    except Terminated as e:
+        print(f"\ndemo: {e} received; everything it started is stopped.", flush=True)
+        return 128 + e.signum
+    except ChildDied as e:
+        print(f"demo: {e}\ndemo: stopped the other processes.", file=sys.stderr, flush=True)
+        return 1
+
+
+def _run(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
     parser.add_argument("--config", default="config/robots.yaml")
     parser.add_argument("--logs", default="run/demo", help="where the processes' logs go")
@@ -140,12 +241,13 @@ def main(argv: list[str] | None = None) -> int:
     topics = fleet.topics
     logs = Path(args.logs)
     logs.mkdir(parents=True, exist_ok=True)
-    port = fleet.broker.port if port_free(fleet.broker.port) else free_port()
-    ws_port = fleet.broker.ws_port if fleet.broker.ws_port and port_free(fleet.broker.ws_port) else free_port()
+    port = _pick_port(fleet.broker.port, "the fleet's MQTT port, the one the README's commands use")
+    ws_port = _pick_port(fleet.broker.ws_port, "the fleet's MQTT-over-WebSocket port") if fleet.broker.ws_port \
+        else free_port()
     remove_zombie_segments()  # a killed earlier run must not leave this one stale DDS state
     env = local_ros_env()
-    print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (DDS on loopback), "
-          f"logs in {logs}/")
+    print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (unused on this "
+          f"machine; DDS on loopback), logs in {logs}/")
     with ExitStack() as stack:
         def start(name: str, cmd: list[str], extra_env: dict[str, str] | None = None,
                   port: int | None = None) -> LocalProcess:
@@ -157,13 +259,18 @@ def main(argv: list[str] | None = None) -> int:
             except (ChildExited, TimeoutError) as e:
                 raise SystemExit(f"demo: {e}") from None
 
-        start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
-                         "--port", str(port), "--ws-port", str(ws_port)], port=port)
+        broker = start("broker", ["-m", "roslink_mqtt.broker", "--config", args.config, "--host", "127.0.0.1",
+                                  "--port", str(port), "--ws-port", str(ws_port)], port=port)
         print(f"1. embedded broker up (authentication + ROSLink-key ACLs; MQTT over WebSocket on {ws_port})")
         dashboard = _start_dashboard(stack, args.dashboard_port, ws_port, fleet.prefix) if args.dashboard else None
-        start("sim", ["-m", "roslink_mqtt.sim"])
-        start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot", "turtle1",
-                         "--url", f"mqtt://127.0.0.1:{port}"], {"ROSLINK_PASSWORD": "turtle1-demo"})
+        watch = ChildWatch()
+        watch.add("broker", broker)
+        watch.add("sim", start("sim", ["-m", "roslink_mqtt.sim"]))
+        watch.add("bridge", start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot",
+                                             "turtle1", "--url", f"mqtt://127.0.0.1:{port}"],
+                                  {"ROSLINK_PASSWORD": "turtle1-demo"}))
+        stack.callback(watch.stop)  # before the children are stopped (the stack unwinds in reverse)
+        watch.start()
         print("2. simulated robot and bridge for turtle1 started")
         scene = Scene(port, topics)
         stack.callback(scene.close)
@@ -268,11 +375,12 @@ def _start_dashboard(stack: ExitStack, port: int, ws_port: int, prefix: str):  #
 
 
 def _wait_for_ctrl_c(url: str) -> None:
+    """Until Ctrl-C, SIGTERM or SIGHUP: each is the normal end of ``make dashboard``."""
     print(f"The scene keeps running: open {url} — Ctrl-C stops everything.", flush=True)
     try:
         while True:
             time.sleep(3600)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated):
         print()
 
 

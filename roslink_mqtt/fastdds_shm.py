@@ -53,3 +53,22 @@ def remove_zombie_segments(shm_dir: Path = SHM_DIR) -> list[str]:
             except FileNotFoundError:
                 pass
     return removed
+
+
+PORT_PREFIX = "fastrtps_port"
+
+
+def live_port_segments(shm_dir: Path = SHM_DIR) -> set[int]:
+    """The shared-memory ports that a living Fast DDS process holds (its ``fastrtps_port<N>_el`` is locked).
+
+    The port numbers follow the RTPS domain mapping, so they say which ROS domains are in use
+    on this machine -- from any network namespace, unlike the UDP ports.
+    """
+    ports: set[int] = set()
+    if not shm_dir.is_dir():
+        return ports
+    for lock_file in shm_dir.glob(f"{PORT_PREFIX}*{LOCK_SUFFIX}"):
+        number = lock_file.name[len(PORT_PREFIX):-len(LOCK_SUFFIX)]
+        if number.isdigit() and not _unlocked(lock_file):
+            ports.add(int(number))
+    return ports

@@ -3,7 +3,8 @@
 One module for everything that starts real programs next to each other -- ``make demo``
 (:mod:`roslink_mqtt.demo`), the benchmarks in ``bench/`` and the tests (``tests/support``):
 
-* :func:`free_port`, :func:`port_free`, :func:`wait_for_port` -- 127.0.0.1 only;
+* :func:`free_port`, :func:`port_free`, :func:`wait_for_port` -- 127.0.0.1 only; :func:`listener_of`
+  says who holds a port;
 * :class:`LocalProcess` -- a child with its output in a log file, restartable, whose
   :meth:`~LocalProcess.stop` always ends it: SIGCONT (a frozen child cannot handle anything
   else), the stop signal (SIGINT, or SIGTERM for brokers) to its whole process group, SIGKILL
@@ -57,6 +58,36 @@ def port_free(port: int, host: str = LOOPBACK) -> bool:
             return True
         except OSError:
             return False
+
+
+def listener_of(port: int) -> str | None:
+    """Who listens on TCP ``port`` on this machine: "pid N: command line", or None when nobody (or unknown).
+
+    Read from /proc (the listening socket's inode, then the process holding it): processes of other
+    accounts are only found when we may read their file descriptors.
+    """
+    inodes: set[str] = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            rows = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            fields = row.split()
+            if len(fields) > 9 and fields[3] == "0A" and int(fields[1].rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
+                inodes.add(f"socket:[{fields[9]}]")
+    if not inodes:
+        return None
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            if any(os.readlink(fd) in inodes for fd in (proc / "fd").iterdir()):
+                cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                return f"pid {proc.name}: {cmdline}"
+        except OSError:
+            continue
+    return "a process this account cannot see"
 
 
 def tail(path: Path | None, lines: int = 15) -> str:

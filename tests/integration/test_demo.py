@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import socket
@@ -9,6 +10,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from pathlib import Path
 
 import pytest
 
@@ -79,3 +81,141 @@ def test_demo_dashboard_mode_serves_the_page_and_stops_cleanly(tmp_path) -> None
     assert nobody_listens(broker_port), "the broker outlived the demo"
     with pytest.raises(OSError):
         urllib.request.urlopen(url.group(1), timeout=2)
+
+
+# -- the demo's processes never outlive it ------------------------------------------------------------------------
+
+def _descendants(pid: int) -> dict[int, str]:
+    """Every living process below ``pid`` (the demo's children sit in process groups of their own), with its
+    command line."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z":
+            parents[int(stat.parent.name)] = int(fields[1])
+    below, todo = set(), [pid]
+    while todo:
+        parent = todo.pop()
+        for child, ppid in parents.items():
+            if ppid == parent and child not in below:
+                below.add(child)
+                todo.append(child)
+    cmdlines = {}
+    for child in below:
+        try:
+            cmdlines[child] = Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            pass
+    return cmdlines
+
+
+def _alive(pids) -> list[int]:
+    return [p for p in pids if Path(f"/proc/{p}").exists() and "Z" not in
+            (Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[:1] or ["Z"])]
+
+
+def _read_until(proc: subprocess.Popen, marker: str, timeout: float = 60) -> str:
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if marker in line:
+            return "".join(lines)
+    raise AssertionError(f"{marker!r} not seen:\n{''.join(lines)}")
+
+
+def _kill(pids) -> None:
+    """A failed test leaves no orphans for the rest of the suite."""
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+def _wait_gone(pids, timeout: float = 15) -> list[int]:
+    deadline = time.monotonic() + timeout
+    while (left := _alive(pids)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return left
+
+
+@pytest.mark.parametrize("how", ["kill make (SIGTERM), no Node.js on PATH", "terminal closed (SIGHUP), ports taken"])
+def test_make_demo_stops_every_process_it_started_on_sigterm_and_sighup(tmp_path, how) -> None:
+    """``kill`` of ``make demo`` and a closed terminal stop the broker, sim and bridge (they used to be left running
+    on 1883, and the next demo quietly moved to another port); a taken port is named with who holds it; without
+    npm the demo says so and runs."""
+    no_node = how.startswith("kill")
+    args = ["--logs", str(tmp_path / "logs")]
+    holders: list[socket.socket] = []
+    if not no_node:  # hold the fleet's MQTT port, as an earlier demo left running would
+        from roslink_mqtt.localproc import fleet_copy
+
+        holder = socket.socket()
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        holders.append(holder)
+        taken = holder.getsockname()[1]
+        args += ["--config", str(fleet_copy(tmp_path / "robots.yaml", ROOT / "config/robots.yaml", port=taken))]
+    env = {**os.environ, "PATH": "/nonexistent"} if no_node else dict(os.environ)
+    # -o: never rebuild the venv from inside a test, whatever pyproject.toml's time stamp says
+    make = subprocess.Popen(["/usr/bin/make", "-s", "-o", ".venv/.installed", "demo", f"DEMO_ARGS={' '.join(args)}"],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)  # its own session: SIGHUP to the group is the closed terminal
+    try:
+        text = _read_until(make, "2. simulated robot and bridge")
+        started = _descendants(make.pid)
+        names = " ".join(started.values())
+        assert all(part in names for part in ("roslink_mqtt.broker", "roslink_mqtt.sim", "roslink_mqtt.bridge")), \
+            started
+        if no_node:
+            assert "Node.js/npm not found: the demo runs without them" in text, text
+        else:
+            assert f"port {taken} (the fleet's MQTT port" in text and f"taken by pid {os.getpid()}" in text, text
+        if no_node:
+            os.kill(make.pid, signal.SIGTERM)
+        else:
+            os.killpg(make.pid, signal.SIGHUP)
+        out, _ = make.communicate(timeout=30)
+    finally:
+        if make.poll() is None:
+            os.killpg(make.pid, signal.SIGKILL)
+            make.communicate()
+        for holder in holders:
+            holder.close()
+    left = _wait_gone(started)
+    _kill(left)
+    assert not left, f"left running after {how}: {[started[p] for p in left]}\n{text}{out}"
+    assert "received; everything it started is stopped" in out, text + out
+
+
+def test_a_child_that_dies_ends_the_demo_with_its_log(tmp_path) -> None:
+    """A bridge that crashes mid-scene (a segfault once did) is reported with the end of its log, and the demo
+    stops, instead of printing "(no result seen)" and carrying on."""
+    demo = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        text = _read_until(demo, "2. simulated robot and bridge")
+        started = _descendants(demo.pid)
+        bridge = next(pid for pid, cmd in started.items() if "roslink_mqtt.bridge.main" in cmd)
+        os.kill(bridge, signal.SIGSEGV)
+        t_kill = time.monotonic()
+        out, _ = demo.communicate(timeout=30)
+        took = time.monotonic() - t_kill
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate()
+    assert demo.returncode == 1, text + out
+    assert "the bridge exited (killed by SIGSEGV) while the scene ran" in out, text + out
+    assert f"{tmp_path / 'bridge.log'}:" in out and "stopped the other processes" in out, out
+    assert took < 10, f"the demo took {took:.1f} s to notice"
+    left = _wait_gone(started)
+    _kill(left)
+    assert not left, "processes outlived the demo"

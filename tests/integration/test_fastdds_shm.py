@@ -10,7 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from roslink_mqtt.fastdds_shm import SHM_DIR, remove_zombie_segments
+from roslink_mqtt.fastdds_shm import SHM_DIR, live_port_segments, remove_zombie_segments
+from roslink_mqtt.ros_env import domain_of_port, domains_in_use, unused_domain_id
 
 
 def _segment(dir_: Path, name: str) -> tuple[Path, Path]:
@@ -83,3 +84,20 @@ def test_a_killed_ros_process_leaves_zombies_that_are_removed() -> None:
         for proc in (living, killed):
             proc.kill()
             proc.wait()
+
+
+def test_a_domain_a_ros_process_uses_is_never_handed_out() -> None:
+    """The demo and the suite pick their ROS_DOMAIN_ID among the unused ones: a real rclpy process's domain is seen
+    as taken (its UDP ports and its locked shared-memory port file), and every later pick avoids it."""
+    domain = unused_domain_id()
+    sleeper = _start_ros_sleeper(domain)
+    try:
+        deadline = time.monotonic() + 10
+        while domain not in domains_in_use():
+            assert time.monotonic() < deadline, f"domain {domain} of a living rclpy process not seen as in use"
+            time.sleep(0.1)
+        assert domain in {domain_of_port(p) for p in live_port_segments()}  # seen from any network namespace too
+        assert domain not in {unused_domain_id() for _ in range(500)}
+    finally:
+        sleeper.kill()
+        sleeper.wait()
