@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -89,6 +90,7 @@ class ActionCaller:
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish, on_executor: OnExecutor) -> None:
         self.robot, self.topics, self.publish = robot, topics, publish
         self.on_executor = on_executor
+        self._node = node
         group = ReentrantCallbackGroup()
         self.actions: dict[str, tuple[ActionRule, Any, ActionClient]] = {}
         for rule in robot.actions:
@@ -167,8 +169,24 @@ class ActionCaller:
                 self._forget(goal)
             return
         goal.waiting_since = None
+        if (servers := self._servers(goal.rule)) > 1:
+            why = (f"{servers} action servers answer ROS action {goal.rule.ros_action}: refused, as each would take "
+                   f"the goal (another ROS graph on ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}? "
+                   "a second robot with the same names?)")
+            log.warning("goal %s of %s: %s", goal.id, goal.user, why)
+            self._status(goal, REJECTED, why)
+            self._forget(goal)
+            return
         future = client.send_goal_async(goal.msg, feedback_callback=lambda fb: self._feedback(goal, fb))
         future.add_done_callback(lambda f: self._responded(goal, f))
+
+    def _servers(self, rule: ActionRule) -> int:
+        """How many action servers serve ``rule``'s action (each publishes its goals' status).
+
+        More than one is a broken setup -- and with rclpy 7.1's EventsExecutor the second server's
+        replies to a goal crashed the bridge (a segfault, reproduced with two servers in one domain).
+        """
+        return self._node.count_publishers(f"{rule.ros_action}/_action/status")
 
     def _responded(self, goal: _Goal, future: Any) -> None:
         handle = future.result() if future.exception() is None else None

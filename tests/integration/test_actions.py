@@ -246,3 +246,47 @@ def test_cli_action_send_prints_feedback_and_result(stack) -> None:
                                '{"order": 99}', "--url", f"mqtt://127.0.0.1:{stack.port}", "-u", "alice"],
                               capture_output=True, text=True, env=env, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL)
     assert rejected.returncode == 1 and "the action server rejected the goal" in rejected.stdout, rejected.stdout
+
+
+SECOND_SERVER = ("import rclpy; from roslink_mqtt.sim.fibonacci import FibonacciServer; rclpy.init(); "
+                 "node = rclpy.create_node('second_fibonacci'); FibonacciServer(node, 'fibonacci'); "
+                 "print('up', flush=True); rclpy.spin(node)")
+
+
+def _try_goal(client: TestClient) -> tuple[GoalStatus, GoalResult | None]:
+    """Send a short goal as alice: its status, and its result when it was accepted."""
+    goal_id = send_goal(client, "alice", {"order": 3})
+    answer = client.wait_for(lambda m: "/goal_status/" in m.topic and m.json().get("id") == goal_id, timeout=10)
+    status = GoalStatus.from_json(answer.payload)
+    if status.status != "accepted":
+        return status, None
+    return status, GoalResult.from_json(until_result(client, "alice", goal_id)[-1].payload)
+
+
+def test_a_goal_two_action_servers_would_take_is_refused_and_the_bridge_lives(stack) -> None:
+    """A second ``fibonacci`` server in the robot's ROS domain (another graph on the same ROS_DOMAIN_ID, as a demo
+    once had): the goal is rejected with the reason, and the bridge lives (rclpy 7.1's EventsExecutor segfaulted on
+    the second server's replies: the demo's "(no result seen)")."""
+    if stack.backend != "embedded":
+        pytest.skip("bridge-side: one broker shows it")
+    second = subprocess.Popen([sys.executable, "-c", SECOND_SERVER], stdout=subprocess.PIPE, text=True,
+                              env=os.environ.copy())
+    try:
+        assert second.stdout is not None and second.stdout.readline().strip() == "up"
+        deadline = time.monotonic() + 15
+        while (status := _try_goal(stack.alice)[0]).status != "rejected":  # until the bridge sees both servers
+            assert time.monotonic() < deadline, "two servers never seen"
+        assert "2 action servers answer ROS action fibonacci: refused" in (status.error or ""), status
+        assert "ROS_DOMAIN_ID" in (status.error or "")
+    finally:
+        second.send_signal(signal.SIGINT)  # a clean exit: its participant leaves at once (a kill lasts a lease)
+        try:
+            second.wait(10)
+        except subprocess.TimeoutExpired:
+            second.kill()
+            second.wait()
+    deadline = time.monotonic() + 30
+    while (outcome := _try_goal(stack.alice))[1] is None or outcome[1].status != "succeeded":
+        # the bridge lives, and takes goals again once the dead server's status publisher is forgotten
+        assert time.monotonic() < deadline, outcome
+        time.sleep(0.5)
