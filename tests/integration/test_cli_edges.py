@@ -355,3 +355,28 @@ def test_clean_ctrl_c_of_the_bridge_is_not_a_lost_broker(tmp_path) -> None:
     assert "disconnected from" in text and "(shutting down)" in text, text
     assert "stop of turtle1: the bridge is shutting down" in text
     assert " WARNING " not in text, text
+
+
+# -- pub: clamping is said, the ROS shape is taken (issue 30 item 8) ---------------------------------------------
+
+def test_pub_says_the_robot_clamped_the_twist(stack) -> None:
+    """lx 50 against turtle1's 0.5 m/s limit: the robot drives at 0.5 and says so, to the sender, once per stream."""
+    port, _log = stack
+    once = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 50}')
+    assert once.returncode == 0, once.stdout + once.stderr
+    assert "sent 1 × twist" in once.stdout
+    assert "clamped" in once.stdout and "0.5 m/s" in once.stdout, once.stdout
+    stream = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 50}', "--rate", "10", "--duration", "1")
+    assert stream.returncode == 0, stream.stdout + stream.stderr
+    assert stream.stdout.count("clamped") == 1, stream.stdout  # the first twist of the stream, not all ten
+    within = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.3}')
+    assert within.returncode == 0 and "clamped" not in within.stdout, within.stdout
+
+
+def test_pub_takes_the_ros_twist_shape(stack) -> None:
+    """The rclpy-shaped SDK accepts {"linear": {"x": …}}; so does pub (the same converter)."""
+    port, _log = stack
+    out = cli(port, "alice", "pub", "turtle1", "twist", '{"linear": {"x": 0.2}, "angular": {"z": 0.1}}')
+    assert out.returncode == 0 and "sent 1 × twist" in out.stdout, out.stdout + out.stderr
+    fast = cli(port, "alice", "pub", "turtle1", "twist", '{"linear": {"x": 9}}')
+    assert fast.returncode == 0 and "clamped" in fast.stdout, fast.stdout + fast.stderr
