@@ -380,3 +380,29 @@ def test_pub_takes_the_ros_twist_shape(stack) -> None:
     assert out.returncode == 0 and "sent 1 × twist" in out.stdout, out.stdout + out.stderr
     fast = cli(port, "alice", "pub", "turtle1", "twist", '{"linear": {"x": 9}}')
     assert fast.returncode == 0 and "clamped" in fast.stdout, fast.stdout + fast.stderr
+
+
+# -- a ROS name typo in a rule is said, by the bridge and by echo (issue 30 item 9) ------------------------------
+
+def test_a_ros_name_typo_is_warned_about_and_echo_says_what_is_true(tmp_path) -> None:
+    """`ros_topic: odm` used to pass silently: the bridge logged nothing and echo said "no rule publishes it"."""
+    demo = (ROOT / "config" / "robots.yaml").read_text()
+    assert "ros_topic: odom," in demo and "ros_service: reset\n" in demo
+    fleet = tmp_path / "typo.yaml"
+    fleet.write_text(demo.replace("ros_topic: odom,", "ros_topic: odm,").replace("ros_service: reset\n",
+                                                                                  "ros_service: resett\n"))
+    with turtle1_online(tmp_path, fleet=fleet) as port:
+        log = tmp_path / "bridge.log"
+        lines = _wait_line(log, 0, "the rule for call/reset", timeout=15)
+        assert any("the rule for state/global_motion reads ROS topic /odm, which has no publisher "
+                   "(did you mean /odom?)" in line and " WARNING " in line for line in lines), lines
+        assert any("calls ROS service /resett, which has no server (did you mean /reset?)" in line
+                   for line in lines), lines
+        assert not any("state/robot_status reads" in line for line in lines), lines  # its topic is published
+        out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "1")
+        assert out.returncode == echo_cmd.EXIT_NOTHING, out.stdout + out.stderr
+        assert ("the rule for global_motion reads ROS topic /odm, which has no publisher (did you mean /odom?)"
+                in out.stderr), out.stderr
+        assert "no rule" not in out.stderr
+        info = cli(port, "bob", "info", "turtle1")
+        assert info.returncode == 0 and "/odm, which has no publisher" in info.stdout, info.stdout + info.stderr
