@@ -122,6 +122,7 @@ class Verb(Enum):
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
     ERROR = "error"  # refusals of what this user sent (no name)
+    NOTICE = "notice"  # something this user sent was carried out, but changed (a clamped twist; no name)
     ACCESS = "access"  # what this user may do on the robot (retained, no name)
     GOAL_STATUS = "goal_status"  # a goal accepted, rejected or being canceled: goal_status/<action>
     FEEDBACK = "feedback"  # a goal's progress (newest wins): feedback/<action>
@@ -142,7 +143,7 @@ class Verb(Enum):
     @property
     def named(self) -> bool:
         """Whether a name follows the verb (``call/reset``); ``error`` and ``access`` stand alone."""
-        return self not in (Verb.ERROR, Verb.ACCESS)
+        return self not in (Verb.ERROR, Verb.NOTICE, Verb.ACCESS)
 
     @property
     def retained_by_sender(self) -> bool:
@@ -159,6 +160,7 @@ _MEANINGS = {
     Verb.REPLY: "the answer to your `call/<service>`",
     Verb.REQUEST: "a ROS node calls a service you provide",
     Verb.ERROR: "why something you sent was refused",
+    Verb.NOTICE: "something you sent was carried out, but not as sent (a twist clamped to the robot's limits)",
     Verb.ACCESS: "what the broker lets you do on this robot",
     Verb.GOAL: "send a goal to one of the robot's ROS actions (your id names it)",
     Verb.CANCEL: "cancel one of your goals",
@@ -381,6 +383,9 @@ class TopicTree:
 
     def error(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ERROR)
+
+    def notice(self, robot: str, user: str) -> str:
+        return self.user_topic(robot, user, Verb.NOTICE)
 
     def access(self, robot: str, user: str) -> str:
         return self.user_topic(robot, user, Verb.ACCESS)

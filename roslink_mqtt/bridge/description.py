@@ -16,7 +16,7 @@ viewers where ``viewers_may_set``.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict
 from functools import cache
 from typing import Any
@@ -38,7 +38,7 @@ from ..protocol.description import (
 )
 from ..protocol.enums import RobotType
 from ..ros_names import interface_name
-from ..topics import TopicTree, Verb, state_name
+from ..topics import TopicTree, Verb, join_leaf, state_name
 from .authorize import allowed
 
 log = logging.getLogger("roslink_mqtt.bridge")
@@ -52,28 +52,34 @@ def _who(verb: Verb, *, read_only: bool = False) -> str:
     return VIEWERS if allowed(Role.VIEWER, verb, read_only=read_only) else OPERATORS
 
 
-def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
+def build_description(robot: Robot, fields_of: FieldsOf, warnings: Mapping[str, str] | None = None
+                      ) -> RobotDescription:
     """What ``robot`` maps, from its fleet-file entry; ``fields_of`` gives each mentioned ROS type's layout.
+
+    ``warnings``: entry (``state/global_motion``, ``cmd/land``, ``call/reset``) → why it may send nothing or fail
+    (its ROS topic has no publisher, its ROS service no server: bridge/graph_check.py), shown in the entry.
 
     A type ``fields_of`` cannot describe (it raises) is left out of ``types``, with a warning: the description
     is still published, since the rest of it is right.
     """
+    warned = warnings or {}
     state: list[StateEntry] = []
     commands: list[CommandEntry] = []
     for rule in robot.rules:
         if rule.direction is Direction.ROS_TO_MQTT:
             encoding = None if rule.encoding == ENCODING_JSON else rule.encoding  # JSON goes without saying
             state.append(StateEntry(state_name(rule.mqtt_topic), rule.preset, rule.ros_type, rule.retain,
-                                    rule.max_rate, dict(rule.fields), VIEWERS, encoding))
+                                    rule.max_rate, dict(rule.fields), VIEWERS, encoding,
+                                    warned.get(rule.mqtt_topic)))
         else:
             velocity = rule.ros_type in VELOCITY_TYPES
             limits = asdict(rule.limits or robot.bridge.limits) if velocity else {}
             commands.append(CommandEntry(rule.mqtt_topic, rule.preset, rule.ros_type, rule.on_demand,
-                                         dict(rule.fields), limits, _who(Verb.CMD)))
+                                         dict(rule.fields), limits, _who(Verb.CMD), warned.get(rule.mqtt_topic)))
     if all(s.name != ACK_STATE for s in state):
         state.append(StateEntry(ACK_STATE, ACK_STATE))
-    services = [ServiceEntry(s.name, s.ros_type, s.read_only, s.timeout, _who(Verb.CALL, read_only=s.read_only))
-                for s in robot.services]
+    services = [ServiceEntry(s.name, s.ros_type, s.read_only, s.timeout, _who(Verb.CALL, read_only=s.read_only),
+                             warned.get(join_leaf(Verb.CALL, s.name))) for s in robot.services]
     actions = [ActionEntry(a.name, a.ros_type, a.viewers, a.timeout, a.feedback_rate,
                            _who(Verb.GOAL, read_only=a.viewers)) for a in robot.actions]
     parameters = [ParameterEntry(p.name, p.node, _who(Verb.PARAM, read_only=p.viewers_may_set), p.timeout,
@@ -93,9 +99,10 @@ def build_description(robot: Robot, fields_of: FieldsOf) -> RobotDescription:
                             actions=tuple(actions), types=types, parameters=tuple(parameters))
 
 
-def description_message(robot: Robot, topics: TopicTree, fields_of: FieldsOf | None = None) -> tuple[str, bytes]:
+def description_message(robot: Robot, topics: TopicTree, fields_of: FieldsOf | None = None,
+                        warnings: Mapping[str, str] | None = None) -> tuple[str, bytes]:
     """(topic, body) of ``robot``'s retained description; ``fields_of`` defaults to ROS introspection."""
-    body = build_description(robot, fields_of or ros_fields_of).to_json()
+    body = build_description(robot, fields_of or ros_fields_of, warnings).to_json()
     return topics.state(robot.name, DESCRIPTION), body
 
 

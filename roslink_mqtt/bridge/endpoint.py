@@ -43,7 +43,7 @@ from ..protocol import (
     loads,
     sender_id,
 )
-from ..protocol.control import ErrorReport, pop_generic_sender
+from ..protocol.control import ErrorReport, Notice, pop_generic_sender
 from ..protocol.errors import ProtocolError
 from ..protocol.lease import CONTROL, ControlState
 from ..topics import Kind, TopicTree, Verb
@@ -54,7 +54,7 @@ from .failsafe import Failsafe, late_motion
 from .lease import ControlLease
 from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
-from .safety import is_standstill, make_safe_twist
+from .safety import ClampNotices, is_standstill, make_safe_twist
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -121,6 +121,7 @@ class CommandEndpoint:
         self.sequences = SequenceTracker()
         self.operators = OperatorTracker(settings.operator_timeout)
         self.failsafe = Failsafe(settings.command_timeout)
+        self.clamp_notices = ClampNotices(settings.command_timeout)  # streams told that the robot clamps them
         self.lock = threading.RLock()
         # sequence numbers: heartbeats and acks are sent from paho's and the executor's threads; next() on an
         # itertools.count is one C call (atomic), where `n += 1` on an attribute could hand out a number twice
@@ -279,6 +280,7 @@ class CommandEndpoint:
                        arrived: float | None = None) -> None:
         """Decode, check and carry out one command; motion that waited too long in the bridge is dropped."""
         message_id = sequence = sender = None  # sender: the client id the request names, for error reports
+        clamped: str | None = None  # what the velocity limits cut, for the sender's notice
         behaviour = route.behaviour
         try:
             if route.spec is not None:
@@ -290,7 +292,7 @@ class CommandEndpoint:
                 sender = pop_generic_sender(body)  # '$client_id' is not a field of the ROS message
                 msg = route.build(body)
             if route.is_velocity:
-                make_safe_twist(msg, route.limits)
+                clamped = make_safe_twist(msg, route.limits)
         except INPUT_REFUSALS as err:
             self.refuse(user, topic, str(err), message_id, sequence, payload=payload)
             return
@@ -343,6 +345,9 @@ class CommandEndpoint:
                     self.refuse(user, topic, why, message_id, sequence, client_id=sender)
             else:
                 self.actuators.publish(user, route, msg)
+                if route.is_velocity and self.clamp_notices.tell((user, route.name), time.monotonic(),
+                                                                 clamped=clamped is not None, standstill=standstill):
+                    self.notify(user, Notice(topic, clamped or "", message_id, sequence, sender))
             if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
                 self._acknowledge_stop(user, message_id, sequence, behaviour.blocks_motion or "stop")
 
@@ -516,6 +521,14 @@ class CommandEndpoint:
         self.link.publish(self.topics.state(self.robot.name, "ack"),
                           encode(Envelope(MessageId.ACK, payload, self.robot.system_id, sequence_number)),
                           qos=ACK_QOS)
+
+    def notify(self, user: str, notice: Notice) -> None:
+        """Tell ``user`` (the program the notice names) that what they sent was carried out, but changed.
+
+        Published after the command reached ROS, so it never delays one; not an error report, because nothing was
+        refused (a client waiting for refusals does not raise for it)."""
+        log.debug("notice to %s about %s: %s", user, notice.topic, notice.notice)
+        self.link.publish(self.topics.notice(self.robot.name, user), notice.to_json(), qos=Notice.QOS)
 
     def refuse(self, user: str, topic: str, reason: str, message_id: int | None = None,
                sequence: int | None = None, *, payload: bytes | None = None, client_id: str | None = None,

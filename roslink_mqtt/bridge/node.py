@@ -22,7 +22,7 @@ from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
 from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
-from ..topics import state_name
+from ..topics import Verb, join_leaf, state_name
 from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
@@ -46,6 +46,7 @@ from .capabilities import (
 from .claim import ANNOUNCE, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
+from .graph_check import GRAPH_CHECK_DELAY, GRAPH_CHECK_PERIOD, SERVICE, TOPIC, Expected, changes, check
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
 from .on_executor import OnExecutor
@@ -195,6 +196,15 @@ class Bridge:
         outbound, routes = compile_rules(robot, self.topics)
         self._flushers: list[Callable[[], None]] = []  # throttled rules flushed by the supervision tick
         self._retained_at = 0.0  # monotonic: the retained description and access reports last went out
+        # the ROS names rules need someone on the other end of (bridge/graph_check.py), resolved as ROS does
+        self._expected = [Expected(o.rule.mqtt_topic, TOPIC, node.resolve_topic_name(o.rule.ros_topic),
+                                   o.rule.ros_type) for o in outbound]
+        self._expected += [Expected(name, SERVICE, node.resolve_service_name(r.rule.ros_topic), r.rule.ros_type)
+                           for name, r in routes.items() if r.is_service]
+        self._expected += [Expected(join_leaf(Verb.CALL, s.name), SERVICE, node.resolve_service_name(s.ros_service),
+                                    s.ros_type) for s in robot.services]
+        self.graph_warnings: dict[str, str] = {}  # entry → why nothing comes (no publisher, no server)
+        self._graph_check_at = time.monotonic() + GRAPH_CHECK_DELAY
         self.link = MqttLink(
             client_id=bridge_client_id(robot.name), username=robot.name, password=password, url=broker_url,
             keepalive=settings.keepalive, will=None, subscriptions=self.mqtt_subscriptions,
@@ -473,8 +483,32 @@ class Bridge:
         """Retained ``state/description``: what this robot maps, with field layouts (bridge/description.py)."""
         from .description import description_message
 
-        topic, body = description_message(self.robot, self.topics)
+        topic, body = description_message(self.robot, self.topics, warnings=self.graph_warnings)
         self.link.publish(topic, body, qos=1, retain=True)
+
+    def check_graph(self) -> None:
+        """Warn about rules whose ROS topic has no publisher or whose ROS service has no server, with the closest
+        name that exists (a typo in robots.yaml otherwise just sends nothing); mark them in the description."""
+        node = self.node
+
+        def has_peer(e: Expected) -> bool:
+            return (node.count_publishers(e.name) if e.kind == TOPIC else node.count_services(e.name)) > 0
+
+        def existing(kind: str) -> list[tuple[str, list[str]]]:
+            if kind == TOPIC:
+                return [(n, t) for n, t in node.get_topic_names_and_types() if node.count_publishers(n) > 0]
+            return [(n, t) for n, t in node.get_service_names_and_types() if node.count_services(n) > 0]
+
+        found = check(self._expected, has_peer, existing)
+        new, cleared = changes(self.graph_warnings, found)
+        for entry, text in new.items():
+            log.warning("%s: the rule for %s %s: nothing goes through it until one appears", self.robot.name, entry,
+                        text)
+        for entry in cleared:
+            log.info("%s: the rule for %s has someone on the other end now", self.robot.name, entry)
+        self.graph_warnings = found
+        if (new or cleared) and self.link.connected.is_set():
+            self.publish_description()
 
     def publish_access(self, cleared: Sequence[str] = ()) -> None:
         """Retained ``to/<user>/access`` for every granted user (bridge/access.py says why); clear ``cleared``."""
@@ -560,6 +594,9 @@ class Bridge:
             self.publish_description()
             self.endpoint.publish_control()
         self.systemd.ping()  # from here: a starved executor stops the pings and systemd restarts us
+        if now >= self._graph_check_at:
+            self._graph_check_at = now + GRAPH_CHECK_PERIOD
+            self.check_graph()
         self.endpoint.supervise(now)
         self.services.expire(now)
         self.provided.expire(now)

@@ -80,17 +80,51 @@ def clamp_components(linear: tuple[float, float, float], angular: tuple[float, f
     return lin, ang, lin != tuple(map(float, linear)) or ang != tuple(map(float, angular))
 
 
-def make_safe_twist(msg: Any, limits: VelocityLimits) -> bool:
-    """Clamp a geometry_msgs Twist (or TwistStamped) in place; True if it was cut.
+def make_safe_twist(msg: Any, limits: VelocityLimits) -> str | None:
+    """Clamp a geometry_msgs Twist (or TwistStamped) in place; what was cut (for the sender), None if nothing was.
 
     Raises UnsafeCommand when any component is NaN or infinite: such a command
     is refused whole, never "repaired".
     """
     twist = msg.twist if hasattr(msg, "twist") else msg
     lin, ang = twist.linear, twist.angular
-    (lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), cut = clamp_components(
-        (lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), limits)
-    return cut
+    asked = ((lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z))
+    (lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), cut = clamp_components(*asked, limits)
+    if not cut:
+        return None
+    sent = ((lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z))
+    how = " per axis" if limits.mode == LIMIT_PER_AXIS else ""
+    parts = [f"{what} speed {math.hypot(*before):.3g} {unit} cut to {math.hypot(*after):.3g} {unit} "
+             f"(limit {limit:g} {unit}{how})"
+             for what, unit, limit, before, after in (("linear", "m/s", limits.linear, asked[0], sent[0]),
+                                                      ("angular", "rad/s", limits.angular, asked[1], sent[1]))
+             if tuple(map(float, before)) != after]
+    return "clamped to the robot's limits: " + "; ".join(parts)
+
+
+class ClampNotices:
+    """Which velocity streams were told that the robot clamps them: the first clamped twist of a stream is, the
+    others are not (a 10 Hz stream over the limit is one notice, not ten a second).
+
+    A stream is one sender's commands on one velocity input; it ends with a zero twist, or with a pause longer than
+    ``pause`` (the dead-man's ``command_timeout``: after it the robot has stopped anyway). Pure logic: the endpoint
+    calls :meth:`tell` for every velocity command it carries out, under its lock.
+    """
+
+    def __init__(self, pause: float) -> None:
+        self.pause = pause
+        self._streams: dict[tuple[str, str], float] = {}  # (user, input) → last twist of a stream already told
+
+    def tell(self, stream: tuple[str, str], now: float, *, clamped: bool, standstill: bool) -> bool:
+        """Whether this twist's clamping is news to its sender (bounded: one entry per user and velocity input)."""
+        last = self._streams.get(stream)
+        if standstill:
+            self._streams.pop(stream, None)
+            return False
+        told = last is not None and now - last <= self.pause
+        if told or clamped:
+            self._streams[stream] = now
+        return clamped and not told
 
 
 def is_standstill(msg: Any) -> bool:

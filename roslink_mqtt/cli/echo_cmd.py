@@ -20,13 +20,14 @@ import math
 import queue
 import sys
 import time
-from typing import Any
+from typing import Any, cast
 
 import orjson
 
 from ..client import RobotClient, RoslinkError, RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
+from ..protocol.description import RobotDescription
 from ..protocol.messages import Direction
 from ..topics import Kind, TopicError, TopicTree, check_filter_path, check_name, state_name, trimmed
 from .connect import add_connection_options, open_client
@@ -190,25 +191,40 @@ def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, st
                               f"granted to you?)")
     names = census(client, robot)
     spec = SPECS_BY_NAME.get(name)
+    described = _description(client, robot)
+    entry = described.state_entry(name) if described is not None else None
     if "#" in name or "+" in name:
         kind = ""
     elif name == "ack":
         kind = " (acks come only when something happens: a failsafe stop, a command a ROS service carried out)"
+    elif entry is not None and entry.warning:  # the bridge checked its ROS graph: nobody publishes there
+        kind = f" (the rule for {name} {entry.warning})"
+    elif entry is not None:
+        kind = (f" (a rule of the robot publishes it, from {entry.ros_type or 'ROS'}, but nothing came on its ROS "
+                f"topic while we listened)")
+    elif described is not None:  # it says it maps no such state (a name it has would not get here)
+        kind = " (this robot has no rule that publishes it)"
     elif spec is not None and spec.direction is Direction.STATE:
-        kind = " (a ROSLink state, but this robot has no rule that publishes it)"
+        kind = " (a ROSLink state; the robot publishes no description, so whether a rule maps it is not known)"
     else:
         kind = " (not a ROSLink state name: only a generic rule of the robot could publish it)"
     published = ", ".join(names) if names else "no state at all"
     return EXIT_NOTHING, f"{robot} is online but sent nothing on state/{name}{kind}; it publishes: {published}"
 
 
+def _description(client: RobotClient, robot: str) -> RobotDescription | None:
+    """The robot's retained description, None when there is none to read (a robot never seen, an older bridge)."""
+    try:
+        return cast(RobotDescription, client.description(robot, DESCRIPTION_WAIT))
+    except RoslinkError:
+        return None
+
+
 def _unknown(client: RobotClient, robot: str, name: str) -> str | None:
     """Why ``robot`` never sends ``state/<name>`` (with "did you mean"), from its retained description; None when
     it may (or when there is no description to tell: a robot never seen, an older bridge)."""
-    try:
-        return client.description(robot, DESCRIPTION_WAIT).unknown_state(name)
-    except RoslinkError:
-        return None
+    described = _description(client, robot)
+    return None if described is None else described.unknown_state(name)
 
 
 def run(args: argparse.Namespace) -> int:

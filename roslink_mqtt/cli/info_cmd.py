@@ -116,14 +116,17 @@ def summary(d: RobotDescription, report: AccessReport | None, user: str, *, type
         extra += ["retained"] if s.retained else []
         extra += [f"fields {', '.join(s.fields)}"] if s.fields else []
         out.append(f"  {s.name:<22} {_carries(s.message, s.ros_type):<54} {', '.join(extra)}".rstrip())
+        out += [f"    ! the rule {s.warning}"] if s.warning else []
     out += ["", "commands (operators):" if all(c.who == "operators" for c in d.commands) else "commands:"]
     for c in d.commands:
         extra = [f"limits {_limits(c.limits)}"] if c.limits else []
         extra += ["on demand"] if c.on_demand else []
         out.append(f"  {c.name:<22} {_carries(c.message, c.ros_type):<54} {c.who:<9} {', '.join(extra)}".rstrip()
                    + mark("command", c.name))
-    out += ["", "services:"] + ([f"  {s.name:<22} {s.ros_type:<54} {s.who:<9} timeout {_num(s.timeout)} s"
-                                 + mark("service", s.name) for s in d.services] or ["  none"])
+        out += [f"    ! the rule {c.warning}"] if c.warning else []
+    out += ["", "services:"] + ([line for s in d.services for line in (
+        f"  {s.name:<22} {s.ros_type:<54} {s.who:<9} timeout {_num(s.timeout)} s" + mark("service", s.name),
+        *([f"    ! the rule {s.warning}"] if s.warning else []))] or ["  none"])
     out += ["", "actions:"] + ([f"  {a.name:<22} {a.ros_type:<54} {a.who:<9} timeout {_num(a.timeout)} s, "
                                 f"feedback ≤ {_num(a.feedback_rate)} Hz" + mark("action", a.name)
                                 for a in d.actions] or ["  none"])

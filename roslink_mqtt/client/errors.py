@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..protocol import ProtocolError
-from ..protocol.control import ErrorReport
+from ..protocol.control import ErrorReport, Notice
 from ..protocol.errors import RoslinkError
 
 
@@ -110,6 +110,31 @@ class RobotError:
             return cls(robot, "", f"malformed error report: {err}")
         return cls(robot, report.topic, report.error, report.message_id, report.sequence_number, report.client_id,
                    report.id)
+
+
+@dataclass(frozen=True, slots=True)
+class RobotNotice:
+    """One message from ``to/<user>/notice``: the robot carried out something we sent, but not as sent.
+
+    Today that is a twist clamped to the robot's velocity limits, said once per stream (its first clamped twist).
+    Not an error: nothing was refused, and ``check=`` does not raise for it.
+    """
+
+    robot: str
+    topic: str  # what we published to
+    notice: str  # what the robot changed, and why
+    message_id: int | None = None
+    sequence_number: int | None = None
+    client_id: str | None = None
+
+    @classmethod
+    def from_json(cls, robot: str, payload: bytes) -> RobotNotice:
+        """A notice from ``robot``; a malformed one is still shown, as what it is."""
+        try:
+            body = Notice.from_json(payload)
+        except ProtocolError as err:
+            return cls(robot, "", f"malformed notice: {err}")
+        return cls(robot, body.topic, body.notice, body.message_id, body.sequence_number, body.client_id)
 
 
 class GoalError(RoslinkError):

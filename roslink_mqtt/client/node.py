@@ -120,8 +120,9 @@ class Subscription:
     """Delivers ``<prefix>/<robot>/state/<topic>`` to a callback during spin.
 
     With a type name (``"nav_msgs/msg/Odometry"``) the callback gets the
-    message as a dict — the ROSLink payload for preset topics, the ROS message
-    for generic rules. With a ROSLink message class (``GlobalMotion``) it gets
+    message as a dict — the ROSLink payload for preset topics (``msg["x"]``,
+    whatever type is named: the name reshapes nothing), the ROS message for
+    generic rules. With a ROSLink message class (``GlobalMotion``) it gets
     the typed object. A rule with ``encoding: cbor`` or ``raw`` gives the dict
     :mod:`.encodings` describes (bytes and arrays kept binary; a raw image as
     ``{"format", "data"}``), told from the payload unless ``encoding`` is given.
@@ -318,6 +319,15 @@ class Node:
                             qos_profile: Any = 10, *, encoding: str | None = None,
                             **_rclpy_options: Any) -> Subscription:
         """``topic`` under ``state/``: ``"state/global_motion"`` or ``"global_motion"``.
+
+        What the callback gets is decided by the robot's rule for ``topic``, not by a type *name*: a preset topic
+        delivers its ROSLink payload as a dict, so ``create_subscription("nav_msgs/msg/Odometry",
+        "state/global_motion", cb)`` gets ``{"x": …, "y": …, "yaw": …, "vx": …}`` (``msg["x"]``), not an
+        Odometry-shaped message (``msg.pose.pose.position.x`` fails); a generic rule delivers the ROS message
+        of its ``ros_type`` as a dict (``msg["pose"]["pose"]["position"]["x"]``). The SDK reshapes nothing on
+        the way in (on the way out, ``create_publisher`` does take ROS-shaped twists and poses). For typed
+        objects pass a ROSLink class (``GlobalMotion``); for the full ROS message of a preset topic add a
+        generic rule of that type to robots.yaml.
 
         ``encoding`` (``json``, ``cbor``, ``raw``: the rule's) is told from each payload when not given.
         """

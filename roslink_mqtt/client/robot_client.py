@@ -61,6 +61,7 @@ from .errors import (
     LoginRefused,
     NotConnectedError,
     RobotError,
+    RobotNotice,
     RoslinkError,
     ServiceError,
     WaitTimeout,
@@ -110,6 +111,9 @@ class RobotClient:
         # Reports about other programs of this user are ignored, unless a dashboard asks for every one of them.
         self.all_errors = False
         self.recent_errors: collections.deque[RobotError] = collections.deque(maxlen=100)
+        # what robots carried out, but changed (a clamped twist): handed to on_notice, or logged as a warning
+        self.on_notice: Callable[[RobotNotice], None] | None = None
+        self.recent_notices: collections.deque[RobotNotice] = collections.deque(maxlen=100)
         self.directory = RobotDirectory(stale_after)
         self.callbacks = callbacks or CallbackQueue()
         self._dispatcher = None if callbacks is not None else DispatchThread(self.callbacks, f"{self.client_id}-cb")
@@ -674,6 +678,8 @@ class RobotClient:
                 log.debug("%s: ignoring an error report for %s: %s", self.client_id, error.client_id, error.error)
                 return  # another program of the same user sent what was refused
             self._on_error(robot, error)
+        elif verb is Verb.NOTICE:
+            self._on_notice(robot, RobotNotice.from_json(robot, payload))
         elif verb is Verb.ACCESS:
             self._on_access(robot, payload)
         elif verb is Verb.GOAL_STATUS:
@@ -762,6 +768,17 @@ class RobotClient:
         for sub in subscriptions:
             sub.fail(failure)
         self._on_error("", RobotError("", "", str(failure), client_id=self.client_id))
+
+    def _on_notice(self, robot: str, notice: RobotNotice) -> None:
+        """Something we sent was carried out, but changed (network thread): ``on_notice``, or a warning."""
+        if notice.client_id is not None and notice.client_id != self.client_id and not self.all_errors:
+            return  # another program of the same user sent it
+        self.recent_notices.append(notice)
+        callback = self.on_notice
+        if callback is not None:
+            self.callbacks.put(lambda: callback(notice))
+        else:  # the robot says it once per stream: no flood to hold back
+            log.warning("%s: %s: %s", robot, notice.topic, notice.notice)
 
     def _on_error(self, robot: str, error: RobotError) -> None:
         """A refusal meant for us: wake a ``check=`` waiter, mark an offer, hand it to ``on_error`` or log it."""

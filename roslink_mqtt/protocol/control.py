@@ -10,13 +10,16 @@ place. Bodies the bridge reads are strict (unknown fields refused, except in a
 provider response); bodies a client reads are lenient (unknown fields ignored) so
 the bridge may grow them.
 
-Two more travel on a user's own ``to/<user>/…`` topics:
+Three more travel on a user's own ``to/<user>/…`` topics:
 
 * :class:`ErrorReport` on ``to/<user>/error``: one refused input. Every program of a
   user reads that topic (MQTT does not tell the bridge which connection published),
   so a request may name its sender with ``client_id`` and the report repeats it:
   each program shows only its own reports, and reports without an id (the sender
   did not say) to everyone, since they could be anyone's.
+* :class:`Notice` on ``to/<user>/notice``: something the user sent was carried out, but not
+  as sent (a twist clamped to the robot's limits). Not an error: a client that waits for
+  refusals does not raise for it. Addressed to the sender like an error report.
 * :class:`AccessReport`, retained on ``to/<user>/access``: what this user may do on
   the robot. A broker drops a denied PUBLISH silently (MQTT 3.1.1 has no negative
   PUBACK), so without it a viewer's command or call just vanishes. The bridge reads
@@ -155,6 +158,42 @@ class ErrorReport:
         """The same check on a body already decoded, or on the payload itself."""
         return cls(**read(cls.FIELDS, body, shape="error report: expected a JSON object", strict=False,
                           what="error report"))
+
+
+@dataclass(frozen=True, slots=True)
+class Notice:
+    """Something the user sent was carried out, but changed on the way (``to/<user>/notice``); not a refusal."""
+
+    topic: str
+    notice: str
+    message_id: int | None = None
+    sequence_number: int | None = None
+    client_id: str | None = None
+
+    FIELDS = (
+        BodyField("topic", Text(), True, "the topic the input was published to"),
+        BodyField("notice", Text(), True, "what the robot changed, and why (a twist clamped to its limits: sent "
+                                          "for the first clamped twist of a stream only)"),
+        BodyField("message_id", Integer(), False, "copied from the ROSLink message, when it had one", None),
+        BodyField("sequence_number", Integer(), False, "copied from the ROSLink message, when it had one", None),
+        BodyField("client_id", SENDER, False, "the sender's id, when the input named one (as in error reports)",
+                  None),
+    )
+    QOS = 1
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {"topic": self.topic, "notice": self.notice}
+        if self.message_id is not None:
+            body["message_id"] = int(self.message_id)
+        if self.sequence_number is not None:
+            body["sequence_number"] = self.sequence_number
+        return _dump(body, self.client_id)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> Notice:
+        return cls(**read(cls.FIELDS, data, shape="notice: expected a JSON object", strict=False,
+                          what="notice"))
 
 
 def error_reply(topic: str, reason: str, *, message_id: int | None = None,
@@ -487,5 +526,6 @@ CONTROL_BODIES: tuple[tuple[str, str, type], ...] = (
     ("provider response", f"`{_DOC.response(_R, _U, '<service>')}`", ProviderResponse),
     ("advertisement", f"`{_DOC.advertise(_R, _U, '<name>')}` (an empty retained message withdraws)", Advertisement),
     ("error report", f"`{_DOC.error(_R, _U)}`", ErrorReport),
+    ("notice", f"`{_DOC.notice(_R, _U)}`", Notice),
     ("access report", f"`{_DOC.access(_R, _U)}`", AccessReport),
 )

@@ -115,11 +115,12 @@ class StateEntry:
     fields: dict[str, str] = field(default_factory=dict)  # generic rules that select fields: MQTT → ROS path
     who: str = VIEWERS  # everyone granted the robot reads state
     encoding: str | None = None  # generic rules: "cbor" or "raw" (docs/protocol.md, "State encodings"); None: JSON
+    warning: str | None = None  # why it may send nothing: its ROS topic has no publisher (the bridge checks)
 
     def to_body(self) -> dict[str, Any]:
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
-                            "who": self.who, "encoding": self.encoding})
+                            "who": self.who, "encoding": self.encoding, "warning": self.warning})
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> StateEntry:
@@ -128,7 +129,7 @@ class StateEntry:
         return cls(_str(body, "name", path), _str(body, "message", path, required=False),
                    _str(body, "ros_type", path, required=False), _bool(body, "retained", path),
                    _num(body, "max_rate", path), _fields(body, path), _who(body, path, VIEWERS),
-                   _encoding(body, path))
+                   _encoding(body, path), _str(body, "warning", path, required=False))
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,11 +143,12 @@ class CommandEntry:
     fields: dict[str, str] = field(default_factory=dict)
     limits: dict[str, Any] = field(default_factory=dict)  # velocity inputs: the limits the bridge clamps to
     who: str = OPERATORS
+    warning: str | None = None  # why it may fail: the ROS service it calls has no server (the bridge checks)
 
     def to_body(self) -> dict[str, Any]:
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "on_demand": self.on_demand, "fields": self.fields, "limits": self.limits,
-                            "who": self.who})
+                            "who": self.who, "warning": self.warning})
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> CommandEntry:
@@ -157,7 +159,8 @@ class CommandEntry:
             raise _where(f"{path}.limits", "an object", limits)
         return cls(_str(body, "name", path), _str(body, "message", path, required=False),
                    _str(body, "ros_type", path, required=False), _bool(body, "on_demand", path),
-                   _fields(body, path), limits, _who(body, path, OPERATORS))
+                   _fields(body, path), limits, _who(body, path, OPERATORS),
+                   _str(body, "warning", path, required=False))
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,17 +172,20 @@ class ServiceEntry:
     read_only: bool = False
     timeout: float | None = None  # s the bridge waits for the ROS service
     who: str = OPERATORS
+    warning: str | None = None  # why calls may fail: the ROS service has no server (the bridge checks)
 
     def to_body(self) -> dict[str, Any]:
-        return {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
+        body = {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
                 "who": self.who}
+        return body if self.warning is None else {**body, "warning": self.warning}
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ServiceEntry:
         if not isinstance(body, dict):
             raise _where(path, "an object", body)
         return cls(_str(body, "name", path), _str(body, "ros_type", path), _bool(body, "read_only", path),
-                   _num(body, "timeout", path), _who(body, path, OPERATORS))
+                   _num(body, "timeout", path), _who(body, path, OPERATORS),
+                   _str(body, "warning", path, required=False))
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,16 +271,22 @@ class RobotDescription:
                                                      "that message as JSON), optional `retained`, `max_rate` "
                                                      "(Hz), `fields` (MQTT field → ROS field path), `encoding` "
                                                      "(`cbor` or `raw`, see \"State encodings\"; left out for "
-                                                     "JSON), and `who`: `viewers`. Includes the bridge's own "
-                                                     "`ack`", ()),
+                                                     "JSON), `who`: `viewers`, and `warning` while its ROS "
+                                                     "topic has no publisher (the bridge checks a few seconds "
+                                                     "after it starts, then every few seconds: `reads ROS topic "
+                                                     "/odm, which has no publisher (did you mean /odom?)`). "
+                                                     "Includes the "
+                                                     "bridge's own `ack`", ()),
         BodyField("commands", Objects(), True, "what the robot takes on `from/<user>/<name>`: `name` "
                                                         "(`cmd/twist`, a generic rule's `lights`), `message` "
                                                         "(ROSLink command) or the ROS JSON of `ros_type`, optional "
                                                         "`on_demand`, `fields`, `limits` (velocity inputs: what "
-                                                        "the bridge clamps to), and `who`: `operators`", ()),
+                                                        "the bridge clamps to), `who`: `operators`, and `warning` "
+                                                        "while the ROS service a command calls has no server", ()),
         BodyField("services", Objects(), True, "ROS services to `call/<name>`: `name`, `ros_type`, "
                                                         "`read_only`, `timeout` (s), `who` (`viewers` when "
-                                                        "read-only, else `operators`)", ()),
+                                                        "read-only, else `operators`), and `warning` while the "
+                                                        "ROS service has no server", ()),
         BodyField("actions", Objects(), True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
                                                        "`viewers`, `timeout` (s), `feedback_rate` (Hz), `who` "
                                                        "(`viewers` when open to viewers, else `operators`)", ()),
@@ -306,6 +318,10 @@ class RobotDescription:
         hint = f"; did you mean {' or '.join(close)}?" if close else "."
         return (f"{self.robot} publishes no state/{name}{hint} It publishes: "
                 f"{', '.join(sorted(e.name for e in self.state))} (and the bridge's {', '.join(BRIDGE_STATES)})")
+
+    def state_entry(self, name: str) -> StateEntry | None:
+        """The entry of ``state/<name>``, None when no rule of the robot publishes it."""
+        return next((e for e in self.state if e.name == name), None)
 
     def to_json(self) -> bytes:
         return orjson.dumps({

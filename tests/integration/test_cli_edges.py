@@ -355,3 +355,54 @@ def test_clean_ctrl_c_of_the_bridge_is_not_a_lost_broker(tmp_path) -> None:
     assert "disconnected from" in text and "(shutting down)" in text, text
     assert "stop of turtle1: the bridge is shutting down" in text
     assert " WARNING " not in text, text
+
+
+# -- pub: clamping is said, the ROS shape is taken (issue 30 item 8) ---------------------------------------------
+
+def test_pub_says_the_robot_clamped_the_twist(stack) -> None:
+    """lx 50 against turtle1's 0.5 m/s limit: the robot drives at 0.5 and says so, to the sender, once per stream."""
+    port, _log = stack
+    once = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 50}')
+    assert once.returncode == 0, once.stdout + once.stderr
+    assert "sent 1 × twist" in once.stdout
+    assert "clamped" in once.stdout and "0.5 m/s" in once.stdout, once.stdout
+    stream = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 50}', "--rate", "10", "--duration", "1")
+    assert stream.returncode == 0, stream.stdout + stream.stderr
+    assert stream.stdout.count("clamped") == 1, stream.stdout  # the first twist of the stream, not all ten
+    within = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.3}')
+    assert within.returncode == 0 and "clamped" not in within.stdout, within.stdout
+
+
+def test_pub_takes_the_ros_twist_shape(stack) -> None:
+    """The rclpy-shaped SDK accepts {"linear": {"x": …}}; so does pub (the same converter)."""
+    port, _log = stack
+    out = cli(port, "alice", "pub", "turtle1", "twist", '{"linear": {"x": 0.2}, "angular": {"z": 0.1}}')
+    assert out.returncode == 0 and "sent 1 × twist" in out.stdout, out.stdout + out.stderr
+    fast = cli(port, "alice", "pub", "turtle1", "twist", '{"linear": {"x": 9}}')
+    assert fast.returncode == 0 and "clamped" in fast.stdout, fast.stdout + fast.stderr
+
+
+# -- a ROS name typo in a rule is said, by the bridge and by echo (issue 30 item 9) ------------------------------
+
+def test_a_ros_name_typo_is_warned_about_and_echo_says_what_is_true(tmp_path) -> None:
+    """`ros_topic: odm` used to pass silently: the bridge logged nothing and echo said "no rule publishes it"."""
+    demo = (ROOT / "config" / "robots.yaml").read_text()
+    assert "ros_topic: odom," in demo and "ros_service: reset\n" in demo
+    fleet = tmp_path / "typo.yaml"
+    fleet.write_text(demo.replace("ros_topic: odom,", "ros_topic: odm,").replace("ros_service: reset\n",
+                                                                                  "ros_service: resett\n"))
+    with turtle1_online(tmp_path, fleet=fleet) as port:
+        log = tmp_path / "bridge.log"
+        lines = _wait_line(log, 0, "the rule for call/reset", timeout=15)
+        assert any("the rule for state/global_motion reads ROS topic /odm, which has no publisher "
+                   "(did you mean /odom?)" in line and " WARNING " in line for line in lines), lines
+        assert any("calls ROS service /resett, which has no server (did you mean /reset?)" in line
+                   for line in lines), lines
+        assert not any("state/robot_status reads" in line for line in lines), lines  # its topic is published
+        out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "1")
+        assert out.returncode == echo_cmd.EXIT_NOTHING, out.stdout + out.stderr
+        assert ("the rule for global_motion reads ROS topic /odm, which has no publisher (did you mean /odom?)"
+                in out.stderr), out.stderr
+        assert "no rule" not in out.stderr
+        info = cli(port, "bob", "info", "turtle1")
+        assert info.returncode == 0 and "/odm, which has no publisher" in info.stdout, info.stdout + info.stderr

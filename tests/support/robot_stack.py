@@ -15,16 +15,19 @@ BROKERS = ("embedded", "mosquitto")
 
 
 @contextmanager
-def turtle1_online(work: Path, broker: str = "embedded") -> Iterator[int]:
+def turtle1_online(work: Path, broker: str = "embedded", *, fleet: Path | None = None) -> Iterator[int]:
     """Yield the broker's port once turtle1's bridge reports itself active (retained heartbeat, status 4).
 
-    ``broker``: ``embedded`` (the demo fleet file as it is) or ``mosquitto`` (Mosquitto running exactly what
-    ``roslink-mqtt acl export`` writes for a copy of the demo fleet: the deployed configuration).
+    ``broker``: ``embedded`` (the demo fleet file as it is, or ``fleet``: a variant of it) or ``mosquitto``
+    (Mosquitto running exactly what ``roslink-mqtt acl export`` writes for a copy of the demo fleet: the deployed
+    configuration).
     """
     if broker == "mosquitto":
         fleet = write_fleet(work, read_only_service=False)
         server = ExportedMosquitto(work, fleet)
         extra = {"config": fleet}
+    elif broker == "embedded" and fleet is not None:
+        server, extra = EmbeddedBrokerProcess(work, fleet), {"config": fleet}
     elif broker == "embedded":
         server, extra = EmbeddedBrokerProcess(work), {}
     else:

@@ -29,7 +29,7 @@ from roslink_mqtt.bridge.routes import Inbound
 from roslink_mqtt.config import load_fleet
 from roslink_mqtt.presence import operator_heartbeat, operator_signoff
 from roslink_mqtt.protocol import SPECS_BY_NAME, AckResult, decode, encode_message
-from roslink_mqtt.protocol.control import CallRequest, ErrorReport
+from roslink_mqtt.protocol.control import CallRequest, ErrorReport, Notice
 from roslink_mqtt.topics import Verb
 from tests.support.no_ros import no_ros_env
 from tests.support.procs import CONFIG, ROOT
@@ -119,6 +119,9 @@ class RecordingLink:
 
     def errors(self, user: str) -> list[ErrorReport]:
         return [ErrorReport.from_json(p.payload) for p in self.sent if p.topic == T.error("turtle1", user)]
+
+    def notices(self, user: str) -> list[Notice]:
+        return [Notice.from_json(p.payload) for p in self.sent if p.topic == T.notice("turtle1", user)]
 
     def acks(self) -> list[dict]:
         return [decode(p.payload).payload for p in self.sent if p.topic == T.state("turtle1", "ack")]
@@ -221,6 +224,29 @@ def test_a_twist_from_a_live_operator_reaches_ros_clamped(h: Harness) -> None:
     h.command("twist", {"lx": 99.0})  # over the 0.5 m/s limit: clamped, never refused
     assert h.twists() == [(0.2, 0.3), (ROBOT.bridge.limits.linear, 0.0)]
     assert h.link.errors("alice") == [] and h.endpoint.lease.holder == "alice"
+
+
+def test_a_clamped_stream_is_told_once_to_its_sender(h: Harness, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Clamping is no error (nothing refused), but the sender hears of it: once per stream, on to/<user>/notice."""
+    clock = [100.0]
+    monkeypatch.setattr(time, "monotonic", lambda: clock[0])
+    h.present()
+    first = h.command("twist", {"lx": 50.0})
+    for _ in range(5):  # the same stream at 10 Hz: already told
+        clock[0] += 0.1
+        h.command("twist", {"lx": 50.0})
+    [notice] = h.link.notices("alice")
+    assert (notice.topic, notice.sequence_number, notice.client_id) == (T.command("turtle1", "alice", "twist"),
+                                                                       first, "alice-prog")
+    assert "clamped" in notice.notice and "50 m/s cut to 0.5 m/s" in notice.notice
+    assert h.link.errors("alice") == []
+    clock[0] += 0.1
+    h.command("twist", {})  # a zero twist ends the stream; the next one is told again
+    h.command("twist", {"az": 9.0})
+    clock[0] += ROBOT.bridge.command_timeout + 0.5  # so does a pause longer than the dead-man's
+    h.command("twist", {"lx": 0.9})
+    assert ["angular speed 9 rad/s" in n.notice for n in h.link.notices("alice")] == [False, True, False]
+    assert len(h.link.notices("alice")) == 3
 
 
 def test_a_generic_rule_carries_ros_json(h: Harness) -> None:

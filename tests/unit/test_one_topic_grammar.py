@@ -36,8 +36,8 @@ OWNERS = {  # the modules whose job is "/" handling, and why
 }
 SLASHY_METHODS = {"split", "rsplit", "partition", "rpartition", "removeprefix", "removesuffix", "startswith",
                   "endswith", "count", "strip", "lstrip", "rstrip", "find", "rfind", "index", "rindex", "replace"}
-VERB_WORDS = ("cmd", "call", "reply", "provide", "request", "response", "advertise", "error", "access", "goal",
-              "cancel", "feedback", "result", "param", "log", "declare", "control")
+VERB_WORDS = ("cmd", "call", "reply", "provide", "request", "response", "advertise", "error", "notice", "access",
+              "goal", "cancel", "feedback", "result", "param", "log", "declare", "control")
 TREE_WORDS = frozenset(("roslink", "state", "from", "to", "heartbeat", "operators") + VERB_WORDS)
 LEVELS = "|".join(sorted(TREE_WORDS))
 # a level of the tree joined to another by "/" (prose such as "on state/ack" is words, not a topic being built)

@@ -37,3 +37,18 @@ def test_every_node_method_in_the_mapping_table() -> None:
                  "call_async"):
         assert hasattr(sdk.Node, name) or hasattr(sdk, name) or hasattr(sdk.Client, name), name
         assert f"{name}" in text, f"docs/sdk.md does not mention {name}"
+
+
+def test_a_subscriptions_shape_is_said_where_it_is_used() -> None:
+    """Issue 30 item 10: create_subscription("nav_msgs/msg/Odometry", "state/global_motion", …) delivers the ROSLink
+    dict (msg["x"]; tests/integration/test_sdk.py shows it on a live robot), not an Odometry-shaped message: the
+    docstring and docs/sdk.md's table must say so, where an rclpy user would read the opposite into the type name."""
+    import inspect
+
+    doc = inspect.getdoc(sdk.Node.create_subscription) or ""
+    assert 'msg["x"]' in doc and "not an\nOdometry-shaped message" in doc, doc
+    assert "reshapes nothing" in (inspect.getdoc(sdk.Subscription) or "")
+    row = next(line for line in (ROOT / "docs" / "sdk.md").read_text().splitlines()
+               if line.startswith("| `create_subscription("))
+    assert "The robot's rule decides the shape, not the type name" in row and '`msg["x"]`' in row, row
+    assert "not an Odometry" in row

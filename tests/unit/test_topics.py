@@ -50,6 +50,7 @@ def test_build_and_parse_every_topic(tree: TopicTree) -> None:
          "turtle1", "alice", Verb.ADVERTISE, "lights"),
         (tree.error("turtle1", "bob"), f"{p}/turtle1/to/bob/error", Kind.TO, "turtle1", "bob", Verb.ERROR, ""),
         (tree.access("turtle1", "bob"), f"{p}/turtle1/to/bob/access", Kind.TO, "turtle1", "bob", Verb.ACCESS, ""),
+        (tree.notice("turtle1", "bob"), f"{p}/turtle1/to/bob/notice", Kind.TO, "turtle1", "bob", Verb.NOTICE, ""),
         # a generic rule's input has no verb: its whole leaf is the rule's name
         (tree.from_user("turtle1", "alice", "lights"), f"{p}/turtle1/from/alice/lights", Kind.FROM, "turtle1",
          "alice", None, "lights"),
@@ -70,7 +71,7 @@ def test_build_and_parse_every_topic(tree: TopicTree) -> None:
 
 def test_verbs_belong_to_one_direction() -> None:
     assert USER_VERBS | ROBOT_VERBS == set(Verb) and not USER_VERBS & ROBOT_VERBS
-    assert {v for v in Verb if not v.named} == {Verb.ERROR, Verb.ACCESS}
+    assert {v for v in Verb if not v.named} == {Verb.ERROR, Verb.NOTICE, Verb.ACCESS}
     assert {v for v in USER_VERBS if v.retained_by_sender} == {Verb.PROVIDE, Verb.ADVERTISE, Verb.PROVIDE_ACTION,
                                                               Verb.DECLARE}
     # a robot's verb under from/ (or a user's under to/) is no verb: "reply" would be a generic rule's name

@@ -453,6 +453,10 @@
       presenceIfNeeded(robot);
       if (dash.selected === name) buildControls(robot);
       updateRow(robot, performance.now());
+    } else if (kind === "notice") {  // carried out, but changed (a twist clamped to the robot's limits)
+      const n = read("notice", payload);
+      if (!n || (n.client_id && n.client_id !== dash.clientId)) return;
+      notice(`${name}: ${n.notice}`);
     } else if (kind === "error") {
       const e = read("error_report", payload);
       if (!e) { addLog(ui.errors, `${name}: unreadable error report`); return; }

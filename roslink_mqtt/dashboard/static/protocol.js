@@ -756,6 +756,56 @@ const ROSLINK = {
         }
       }
     ],
+    "notice": [
+      {
+        "name": "topic",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 0
+        }
+      },
+      {
+        "name": "notice",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 0
+        }
+      },
+      {
+        "default": null,
+        "name": "message_id",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": null
+        }
+      },
+      {
+        "default": null,
+        "name": "sequence_number",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": null
+        }
+      },
+      {
+        "default": null,
+        "name": "client_id",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": 128,
+          "min": 1
+        }
+      }
+    ],
     "parameter_event": [
       {
         "name": "node",
@@ -1298,6 +1348,10 @@ const ROSLINK = {
       "log": {
         "named": true,
         "sent_by_user": true
+      },
+      "notice": {
+        "named": false,
+        "sent_by_user": false
       },
       "param": {
         "named": true,
