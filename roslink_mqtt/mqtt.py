@@ -19,6 +19,70 @@ import paho.mqtt.client as mqtt
 
 DEFAULT_PORTS = {"mqtt": 1883, "mqtts": 8883, "ws": 8083, "wss": 8084}
 
+# -- what a person is told when a broker will not have us (CLI, SDK, bridge log and, generated, the dashboard) --
+WRONG_LOGIN = "wrong username or password"
+# MQTT 3.1.1 CONNACK return codes. 5 ("not authorized") is what the embedded broker and Mosquitto answer to a wrong
+# password and to an unknown username alike (never saying which: that would tell a guesser which logins exist).
+CONNACK_REFUSALS = {
+    1: "the broker does not accept this MQTT protocol version",
+    2: "the broker rejected the client id",
+    3: "the broker is unavailable",
+    4: WRONG_LOGIN,
+    5: WRONG_LOGIN,
+}
+LOGIN_REFUSALS = frozenset({4, 5})  # the login itself was refused: retrying the same password cannot help
+_PAHO_REASONS = {132: 1, 133: 2, 136: 3, 134: 4, 135: 5}  # paho reports 3.1.1 return codes as MQTT 5 reason codes
+# How long a client waits for the broker's CONNACK. Longer than the embedded broker's login throttle may hold an
+# answer (LoginThrottle.max_wait, 10 s, after failed logins from the same address), so that a slowed-down but
+# valid verdict ("wrong username or password", or success) is heard instead of a timeout.
+LOGIN_WAIT = 12.0
+
+
+def connack_code(reason: Any) -> int | None:
+    """The MQTT 3.1.1 return code of a refused CONNACK: a paho ReasonCode, its value or the 3.1.1 code itself."""
+    value = getattr(reason, "value", reason)
+    if not isinstance(value, int):
+        return None
+    return value if value in CONNACK_REFUSALS else _PAHO_REASONS.get(value)
+
+
+def connack_refusal(reason: Any) -> str:
+    """Why the broker refused the CONNECT, in the words every roslink-mqtt program uses."""
+    code = connack_code(reason)
+    return CONNACK_REFUSALS[code] if code is not None else str(reason)
+
+
+def login_refused(reason: Any) -> bool:
+    """The broker refused the login itself (CONNACK 4 or 5): a wrong password, an unknown or barred user."""
+    return connack_code(reason) in LOGIN_REFUSALS
+
+
+def speaks_tls(host: str, port: int, timeout: float = 2.0) -> bool:
+    """Does ``host:port`` complete a TLS handshake? Asked when a plain ``mqtt://`` CONNECT was met with a closed
+    connection: a TLS listener reads our CONNECT as a broken handshake and hangs up without a word."""
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE  # only whether it speaks TLS; nothing is sent over it
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as raw, \
+                context.wrap_socket(raw, server_hostname=host):
+            return True
+    except (OSError, ValueError):  # ssl.SSLError is an OSError
+        return False
+
+
+def tls_hint(url: BrokerUrl) -> str:
+    """What to say when :func:`speaks_tls` found TLS behind a plain ``mqtt://`` (or ``ws://``) URL."""
+    secure = BrokerUrl("wss" if url.transport == "websockets" else "mqtts", url.host, url.port, url.path)
+    return f"this port speaks TLS: use {secure}"
+
+
+def closed_before_connack(url: BrokerUrl) -> str:
+    """The reason for a broker that closed the connection without answering our CONNECT (probed first for TLS)."""
+    if not url.tls and speaks_tls(url.host, url.port):
+        return tls_hint(url)
+    return "the server closed the connection without answering the MQTT CONNECT (is this an MQTT port?)"
+
 
 @dataclass(frozen=True, slots=True)
 class BrokerUrl:

@@ -119,7 +119,9 @@ client.on('connect', () => {
 
 client.on('error', (err) => {
   if (exiting) return;
-  console.error(client.connected ? `MQTT error: ${err.message}` : `cannot connect to ${opts.url} as ${user}: ${err.message}`);
+  // CONNACK 4 and 5: what roslink-mqtt's CLI, SDK and dashboard say too
+  const why = err.code === 4 || err.code === 5 ? 'wrong username or password' : err.message;
+  console.error(client.connected ? `MQTT error: ${why}` : `cannot connect to ${opts.url} as ${user}: ${why}`);
   finish(1);
 });
 client.on('close', () => {

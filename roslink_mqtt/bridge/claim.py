@@ -53,6 +53,9 @@ log = logging.getLogger("roslink_mqtt.bridge.claim")
 
 EXIT_DUPLICATE = 3  # another live bridge has the robot: refused at start (systemd: RestartPreventExitStatus)
 EXIT_FENCED = 4  # this bridge stopped its robot and left: taken over, or a duplicate that lost to an older one
+# The broker refused the robot's login and robots.yaml's bridge.exit_on_refused_login says to exit then (systemd:
+# RestartPreventExitStatus; a restart would only be refused again). Here with its siblings, the bridge's exit codes.
+EXIT_LOGIN_REFUSED = 5
 ANNOUNCE = "bridge"  # state/bridge: a starting bridge's claim, answered by a live bridge's heartbeat
 MIN_START_WAIT = 0.1  # s a starting bridge waits at least for a live one to answer its announcement
 START_ROUND_TRIPS = 4  # ... or this many round trips to the broker (the answer takes two: there and back)
@@ -197,7 +200,8 @@ def check_claim(connect: Callable[[Callable[[bytes, bool], None]], tuple[Publish
     listener = _Listener(me.instance)
     connected = connect(listener.on_message)
     if connected is None:
-        return StartCheck(Verdict.START, note="broker not reachable yet: the claim is checked once connected")
+        return StartCheck(Verdict.START, note="no connection to the broker yet (the lines below say why): the claim "
+                                                 "is checked once connected")
     publish, round_trip = connected
     started = time.monotonic()
     publish(robot, announce)

@@ -16,10 +16,31 @@ from collections.abc import Callable, Sequence
 
 import paho.mqtt.client as mqtt
 
-from ..mqtt import BrokerRing, BrokerUrl, make_client, parse_broker_urls
+from ..mqtt import (
+    WRONG_LOGIN,
+    BrokerRing,
+    BrokerUrl,
+    closed_before_connack,
+    connack_refusal,
+    login_refused,
+    make_client,
+    parse_broker_urls,
+)
 from . import trace
 
 log = logging.getLogger("roslink_mqtt.bridge.link")
+
+FIRST_RETRY = 0.1  # s before the first retry of an unreachable broker; doubled per attempt up to the link's cap
+# s before retrying a refused login, doubled per refusal up to REFUSED_RETRY_MAX: the same password is refused again
+# until someone changes it, and every refusal counts against the broker's throttle of failed logins from the robot's
+# address (slowing down every other login from there, a NAT's or a gateway's included)
+REFUSED_RETRY_FIRST, REFUSED_RETRY_MAX = 5.0, 60.0
+
+
+def worth_logging(attempt: int) -> bool:
+    """Which failed attempts in a row are logged: the first three, every fifth for a while, then every thirtieth
+    (at the 2 s cap: every 10 s for the first two minutes, then once a minute)."""
+    return attempt <= 3 or (attempt <= 60 and attempt % 5 == 0) or attempt % 30 == 0
 
 
 def bridge_client_id(robot: str, purpose: str = "") -> str:
@@ -44,10 +65,20 @@ class MqttLink:
                  keepalive: int, will: tuple[str, bytes] | None, subscriptions: Callable[[], list[tuple[str, int]]],
                  on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
-                 ca_file: str | None = None, max_reconnect_delay: float = 2.0, max_payload: int = 0) -> None:
+                 ca_file: str | None = None, max_reconnect_delay: float = 2.0, max_payload: int = 0,
+                 report: bool = False, on_refused: Callable[[str], None] = lambda reason: None) -> None:
         """``url``: one broker or a cluster's nodes (failover: a failed or lost connection moves to the next).
-        ``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none)."""
+        ``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none).
+        ``report``: this link says in the log why it is not connected (unreachable, refused login), at WARNING and
+        ERROR; the bridge's other links, dialling the same broker with the same login, say it at DEBUG only.
+        ``on_refused(reason)``: called (on the network thread) at every refused login."""
         urls = parse_broker_urls(url)
+        self.username, self.report, self._on_refused = username, report, on_refused
+        self.max_reconnect_delay = max_reconnect_delay
+        self.failures = 0  # connection attempts that failed in a row (unreachable, closed, refused)
+        self.refusals = 0  # of them, refused logins in a row
+        self._closed_reason: str | None = None  # why the broker hangs up before CONNACK (probed once)
+        self._answered = False  # a CONNACK came on this connection (so its end needs no explaining)
         self.keepalive, self.max_payload = keepalive, max_payload
         self._oversized: set[str] = set()  # topics already logged for an oversized message
         self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
@@ -64,7 +95,6 @@ class MqttLink:
         self.client.on_message = self._handle_message
         self.client.on_connect_fail = self._handle_connect_fail
         self.client.on_subscribe = self._handle_subscribe
-        self._refused_logged = False
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
         # s a message handed over now waits in the network; the uplink (bridge/uplink_sender.py) replaces it
         self.queue_delay: Callable[[], float] = lambda: 0.0
@@ -132,14 +162,49 @@ class MqttLink:
             self.client.unsubscribe(topic)
 
     # -- paho callbacks (network thread) ------------------------------------------
+    def _retry_in(self, delay: float) -> None:
+        """The next connection attempt in ``delay`` s (paho waits that long before it dials again)."""
+        # paho annotates the delays int, but they are seconds used as numbers (a float works)
+        self.client.reconnect_delay_set(min_delay=delay, max_delay=delay)  # type: ignore[arg-type]
+
+    def _attempt_failed(self, what: str) -> None:
+        """An unreachable broker, or one that hung up or turned us away for a reason other than the login: retry
+        soon (FIRST_RETRY, doubling up to max_reconnect_delay), and say so now and then."""
+        self.failures += 1
+        self.refusals = 0
+        delay = min(FIRST_RETRY * 2 ** min(self.failures - 1, 30), self.max_reconnect_delay)
+        self._retry_in(delay)
+        failed = self.url
+        nxt = self._move_on()
+        level = logging.WARNING if self.report and worth_logging(self.failures) else logging.DEBUG
+        log.log(level, "broker %s %s, retrying (attempt %d, next in %.1f s%s)", failed, what, self.failures, delay,
+                f" with {nxt}" if nxt else "")
+
     def _handle_connect(self, client: mqtt.Client, _userdata, _flags, reason, _props) -> None:
+        self._answered = True
         if reason.is_failure:
-            if not self._refused_logged:
-                log.error("broker %s refused the connection: %s", self.url, reason)
-                self._refused_logged = True
-            self._move_on()
+            if not login_refused(reason):
+                self._attempt_failed(f"refused the connection ({connack_refusal(reason)})")
+                return
+            self.failures += 1
+            self.refusals += 1
+            delay = min(REFUSED_RETRY_FIRST * 2 ** min(self.refusals - 1, 30), REFUSED_RETRY_MAX)
+            self._retry_in(delay)
+            refused = self.url
+            nxt = self._move_on()
+            log.log(logging.ERROR if self.report else logging.DEBUG,
+                    "broker %s refused %s's login: %s (the robot's password: ROSLINK_PASSWORD, --password-file or "
+                    "bridge.password_file); retrying in %.0f s%s (refusal %d; slowly: each one counts against the "
+                    "broker's throttle of failed logins from this address)", refused, self.username, WRONG_LOGIN,
+                    delay, f" with {nxt}" if nxt else "", self.refusals)
+            if self.report:
+                self._on_refused(f"broker {refused} refused {self.username}'s login: {WRONG_LOGIN}")
             return
-        self._refused_logged = False
+        if self.failures and self.report:
+            log.info("connected to %s after %d failed attempts", self.url, self.failures)
+        self.failures = self.refusals = 0
+        self.client.reconnect_delay_set(min_delay=FIRST_RETRY,  # type: ignore[arg-type]
+                                        max_delay=self.max_reconnect_delay)  # type: ignore[arg-type]
         subs = self._subscriptions()
         if subs:
             _, self._subscribe_mid = client.subscribe(subs)
@@ -153,23 +218,35 @@ class MqttLink:
         was_up = self.connected.is_set()
         self.connected.clear()
         self.subscribed.clear()
-        if was_up:
-            if self.closing:
-                log.info("disconnected from %s (shutting down)", self.url)
-            else:
-                lost = self.url
-                nxt = self._move_on()
-                log.warning("lost the broker %s (%s); reconnecting%s", lost, reason, f" to {nxt}" if nxt else "")
-            self._on_down(str(reason))
+        answered, self._answered = self._answered, False
+        if not was_up:
+            if not self.closing and not answered:  # a refused CONNACK has said why already
+                self._closed_before_connack(reason)
+            return
+        if self.closing:
+            log.info("disconnected from %s (shutting down)", self.url)
+        else:
+            lost = self.url
+            nxt = self._move_on()
+            log.warning("lost the broker %s (%s); reconnecting%s", lost, reason, f" to {nxt}" if nxt else "")
+        self._on_down(str(reason))
 
     def _handle_subscribe(self, _client, _userdata, mid, _reason_codes, _props) -> None:
         if mid == self._subscribe_mid:
             self.subscribed.set()
 
+    def _closed_before_connack(self, reason: object) -> None:
+        """The connection ended before any CONNACK: paho's keep-alive gave up on a slow answer (a broker's login
+        throttle holds one after failed logins), or the broker hung up on our CONNECT (a TLS port, say)."""
+        if str(reason) == "Keep alive timeout":
+            self._attempt_failed(f"did not answer the login within {self.keepalive} s (the keep-alive)")
+            return
+        if self._closed_reason is None:  # asked once: the answer does not change while the URL does not
+            self._closed_reason = closed_before_connack(self.url) if self.report else "it hung up"
+        self._attempt_failed(f"closed the connection without answering: {self._closed_reason}")
+
     def _handle_connect_fail(self, _client, _userdata) -> None:
-        failed = self.url
-        nxt = self._move_on()
-        log.debug("broker %s not reachable; retrying%s", failed, f" with {nxt}" if nxt else "")
+        self._attempt_failed("unreachable")
 
     def _move_on(self) -> BrokerUrl | None:
         """Failover: the next connection attempt goes to the next broker of the list (None: only one)."""

@@ -13,7 +13,9 @@ a restart.
 
 A robot has one live bridge (bridge/claim.py): a bridge that finds another live one for its robot does not start
 and exits with 3 (the systemd unit does not restart it); ``--take-over`` stops the other one instead. A bridge that
-another one took over stops its robot and exits with 4.
+another one took over stops its robot and exits with 4. A refused login (wrong username or password) is logged and
+retried slowly (5 s, doubling up to 60 s); with ``bridge.exit_on_refused_login: true`` the bridge exits with 5
+instead (not restarted by the unit either).
 """
 
 from __future__ import annotations
@@ -176,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
                                 Path(args.config).resolve().parent)
-    from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, Verdict
+    from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, EXIT_LOGIN_REFUSED, Verdict
 
     check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
                        fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
@@ -208,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if kind == "events" else None
         bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
                         ca_file=resolve_ca_file(args), action_node=action_node, claim=check.claim,
-                        on_fenced=lambda: on_signal(stopping))
+                        on_fenced=lambda: on_signal(stopping), on_login_refused=lambda: on_signal(stopping))
     except RuleError as err:
         line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
@@ -274,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
             spun_node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+    if bridge.login_refused is not None:
+        return EXIT_LOGIN_REFUSED
     return EXIT_FENCED if bridge.fenced_by is not None else 0
 
 

@@ -43,7 +43,7 @@ from .capabilities import (
     SendGoal,
     UpdateProvidedGoal,
 )
-from .claim import ANNOUNCE, Claim, ClaimWatch
+from .claim import ANNOUNCE, EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .graph_check import GRAPH_CHECK_DELAY, GRAPH_CHECK_PERIOD, SERVICE, TOPIC, Expected, changes, check
@@ -184,9 +184,12 @@ class Bridge:
 
     def __init__(self, fleet: Fleet, robot: Robot, node: Node, *, password: str | None, broker_url: Any,
                  ca_file: str | None = None, action_node: Node | None = None, claim: Claim | None = None,
-                 on_fenced: Callable[[], None] = lambda: None) -> None:
+                 on_fenced: Callable[[], None] = lambda: None,
+                 on_login_refused: Callable[[], None] = lambda: None) -> None:
         """``claim``: this bridge's (bridge/claim.py; the start check made it); ``on_fenced``: called once another
-        bridge has taken the robot over and this one has stopped it (main() then exits).
+        bridge has taken the robot over and this one has stopped it (main() then exits). ``on_login_refused``:
+        called when the broker refused the robot's login and ``bridge.exit_on_refused_login`` says to exit then
+        (:attr:`login_refused` says why; main() exits with EXIT_LOGIN_REFUSED).
         ``action_node``: a second node, spun by a SingleThreadedExecutor of its own, for the action servers of
         actions provided by MQTT clients (when ``node``'s executor is the EventsExecutor, which runs an action
         server's callbacks to completion ahead of everything else); None: they live on ``node``."""
@@ -244,7 +247,10 @@ class Bridge:
         self.viewer_link = MqttLink(
             client_id=bridge_client_id(robot.name, "viewers"), username=robot.name, password=password,
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
-            on_message=self._on_mqtt, ca_file=ca_file)
+            on_message=self._on_mqtt, ca_file=ca_file,
+            # the first link to dial (start()): it says why the bridge is not connected (the others, dialling the
+            # same broker with the same login, say it at DEBUG)
+            report=True, on_refused=self._refused)
         # Operators' emergency stops also arrive on a connection that carries nothing else: on a thin downlink they
         # never wait behind a large request, response or log line in the broker's queue or the socket. Each stop
         # then arrives twice (this link and the command link); the second copy is dropped (bridge/stops.py). Only
@@ -301,6 +307,8 @@ class Bridge:
         self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
         self._on_fenced = on_fenced
+        self.login_refused: str | None = None  # why the bridge exits (bridge.exit_on_refused_login)
+        self._on_login_refused = on_login_refused
         self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
@@ -334,6 +342,14 @@ class Bridge:
         self.fenced_by = rival
         self.endpoint.fence(reason)
         self._on_fenced()
+
+    def _refused(self, reason: str) -> None:
+        """The broker refused the robot's login (network thread): the link retries, slowly, unless the fleet says
+        to exit (bridge.exit_on_refused_login), for a supervisor that should not restart it."""
+        if self.robot.bridge.exit_on_refused_login and self.login_refused is None:
+            self.login_refused = reason
+            log.error("%s: exiting with status %d (bridge.exit_on_refused_login)", reason, EXIT_LOGIN_REFUSED)
+            self._on_login_refused()
 
     def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
         if topic == self._heartbeat_topic:
@@ -391,9 +407,16 @@ class Bridge:
         """Connect; the viewer link first, so that once the robot's heartbeat says it is up (command link),
         a viewer's first request finds the bridge subscribed (the two connections are not ordered otherwise)."""
         self.viewer_link.start()
-        if not self.viewer_link.subscribed.wait(VIEWER_LINK_HEAD_START):
-            log.info("viewer link not subscribed after %g s; connecting the command link anyway",
-                     VIEWER_LINK_HEAD_START)
+        head_start_ends = time.monotonic() + VIEWER_LINK_HEAD_START
+        while not self.viewer_link.subscribed.wait(0.05) and time.monotonic() < head_start_ends:
+            if self.login_refused is not None:
+                return  # refused, and the fleet says to exit: main() stops the bridge at once; nothing more dials
+        if not self.viewer_link.subscribed.is_set():
+            # not connected: the viewer link's own lines say why (unreachable, refused login); connected but not
+            # subscribed yet is worth a line of its own
+            log.log(logging.INFO if self.viewer_link.connected.is_set() else logging.DEBUG,
+                    "viewer link not subscribed after %g s; connecting the command link anyway",
+                    VIEWER_LINK_HEAD_START)
         self.uplink.start()
         for lane in self.lanes:
             lane.start()

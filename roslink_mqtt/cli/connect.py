@@ -48,9 +48,9 @@ def open_client(args: argparse.Namespace, *, robots: Iterable[str] = (), presenc
                          ca_file=args.ca_file)
     try:
         client.connect()
-    except (ConnectError, OSError, TimeoutError) as err:
+    except (ConnectError, OSError, TimeoutError) as err:  # e.g. "broker … refused alice: wrong username or password"
         client.close()
-        raise SystemExit(f"roslink-mqtt: cannot connect to {args.url} as {args.username}: {err}") from None
+        raise SystemExit(f"{PROG}: cannot connect as {args.username}: {err}") from None
     _exit_when_login_refused(client)
     return client
 

@@ -27,7 +27,16 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
-from ..mqtt import BrokerRing, BrokerUrl, make_client, parse_broker_urls
+from ..mqtt import (
+    LOGIN_WAIT,
+    BrokerRing,
+    BrokerUrl,
+    closed_before_connack,
+    connack_refusal,
+    login_refused,
+    make_client,
+    parse_broker_urls,
+)
 from ..topics import TopicTree
 from .errors import ConnectError, LoginRefused, NotConnectedError
 from .presence import OperatorPresence
@@ -36,9 +45,10 @@ log = logging.getLogger("roslink_mqtt.client")
 
 Handler = Callable[[str, bytes, bool], None]  # (topic, payload, retained); runs on the network thread
 
-# CONNACK refusals that a retry cannot fix (paho's reason codes for MQTT 3.1.1 return codes 2, 4 and 5).
-# 1 (protocol version) is left to paho, which retries with MQTT 3.1; 3 (server unavailable) is transient.
-PERMANENT_REFUSALS = {133: "client identifier rejected", 134: "bad user name or password", 135: "not authorised"}
+# CONNACK refusals that a retry cannot fix (paho's reason codes for MQTT 3.1.1 return codes 2, 4 and 5), worded
+# by roslink_mqtt.mqtt.connack_refusal. 1 (protocol version) is left to paho, which retries with MQTT 3.1;
+# 3 (server unavailable) is transient.
+PERMANENT_REFUSALS = frozenset({133, 134, 135})
 
 
 @dataclass
@@ -77,6 +87,7 @@ class Connection:
         self._connack = threading.Event()
         self._connack_failure: str | None = None
         self._connack_permanent = False
+        self._closed_early = False  # the broker hung up before any CONNACK (a TLS port asked in plain MQTT, say)
         self._network_thread: int | None = None
         self.connected = threading.Event()
         self._closing = False
@@ -103,8 +114,9 @@ class Connection:
         self._move_on()
 
     # -- lifecycle --------------------------------------------------------------------
-    def connect(self, timeout: float = 10.0) -> None:
-        """Connect and wait for the broker to accept the login; raise ConnectError otherwise."""
+    def connect(self, timeout: float = LOGIN_WAIT) -> None:
+        """Connect and wait for the broker to accept the login; raise ConnectError otherwise (LoginRefused for
+        a refused login: "wrong username or password")."""
         unreachable: list[str] = []
         for _ in self.brokers.urls:  # the first node that answers; each refused one moves the ring on
             try:
@@ -116,15 +128,30 @@ class Connection:
         else:
             raise ConnectError(f"cannot reach the broker at {'; '.join(unreachable)}") from None
         self.client.loop_start()
-        if not self._connack.wait(timeout) or self._connack_failure is not None:
-            reason = self._connack_failure or f"no answer within {timeout:g} s"
+        reason = self._await_connack(timeout)
+        if reason is not None:
             self.client.disconnect()
             self.client.loop_stop()
-            error = LoginRefused if self._connack_permanent else ConnectError
-            raise error(f"broker {self.url} refused {self.username}: {reason}")
+            if self._connack_permanent:
+                raise LoginRefused(f"broker {self.url} refused {self.username}: {reason}")
+            raise ConnectError(f"broker {self.url}: {reason}")
         self.ever_connected = True
         if self.presence is not None:
             self.presence.start()
+
+    def _await_connack(self, timeout: float) -> str | None:
+        """Wait for the first CONNACK: None once accepted, else why not.
+
+        A broker that hangs up before answering is asked once whether it speaks TLS: a ``mqtt://`` URL pointed at
+        a TLS listener gets exactly that, and waiting out the timeout would only say "no answer".
+        """
+        deadline = time.monotonic() + timeout
+        while not self._connack.wait(min(0.05, max(0.0, deadline - time.monotonic()))):
+            if self._closed_early:
+                return closed_before_connack(self.url)
+            if time.monotonic() >= deadline:
+                return f"no answer within {timeout:g} s"
+        return self._connack_failure
 
     def close(self) -> None:
         """Sign off: clear our presence (robots stop trusting us at once), then disconnect."""
@@ -161,7 +188,7 @@ class Connection:
         self._network_thread = threading.get_ident()
         if reason.is_failure:
             if not self.ever_connected:  # connect() is waiting: it raises
-                self._connack_failure = str(reason)
+                self._connack_failure = connack_refusal(reason)
                 self._connack_permanent = reason.value in PERMANENT_REFUSALS
                 self._connack.set()
             elif reason.value in PERMANENT_REFUSALS and self.failure is None:
@@ -191,11 +218,12 @@ class Connection:
 
     def _give_up(self, client: mqtt.Client, reason: Any) -> None:
         """A reconnect was refused for good: stop paho's retry loop and tell whoever listens, once."""
-        text = PERMANENT_REFUSALS.get(reason.value, str(reason))
+        text = connack_refusal(reason)
+        fix = ("a changed password or a revoked grant will not fix itself" if login_refused(reason)
+               else "retrying will not change the broker's answer")
         self.failure = LoginRefused(
             f"broker {self.url} refused the login of {self.username} ({text}) when reconnecting; not retrying: "
-            "a changed password or a revoked grant will not fix itself, and each attempt counts against the "
-            "broker's login throttle for this address")
+            f"{fix}, and each attempt counts against the broker's login throttle for this address")
         log.error("%s: %s", self.client_id, self.failure)
         client.disconnect()  # from a callback: loop_forever returns instead of reconnecting
         for hook in list(self.on_failure):
@@ -205,6 +233,10 @@ class Connection:
                 log.exception("on_failure hook failed")
 
     def _on_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
+        if not self.ever_connected and not self._connack.is_set() and str(reason) != "Keep alive timeout":
+            # the broker hung up on our CONNECT (paho's own keep-alive gave up instead on a broker that takes
+            # longer than that to answer, e.g. a login throttle's delay: paho simply asks again)
+            self._closed_early = True  # connect() is waiting: it finds out why
         if self.connected.is_set() and not self._closing:
             lost = self.url
             # closed over an unanswered SUBSCRIBE: the broker is alive and said no its way; stay on this node

@@ -26,6 +26,7 @@ from typing import Any
 
 from .. import ros_names
 from ..connection_options import env_username
+from ..mqtt import LOGIN_WAIT
 from ..ros_shape import is_ros_pose, is_ros_twist, point_from_ros, twist_from_ros
 from ..topics import DEFAULT_PREFIX, Verb, check_name, state_leaf
 from .calls import Values
@@ -260,7 +261,7 @@ class Node:
     def __init__(self, node_name: str, *, robot: str | None = None, url: str | None = None,
                  username: str | None = None, password: str | None = None, client_id: str | None = None,
                  ca_file: str | None = None, insecure_tls: bool = False, prefix: str = DEFAULT_PREFIX,
-                 presence: bool = True, connect_timeout: float = 10.0, keepalive: int = 5,
+                 presence: bool = True, connect_timeout: float = LOGIN_WAIT, keepalive: int = 5,
                  call_timeout: float = DEFAULT_CALL_TIMEOUT) -> None:
         self._name = check_name(node_name, "node name")
         robot = robot or os.environ.get(ENV_ROBOT)

@@ -40,7 +40,7 @@ from ..connection_options import (
     env_url,
     env_username,
 )
-from ..mqtt import BrokerUrl
+from ..mqtt import LOGIN_WAIT, BrokerUrl
 from ..protocol import ProtocolError
 from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
@@ -145,7 +145,7 @@ class RobotClient:
         self.connection.on_failure.append(self._on_login_refused)
 
     # -- lifecycle ----------------------------------------------------------------------
-    def connect(self, timeout: float = 10.0) -> RobotClient:
+    def connect(self, timeout: float = LOGIN_WAIT) -> RobotClient:
         """Log in (ConnectError if refused), start presence, watch the named robots.
 
         A failed connect closes the client (its threads end); make a new one to retry.

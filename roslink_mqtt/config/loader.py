@@ -315,7 +315,8 @@ class _FleetReader:
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
                             "max_requests_per_user", "executor", "retained_refresh", "uplink",
-                            "uplink_target_delay", "buffer_dir", "buffer_max_bytes", "buffer_max_age"))
+                            "uplink_target_delay", "buffer_dir", "buffer_max_bytes", "buffer_max_age",
+                            "exit_on_refused_login"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
 
@@ -356,6 +357,7 @@ class _FleetReader:
             buffer_dir=self.value(path, "buffer_dir", self.string, d.buffer_dir),
             buffer_max_bytes=self.value(path, "buffer_max_bytes", self.integer(65536, 1 << 40), d.buffer_max_bytes),
             buffer_max_age=self.value(path, "buffer_max_age", self.number(1, 366 * 24 * 3600), d.buffer_max_age),
+            exit_on_refused_login=self.value(path, "exit_on_refused_login", self.boolean, d.exit_on_refused_login),
         )
 
     def failsafe_actions(self, path: Path) -> tuple[FailsafeAction, ...]:

@@ -248,6 +248,10 @@ class BridgeSettings:
     buffer_dir: str | None = None
     buffer_max_bytes: int = 64 * 1024 * 1024
     buffer_max_age: float = 24 * 3600.0
+    # When the broker refuses the robot's login (wrong username or password): False keeps retrying, slowly (5 s,
+    # doubling up to 60 s), so a fixed password or a `fleet apply` brings the robot back by itself; True exits with
+    # EXIT_LOGIN_REFUSED (5), which the systemd unit does not restart (RestartPreventExitStatus).
+    exit_on_refused_login: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ from typing import Any
 import orjson
 
 from ..client.directory import DEFAULT_STALE_AFTER
+from ..mqtt import CONNACK_REFUSALS, LOGIN_WAIT
 from ..protocol.enums import FlightMode, SystemStatus
 from ..protocol.reference import DOCUMENTED_BODIES
 from ..topics import grammar_words
@@ -42,6 +43,10 @@ def constants() -> dict[str, Any]:
         "STALE_AFTER_MS": round(DEFAULT_STALE_AFTER * 1000),  # as the SDK: a heartbeat older than this is stale
         "STATUS": [s.name.lower() for s in sorted(SystemStatus)],  # heartbeat system_status → word
         "MODES": [m.name for m in sorted(FlightMode)],  # heartbeat mode → name
+        # a refused CONNACK's return code → what the CLI and the SDK say too ("wrong username or password")
+        "CONNACK": {str(code): text for code, text in sorted(CONNACK_REFUSALS.items())},
+        # how long the page waits for a CONNACK: longer than the broker's login throttle may hold one
+        "LOGIN_WAIT_MS": round(LOGIN_WAIT * 1000),
     }
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import pytest
 
 from roslink_mqtt.dashboard import DashboardServer
+from roslink_mqtt.mqtt import WRONG_LOGIN
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
@@ -613,10 +614,21 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
         message = wait_until("the login error", lambda: visible(driver, "login-error")
                              and driver.find_element(By.ID, "login-error").text)
         print(f"\nwrong password: {message!r}")
-        assert message.startswith("login refused:") and "bad username or password" in message, message
+        assert message == f"login refused: {WRONG_LOGIN}", message  # the words of the CLI and the SDK
         assert visible(driver, "login") and not visible(driver, "main")
         time.sleep(2.5)  # no retry loop: the refusal is final until the user submits again
-        assert "bad username or password" in driver.find_element(By.ID, "login-error").text
+        assert WRONG_LOGIN in driver.find_element(By.ID, "login-error").text
+
+        # an unknown user reads exactly the same (the broker never says which logins exist)
+        driver.execute_script("document.getElementById('login-error').hidden = true")
+        for field, text in (("username", "mallory"), ("password", "anything")):
+            driver.find_element(By.ID, field).clear()
+            driver.find_element(By.ID, field).send_keys(text)
+        driver.find_element(By.ID, "connect").click()
+        unknown = wait_until("the unknown user's login error", lambda: visible(driver, "login-error")
+                             and driver.find_element(By.ID, "login-error").text)
+        print(f"unknown user: {unknown!r}")
+        assert unknown == message, unknown
 
         # a broker URL where nothing listens: said so, not a blank page
         from roslink_mqtt.localproc import free_port
@@ -624,6 +636,7 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
         url = driver.find_element(By.ID, "ws-url")
         url.clear()
         url.send_keys(f"ws://127.0.0.1:{free_port()}")
+        driver.find_element(By.ID, "password").clear()
         driver.find_element(By.ID, "password").send_keys("alice-demo")
         driver.find_element(By.ID, "connect").click()
         unreachable = wait_until("the unreachable message", lambda: "cannot reach the broker" in
@@ -631,6 +644,45 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
                                  driver.find_element(By.ID, "login-error").text)
         print(f"unreachable broker: {unreachable!r}")
         assert driver.find_element(By.ID, "connect").is_enabled()
+
+
+def test_a_slow_login_answer_is_waited_for(tmp_path) -> None:
+    """The broker's login throttle holds its answer after failed logins from an address (up to 10 s; an unknown
+    user's login waits for the address's failures, having no known-good pair): the page waits for the verdict
+    and says it is waiting, where it used to give up after 8 s with "connection error: connack timeout".
+
+    A frozen broker of its own (SIGSTOP; the module's stack keeps running) holds the answer 9 s here.
+    """
+    import signal
+
+    from selenium.webdriver.common.by import By
+
+    with EmbeddedBrokerProcess(tmp_path, ws=True) as slow, browser(tmp_path, "slow-login") as driver:
+        server = DashboardServer("127.0.0.1", 0, ws_port=slow.ws_port).start()
+        try:
+            driver.get(server.url)
+            wait_until("the derived WebSocket URL", lambda: driver.find_element(By.ID, "ws-url").get_attribute("value"))
+            driver.find_element(By.ID, "username").send_keys("mallory")
+            driver.find_element(By.ID, "password").send_keys("a-guess")
+            slow.signal(signal.SIGSTOP)
+            try:
+                driver.find_element(By.ID, "connect").click()
+                clicked, waiting = time.monotonic(), ""
+                while time.monotonic() - clicked < 9.0:  # past the page's old 8 s: still waiting, no error
+                    assert not visible(driver, "login-error"), driver.find_element(By.ID, "login-error").text
+                    waiting = waiting or ("check the login" in (text := driver.find_element(By.ID, "conn").text)
+                                          and text)
+                    time.sleep(0.2)
+                print(f"\nwhile the broker holds its answer: {waiting!r}")
+                assert waiting, "the page did not say that it waits for the broker's answer"
+            finally:
+                slow.signal(signal.SIGCONT)
+            message = wait_until("the login error", lambda: visible(driver, "login-error")
+                                 and driver.find_element(By.ID, "login-error").text)
+            print(f"after {time.monotonic() - clicked:.1f} s: {message!r}")
+            assert message == f"login refused: {WRONG_LOGIN}", message
+        finally:
+            server.stop()
 
 
 def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None:

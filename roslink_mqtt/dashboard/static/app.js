@@ -7,7 +7,7 @@
 
 (() => {
   // From the protocol's declarations (protocol.js, generated) and read as the SDK reads them (body.js)
-  const { STALE_AFTER_MS, STATUS, MODES } = window.ROSLINK.constants;
+  const { STALE_AFTER_MS, STATUS, MODES, LOGIN_WAIT_MS } = window.ROSLINK.constants;
   const BODIES = window.ROSLINK.bodies;
   // one body, named as in docs/protocol.md ("control state" → control_state): its declared fields, or null
   const read = (name, payload) => window.roslinkBody.readBody(BODIES[name], parse(payload));
@@ -21,14 +21,9 @@
   const RECENT_MAX = 30;             // poses kept to place each scan where it was taken (3 s at 10 Hz)
   const LOG_MAX = 30;                // list items kept in the error and ack lists
   const CALL_TIMEOUT_MS = 10000;
-  const CONNACK = {
-    1: "login refused: the broker does not accept this MQTT protocol version",
-    2: "login refused: client id rejected",
-    3: "login refused: the broker is unavailable",
-    4: "login refused: bad username or password",
-    // what the embedded broker (and Mosquitto) answer to a wrong password; also a login that may not connect
-    5: "login refused: bad username or password (the broker says: not authorized)",
-  };
+  // a refused CONNACK's return code → why, worded as the CLI and the SDK word it (roslink_mqtt/mqtt.py)
+  const CONNACK = Object.fromEntries(Object.entries(window.ROSLINK.constants.CONNACK)
+    .map(([code, why]) => [code, `login refused: ${why}`]));
   const DRIVE = {  // direction → twist, as a fraction of the chosen speed (angular 3× linear, capped by the robot)
     fwd: { lx: 1, az: 0 }, back: { lx: -1, az: 0 }, left: { lx: 0, az: 3 }, right: { lx: 0, az: -3 },
   };
@@ -142,7 +137,9 @@
       client = window.mqtt.connect(url, {
         username: user, password, clientId: dash.clientId, protocolVersion: 4, clean: true, keepalive: 5,
         // no retry until a first login succeeded: a refused password must not become a loop of attempts
-        reconnectPeriod: 0, connectTimeout: 8000, resubscribe: true,
+        // connectTimeout: longer than the broker's login throttle may hold its answer after failed logins from
+        // this address (a refusal heard late beats "connack timeout")
+        reconnectPeriod: 0, connectTimeout: LOGIN_WAIT_MS, resubscribe: true,
         // operator presence: when this page vanishes without a word, the broker clears its heartbeat
         will: { topic: tree.operator(user, dash.clientId), payload: "", qos: 1, retain: true },
       });
@@ -154,11 +151,20 @@
     }
     dash.client = client;
     const current = () => dash.client === client;  // events of a client replaced by a new login are ignored
+    // a slow answer is most often the broker's login throttle (failed logins from this address): say so
+    setTimeout(() => {
+      if (current() && !dash.everConnected && ui.conn.dataset.state === "connecting") {
+        setConn("connecting", `connecting to ${url} … (waiting for the broker to check the login: it slows ` +
+                "logins down after failed ones from this address)");
+      }
+    }, 3000);
     client.on("connect", () => { if (current()) onConnect(); });
     client.on("message", (t, payload, packet) => { if (current()) onMessage(t, payload, packet); });
     client.on("error", (err) => {
       if (!current()) return;
-      const text = CONNACK[err && err.code] || `connection error: ${err && err.message ? err.message : err}`;
+      const text = CONNACK[err && err.code] || (err && /connack timeout/i.test(err.message)
+        ? `no answer from the broker within ${LOGIN_WAIT_MS / 1000} s`
+        : `connection error: ${err && err.message ? err.message : err}`);
       if (err && CONNACK[err.code]) {  // a refused CONNACK: say why and stop trying
         client.options.reconnectPeriod = 0;
         client.end(true);

@@ -1252,6 +1252,14 @@ const ROSLINK = {
     ]
   },
   "constants": {
+    "CONNACK": {
+      "1": "the broker does not accept this MQTT protocol version",
+      "2": "the broker rejected the client id",
+      "3": "the broker is unavailable",
+      "4": "wrong username or password",
+      "5": "wrong username or password"
+    },
+    "LOGIN_WAIT_MS": 12000,
     "MODES": [
       "MANUAL",
       "STABILIZE",
