@@ -78,3 +78,9 @@ def absolute(*parts: str) -> str:
 def child(base: str, name: str) -> str:
     """A name below a node or namespace: ``child("/turtlesim", "get_parameters")`` → ``/turtlesim/get_parameters``."""
     return base.rstrip(SEPARATOR) + SEPARATOR + relative(name)
+
+
+def action_status_topic(action: str) -> str:
+    """The topic every server of ``action`` publishes its goals' status on: ``fibonacci`` →
+    ``fibonacci/_action/status`` (a relative name stays relative: resolved in the node's namespace, as the action)."""
+    return child(action, "_action/status")

@@ -31,6 +31,7 @@ from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
+from .. import ros_names
 from ..config import ActionRule, Robot
 from ..protocol.goals import (
     ACCEPTED,
@@ -186,7 +187,7 @@ class ActionCaller:
         More than one is a broken setup -- and with rclpy 7.1's EventsExecutor the second server's
         replies to a goal crashed the bridge (a segfault, reproduced with two servers in one domain).
         """
-        return self._node.count_publishers(f"{rule.ros_action}/_action/status")
+        return self._node.count_publishers(ros_names.action_status_topic(rule.ros_action))
 
     def _responded(self, goal: _Goal, future: Any) -> None:
         handle = future.result() if future.exception() is None else None
