@@ -52,7 +52,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                                 epilog="Everything after --ros-args goes to ROS (remapping, namespace, parameters).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
-    p.add_argument("--robot", required=True, help="robot name in the fleet file (the bridge logs in as it)")
+    p.add_argument("--robot", default=None,
+                   help="robot name in the fleet file (the bridge logs in as it); may be left out with a robot file "
+                        "(`roslink-mqtt fleet split`) or a fleet of one robot")
     add_connection_options(p, username=False, default_url=None, url_fallback="else bridge.broker in the config")
     p.add_argument("--take-over", action="store_true",
                    help="if another bridge for this robot is live, make it stop the robot and exit, then start "
@@ -166,6 +168,12 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as err:
         print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
         return 2
+    if args.robot is None:
+        args.robot = fleet.robot_file or (next(iter(fleet.robots)) if len(fleet.robots) == 1 else None)
+        if args.robot is None:
+            print(f"roslink-mqtt-bridge: which robot? --robot NAME (robots in {args.config}: "
+                  f"{', '.join(fleet.robots)})", file=sys.stderr)
+            return 2
     robot = fleet.robots.get(args.robot)
     if robot is None:
         print(f"roslink-mqtt-bridge: no robot '{args.robot}' in {args.config} "

@@ -153,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .server import EmbeddedBroker, ServerOptions
 
     try:
-        fleet = load_fleet(args.config)
+        fleet = load_fleet(args.config, need_hashes=True)
     except ConfigError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return 2

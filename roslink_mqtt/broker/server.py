@@ -135,7 +135,7 @@ class EmbeddedBroker:
     async def reload(self) -> bool:
         """Re-read robots, users and grants; keep the running config if the file is bad."""
         try:
-            fleet = load_fleet(self.config_path)
+            fleet = load_fleet(self.config_path, need_hashes=True)
         except ConfigError as err:
             log.error("reload refused, still enforcing the previous fleet: %s", err)
             return False

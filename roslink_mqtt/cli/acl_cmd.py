@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    fleet = load_fleet(args.config)
+    fleet = load_fleet(args.config, need_hashes=True)
     if args.format in ("rabbitmq", "emqx"):
         return _export_with_passwords(args, fleet)
     if args.passwords:

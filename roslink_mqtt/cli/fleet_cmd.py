@@ -17,11 +17,24 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "when it starts).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.set_defaults(run=run)
+    actions = p.add_subparsers(dest="fleet_action", metavar="{split}")
+    split = actions.add_parser("split", help="write one robot file per robot: its part of the fleet, no passwords",
+                               description="Write OUT/<robot>.yaml for each robot (or the ones named): its rules, "
+                                           "services, actions, parameters, bridge settings and who may do what with "
+                                           "it -- no password hash of any login and no other robot's key, so that "
+                                           "a stolen robot exposes no login. Run its bridge with --config "
+                                           "OUT/<robot>.yaml and the robot's password in ROSLINK_PASSWORD or "
+                                           "--password-file. Split again after every change of the fleet file.")
+    split.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    split.add_argument("--out", required=True, help="directory for the robot files (created if missing)")
+    split.add_argument("robots", nargs="*", metavar="ROBOT", help="only these robots (default: every robot)")
+    split.set_defaults(run=run_split)
 
 
 def summary(fleet: Fleet) -> str:
     """The fleet in a few lines: robots with their users and roles, then what could not be checked here."""
-    lines = [f"fleet {fleet.file}: {len(fleet.robots)} robots, {len(fleet.users)} users, prefix '{fleet.prefix}'"]
+    kind = f"robot file of {fleet.robot_file} (no password hashes)" if fleet.robot_file else "fleet"
+    lines = [f"{kind} {fleet.file}: {len(fleet.robots)} robots, {len(fleet.users)} users, prefix '{fleet.prefix}'"]
     for robot in fleet.robots.values():
         lines.append(f"  robot {robot.name:<10} system_id={robot.system_id:<5} type={robot.type.name.lower():<8}"
                      f" rules={len(robot.rules)} services={len(robot.services)}")
@@ -37,4 +50,12 @@ def summary(fleet: Fleet) -> str:
 
 def run(args: argparse.Namespace) -> int:
     print(summary(load_fleet(args.config)))
+    return 0
+
+
+def run_split(args: argparse.Namespace) -> int:
+    from ..config.split import split_fleet
+
+    for path in split_fleet(args.config, args.out, args.robots or None):
+        print(f"wrote {path} (mode 0600; no password hashes)")
     return 0

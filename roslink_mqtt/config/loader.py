@@ -41,6 +41,7 @@ from .model import (
     LIMIT_MODES,
     PRIORITY_NAMES,
     RAW_TYPES,
+    ROBOT_FILE,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -67,14 +68,21 @@ _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
 
-def load_fleet(path: str | FsPath) -> Fleet:
-    """Load and validate a fleet file; raise ConfigError (with file:line) if anything is wrong."""
+def load_fleet(path: str | FsPath, *, need_hashes: bool = False) -> Fleet:
+    """Load and validate a fleet file (or a robot file: ``robot_file``); raise ConfigError (with file:line) if
+    anything is wrong. ``need_hashes``: the caller checks logins (the broker, an ACL export), which a robot file,
+    holding no password hashes, cannot serve."""
     name = str(path)
     try:
         text = FsPath(path).read_text(encoding="utf-8")
     except OSError as err:
         raise ConfigError(f"cannot read fleet file: {err.strerror or err}", file=name) from None
-    return parse_fleet(text, name)
+    fleet = parse_fleet(text, name)
+    if need_hashes and fleet.robot_file is not None:
+        raise ConfigError(f"this is the robot file of {fleet.robot_file} (written by `roslink-mqtt fleet split`: no "
+                          "password hashes): the broker and the ACL exports need the fleet file (robots.yaml)",
+                          file=name)
+    return fleet
 
 
 def parse_fleet(text: str, file: str = "<string>") -> Fleet:
@@ -84,6 +92,7 @@ def parse_fleet(text: str, file: str = "<string>") -> Fleet:
 class _FleetReader:
     def __init__(self, source: Source) -> None:
         self.src = source
+        self.robot_file: str | None = None  # a robot file's robot (no password hashes), read first
         self.types = interface_table()
         self.notes: list[str] = []  # what could not be checked here (types outside the table)
 
@@ -199,6 +208,18 @@ class _FleetReader:
             raise self.err(path, f"expected a ROS name like 'cmd_vel' or '/robot/odom', got {_show(v)}")
         return v
 
+    def login_hash(self, path: Path) -> str:
+        """The ``password`` hash of the robot or user at ``path``; none ("") in a robot file, which must not hold one
+        (it is copied to the robot: a stolen robot must not carry material for an offline attack on any login)."""
+        if self.robot_file is None:
+            hashed: str = self.value(path, "password", self.password_hash)
+            return hashed
+        if "password" in (self.get(path) or {}):
+            raise self.err(path + ("password",), "a robot file holds no password hash: remove it (the robot's own "
+                                                 "password comes from ROSLINK_PASSWORD, --password-file or "
+                                                 "bridge.password_file; users log in at the broker)")
+        return ""
+
     def password_hash(self, path: Path, v: Any) -> str:
         if not isinstance(v, str):
             raise self.err(path, f"expected a password hash string, got {_show(v)}")
@@ -211,13 +232,17 @@ class _FleetReader:
     # -- sections -------------------------------------------------------------
     def fleet(self) -> Fleet:
         root: Path = ()
-        self.mapping(root, ("prefix", "broker", "robots", "users"))
+        self.mapping(root, (ROBOT_FILE, "prefix", "broker", "robots", "users"))
+        self.robot_file = self.value(root, ROBOT_FILE, self.topic_name("robot name"), None)
         prefix = self.value(root, "prefix", self.topic_path, "roslink")
         broker = self.broker(("broker",)) if "broker" in self.get(root) else BrokerSettings()
         robots = self.robots(("robots",))
+        if self.robot_file is not None and list(robots) != [self.robot_file]:
+            raise self.err(("robots",), f"a robot file holds its own robot only ('{self.robot_file}'), found: "
+                                        f"{', '.join(robots)}")
         users = self.users(("users",), robots)
         self.check_supervisors(robots, users)
-        return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes))
+        return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes), self.robot_file)
 
     def names(self, path: Path, what: str) -> tuple[str, ...]:
         """A list of login names (each a valid topic level), without repeats."""
@@ -291,7 +316,7 @@ class _FleetReader:
             name=name,
             system_id=self.value(path, "system_id", self.integer(0, 65535)),
             key=self.value(path, "key", self.string),
-            password_hash=self.value(path, "password", self.password_hash),
+            password_hash=self.login_hash(path),
             type=RobotType[rtype.upper()],
             bridge=self.bridge(path + ("bridge",)) if self.get(path).get("bridge") is not None else BridgeSettings(),
             rules=self.rules(path + ("rules",)) if "rules" in self.get(path) else (),
@@ -581,7 +606,7 @@ class _FleetReader:
                 if key not in keys:
                     raise self.err(gp + ("key",), "no robot has this key")
                 grants.append(Grant(key, Role(self.value(gp, "role", self.choice(tuple(r.value for r in Role))))))
-            users[name] = User(name, self.value(up, "password", self.password_hash), tuple(grants),
+            users[name] = User(name, self.login_hash(up), tuple(grants),
                                self.value(up, "admin", self.boolean, False))
         return users
 

@@ -93,6 +93,7 @@ class BrokerSettings:
 
 LIMIT_NORM, LIMIT_PER_AXIS = "norm", "per_axis"
 LIMIT_MODES = (LIMIT_NORM, LIMIT_PER_AXIS)
+ROBOT_FILE = "robot_file"  # the top-level key of a robot file (`fleet split`): the robot it is for
 EXECUTORS = ("single", "events")  # bridge.executor: rclpy's SingleThreadedExecutor, or its EventsExecutor
 
 
@@ -249,7 +250,7 @@ class BridgeSettings:
     buffer_max_bytes: int = 64 * 1024 * 1024
     buffer_max_age: float = 24 * 3600.0
     # When the broker refuses the robot's login (wrong username or password): False keeps retrying, slowly (5 s,
-    # doubling up to 60 s), so a fixed password or a `fleet apply` brings the robot back by itself; True exits with
+    # doubling up to 60 s), so a fixed password (the broker reloaded) brings the robot back by itself; True exits with
     # EXIT_LOGIN_REFUSED (5), which the systemd unit does not restart (RestartPreventExitStatus).
     exit_on_refused_login: bool = False
 
@@ -311,6 +312,9 @@ class Fleet:
     # "file:line key: …" for what loading could not check without ROS (types outside common_interfaces);
     # not errors: the bridge checks those when it starts.
     notes: tuple[str, ...] = ()
+    # A robot file (``roslink-mqtt fleet split``): this robot's part of the fleet for its bridge, with no password
+    # hash of any login (every password_hash is ""); None for the fleet file itself.
+    robot_file: str | None = None
 
     @cached_property
     def topics(self) -> TopicTree:

@@ -18,9 +18,13 @@ pytestmark = pytest.mark.timeout(120)
 
 
 @pytest.fixture(scope="module")
-def port(tmp_path_factory):
-    work = tmp_path_factory.mktemp("cli")
-    with turtle1_online(work) as broker_port:
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("cli")
+
+
+@pytest.fixture(scope="module")
+def port(work):
+    with turtle1_online(work) as broker_port:  # its bridge runs from turtle1's robot file (fleet split)
         yield broker_port
 
 
@@ -29,6 +33,24 @@ def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.Com
     return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args, "--url", f"mqtt://127.0.0.1:{port}",
                            "-u", user], capture_output=True, text=True, env=env, cwd=ROOT, timeout=timeout,
                           stdin=subprocess.DEVNULL)
+
+
+def test_the_bridge_runs_from_its_robot_file_which_holds_no_password_hash(port, work) -> None:
+    """``fleet split``'s robot file: no login's hash, no other robot's key or users; the stack's bridge runs from it,
+    and its grants hold (an operator's call runs, a viewer's is refused)."""
+    from roslink_mqtt.config import load_fleet
+
+    robot_file = work / "robot-files" / "turtle1.yaml"
+    text = robot_file.read_text()
+    assert "$7$" not in text and "password:" not in text, text
+    assert "demo-key-turtle2" not in text and "carol" not in text and "turtle2" not in text, text
+    assert robot_file.stat().st_mode & 0o777 == 0o600
+    fleet = load_fleet(robot_file)
+    assert fleet.robot_file == "turtle1" and list(fleet.robots) == ["turtle1"]
+    assert fleet.users_of("turtle1") == load_fleet(ROOT / "config/robots.yaml").users_of("turtle1")
+    _reset(port)
+    refused = cli(port, "bob", "call", "turtle1", "reset")
+    assert refused.returncode != 0, refused.stdout
 
 
 def test_robots_lists_granted_robots_only(port) -> None:

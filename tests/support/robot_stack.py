@@ -6,10 +6,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from roslink_mqtt.config.split import split_fleet
+
 from .broker_setup import ExportedMosquitto, write_fleet
 from .embedded_broker import EmbeddedBrokerProcess
 from .mqtt_client import TestClient
-from .procs import bridge_args, bridge_env, run
+from .procs import CONFIG, bridge_args, bridge_env, run
 
 BROKERS = ("embedded", "mosquitto")
 
@@ -20,7 +22,8 @@ def turtle1_online(work: Path, broker: str = "embedded", *, fleet: Path | None =
 
     ``broker``: ``embedded`` (the demo fleet file as it is, or ``fleet``: a variant of it) or ``mosquitto``
     (Mosquitto running exactly what ``roslink-mqtt acl export`` writes for a copy of the demo fleet: the deployed
-    configuration).
+    configuration). With the demo fleet as it is, the bridge runs as a deployed robot's should: from turtle1's
+    robot file (``roslink-mqtt fleet split``: no password hashes), written to ``work/robot-files/turtle1.yaml``.
     """
     if broker == "mosquitto":
         fleet = write_fleet(work, read_only_service=False)
@@ -29,7 +32,8 @@ def turtle1_online(work: Path, broker: str = "embedded", *, fleet: Path | None =
     elif broker == "embedded" and fleet is not None:
         server, extra = EmbeddedBrokerProcess(work, fleet), {"config": fleet}
     elif broker == "embedded":
-        server, extra = EmbeddedBrokerProcess(work), {}
+        robot_file = split_fleet(CONFIG, work / "robot-files", ["turtle1"])[0]
+        server, extra = EmbeddedBrokerProcess(work), {"config": robot_file}
     else:
         raise ValueError(f"broker: {broker!r} is not one of {BROKERS}")
     with server, run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \

@@ -1,0 +1,67 @@
+"""``roslink-mqtt fleet split``: one robot's part of the fleet file, for its bridge, with nobody's password hash.
+
+The bridge needs its robot (rules, services, actions, parameters, bridge settings), the broker's address and who
+may do what with the robot; it never checks a password. The fleet file (robots.yaml) also holds every login's
+PBKDF2 hash and every robot's key: copied to a robot, a stolen robot would carry material for an offline attack on
+every login. A robot file keeps the robot's own key (its ACL root, which the robot has anyway) and, per granted user,
+the role only; the loader refuses a password in it (``robot_file``), and the broker refuses to run from it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .loader import load_fleet, parse_fleet
+from .model import ROBOT_FILE, Fleet
+from .yamlsource import ConfigError
+
+HEADER = ("# The robot file of {robot}: its part of {source}, written by `roslink-mqtt fleet split`.\n"
+          "# No password hash of any login and no other robot's key: safe to copy to the robot. Do not edit;\n"
+          "# change {source} and split again. The robot's own password comes from ROSLINK_PASSWORD or\n"
+          "# --password-file.\n")
+
+
+def robot_file_data(raw: dict[str, Any], fleet: Fleet, robot: str) -> dict[str, Any]:
+    """The robot file of ``robot`` as YAML data, from the fleet file's data ``raw`` (anchors expanded) and its
+    loaded ``fleet`` (who is granted what)."""
+    if robot not in fleet.robots:
+        raise ConfigError(f"no robot '{robot}' in the fleet (robots: {', '.join(fleet.robots)})", file=fleet.file)
+    own = {k: v for k, v in raw["robots"][robot].items() if k != "password"}
+    key = fleet.robots[robot].key
+    users: dict[str, Any] = {}
+    for name in fleet.users_of(robot):
+        user = fleet.users[name]
+        users[name] = {"admin": True} if user.admin else {
+            "grants": [{"key": g.key, "role": g.role.value} for g in user.grants if g.key == key]}
+    data: dict[str, Any] = {ROBOT_FILE: robot}
+    if "prefix" in raw:
+        data["prefix"] = raw["prefix"]
+    if raw.get("broker") is not None:
+        data["broker"] = raw["broker"]
+    data["robots"] = {robot: own}
+    data["users"] = users
+    return data
+
+
+def split_fleet(config: str | Path, out: str | Path, robots: list[str] | None = None) -> list[Path]:
+    """Write ``<out>/<robot>.yaml`` for each robot (every robot of the fleet when ``robots`` is None); each is
+    loaded back before it is kept, so a file the bridge would refuse is never written. Mode 0600: the robot's key."""
+    fleet = load_fleet(config, need_hashes=True)
+    raw = yaml.safe_load(Path(config).read_text(encoding="utf-8"))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for robot in robots or list(fleet.robots):
+        text = HEADER.format(robot=robot, source=config) + yaml.safe_dump(
+            robot_file_data(raw, fleet, robot), sort_keys=False, default_flow_style=None, width=118)
+        path = out / f"{robot}.yaml"
+        parse_fleet(text, str(path))  # the bridge must be able to run from it
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        written.append(path)
+    return written
