@@ -8,7 +8,7 @@ One module for everything that starts real programs next to each other -- ``make
 * :class:`LocalProcess` -- a child with its output in a log file, restartable, whose
   :meth:`~LocalProcess.stop` always ends it: SIGCONT (a frozen child cannot handle anything
   else), the stop signal (SIGINT, or SIGTERM for brokers) to its whole process group, SIGKILL
-  to the group if it has not exited in time. Every child gets a process group of its own, so
+  to the group if it has not exited in time. Every child gets a session (so a process group) of its own, so
   whatever it starts stops with it; :func:`start_child` registers the stop on an ``ExitStack``;
 * :class:`Mosquitto` -- the OS package's broker, either with a small loopback config
   (:meth:`Mosquitto.plain`) or with exactly the files ``roslink-mqtt acl export`` writes for a
@@ -187,11 +187,11 @@ class LocalProcess:
 
     # starting
     def spawn(self, args: Sequence[str] | None = None) -> subprocess.Popen:
-        """Start the child (no readiness check) in a process group of its own."""
+        """Start the child (no readiness check) in a session (so a process group) of its own."""
         mode = "ab" if self.append or self.proc is not None else "wb"
         with open(self.log, mode) as out:
             self.proc = subprocess.Popen(list(args or self.args), stdout=out, stderr=subprocess.STDOUT,
-                                         env=self.env, cwd=self.cwd, process_group=0)
+                                         env=self.env, cwd=self.cwd, start_new_session=True)
         return self.proc
 
     def start(self) -> LocalProcess:

@@ -29,16 +29,20 @@ need_python() {
         echo "  On Debian/Ubuntu: sudo apt-get install python3 python3-venv; another one: make PYTHON=python3.11 ..." >&2
         return 1
     fi
-    # requires-python from pyproject.toml, checked by the interpreter itself (no tomllib before 3.11: a regex)
+    # The venv holds the bridge, whose ROS wheels name the one Python they are built for (a marker in pyproject.toml);
+    # without such a marker, requires-python. Checked by the interpreter itself (no tomllib before 3.11: a regex).
     "$python" - <<'PY' || return 1
 import re, sys
-spec = re.search(r'requires-python\s*=\s*"([^"]*)"', open("pyproject.toml").read()).group(1)
+project = open("pyproject.toml").read()
+wheels = re.search(r'"ros-jazzy-rclpy[^";]*;\s*python_version\s*==\s*\'([0-9.]+)\'', project)
+spec = f"=={wheels.group(1)}" if wheels else re.search(r'requires-python\s*=\s*"([^"]*)"', project).group(1)
+why = "the bridge's ROS 2 wheels in pyproject.toml" if wheels else "requires-python in pyproject.toml"
 ok = True
 for op, version in re.findall(r"(>=|<=|==|<|>)\s*([0-9.]+)", spec):
     want, have = tuple(int(p) for p in version.split(".")), sys.version_info[:len(version.split("."))]
     ok = ok and {">=": have >= want, "<": have < want, "<=": have <= want, ">": have > want, "==": have == want}[op]
 if not ok:
-    print(f"missing prerequisite: Python {spec} (requires-python in pyproject.toml); {sys.executable} is "
+    print(f"missing prerequisite: Python {spec} ({why}); {sys.executable} is "
           f"{sys.version.split()[0]}.\n  Install one (e.g. pyenv install 3.11) and run: make PYTHON=python3.11 ...",
           file=sys.stderr)
     sys.exit(1)

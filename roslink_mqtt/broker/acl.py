@@ -33,9 +33,10 @@ Nothing here imports amqtt: this module is the unit-testable part of the broker.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntFlag, StrEnum
+from enum import IntFlag
 from typing import Any
 
+from ..compat import StrEnum
 from ..config import Fleet, Role
 from ..topics import ANY, SYS_TOPICS, Kind, Verb, filter_levels
 

@@ -7,9 +7,10 @@ instead of editing one in place, so a half-applied reload cannot exist.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntEnum, StrEnum
+from enum import IntEnum
 from functools import cached_property
 
+from ..compat import StrEnum
 from ..protocol.enums import RobotType
 from ..topics import TopicTree
 

@@ -10,6 +10,7 @@ import binascii
 import math
 from typing import Any, TypeGuard
 
+from ..compat import strict_b64decode
 from .errors import ProtocolError
 from .messages import Field, FieldKind, MessageSpec
 
@@ -110,7 +111,7 @@ def check_field(path: str, field: Field, value: Any) -> Any:
         if not isinstance(value, str):
             raise ProtocolError(f"{path}: expected base64 string, got {describe(value)}")
         try:
-            binascii.a2b_base64(value, strict_mode=True)
+            strict_b64decode(value)
         except (binascii.Error, ValueError) as err:
             raise ProtocolError(f"{path}: invalid base64 ({err})") from None
         return value
