@@ -107,7 +107,7 @@ def test_found_the_common_interfaces() -> None:
 
 
 def _round_trip_check(conv):
-    @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck), database=None)
     @given(strategy(conv.ros_type))
     def check(data):
         msg = conv.from_dict(data)

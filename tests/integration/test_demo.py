@@ -19,26 +19,6 @@ from tests.support.procs import ROOT
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_demo_runs(tmp_path) -> None:
-    out = subprocess.run([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path)], cwd=ROOT,
-                         capture_output=True, text=True, timeout=100)
-    text = out.stdout + out.stderr
-    assert out.returncode == 0, text
-    for expected in ("bob sees roslink/turtle1/heartbeat: turtle1 ACTIVE",
-                     "bob sees roslink/turtle1/state/global_motion",
-                     "bob sees roslink/turtle1/state/range_finder_data",
-                     "payload.lx: expected number, got \"fast\"",
-                     "/to/alice/reply/reset", '"result":true',
-                     'goal_status: {"id":"demo-goal","status":"accepted"}', "feedback: ",
-                     'result: {"id":"demo-goal","status":"succeeded","result":{"sequence":[0,1,1,2,3,5,8]}}',
-                     '/to/alice/param_reply/sim_robot: {"id":"demo-speed","result":true,"values":{"max_speed":'
-                     '{"successful":true,"reason":""}}}', "the robot drives at vx=0.20 m/s",
-                     "dead-man"):
-        assert expected in text, f"missing {expected!r} in:\n{text}"
-    moved = [line for line in text.splitlines() if "the robot moved" in line]
-    assert moved and float(moved[0].split("moved ")[1].split(" m")[0]) > 0.1, text
-
-
 def nobody_listens(port: int) -> bool:
     """No process accepts connections on ``port`` (binding it is no test: the broker's closed connections may
     leave it in TIME_WAIT for a minute)."""
@@ -47,8 +27,21 @@ def nobody_listens(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) != 0
 
 
-def test_demo_dashboard_mode_serves_the_page_and_stops_cleanly(tmp_path) -> None:
-    """``make dashboard``: the scene plus the web dashboard until Ctrl-C; nothing is left running after it."""
+SCENE = ("bob sees roslink/turtle1/heartbeat: turtle1 ACTIVE",
+         "bob sees roslink/turtle1/state/global_motion",
+         "bob sees roslink/turtle1/state/range_finder_data",
+         "payload.lx: expected number, got \"fast\"",
+         "/to/alice/reply/reset", '"result":true',
+         'goal_status: {"id":"demo-goal","status":"accepted"}', "feedback: ",
+         'result: {"id":"demo-goal","status":"succeeded","result":{"sequence":[0,1,1,2,3,5,8]}}',
+         '/to/alice/param_reply/sim_robot: {"id":"demo-speed","result":true,"values":{"max_speed":'
+         '{"successful":true,"reason":""}}}', "the robot drives at vx=0.20 m/s",
+         "dead-man")
+
+
+def test_demo_plays_the_scene_serves_the_dashboard_and_stops_cleanly(tmp_path) -> None:
+    """``make dashboard`` (``make demo`` plays the same scene, then ends): the whole scene with real processes, then
+    the web dashboard until Ctrl-C; nothing is left running after it. One scene for both (the suite's time)."""
     proc = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path), "--dashboard",
                              "--dashboard-port", "0"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
@@ -63,6 +56,10 @@ def test_demo_dashboard_mode_serves_the_page_and_stops_cleanly(tmp_path) -> None
             if "Ctrl-C stops everything" in line:
                 break
         text = "".join(lines)
+        for expected in SCENE:
+            assert expected in text, f"missing {expected!r} in:\n{text}"
+        moved = [line for line in text.splitlines() if "the robot moved" in line]
+        assert moved and float(moved[0].split("moved ")[1].split(" m")[0]) > 0.1, text
         url = re.search(r"open (http://127\.0\.0\.1:\d+/)", text)
         broker_port = int(re.search(r"broker on 127\.0\.0\.1:(\d+)", text).group(1))
         assert url, text

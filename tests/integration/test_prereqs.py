@@ -64,3 +64,14 @@ def test_a_python_outside_requires_python_is_named(tmp_path) -> None:
 def test_a_missing_interpreter_is_named() -> None:
     out = _run("python", "python3.99")
     assert out.returncode == 1 and "missing prerequisite: python3.99" in out.stderr, out.stderr
+
+
+def test_the_venv_python_is_the_one_the_ros_wheels_are_built_for(tmp_path) -> None:
+    """The core takes 3.10..3.13, but the venv `make` builds holds the bridge: its ROS wheels' Python is checked."""
+    (tmp_path / "pyproject.toml").write_text('[project]\nname = "x"\nrequires-python = ">=3.10"\n'
+                                             "[project.optional-dependencies]\n"
+                                             "bridge = [\"ros-jazzy-rclpy==7.1.6; python_version == '3.99'\"]\n")
+    out = _run("python", sys.executable, cwd=tmp_path)
+    assert out.returncode == 1, out
+    assert "missing prerequisite: Python ==3.99 (the bridge's ROS 2 wheels in pyproject.toml)" in out.stderr, \
+        out.stderr

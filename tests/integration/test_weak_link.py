@@ -36,7 +36,7 @@ RULES = """    rules: &rules
       - {direction: ros_to_mqtt, ros_topic: /wl/camera, ros_type: sensor_msgs/msg/CompressedImage,
          mqtt_topic: state/camera, encoding: raw}
 """
-MEASURE = 5.0  # s of flood measured, after the first pose arrived
+MEASURE = 4.0  # s of flood measured, after the first pose arrived
 
 
 def _scene(tmp_path, mode: str) -> dict:
