@@ -157,6 +157,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return 2
+    from ..config.exposure import exposure_problems
+
+    problems = exposure_problems(fleet, args.host, args.ws_port)
+    for problem in problems:
+        print(f"{PROG}: refused to start: {problem}", file=sys.stderr)
+    if problems:
+        return 2
     try:
         throttle = LoginThrottle(free_failures=args.login_free_failures,
                                  base_delay=min(0.5, args.login_max_delay), max_delay=args.login_max_delay)

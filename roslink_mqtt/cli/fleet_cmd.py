@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..config import Fleet, load_fleet
 from ..config.interfaces import interface_table
@@ -49,8 +50,15 @@ def summary(fleet: Fleet) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    print(summary(load_fleet(args.config)))
-    return 0
+    """The summary; exit 2 when the broker would refuse to start from this file (config/exposure.py)."""
+    from ..config.exposure import exposure_problems
+
+    fleet = load_fleet(args.config)
+    print(summary(fleet))
+    problems = [] if fleet.robot_file else exposure_problems(fleet)
+    for problem in problems:
+        print(f"roslink-mqtt fleet: the broker would refuse to start: {problem}", file=sys.stderr)
+    return 2 if problems else 0
 
 
 def run_split(args: argparse.Namespace) -> int:

@@ -267,7 +267,7 @@ class _FleetReader:
                                    f"a supervisor must be an operator of the robot: {why}")
 
     def broker(self, path: Path) -> BrokerSettings:
-        self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload"))
+        self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload", "allow_plaintext"))
         port = self.integer(1, 65535)
         tls = None
         if self.get(path) and self.get(path).get("tls") is not None:
@@ -281,6 +281,7 @@ class _FleetReader:
             ws_port=self.value(path, "ws_port", self.integer(0, 65535), 8083) or None,
             tls=tls,
             max_payload=self.value(path, "max_payload", self.integer(1024, 256 * 1024 * 1024), 4 * 1024 * 1024),
+            allow_plaintext=self.value(path, "allow_plaintext", self.boolean, False),
         )
 
     def robots(self, path: Path) -> dict[str, Robot]:

@@ -90,6 +90,9 @@ class BrokerSettings:
     ws_port: int | None = 8083
     tls: TlsSettings | None = None
     max_payload: int = 4 * 1024 * 1024
+    # Plain (not TLS) listeners on a non-loopback host carry every password in clear text: refused unless this says
+    # the network is trusted (config/exposure.py)
+    allow_plaintext: bool = False
 
 
 LIMIT_NORM, LIMIT_PER_AXIS = "norm", "per_axis"

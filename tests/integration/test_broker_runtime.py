@@ -269,3 +269,23 @@ def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes
     (tmp_path / "key.pem").unlink()
     done = _broker_cli("--config", str(fleet), "--port", str(free_port()), "--ws-port", "0")
     assert done.returncode == 1 and "broker.tls.keyfile: cannot read" in done.stderr
+
+
+def test_a_public_plain_listener_and_the_demo_passwords_are_refused_at_start(tmp_path: Path) -> None:
+    """The demo fleet copied to a server and started on every interface: the broker refuses before it listens (plain
+    MQTT would carry passwords in clear text, and the demo's published passwords let anybody in); `fleet` says so."""
+    from roslink_mqtt.localproc import fleet_copy
+
+    port = free_port()
+    started = subprocess.run([sys.executable, "-m", "roslink_mqtt.broker", "--config", str(CONFIG), "--host", "0.0.0.0",
+                              "--port", str(port), "--ws-port", "0"], cwd=ROOT, capture_output=True, text=True,
+                             timeout=30)
+    assert started.returncode == 2, started.stderr
+    assert "refused to start: broker.host 0.0.0.0 is not loopback, and plain MQTT would carry" in started.stderr
+    assert "turtle1, turtle2, alice, bob, carol, admin still log in with the demo fleet's published" in started.stderr
+    with socket.socket() as probe:
+        assert probe.connect_ex(("127.0.0.1", port)) != 0, "it listened anyway"
+    public = fleet_copy(tmp_path / "robots.yaml", CONFIG, edit=lambda d: d["broker"].update(host="0.0.0.0"))
+    checked = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "fleet", "--config", str(public)],
+                             cwd=ROOT, capture_output=True, text=True, timeout=30)
+    assert checked.returncode == 2 and "the broker would refuse to start: broker.host 0.0.0.0" in checked.stderr

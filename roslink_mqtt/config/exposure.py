@@ -1,0 +1,55 @@
+"""Whether a broker about to listen beyond this machine would expose something it must not. ROS-free, pure.
+
+Two mistakes a copied demo makes on its way to a server: plain MQTT (and MQTT over WebSocket) on a public address,
+where every login's password crosses the network in clear text, and the demo fleet's published passwords
+(README: ``alice-demo`` …), which anybody can log in with. Neither matters on loopback (the demo, the tests, a
+broker behind a TLS terminator on the same host); both are refused on any other address -- the first unless the
+fleet file says the network is trusted (``broker.allow_plaintext: true``). The broker checks at start and
+``roslink-mqtt fleet`` when it validates.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+
+from .model import Fleet
+from .passwords import verify_password
+
+DEMO_PASSWORD_SUFFIX = "-demo"  # the demo fleet's published passwords are "<login>-demo" (README, "The demo fleet")
+
+
+def is_loopback(host: str) -> bool:
+    """``127.0.0.0/8``, ``::1`` and ``localhost``: reachable from this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a name: it resolves to whatever the network says
+        return False
+
+
+def demo_logins(fleet: Fleet) -> list[str]:
+    """Logins whose password is still the demo fleet's published one (``<login>-demo``)."""
+    logins = [(name, robot.password_hash) for name, robot in fleet.robots.items()]
+    logins += [(name, user.password_hash) for name, user in fleet.users.items()]
+    return [name for name, hashed in logins if hashed and verify_password(f"{name}{DEMO_PASSWORD_SUFFIX}", hashed)]
+
+
+def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None = None) -> list[str]:
+    """Why a broker for ``fleet`` must not listen on ``host`` (default ``broker.host``) with these listeners; empty when
+    it may. ``ws_port``: the WebSocket listener in use when not the fleet's (a command-line override; 0 = off)."""
+    host = fleet.broker.host if host is None else host
+    if is_loopback(host):
+        return []
+    problems = []
+    ws = fleet.broker.ws_port if ws_port is None else ws_port
+    if not fleet.broker.allow_plaintext:
+        plain = "plain MQTT" + (" and MQTT over WebSocket" if ws else "")
+        problems.append(f"broker.host {host} is not loopback, and {plain} would carry every login's password in clear "
+                        "text: keep host: 127.0.0.1 behind a TLS terminator, or set broker.allow_plaintext: true "
+                        "for a network you trust")
+    demo = demo_logins(fleet)
+    if demo:
+        problems.append(f"{', '.join(demo)} still log in with the demo fleet's published passwords (<login>-demo): "
+                        f"make new ones with `roslink-mqtt passwd NAME` before the broker listens on {host}")
+    return problems

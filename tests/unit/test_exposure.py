@@ -1,0 +1,57 @@
+"""A broker listening beyond this machine: plain listeners need broker.allow_plaintext, demo passwords are refused."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from roslink_mqtt.config import hash_password, load_fleet
+from roslink_mqtt.config.exposure import demo_logins, exposure_problems, is_loopback
+
+DEMO = Path(__file__).resolve().parents[2] / "config" / "robots.yaml"
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return load_fleet(DEMO)
+
+
+def _fresh(fleet, **broker):
+    """The demo fleet with new passwords for every login (and broker settings changed)."""
+    robots = {n: dataclasses.replace(r, password_hash=hash_password(f"{n}-fresh!", iterations=1000))
+              for n, r in fleet.robots.items()}
+    users = {n: dataclasses.replace(u, password_hash=hash_password(f"{n}-fresh!", iterations=1000))
+             for n, u in fleet.users.items()}
+    return dataclasses.replace(fleet, robots=robots, users=users,
+                               broker=dataclasses.replace(fleet.broker, **broker))
+
+
+@pytest.mark.parametrize(("host", "loopback"), [("127.0.0.1", True), ("127.0.1.1", True), ("::1", True),
+                                                ("localhost", True), ("0.0.0.0", False), ("10.0.0.5", False),
+                                                ("::", False), ("broker.example.org", False)])
+def test_only_loopback_is_loopback(host: str, loopback: bool) -> None:
+    assert is_loopback(host) is loopback
+
+
+def test_the_demo_fleet_on_loopback_is_fine(demo) -> None:
+    assert exposure_problems(demo) == [] and exposure_problems(demo, "127.0.0.1") == []
+
+
+def test_the_demo_fleet_on_every_interface_is_refused_for_both_reasons(demo) -> None:
+    plain, passwords = exposure_problems(demo, "0.0.0.0")
+    assert "broker.host 0.0.0.0 is not loopback, and plain MQTT and MQTT over WebSocket would carry" in plain
+    assert "broker.allow_plaintext: true" in plain
+    assert passwords.startswith("turtle1, turtle2, alice, bob, carol, admin still log in with the demo fleet's")
+    assert sorted(demo_logins(demo)) == sorted([*demo.robots, *demo.users])
+
+
+def test_fresh_passwords_and_allow_plaintext_pass_and_each_is_needed(demo) -> None:
+    assert exposure_problems(_fresh(demo, allow_plaintext=True), "0.0.0.0") == []
+    only_plain = exposure_problems(_fresh(demo, ws_port=None), "0.0.0.0")
+    assert len(only_plain) == 1 and "plain MQTT would carry" in only_plain[0]  # no WebSocket listener to name
+    only_demo = exposure_problems(dataclasses.replace(demo, broker=dataclasses.replace(demo.broker,
+                                                                                        allow_plaintext=True)),
+                                  "0.0.0.0")
+    assert len(only_demo) == 1 and "demo fleet's published passwords" in only_demo[0]
