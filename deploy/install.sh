@@ -17,13 +17,16 @@ options:
   --prefix DIR        where the venv goes: DIR/.venv (default /opt/roslink-mqtt)
   --bridge-user NAME  the user the bridge runs as (default roslink). Give the user your robot's ROS nodes run
                       as: Fast DDS's shared memory does not connect processes of different users.
+  --config FILE       the configuration to install as /etc/roslink-mqtt/robots.yaml: for the broker your fleet
+                      file, for a robot its own file from `roslink-mqtt fleet split` (no password hashes).
+                      Needed unless one is there already; never the demo fleet (its passwords are public)
   --python PATH       a Python 3.11 outside /home and /root (default: python3.11, then python3)
   --from-pypi         install roslink-mqtt from the package index instead of this checkout
   --dry-run           print what would be done; change nothing (root not needed)
   -h, --help          this text
 
 It creates the system group and user roslink (useradd --system), PREFIX/.venv, /etc/roslink-mqtt/ (root:roslink,
-750) with robots.yaml (the demo fleet from this checkout unless one is there; 640) and, for the bridge,
+750) with robots.yaml (--config FILE; an existing one is kept without it; 640) and, for the bridge,
 bridge.env (600); it copies the units to /etc/systemd/system/ and runs systemctl daemon-reload.
 USAGE
 }
@@ -31,6 +34,7 @@ USAGE
 PREFIX=/opt/roslink-mqtt
 BRIDGE_USER=roslink
 PYTHON=
+CONFIG=
 FROM_PYPI=0
 DRY_RUN=0
 COMPONENTS=()
@@ -46,6 +50,8 @@ while [ $# -gt 0 ]; do
         --prefix=*) PREFIX=${1#*=}; shift ;;
         --bridge-user) [ $# -ge 2 ] || die "--bridge-user needs a name"; BRIDGE_USER=$2; shift 2 ;;
         --bridge-user=*) BRIDGE_USER=${1#*=}; shift ;;
+        --config) [ $# -ge 2 ] || die "--config needs a file"; CONFIG=$2; shift 2 ;;
+        --config=*) CONFIG=${1#*=}; shift ;;
         --python) [ $# -ge 2 ] || die "--python needs a path"; PYTHON=$2; shift 2 ;;
         --python=*) PYTHON=${1#*=}; shift ;;
         --from-pypi) FROM_PYPI=1; shift ;;
@@ -63,6 +69,15 @@ PREFIX=${PREFIX%/}
 case $PREFIX in /home|/home/*|/root|/root/*|/run/user/*|/tmp/*) die "--prefix $PREFIX: the units' ProtectHome/PrivateTmp hide it" ;; esac
 [ -f "$SRC/pyproject.toml" ] && [ -f "$SRC/bridge/roslink-mqtt-bridge.service" ] \
     || die "run me from a roslink-mqtt checkout ($SRC has no pyproject.toml and units)"
+# The configuration: never the demo fleet, whose passwords are published (README).
+if [ -n "$CONFIG" ]; then
+    [ -f "$CONFIG" ] || die "--config $CONFIG: no such file"
+    cmp -s "$CONFIG" "$SRC/config/robots.yaml" && die "--config $CONFIG is the demo fleet, whose passwords are" \
+        "public: write your own (docs/config.md; roslink-mqtt passwd makes the hashes)"
+elif [ ! -e "$ETC/robots.yaml" ]; then
+    die "no configuration: pass --config FILE (the broker: your fleet file; a robot: its file from" \
+        "\`roslink-mqtt fleet split\`). install.sh never installs the demo fleet: its passwords are public"
+fi
 if [ "$DRY_RUN" = 0 ] && [ "$(id -u)" != 0 ]; then die "needs root (or --dry-run)"; fi
 
 # Every change goes through run: printed, and executed unless --dry-run.
@@ -151,11 +166,11 @@ fi
 
 # --- configuration ------------------------------------------------------------------------------------------------
 run install -d -m 750 -o root -g roslink "$ETC"
-if [ -e "$ETC/robots.yaml" ]; then
-    note "keeping $ETC/robots.yaml"
+if [ -n "$CONFIG" ]; then
+    [ -e "$ETC/robots.yaml" ] && note "replacing $ETC/robots.yaml with $CONFIG"
+    run install -m 640 -o root -g roslink "$CONFIG" "$ETC/robots.yaml"
 else
-    note "$ETC/robots.yaml: the demo fleet (public passwords): edit it"
-    run install -m 640 -o root -g roslink "$SRC/config/robots.yaml" "$ETC/robots.yaml"
+    note "keeping $ETC/robots.yaml"
 fi
 if want bridge; then
     if [ -e "$ETC/bridge.env" ]; then
@@ -180,9 +195,6 @@ if [ "$DRY_RUN" = 1 ]; then echo "Dry run: nothing was changed."; else echo "Ins
 echo "Next:"
 want broker && echo "  sudoedit $ETC/robots.yaml                # robots, users, grants, broker listeners"
 want bridge && echo "  sudoedit $ETC/bridge.env                 # ROSLINK_ROBOT, ROSLINK_PASSWORD, --url, ROS_DOMAIN_ID"
-if want bridge && ! want broker; then
-    echo "  sudo install -m 640 -o root -g roslink robots.yaml $ETC/robots.yaml   # the fleet file your broker uses"
-fi
 for unit in "${units[@]}"; do
     echo "  sudo systemctl enable --now $unit"
 done

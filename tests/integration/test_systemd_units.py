@@ -36,6 +36,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -512,8 +513,13 @@ def test_broker_unit_starts_in_its_sandbox(tmp_path) -> None:
 
 
 def dry_run(*args: str) -> str:
-    done = subprocess.run(["bash", str(INSTALL), "--dry-run", *args], capture_output=True, text=True, timeout=30,
-                          cwd=ROOT)
+    """install.sh --dry-run ARGS with a configuration of one's own (a robot file of the demo fleet: not the demo fleet
+    itself, which install.sh refuses)."""
+    from roslink_mqtt.config.split import split_fleet
+
+    config = split_fleet(CONFIG, tempfile.mkdtemp(), ["turtle1"])[0]
+    done = subprocess.run(["bash", str(INSTALL), "--dry-run", "--config", str(config), *args], capture_output=True,
+                          text=True, timeout=30, cwd=ROOT)
     if "no python3.11 found" in done.stderr:
         pytest.skip("install.sh needs a system Python 3.11 (none here)")
     assert done.returncode == 0, done.stdout + done.stderr
@@ -565,9 +571,13 @@ def test_install_dry_run_creates_what_the_units_name() -> None:
 
 
 def test_install_refuses_what_the_units_cannot_run() -> None:
+    no_etc = [] if Path("/etc/roslink-mqtt/robots.yaml").exists() else [
+        (["bridge"], "no configuration: pass --config FILE")]  # a host where it was installed keeps its file
     for args, reason in ((["--prefix", "/home/me/roslink", "bridge"], "ProtectHome"),
                          (["--bridge-user", "Not A User", "bridge"], "not a user name"),
-                         ([], "say what to install")):
+                         ([], "say what to install"),
+                         (["--config", str(CONFIG), "broker"], "is the demo fleet, whose passwords are public"),
+                         *no_etc):
         done = subprocess.run(["bash", str(INSTALL), "--dry-run", *args], capture_output=True, text=True,
                               timeout=30)
         assert done.returncode == 2 and reason in done.stderr, (args, done.stdout + done.stderr)
