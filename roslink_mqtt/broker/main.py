@@ -184,25 +184,35 @@ def main(argv: Sequence[str] | None = None) -> int:
 async def serve(server: EmbeddedBroker) -> int:
     from .server import StartError
 
-    try:
-        await server.start()
-    except StartError as err:
-        print(f"{PROG}: {err}", file=sys.stderr)
-        return 1
-    tune_gc()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     reloads: set[asyncio.Task[bool]] = set()
 
+    state = {"started": False, "hup_pending": False}
+
     def on_hup() -> None:
+        if not state["started"]:  # reloaded once the listeners are up: a change saved meanwhile is not lost
+            state["hup_pending"] = True
+            return
         log.info("SIGHUP: reloading %s", server.config_path)
         task = loop.create_task(server.reload())
         reloads.add(task)
         task.add_done_callback(reloads.discard)
 
+    # Before the listeners open: a SIGTERM the moment the port answers (systemd, a test) is a clean stop, not a
+    # death by signal (it was: exit -15 when it came before the handlers, while the collector was being tuned).
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     loop.add_signal_handler(signal.SIGHUP, on_hup)
+    try:
+        await server.start()
+    except StartError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return 1
+    state["started"] = True
+    if state["hup_pending"]:
+        on_hup()
+    tune_gc()
     await stop.wait()
     log.info("stopping")
     await asyncio.gather(*reloads, return_exceptions=True)
