@@ -34,7 +34,7 @@ from .protocol import MessageId, ProtocolError, decode
 from .protocol.control import CallReply, CallRequest, ErrorReport
 from .protocol.goals import GoalRequest
 from .protocol.params import ParamRequest
-from .ros_env import local_ros_env
+from .ros_env import domains_in_use, local_ros_env
 from .topics import Kind, TopicTree, Verb
 
 DEMO_PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo", "bob": "bob-demo"}
@@ -229,6 +229,17 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def _domain_id(text: str) -> int:
+    """A ROS domain id as DDS on Linux takes it: 0..232 (101 and below are safe everywhere)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f"{value} is not a ROS domain id (0..232)")
+    return value
+
+
 def _run(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
     parser.add_argument("--config", default="config/robots.yaml")
@@ -236,6 +247,9 @@ def _run(argv: list[str] | None) -> int:
     parser.add_argument("--dashboard", action="store_true",
                         help="serve the web dashboard too and keep everything running until Ctrl-C")
     parser.add_argument("--dashboard-port", type=int, default=8090, help="0: any free port (default %(default)s)")
+    parser.add_argument("--ros-domain-id", type=_domain_id, metavar="N",
+                        help="the ROS domain of the simulated robot and its bridge (default: one that no ROS process "
+                             "on this machine uses)")
     args = parser.parse_args(argv)
     fleet = load_fleet(args.config)
     topics = fleet.topics
@@ -245,9 +259,13 @@ def _run(argv: list[str] | None) -> int:
     ws_port = _pick_port(fleet.broker.ws_port, "the fleet's MQTT-over-WebSocket port") if fleet.broker.ws_port \
         else free_port()
     remove_zombie_segments()  # a killed earlier run must not leave this one stale DDS state
-    env = local_ros_env()
-    print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (unused on this "
-          f"machine; DDS on loopback), logs in {logs}/")
+    env = local_ros_env(args.ros_domain_id)
+    chosen = "unused on this machine" if args.ros_domain_id is None else "as asked"
+    print(f"roslink-mqtt demo — broker on 127.0.0.1:{port}, ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} ({chosen}; DDS on "
+          f"loopback), logs in {logs}/")
+    if args.ros_domain_id is not None and args.ros_domain_id in domains_in_use():
+        print(f"demo: ROS domain {args.ros_domain_id} is in use by another ROS graph on this machine: its nodes and "
+              "the demo's see each other", file=sys.stderr, flush=True)
     with ExitStack() as stack:
         def start(name: str, cmd: list[str], extra_env: dict[str, str] | None = None,
                   port: int | None = None) -> LocalProcess:

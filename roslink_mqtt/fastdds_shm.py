@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import time
 from pathlib import Path
 
 SHM_DIR = Path("/dev/shm")
@@ -37,13 +38,25 @@ def _unlocked(lock_file: Path) -> bool:
         os.close(fd)
 
 
-def remove_zombie_segments(shm_dir: Path = SHM_DIR) -> list[str]:
-    """Delete every ``fastrtps_*`` segment whose owner is gone; return the names removed."""
+# A process that starts creates a segment and its companion first and locks the companion a moment later: in that
+# moment the pair looks like a zombie. Removing it would leave the new process writing to, or listening on, a file
+# nobody else can open any more (its DDS data lost while discovery, over UDP, still works). Younger pairs are left.
+MIN_ZOMBIE_AGE = 5.0  # s since the companion was created
+
+
+def remove_zombie_segments(shm_dir: Path = SHM_DIR, min_age: float = MIN_ZOMBIE_AGE) -> list[str]:
+    """Delete every ``fastrtps_*`` segment whose owner is gone (and whose companion is at least ``min_age`` s
+    old); return the names removed."""
     removed: list[str] = []
     if not shm_dir.is_dir():
         return removed
+    now = time.time()
     for lock_file in sorted(shm_dir.glob(f"fastrtps_*{LOCK_SUFFIX}")):
-        if not _unlocked(lock_file):
+        try:
+            young = now - lock_file.stat().st_mtime < min_age
+        except FileNotFoundError:
+            continue
+        if young or not _unlocked(lock_file):
             continue
         segment = lock_file.with_name(lock_file.name[: -len(LOCK_SUFFIX)])
         for path in (segment, lock_file):

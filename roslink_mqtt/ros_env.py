@@ -70,6 +70,17 @@ def unused_domain_id(rng: random.Random | None = None, *, in_use: set[int] | Non
     return (rng or random).choice(free)
 
 
+def unused_domain_ids(count: int, rng: random.Random | None = None, *, in_use: set[int] | None = None) -> list[int]:
+    """``count`` different unused domain ids, picked at once: processes that start together (a test run's
+    parallel workers) each take one, and none can pick what another picked a moment before it bound a port."""
+    taken = domains_in_use() if in_use is None else in_use
+    free = [d for d in SAFE_DOMAINS if d not in taken]
+    if len(free) < count:
+        raise RuntimeError(f"{count} ROS domain ids are needed and only {len(free)} of {SAFE_DOMAINS.start}.."
+                           f"{SAFE_DOMAINS.stop - 1} are unused on this machine: stop some ROS processes")
+    return (rng or random).sample(free, count)
+
+
 def local_ros_env(domain_id: int | None = None, base: dict[str, str] | None = None) -> dict[str, str]:
     """A copy of ``base`` (default ``os.environ``) with loopback-only DDS and a fresh domain id.
 

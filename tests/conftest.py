@@ -7,13 +7,32 @@ test starts inherits them.
 
 from __future__ import annotations
 
+import os
 import signal
 from pathlib import Path
 
-from roslink_mqtt.ros_env import apply_local_ros_env
+import pytest
+
+from roslink_mqtt.ros_env import apply_local_ros_env, unused_domain_ids
 from tests.support.measure import MEASUREMENTS
 
-ROS_ENV = apply_local_ros_env()
+# `pytest -n N` (pytest-xdist) runs N worker processes, each a whole session: each gets a ROS domain of its own.
+# The controller imports this file first and picks them all at once (workers inherit its environment), so two
+# workers starting together cannot both take the one domain that looked free.
+DOMAINS_VAR = "ROSLINK_TEST_DOMAINS"
+MAX_WORKERS = 8
+
+
+def _domain_of_this_process() -> int:
+    worker = os.environ.get("PYTEST_XDIST_WORKER")  # "gw0", "gw1", ... in a worker; unset in a plain run
+    if worker and os.environ.get(DOMAINS_VAR):
+        return int(os.environ[DOMAINS_VAR].split(",")[1 + int(worker.removeprefix("gw"))])
+    domains = unused_domain_ids(1 + MAX_WORKERS)
+    os.environ[DOMAINS_VAR] = ",".join(map(str, domains))
+    return domains[0]
+
+
+ROS_ENV = apply_local_ros_env(_domain_of_this_process())
 
 # Tests stop the programs they start with Ctrl-C (SIGINT), as a user would. A shell that runs the suite as a
 # background job starts it with SIGINT ignored, and an ignored signal stays ignored in every child (Python then
@@ -27,13 +46,41 @@ FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    import pytest
-
     tests = Path(__file__).parent
     for item in items:
         folder = item.path.relative_to(tests).parts[0] if item.path.is_relative_to(tests) else ""
         if folder in FOLDER_MARKERS:
             item.add_marker(getattr(pytest.mark, folder))
+
+
+def pytest_sessionfinish(session) -> None:
+    """A worker of `pytest -n` hands its measurements to the controller, which prints them all."""
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:
+        workeroutput["measurements"] = [list(m) for m in MEASUREMENTS]
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: a worker ended
+def pytest_testnodedown(node, error) -> None:
+    MEASUREMENTS.extend(tuple(m) for m in getattr(node, "workeroutput", {}).get("measurements", []))
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: how tests are shared out among the workers
+def pytest_xdist_make_scheduler(config, log):
+    """`make test` runs `pytest -n 2 --dist loadgroup`: a test module goes to one worker whole (its module-scoped
+    stack starts once), and modules marked ``xdist_group("name")`` go to one worker together, one after the
+    other (they share something fixed, such as the demo's ports)."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleOrGroup(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            if nodeid.rfind("@") > nodeid.rfind("]"):  # xdist appends "@group" to a marked test's id
+                return "group " + nodeid.rsplit("@", 1)[1]
+            return nodeid.split("::", 1)[0]
+
+    return ModuleOrGroup(config, log)
 
 
 def pytest_terminal_summary(terminalreporter) -> None:

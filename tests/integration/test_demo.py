@@ -16,7 +16,11 @@ import pytest
 
 from tests.support.procs import ROOT
 
-pytestmark = pytest.mark.timeout(120)
+# The demo's default ports (1883, 8083) are the docs' too: under `pytest -n`, these and tests/integration/
+# test_docs_run.py run on one worker, one after the other. The demo runs in this run's ROS domain: one it picked
+# itself could be another worker's (free for a moment between two tests), and its robot would take their commands.
+pytestmark = [pytest.mark.timeout(120), pytest.mark.xdist_group("demo-ports")]
+OUR_DOMAIN = ("--ros-domain-id", os.environ["ROS_DOMAIN_ID"])
 
 
 def nobody_listens(port: int) -> bool:
@@ -43,8 +47,8 @@ def test_demo_plays_the_scene_serves_the_dashboard_and_stops_cleanly(tmp_path) -
     """``make dashboard`` (``make demo`` plays the same scene, then ends): the whole scene with real processes, then
     the web dashboard until Ctrl-C; nothing is left running after it. One scene for both (the suite's time)."""
     proc = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path), "--dashboard",
-                             "--dashboard-port", "0"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+                             "--dashboard-port", "0", *OUR_DOMAIN], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     try:
         deadline = time.monotonic() + 100
@@ -109,6 +113,19 @@ def _descendants(pid: int) -> dict[int, str]:
     return cmdlines
 
 
+def _child_running(pid: int, module: str, timeout: float = 10.0) -> int:
+    """The process below ``pid`` that runs ``module`` (read from /proc until it shows: a busy machine may show it
+    a moment late)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        started = _descendants(pid)
+        found = [child for child, cmd in started.items() if module in cmd]
+        if found:
+            return found[0]
+        assert time.monotonic() < deadline, f"no {module} below pid {pid}: {started}"
+        time.sleep(0.1)
+
+
 def _alive(pids) -> list[int]:
     return [p for p in pids if Path(f"/proc/{p}").exists() and "Z" not in
             (Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[:1] or ["Z"])]
@@ -149,7 +166,7 @@ def test_make_demo_stops_every_process_it_started_on_sigterm_and_sighup(tmp_path
     on 1883, and the next demo quietly moved to another port); a taken port is named with who holds it; without
     npm the demo says so and runs."""
     no_node = how.startswith("kill")
-    args = ["--logs", str(tmp_path / "logs")]
+    args = ["--logs", str(tmp_path / "logs"), *OUR_DOMAIN]
     holders: list[socket.socket] = []
     if not no_node:  # hold the fleet's MQTT port, as an earlier demo left running would
         from roslink_mqtt.localproc import fleet_copy
@@ -167,6 +184,8 @@ def test_make_demo_stops_every_process_it_started_on_sigterm_and_sighup(tmp_path
                             start_new_session=True)  # its own session: SIGHUP to the group is the closed terminal
     try:
         text = _read_until(make, "2. simulated robot and bridge")
+        for module in ("roslink_mqtt.broker", "roslink_mqtt.sim", "roslink_mqtt.bridge"):
+            _child_running(make.pid, module)
         started = _descendants(make.pid)
         names = " ".join(started.values())
         assert all(part in names for part in ("roslink_mqtt.broker", "roslink_mqtt.sim", "roslink_mqtt.bridge")), \
@@ -195,12 +214,12 @@ def test_make_demo_stops_every_process_it_started_on_sigterm_and_sighup(tmp_path
 def test_a_child_that_dies_ends_the_demo_with_its_log(tmp_path) -> None:
     """A bridge that crashes mid-scene (a segfault once did) is reported with the end of its log, and the demo
     stops, instead of printing "(no result seen)" and carrying on."""
-    demo = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path)], cwd=ROOT,
+    demo = subprocess.Popen([sys.executable, "-m", "roslink_mqtt.demo", "--logs", str(tmp_path), *OUR_DOMAIN], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         text = _read_until(demo, "2. simulated robot and bridge")
+        bridge = _child_running(demo.pid, "roslink_mqtt.bridge.main")
         started = _descendants(demo.pid)
-        bridge = next(pid for pid, cmd in started.items() if "roslink_mqtt.bridge.main" in cmd)
         os.kill(bridge, signal.SIGSEGV)
         t_kill = time.monotonic()
         out, _ = demo.communicate(timeout=30)

@@ -41,7 +41,9 @@ from tests.support.mqtt_client import TestClient
 from tests.support.net import wait_for_port
 from tests.support.procs import CONFIG, ROOT, bridge_args, bridge_env, run
 
-pytestmark = pytest.mark.timeout(180)
+# The demo fleet's ports are fixed (the docs name them): under `pytest -n` this module and tests/integration/
+# test_demo.py run on one worker, one after the other.
+pytestmark = [pytest.mark.timeout(180), pytest.mark.xdist_group("demo-ports")]
 
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "broker" / "README.md",
              ROOT / "bridge" / "README.md"]

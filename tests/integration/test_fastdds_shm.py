@@ -31,12 +31,22 @@ def test_only_unlocked_segments_go(tmp_path: Path) -> None:
     holder = os.open(live_lock, os.O_RDWR)  # a separate open file: flock conflicts as with another process
     try:
         fcntl.flock(holder, fcntl.LOCK_EX)
-        removed = remove_zombie_segments(tmp_path)
+        removed = remove_zombie_segments(tmp_path, min_age=0)
     finally:
         os.close(holder)
     assert sorted(removed) == ["fastrtps_port7001", "fastrtps_port7001_el"]
     assert live_seg.exists() and live_lock.exists() and lonely.exists() and other.exists()
     assert not dead_seg.exists() and not dead_lock.exists()
+
+
+def test_a_pair_just_created_is_not_yet_judged(tmp_path: Path) -> None:
+    """A starting process locks its companion a moment after creating it: another process cleaning up at that
+    moment (two test workers, the sim's start) must not take its segment away."""
+    seg, lock = _segment(tmp_path, "fastrtps_port7002")
+    assert remove_zombie_segments(tmp_path) == [] and seg.exists() and lock.exists()
+    old = time.time() - 60
+    os.utime(lock, (old, old))
+    assert sorted(remove_zombie_segments(tmp_path)) == ["fastrtps_port7002", "fastrtps_port7002_el"]
 
 
 def test_missing_directory_is_nothing_to_do(tmp_path: Path) -> None:
@@ -76,7 +86,7 @@ def test_a_killed_ros_process_leaves_zombies_that_are_removed() -> None:
         killed.send_signal(signal.SIGKILL)
         killed.wait(5)
         assert all((SHM_DIR / name).exists() for name in killed_files)  # SIGKILL leaves them behind
-        removed = set(remove_zombie_segments())
+        removed = set(remove_zombie_segments(min_age=0))
         assert killed_files <= removed
         assert not living_files & removed
         assert all((SHM_DIR / name).exists() for name in living_files)

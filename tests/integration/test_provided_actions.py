@@ -52,7 +52,7 @@ def stack(request, tmp_path_factory):
                 bob.subscribe("roslink/turtle1/heartbeat")
                 bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
             client = ActionClient(probe.node, Fibonacci, "/plan")
-            yield SimpleNamespace(backend=backend, port=broker.port, work=work, client=client,
+            yield SimpleNamespace(backend=backend, port=broker.port, work=work, client=client, probe=probe,
                                   Goal=Fibonacci.Goal, url=f"mqtt://127.0.0.1:{broker.port}")
     finally:
         probe.close()
@@ -78,22 +78,21 @@ def test_goal_feedback_result_cancel_and_rejection(stack) -> None:
     with provider(stack):
         assert stack.client.wait_for_server(timeout_sec=20), "the bridge never served /plan"
         feedback: list[list[int]] = []
-        handle = _wait(stack.client.send_goal_async(stack.Goal(order=6),
-                                                    feedback_callback=lambda fb: feedback.append(
-                                                        list(fb.feedback.sequence))))
+        handle = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(
+            stack.Goal(order=6), feedback_callback=lambda fb: feedback.append(list(fb.feedback.sequence)))))
         assert handle.accepted
-        result = _wait(handle.get_result_async())
+        result = _wait(stack.probe.on_spin(handle.get_result_async))
         assert result.status == GoalStatus.STATUS_SUCCEEDED
         assert list(result.result.sequence) == [0, 1, 1, 2, 3, 5, 8]
         assert feedback and feedback[-1][:3] == [0, 1, 1]
-        long = _wait(stack.client.send_goal_async(stack.Goal(order=40)))
+        long = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(stack.Goal(order=40))))
         assert long.accepted
         time.sleep(0.3)
-        cancel = _wait(long.cancel_goal_async())
+        cancel = _wait(stack.probe.on_spin(long.cancel_goal_async))
         assert len(cancel.goals_canceling) == 1
-        ended = _wait(long.get_result_async())
+        ended = _wait(stack.probe.on_spin(long.get_result_async))
         assert ended.status == GoalStatus.STATUS_CANCELED and len(ended.result.sequence) < 41
-        rejected = _wait(stack.client.send_goal_async(stack.Goal(order=99)))
+        rejected = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(stack.Goal(order=99))))
         assert not rejected.accepted
 
 
@@ -102,9 +101,9 @@ def test_provider_sigkill_aborts_its_goal_and_removes_the_server(stack) -> None:
 
     with provider(stack, "doomed") as proc:
         assert stack.client.wait_for_server(timeout_sec=20)
-        handle = _wait(stack.client.send_goal_async(stack.Goal(order=40)))
+        handle = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(stack.Goal(order=40))))
         assert handle.accepted
-        result_future = handle.get_result_async()
+        result_future = stack.probe.on_spin(handle.get_result_async)
         time.sleep(0.3)
         killed = time.monotonic()
         proc.signal(signal.SIGKILL)

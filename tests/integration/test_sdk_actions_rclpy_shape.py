@@ -61,20 +61,20 @@ def test_action_client_and_server_shaped_like_rclpy(tmp_path) -> None:
                 assert ros.wait_for_server(timeout_sec=15)
                 done = threading.Event()
                 box: list = []
-                future = ros.send_goal_async(Fibonacci.Goal(order=4))
+                future = probe.on_spin(lambda: ros.send_goal_async(Fibonacci.Goal(order=4)))
                 future.add_done_callback(lambda f: (box.append(f.result()), done.set()))
                 assert done.wait(15) and box[0].accepted
-                result = box[0].get_result_async()
+                result = probe.on_spin(box[0].get_result_async)
                 deadline = time.monotonic() + 15
                 while not result.done() and time.monotonic() < deadline:
                     time.sleep(0.02)
                 assert list(result.result().result.sequence) == [0, 1, 1, 2, 3]
-                long = ros.send_goal_async(Fibonacci.Goal(order=40))
+                long = probe.on_spin(lambda: ros.send_goal_async(Fibonacci.Goal(order=40)))
                 deadline = time.monotonic() + 15
                 while not long.done() and time.monotonic() < deadline:
                     time.sleep(0.02)
-                long.result().cancel_goal_async()
-                ended = long.result().get_result_async()
+                probe.on_spin(long.result().cancel_goal_async)
+                ended = probe.on_spin(long.result().get_result_async)
                 deadline = time.monotonic() + 15
                 while not ended.done() and time.monotonic() < deadline:
                     time.sleep(0.02)

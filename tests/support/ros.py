@@ -7,6 +7,7 @@ environment is set by tests/conftest.py before rclpy is imported.
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -81,12 +82,36 @@ class RosProbe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stopping = threading.Event()
+        self._calls: queue.SimpleQueue[tuple[Callable[[], Any], list[Any], threading.Event]] = queue.SimpleQueue()
         self.spin_error: BaseException | None = None
         self.thread = threading.Thread(target=self._spin, name="ros-probe-spin", daemon=True)
         self.thread.start()
 
+    def on_spin(self, call: Callable[[], Any], timeout: float = 10.0) -> Any:
+        """``call()`` run on the spin thread, between two turns of the executor; its return value.
+
+        rclpy 7.1's ActionClient sends a goal, cancel or result request and only then files the request's future:
+        a response handled by the spin thread in between is dropped ("Ignoring unexpected cancel response") and
+        the future never completes. Sent from the spin thread itself, no response can be handled in between."""
+        box: list[Any] = []
+        done = threading.Event()
+        self._calls.put((call, box, done))
+        self.executor.wake()
+        if not done.wait(timeout):
+            raise TimeoutError(f"the probe's spin thread did not run the call within {timeout} s")
+        if isinstance(box[0], BaseException):
+            raise box[0]
+        return box[0]
+
     def _spin(self) -> None:
         while not self._stopping.is_set():
+            while not self._calls.empty():
+                call, box, done = self._calls.get()
+                try:
+                    box.append(call())
+                except BaseException as err:  # handed to the caller
+                    box.append(err)
+                done.set()
             try:
                 self.executor.spin_once(timeout_sec=self.SPIN_PERIOD)
             except Exception as err:  # kept for close() to report; a test must not lose it silently

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from roslink_mqtt.ros_env import SAFE_DOMAINS, bound_udp_ports, domain_of_port, domains_in_use, unused_domain_id
+from roslink_mqtt.ros_env import (
+    SAFE_DOMAINS,
+    bound_udp_ports,
+    domain_of_port,
+    domains_in_use,
+    unused_domain_id,
+    unused_domain_ids,
+)
 
 HEADER = "  sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode\n"
 
@@ -42,3 +49,13 @@ def test_the_last_free_domain_is_found_and_none_left_is_a_clear_error() -> None:
     assert unused_domain_id(in_use=everything - {42}) == 42
     with pytest.raises(RuntimeError, match="every ROS domain id 1..101 is in use"):
         unused_domain_id(in_use=everything)
+
+
+def test_domains_picked_together_differ_and_avoid_the_ones_in_use() -> None:
+    """A parallel test run's workers each take one of these: none may share a graph with another or with a
+    ROS process already running."""
+    taken = set(range(1, 90))
+    picked = unused_domain_ids(9, random.Random(3), in_use=taken)
+    assert len(set(picked)) == 9 and not set(picked) & taken
+    with pytest.raises(RuntimeError, match="10 ROS domain ids are needed and only 9"):
+        unused_domain_ids(10, in_use=set(range(1, 93)))
