@@ -447,6 +447,15 @@ def _take_over_and_stop_all(driver: Any, stack: dict[str, Any]) -> None:
         wait_until("alice drives again", lambda: (robot_row(driver, "turtle1") or {}).get("owner", "").startswith(
             "alice since") and not visible(driver, "take-over"))
 
+    # explicit release and claim: the buttons follow who holds control
+    driver.find_element(By.ID, "release").click()
+    wait_until("released", lambda: (robot_row(driver, "turtle1") or {}).get("owner") == "–"
+               and visible(driver, "claim") and not visible(driver, "release"))
+    assert "nobody drives it" in driver.find_element(By.ID, "driver").text
+    driver.find_element(By.ID, "claim").click()
+    wait_until("claimed", lambda: (robot_row(driver, "turtle1") or {}).get("owner", "").startswith("alice since")
+               and visible(driver, "release") and not visible(driver, "claim"))
+
     driver.find_element(By.ID, "stop-all").click()
     acked = wait_until("STOP ALL's report", lambda: "turtle1 stopped (acknowledged in" in driver.find_element(
         By.ID, "acks").text and driver.find_element(By.ID, "acks").text)

@@ -230,6 +230,34 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
                 assert "admin's lease ended" in state.event
                 probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
 
+            # -- claiming and releasing explicitly: the CLI's claim holds control until Ctrl-C, another of alice's
+            #    programs releases it (CLI), and the SDK claims, is refused while someone else holds, and releases
+            claim_cmd = ["-m", "roslink_mqtt.cli.main", "control", "claim", "turtle1", "--url",
+                         f"mqtt://127.0.0.1:{port}", "-u", "alice"]
+            with run(claim_cmd, tmp_path / "claim.log", {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}) as holding:
+                _control_state(watcher, lambda s: s.holder == "alice", timeout=10)
+                status = _cli(port, "bob", "control", "status", "turtle1")
+                assert "turtle1: driven by alice since" in status.stdout, status
+                released = _cli(port, "alice", "control", "release", "turtle1")
+                assert released.returncode == 0 and "turtle1: released" in released.stdout, released
+                _control_state(watcher, lambda s: s.holder is None and s.event == "released by alice")
+                assert holding.popen.wait(timeout=10) == 1  # the holding command says so, and ends
+                assert "turtle1: control lost — released by alice" in holding.output()
+            from roslink_mqtt.client import CommandRefused, RobotClient
+
+            viewer_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="bob", password="bob-demo")
+            admin_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="admin", password="admin-demo")
+            for client in (viewer_sdk, admin_sdk):
+                stack.callback(client.close)
+                client.connect()
+            with pytest.raises(CommandRefused, match="viewer"):
+                viewer_sdk.claim_control("turtle1", timeout=5)
+            assert admin_sdk.claim_control("turtle1", timeout=5).holder == "admin"
+            refused = _cli(port, "alice", "control", "claim", "turtle1")
+            assert refused.returncode == 1 and "driven by admin since" in refused.stderr, refused
+            assert admin_sdk.release_control("turtle1", timeout=5).holder is None
+            _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
+
         # -- a fleet-wide stop: both robots acknowledge within 1 s
         done = _cli(port, "admin", "estop", "--all")
         assert done.returncode == 0, done.stdout + done.stderr

@@ -22,7 +22,7 @@ LOGINS: dict[str, tuple[str | None, str | None]] = {
 }
 SELF = {**{p: p for p in DEMO_PASSWORDS}, "wrong-password": "alice", "anonymous": "nobody"}
 
-ROBOT_CLASSES = ("heartbeat", "state", "from/self/cmd", "from/other/cmd", "to/self", "to/other",
+ROBOT_CLASSES = ("heartbeat", "state", "from/self/cmd", "from/other/cmd", "from/self/estop", "to/self", "to/other",
                  "call/read-only", "call/read-write")
 CLASSES = tuple(f"{c}@{r}" for r in ROBOTS for c in ROBOT_CLASSES) + ("operators/self", "operators/other", "$SYS")
 ACTIONS = ("publish", "subscribe", "receive", "retained")
@@ -33,17 +33,22 @@ WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "rosl
 # w = may publish. Unlisted classes: nothing. "other" is bob (alice for bob himself).
 EXPECTED: dict[str, dict[str, str]] = {
     "turtle1": {"heartbeat@turtle1": "rw", "state@turtle1": "w", "to/self@turtle1": "w", "to/other@turtle1": "w",
-                "from/self/cmd@turtle1": "r", "from/other/cmd@turtle1": "r", "call/read-only@turtle1": "r",
-                "call/read-write@turtle1": "r", "operators/other": "r"},  # bob is granted turtle1
+                "from/self/cmd@turtle1": "r", "from/other/cmd@turtle1": "r", "from/self/estop@turtle1": "r",
+                "call/read-only@turtle1": "r", "call/read-write@turtle1": "r",
+                "operators/other": "r"},  # bob is granted turtle1
     "turtle2": {"heartbeat@turtle2": "rw", "state@turtle2": "w", "to/self@turtle2": "w", "to/other@turtle2": "w",
-                "from/self/cmd@turtle2": "r", "from/other/cmd@turtle2": "r", "call/read-only@turtle2": "r",
+                "from/self/cmd@turtle2": "r", "from/other/cmd@turtle2": "r", "from/self/estop@turtle2": "r",
+                "call/read-only@turtle2": "r",
                 "call/read-write@turtle2": "r"},  # bob is not granted turtle2: his presence is not for turtle2
     "alice": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "from/self/cmd@turtle1": "w",
-              "call/read-only@turtle1": "w", "call/read-write@turtle1": "w", "operators/self": "w"},
+              "from/self/estop@turtle1": "w", "call/read-only@turtle1": "w", "call/read-write@turtle1": "w",
+              "operators/self": "w"},
     "bob": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "call/read-only@turtle1": "w",
-            "operators/self": "w"},  # viewer: no commands, only read-only service calls
+            "from/self/estop@turtle1": "w",
+            "operators/self": "w"},  # viewer: no commands but the emergency stop, only read-only service calls
     "carol": {"heartbeat@turtle2": "r", "state@turtle2": "r", "to/self@turtle2": "r", "from/self/cmd@turtle2": "w",
-              "call/read-only@turtle2": "w", "call/read-write@turtle2": "w", "operators/self": "w"},
+              "from/self/estop@turtle2": "w", "call/read-only@turtle2": "w", "call/read-write@turtle2": "w",
+              "operators/self": "w"},
     "admin": {**{c: "rw" for c in CLASSES}, "$SYS": "r"},  # nobody publishes into $SYS
     "wrong-password": {},
     "anonymous": {},
@@ -51,7 +56,7 @@ EXPECTED: dict[str, dict[str, str]] = {
 MOSQUITTO_GRANTS_EVERY_FILTER = True  # Mosquitto 2.0.11 with acl_file: SUBACK ok, read checked per delivery
 # The embedded broker drops retained commands and calls (a retained copy would run again on every
 # bridge reconnect), whoever sends them -- admin included. Mosquitto cannot: docs/safety.md says so.
-NEVER_RETAINED_EMBEDDED = ("from/self/cmd", "from/other/cmd", "call/read-only", "call/read-write")
+NEVER_RETAINED_EMBEDDED = ("from/self/cmd", "from/other/cmd", "from/self/estop", "call/read-only", "call/read-write")
 
 TREE = TopicTree("roslink")
 GRANTED = {"turtle1": {"alice", "bob", "admin"}, "turtle2": {"carol", "admin"}}
@@ -75,6 +80,7 @@ def topic_of(cls: str, me: str, *, publish: bool = False) -> str:
     return {
         "heartbeat": TREE.heartbeat(robot), "state": TREE.state(robot, "matrix"),
         "from/self/cmd": TREE.command(robot, me, "twist"), "from/other/cmd": TREE.command(robot, other_of(me), "twist"),
+        "from/self/estop": TREE.command(robot, me, "emergency_stop"),
         "to/self": TREE.reply(robot, me, "reset"), "to/other": TREE.reply(robot, other_of(me), "reset"),
         "call/read-only": TREE.call(robot, me, "status"), "call/read-write": TREE.call(robot, me, "reset"),
     }[kind]
@@ -138,7 +144,11 @@ def may_write(login: str, topic: str) -> bool:
         return False
     if t["robot"] in OPERATORS.get(login, set()):
         return True
-    return t["robot"] in VIEWERS.get(login, set()) and t["verb"] == "call" and t["name"] in READ_ONLY_SERVICES
+    # a viewer: read-only services, and the robot's emergency stop (the demo fleet's robots allow viewers that)
+    if t["robot"] not in VIEWERS.get(login, set()):
+        return False
+    return (t["verb"] == "call" and t["name"] in READ_ONLY_SERVICES) \
+        or (t["verb"] == "cmd" and t["name"] == "emergency_stop")
 
 
 def matches(flt: str, topic: str) -> bool:

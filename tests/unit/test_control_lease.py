@@ -5,6 +5,7 @@ tests/integration/test_one_driver.py."""
 from __future__ import annotations
 
 import dataclasses
+import time
 
 from roslink_mqtt.bridge.endpoint import CommandEndpoint
 from roslink_mqtt.bridge.lease import CONTROL_EXPLICIT, ControlLease, Outcome
@@ -157,3 +158,21 @@ def test_a_flood_of_stops_is_obeyed_but_acknowledged_at_most_twice_a_second_per_
     acks = [a for a in h.link.acks() if a["command"] == 108]
     assert [a["text"] for a in acks] == ["emergency stop by bob", "emergency stop by alice"]
     assert h.ros.zeros >= 21  # every stop zeroed the velocity
+
+
+def test_the_lease_ends_when_its_holder_goes_silent() -> None:
+    """No sign-off, no last-will: the holder's presence heartbeats just stop (a frozen laptop, a cut link). After
+    operator_timeout the lease is free, the robot stops, and the event says why."""
+    h = _harness()
+    h.present("alice")
+    h.command("twist", {"lx": 0.3})
+    assert h.endpoint.lease.holder == "alice"
+    h.endpoint.supervise(time.monotonic() + h.endpoint.operators.timeout / 2)
+    assert h.endpoint.lease.holder == "alice"  # not yet
+    zeros = h.ros.zeros
+    h.endpoint.supervise(time.monotonic() + h.endpoint.operators.timeout + 0.1)
+    assert h.endpoint.lease.holder is None and h.ros.zeros > zeros
+    assert "no heartbeat for" in _control(h)[-1].event
+    h.present("admin", "tablet")
+    h.command("twist", {"lx": 0.2}, user="admin")  # free: the next operator drives at once
+    assert h.endpoint.lease.holder == "admin"

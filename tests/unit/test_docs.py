@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from roslink_mqtt.protocol import SPECS
@@ -53,3 +54,18 @@ def test_verb_table_is_current() -> None:
     for verb in Verb:
         assert f"| `{verb.value}` | `roslink/<robot>/{'from' if verb.sent_by_user else 'to'}/<user>/{verb.value}" \
             in generated
+
+
+def test_control_operations_and_the_bridge_claim_are_documented_as_coded() -> None:
+    """The lease's operations (topic levels) and the fields a starting bridge announces on state/bridge are
+    written by hand in protocol.md's Control section: each one the code knows is there, and no other."""
+    from roslink_mqtt.bridge.claim import CLAIM_FIELDS
+    from roslink_mqtt.protocol.lease import ControlOp
+
+    text = (DOCS / "protocol.md").read_text()
+    control = text[text.index("* **Ask**"): text.index("## Robot description")]
+    assert sorted(set(re.findall(r"control/(\w+)", control))) == sorted(op.value for op in ControlOp)
+    bridges = control[control.index("* **Bridges**"):]
+    named = re.findall(r"`(\w+)`", bridges[: bridges.index("; a")])
+    assert named == [f.name for f in CLAIM_FIELDS]
+    assert f"the same {['four', 'five', 'six'][len(CLAIM_FIELDS) - 4]} fields" in bridges

@@ -32,7 +32,7 @@
 
   const $ = (id) => document.getElementById(id);
   const ui = {};
-  for (const id of ["conn", "whoami", "logout", "estop", "stop-all", "driver", "take-over", "notice", "login", "login-form", "ws-url", "username",
+  for (const id of ["conn", "whoami", "logout", "estop", "stop-all", "driver", "take-over", "claim", "release", "notice", "login", "login-form", "ws-url", "username",
                     "password", "connect", "login-error", "main", "fleet", "fleet-empty", "robot-view", "robot-title",
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
@@ -618,6 +618,8 @@
     const sup = robot.control && Array.isArray(robot.control.supervisors) && robot.control.supervisors.includes(dash.user);
     show(ui.takeOver, isOperator(robot) && heldByOther(robot) && (!robot.control.supervisor || sup));
     ui.takeOver.textContent = heldByOther(robot) ? `Take over from ${robot.control.holder}` : "Take over";
+    show(ui.claim, isOperator(robot) && Boolean(robot.control) && robot.control.holder === null);
+    show(ui.release, Boolean(robot.control) && robot.control.holder === dash.user);
   }
 
   function mayStop(robot) { return isOperator(robot) || Boolean(robot && robot.access && robot.access.estop); }
@@ -915,6 +917,18 @@
                         { qos: 1 });
   }
   dash.claimControl = claimControl;
+
+  // explicit claim and release: hold control before driving (nobody else's commands move the robot meanwhile), and
+  // give it back when done (the lease also ends with this page's presence)
+  function claimSelected() {
+    if (dash.selected) claimControl(dash.selected, "claim");
+  }
+
+  function releaseSelected() {
+    if (!dash.client || !dash.connected || !dash.selected) return;
+    dash.client.publish(tree.userTopic(dash.selected, dash.user, "control", "release"),
+                        JSON.stringify({ client_id: dash.clientId }), { qos: 1 });
+  }
 
   function takeOver() {
     const robot = dash.selected && dash.robots.get(dash.selected);
@@ -1599,6 +1613,8 @@
   ui.estop.addEventListener("click", emergencyStop);
   ui.stopAll.addEventListener("click", stopAll);
   ui.takeOver.addEventListener("click", takeOver);
+  ui.claim.addEventListener("click", claimSelected);
+  ui.release.addEventListener("click", releaseSelected);
   ui.arm.addEventListener("click", arm);
   ui.plot.addEventListener("click", onPlotClick);
   ui.loginForm.addEventListener("submit", connect);
