@@ -351,6 +351,9 @@ def test_mqtt_3_3_5_1_overlapping_subscriptions_deliver_at_the_maximum_qos(wires
     sub.disconnect()
 
 
+MQTT5_REFUSED_WITHIN = 0.1  # s
+
+
 def test_mqtt_3_1_2_2_mqtt5_connect_gets_connack_1_at_once(acl_embedded: EmbeddedBrokerProcess) -> None:
     """An MQTT 5 CONNECT (properties after the keep-alive shift every later field) is answered at once with
     CONNACK 0x01, not read as 3.1.1 until a timeout. Mosquitto speaks MQTT 5, so this one is the embedded
@@ -365,8 +368,8 @@ def test_mqtt_3_1_2_2_mqtt5_connect_gets_connack_1_at_once(acl_embedded: Embedde
     took = time.monotonic() - began
     assert (ack.kind, ack.body) == (CONNACK, bytes([0, 1]))
     assert w.closed_within(2.0)
-    record_measurement("[embedded] MQTT 5 CONNECT -> CONNACK 0x01 (goal 100 ms)", took, 1.0)
-    assert took < 1.0  # a safety deadline; the measurement is recorded
+    record_measurement("[embedded] MQTT 5 CONNECT -> CONNACK 0x01", took, MQTT5_REFUSED_WITHIN)
+    assert took < MQTT5_REFUSED_WITHIN  # the issue's goal: nothing in the gate's answer waits (measured ~1 ms)
 
 
 def test_a_subscriber_that_never_acknowledges_holds_at_most_its_outbox(acl_embedded: EmbeddedBrokerProcess) -> None:
