@@ -8,7 +8,8 @@ NODE_STAMP := node_modules/.installed
 # Extra arguments for the demo, e.g. `make demo DEMO_ARGS="--logs /tmp/demo"` (python -m roslink_mqtt.demo --help).
 DEMO_ARGS ?=
 # Processes the suite runs in (pytest-xdist): most of a test's time is spent waiting on the processes it starts, so
-# two share this 2-core machine well; each gets its own ROS domain, a module stays on one worker.
+# two share this 2-core machine well; each gets its own ROS domain, a module stays on one worker. The tests marked
+# `alone` (floods, rate-limited links) then run by themselves.
 TEST_WORKERS ?= 2
 
 .PHONY: install demo dashboard test lint bench clean
@@ -45,7 +46,8 @@ test: install
 	$(BIN)/mypy
 	$(BIN)/mypy --python-version 3.10  # the core's oldest Python (requires-python): no newer stdlib slips in
 	$(BIN)/python -m pytest -q tests/unit
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup --ignore=tests/unit
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --ignore=tests/unit -m "not alone"
+	$(BIN)/python -m pytest --ignore=tests/unit -m alone
 
 lint: install
 	$(BIN)/ruff check .

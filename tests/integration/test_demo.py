@@ -17,9 +17,10 @@ import pytest
 from tests.support.procs import ROOT
 
 # The demo's default ports (1883, 8083) are the docs' too: under `pytest -n`, these and tests/integration/
-# test_docs_run.py run on one worker, one after the other. The demo runs in this run's ROS domain: one it picked
-# itself could be another worker's (free for a moment between two tests), and its robot would take their commands.
-pytestmark = [pytest.mark.timeout(120), pytest.mark.xdist_group("demo-ports")]
+# test_docs_run.py run on one worker, one after the other (tests/conftest.py: SAME_WORKER). The demo runs in this
+# run's ROS domain: one it picked itself could be another worker's (free for a moment between two tests), and its
+# robot would take their commands.
+pytestmark = pytest.mark.timeout(120)
 OUR_DOMAIN = ("--ros-domain-id", os.environ["ROS_DOMAIN_ID"])
 
 

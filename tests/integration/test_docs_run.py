@@ -36,14 +36,15 @@ from pathlib import Path
 
 import pytest
 
+from roslink_mqtt.localproc import listener_of
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.net import wait_for_port
 from tests.support.procs import CONFIG, ROOT, bridge_args, bridge_env, run
 
 # The demo fleet's ports are fixed (the docs name them): under `pytest -n` this module and tests/integration/
-# test_demo.py run on one worker, one after the other.
-pytestmark = [pytest.mark.timeout(180), pytest.mark.xdist_group("demo-ports")]
+# test_demo.py run on one worker, one after the other (tests/conftest.py: SAME_WORKER).
+pytestmark = pytest.mark.timeout(180)
 
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "broker" / "README.md",
              ROOT / "bridge" / "README.md"]
@@ -128,7 +129,8 @@ def demo_fleet(tmp_path_factory) -> Iterator[None]:
     work = tmp_path_factory.mktemp("docs-fleet")
     for port in DEMO_PORTS:
         if _listening(port):
-            pytest.fail(f"port {port} is in use: the docs use the demo fleet's default ports; stop what listens there")
+            pytest.fail(f"port {port} is in use (by {listener_of(port) or 'someone'}): the docs use the demo fleet's "
+                        "default ports; stop what listens there")
     broker = EmbeddedBrokerProcess(work, CONFIG)
     broker.port, broker.ws_port = DEMO_PORTS
     with broker, run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
@@ -251,7 +253,8 @@ def _run_servers(snippet: Snippet, tmp_path: Path) -> None:
 @pytest.mark.parametrize("snippet", [s for s in RUNNABLE if s.alone], ids=lambda s: s.id)
 def test_alone(snippet: Snippet, tmp_path: Path) -> None:
     for port in DEMO_PORTS:
-        assert not _listening(port), f"port {port} busy: a snippet that runs alone needs it"
+        assert not _listening(port), f"port {port} busy (by {listener_of(port) or 'someone'}): a snippet that runs " \
+            "alone needs it"
     if snippet.serve:
         _run_servers(snippet, tmp_path)
     else:
