@@ -76,7 +76,7 @@ def test_demo_plays_the_scene_serves_the_dashboard_and_stops_cleanly(tmp_path) -
         out, _ = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            _kill_tree(proc.pid)
             proc.communicate()
     assert proc.returncode == 0, "".join(lines) + out
     assert "Done: stopping" in out
@@ -125,6 +125,17 @@ def _child_running(pid: int, module: str, timeout: float = 10.0) -> int:
             return found[0]
         assert time.monotonic() < deadline, f"no {module} below pid {pid}: {started}"
         time.sleep(0.1)
+
+
+def _kill_tree(pid: int) -> None:
+    """A test that failed midway: SIGKILL the demo and everything below it (its children sit in sessions of their
+    own, so killing the demo alone left a broker on the docs' port 1883 and a bridge in some ROS domain)."""
+    below = list(_descendants(pid))
+    for victim in [pid, *below]:
+        try:
+            os.kill(victim, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
 
 def _alive(pids) -> list[int]:
@@ -202,7 +213,7 @@ def test_make_demo_stops_every_process_it_started_on_sigterm_and_sighup(tmp_path
         out, _ = make.communicate(timeout=30)
     finally:
         if make.poll() is None:
-            os.killpg(make.pid, signal.SIGKILL)
+            _kill_tree(make.pid)
             make.communicate()
         for holder in holders:
             holder.close()
@@ -227,7 +238,7 @@ def test_a_child_that_dies_ends_the_demo_with_its_log(tmp_path) -> None:
         took = time.monotonic() - t_kill
     finally:
         if demo.poll() is None:
-            demo.kill()
+            _kill_tree(demo.pid)
             demo.communicate()
     assert demo.returncode == 1, text + out
     assert "the bridge exited (killed by SIGSEGV) while the scene ran" in out, text + out

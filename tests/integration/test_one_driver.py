@@ -168,95 +168,93 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         seen = {round(m.linear.x, 2) for at, m in probe.cmd_vel.items if at >= since}
         assert 0.11 in seen and 0.22 not in seen, seen
 
-        # The lease itself is the bridge's logic, the same whatever the broker: its whole life runs on the embedded
-        # broker; on Mosquitto, the bridge uniqueness (start and end of this test) and the race above.
-        if broker == "embedded":
-            # -- a take-over: alice is told at once, the robot stops, then only admin's twists move it
-            admin.control("claim")  # admin is a supervisor: claiming takes over
-            told = alice.error("taken over by admin from alice", timeout=2)
-            assert told.json()["topic"] == "roslink/turtle1/state/control"
-            state = _control_state(watcher, lambda s: s.holder == "admin")
-            assert state.supervisor and state.event == "taken over by admin from alice"
-            probe.cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, timeout=3, after=told.at - 0.5)
-            # a non-supervisor cannot take a supervisor's lease
-            alice.control("take_over")
-            alice.error("only another supervisor can take it over", timeout=2)
-            after = time.monotonic()
-            for _ in range(5):
-                admin.twist(0.33)
-                alice.twist(0.11)
-                time.sleep(0.1)
-            probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.33, timeout=3, after=after)
-            time.sleep(0.3)
-            assert 0.11 not in {round(m.linear.x, 2) for at, m in probe.cmd_vel.items if at >= after}
-            admin.control("release")
-            _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
+        # -- the lease's whole life, on each broker
+        # -- a take-over: alice is told at once, the robot stops, then only admin's twists move it
+        admin.control("claim")  # admin is a supervisor: claiming takes over
+        told = alice.error("taken over by admin from alice", timeout=2)
+        assert told.json()["topic"] == "roslink/turtle1/state/control"
+        state = _control_state(watcher, lambda s: s.holder == "admin")
+        assert state.supervisor and state.event == "taken over by admin from alice"
+        probe.cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, timeout=3, after=told.at - 0.5)
+        # a non-supervisor cannot take a supervisor's lease
+        alice.control("take_over")
+        alice.error("only another supervisor can take it over", timeout=2)
+        after = time.monotonic()
+        for _ in range(5):
+            admin.twist(0.33)
+            alice.twist(0.11)
+            time.sleep(0.1)
+        probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.33, timeout=3, after=after)
+        time.sleep(0.3)
+        assert 0.11 not in {round(m.linear.x, 2) for at, m in probe.cmd_vel.items if at >= after}
+        admin.control("release")
+        _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
 
-            # -- a viewer's emergency stop: obeyed and acknowledged; the viewer cannot resume, the holder can
-            for _ in range(3):
-                alice.twist(0.11)
-                time.sleep(0.1)
-            _control_state(watcher, lambda s: s.holder == "alice")
-            stopped_at = time.monotonic()
-            watcher.publish("roslink/turtle1/from/bob/cmd/emergency_stop", encode_message(108, {"reason": "viewer"}))
-            probe.estop.wait_for(lambda m: m.data is True, timeout=3, after=stopped_at)
-            ack = watcher.wait_for(lambda m: m.topic.endswith("/state/ack") and m.json()["payload"]["command"] == 108,
-                                   timeout=3)
-            assert "emergency stop by bob" in ack.json()["payload"]["text"]
-            watcher.publish("roslink/turtle1/from/bob/cmd/arm", encode_message(104, {}))  # not an operator: no effect
-            time.sleep(0.5)  # bob's arm, had it been obeyed, would have been long before this
-            beat = watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=3)
-            assert beat.json()["payload"]["system_status"] == 6  # still blocked
-            admin.publish("roslink/turtle1/from/admin/cmd/arm", encode_message(104, {}))
-            admin.error("turtle1 is driven by alice", timeout=2)  # not the holder: cannot resume either
-            alice.publish("roslink/turtle1/from/alice/cmd/arm", encode_message(104, {}))
-            watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain
-                             and m.json()["payload"]["system_status"] == 4, timeout=3)
-            alice.close()
-            _released(watcher)
+        # -- a viewer's emergency stop: obeyed and acknowledged; the viewer cannot resume, the holder can
+        for _ in range(3):
+            alice.twist(0.11)
+            time.sleep(0.1)
+        _control_state(watcher, lambda s: s.holder == "alice")
+        stopped_at = time.monotonic()
+        watcher.publish("roslink/turtle1/from/bob/cmd/emergency_stop", encode_message(108, {"reason": "viewer"}))
+        probe.estop.wait_for(lambda m: m.data is True, timeout=3, after=stopped_at)
+        ack = watcher.wait_for(lambda m: m.topic.endswith("/state/ack") and m.json()["payload"]["command"] == 108,
+                               timeout=3)
+        assert "emergency stop by bob" in ack.json()["payload"]["text"]
+        watcher.publish("roslink/turtle1/from/bob/cmd/arm", encode_message(104, {}))  # not an operator: no effect
+        time.sleep(0.5)  # bob's arm, had it been obeyed, would have been long before this
+        beat = watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=3)
+        assert beat.json()["payload"]["system_status"] == 6  # still blocked
+        admin.publish("roslink/turtle1/from/admin/cmd/arm", encode_message(104, {}))
+        admin.error("turtle1 is driven by alice", timeout=2)  # not the holder: cannot resume either
+        alice.publish("roslink/turtle1/from/alice/cmd/arm", encode_message(104, {}))
+        watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain
+                         and m.json()["payload"]["system_status"] == 4, timeout=3)
+        alice.close()
+        _released(watcher)
 
-            # -- the holder (admin, a supervisor, driving from a process of his own) SIGKILLed: its last-will ends the
-            #    lease and the robot stops
-            with run(["-m", "tests.support.operator_proc", str(port), "admin", "admin-demo", "turtle1", "--lx", "0.15",
-                      "--first-seq", str(Driver.seq + 1000)], tmp_path / "operator.log") as proc:
-                _control_state(watcher, lambda s: s.holder == "admin", timeout=10)
-                probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.15, timeout=5)
-                # what people see (the clients' side): robots and info say who drives since when; alice's pub is
-                # refused with the name
-                _what_people_see(port)
-                killed = time.monotonic()
-                proc.kill()
-                state = _control_state(watcher, lambda s: s.holder is None, timeout=10)
-                assert "admin's lease ended" in state.event
-                probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
+        # -- the holder (admin, a supervisor, driving from a process of his own) SIGKILLed: its last-will ends the
+        #    lease and the robot stops
+        with run(["-m", "tests.support.operator_proc", str(port), "admin", "admin-demo", "turtle1", "--lx", "0.15",
+                  "--first-seq", str(Driver.seq + 1000)], tmp_path / "operator.log") as proc:
+            _control_state(watcher, lambda s: s.holder == "admin", timeout=10)
+            probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.15, timeout=5)
+            # what people see (the clients' side): robots and info say who drives since when; alice's pub is
+            # refused with the name
+            _what_people_see(port)
+            killed = time.monotonic()
+            proc.kill()
+            state = _control_state(watcher, lambda s: s.holder is None, timeout=10)
+            assert "admin's lease ended" in state.event
+            probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
 
-            # -- claiming and releasing explicitly: the CLI's claim holds control until Ctrl-C, another of alice's
-            #    programs releases it (CLI), and the SDK claims, is refused while someone else holds, and releases
-            claim_cmd = ["-m", "roslink_mqtt.cli.main", "control", "claim", "turtle1", "--url",
-                         f"mqtt://127.0.0.1:{port}", "-u", "alice"]
-            with run(claim_cmd, tmp_path / "claim.log", {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}) as holding:
-                _control_state(watcher, lambda s: s.holder == "alice", timeout=10)
-                status = _cli(port, "bob", "control", "status", "turtle1")
-                assert "turtle1: driven by alice since" in status.stdout, status
-                released = _cli(port, "alice", "control", "release", "turtle1")
-                assert released.returncode == 0 and "turtle1: released" in released.stdout, released
-                _control_state(watcher, lambda s: s.holder is None and s.event == "released by alice")
-                assert holding.popen.wait(timeout=10) == 1  # the holding command says so, and ends
-                assert "turtle1: control lost — released by alice" in holding.output()
-            from roslink_mqtt.client import CommandRefused, RobotClient
+        # -- claiming and releasing explicitly: the CLI's claim holds control until Ctrl-C, another of alice's
+        #    programs releases it (CLI), and the SDK claims, is refused while someone else holds, and releases
+        claim_cmd = ["-m", "roslink_mqtt.cli.main", "control", "claim", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{port}", "-u", "alice"]
+        with run(claim_cmd, tmp_path / "claim.log", {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}) as holding:
+            _control_state(watcher, lambda s: s.holder == "alice", timeout=10)
+            status = _cli(port, "bob", "control", "status", "turtle1")
+            assert "turtle1: driven by alice since" in status.stdout, status
+            released = _cli(port, "alice", "control", "release", "turtle1")
+            assert released.returncode == 0 and "turtle1: released" in released.stdout, released
+            _control_state(watcher, lambda s: s.holder is None and s.event == "released by alice")
+            assert holding.popen.wait(timeout=10) == 1  # the holding command says so, and ends
+            assert "turtle1: control lost — released by alice" in holding.output()
+        from roslink_mqtt.client import CommandRefused, RobotClient
 
-            viewer_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="bob", password="bob-demo")
-            admin_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="admin", password="admin-demo")
-            for client in (viewer_sdk, admin_sdk):
-                stack.callback(client.close)
-                client.connect()
-            with pytest.raises(CommandRefused, match="viewer"):
-                viewer_sdk.claim_control("turtle1", timeout=5)
-            assert admin_sdk.claim_control("turtle1", timeout=5).holder == "admin"
-            refused = _cli(port, "alice", "control", "claim", "turtle1")
-            assert refused.returncode == 1 and "driven by admin since" in refused.stderr, refused
-            assert admin_sdk.release_control("turtle1", timeout=5).holder is None
-            _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
+        viewer_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="bob", password="bob-demo")
+        admin_sdk = RobotClient(url=f"mqtt://127.0.0.1:{port}", username="admin", password="admin-demo")
+        for client in (viewer_sdk, admin_sdk):
+            stack.callback(client.close)
+            client.connect()
+        with pytest.raises(CommandRefused, match="viewer"):
+            viewer_sdk.claim_control("turtle1", timeout=5)
+        assert admin_sdk.claim_control("turtle1", timeout=5).holder == "admin"
+        refused = _cli(port, "alice", "control", "claim", "turtle1")
+        assert refused.returncode == 1 and "driven by admin since" in refused.stderr, refused
+        assert admin_sdk.release_control("turtle1", timeout=5).holder is None
+        _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
 
         # -- a fleet-wide stop: both robots acknowledge within 1 s
         done = _cli(port, "admin", "estop", "--all")
