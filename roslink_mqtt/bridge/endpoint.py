@@ -345,7 +345,7 @@ class CommandEndpoint:
                     self.refuse(user, topic, why, message_id, sequence, client_id=sender)
             else:
                 self.actuators.publish(user, route, msg)
-                if route.is_velocity and self.clamp_notices.tell((user, route.name), time.monotonic(),
+                if route.is_velocity and self.clamp_notices.tell((user, sender or "", route.name), time.monotonic(),
                                                                  clamped=clamped is not None, standstill=standstill):
                     self.notify(user, Notice(topic, clamped or "", message_id, sequence, sender))
             if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it

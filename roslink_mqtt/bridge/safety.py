@@ -106,17 +106,21 @@ class ClampNotices:
     """Which velocity streams were told that the robot clamps them: the first clamped twist of a stream is, the
     others are not (a 10 Hz stream over the limit is one notice, not ten a second).
 
-    A stream is one sender's commands on one velocity input; it ends with a zero twist, or with a pause longer than
-    ``pause`` (the dead-man's ``command_timeout``: after it the robot has stopped anyway). Pure logic: the endpoint
-    calls :meth:`tell` for every velocity command it carries out, under its lock.
+    A stream is one sender's commands on one velocity input (a sender: the user and the program, by its client id —
+    two `pub` runs one after the other are two streams, each told); it ends with a zero twist, or with a pause
+    longer than ``pause`` (the dead-man's ``command_timeout``: after it the robot has stopped anyway). Pure logic:
+    the endpoint calls :meth:`tell` for every velocity command it carries out, under its lock.
     """
+
+    KEPT = 256  # streams remembered before the ended ones are forgotten (client ids are new with every program)
 
     def __init__(self, pause: float) -> None:
         self.pause = pause
-        self._streams: dict[tuple[str, str], float] = {}  # (user, input) → last twist of a stream already told
+        self._streams: dict[tuple[str, ...], float] = {}  # (user, client id, input) → last twist of a told stream
 
-    def tell(self, stream: tuple[str, str], now: float, *, clamped: bool, standstill: bool) -> bool:
-        """Whether this twist's clamping is news to its sender (bounded: one entry per user and velocity input)."""
+    def tell(self, stream: tuple[str, ...], now: float, *, clamped: bool, standstill: bool) -> bool:
+        """Whether this twist's clamping is news to its sender (bounded: :data:`KEPT` streams, then only the live
+        ones)."""
         last = self._streams.get(stream)
         if standstill:
             self._streams.pop(stream, None)
@@ -124,6 +128,8 @@ class ClampNotices:
         told = last is not None and now - last <= self.pause
         if told or clamped:
             self._streams[stream] = now
+            if len(self._streams) > self.KEPT:
+                self._streams = {k: t for k, t in self._streams.items() if now - t <= self.pause}
         return clamped and not told
 
 

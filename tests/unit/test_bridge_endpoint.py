@@ -247,6 +247,21 @@ def test_a_clamped_stream_is_told_once_to_its_sender(h: Harness, monkeypatch: py
     h.command("twist", {"lx": 0.9})
     assert ["angular speed 9 rad/s" in n.notice for n in h.link.notices("alice")] == [False, True, False]
     assert len(h.link.notices("alice")) == 3
+    # another program of alice's, while the first one's stream runs: a stream of its own, told too
+    h.endpoint.on_mqtt(T.command("turtle1", "alice", "twist"), encode_message(
+        100, {"lx": 0.9}, sequence_number=10_000, client_id="alice-pub2"))  # its own count, above the first one
+    assert [n.client_id for n in h.link.notices("alice")][-1] == "alice-pub2"
+
+
+def test_clamp_notices_forget_ended_streams_beyond_their_bound() -> None:
+    from roslink_mqtt.bridge.safety import ClampNotices
+
+    notices = ClampNotices(pause=1.0)
+    for i in range(ClampNotices.KEPT + 10):  # a program per second, each told once
+        assert notices.tell(("alice", f"prog{i}", "twist"), float(i), clamped=True, standstill=False)
+    assert len(notices._streams) <= ClampNotices.KEPT
+    assert not notices.tell(("alice", f"prog{ClampNotices.KEPT + 9}", "twist"), ClampNotices.KEPT + 9.5,
+                            clamped=True, standstill=False)  # the live one is still remembered
 
 
 def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
