@@ -254,6 +254,47 @@ def test_mqtt_4_3_3_qos2_after_pubrec_only_pubrel_is_resent(wires) -> None:
     wires().login(cid, clean=True)
 
 
+def test_mqtt_4_3_3_a_publishers_resent_qos2_publish_is_delivered_once(wires) -> None:
+    """Exactly once in the other direction: a publisher whose QoS 2 PUBLISH the broker acknowledged (PUBREC) loses
+    its connection before PUBREL, reconnects to its session and sends the PUBLISH again with DUP=1, then PUBREL. The
+    subscriber gets the message once (MQTT-4.3.3-2: until PUBREL, a PUBLISH with that packet id is not new)."""
+    topic = wires.topic("q2in")
+    sub = wires()
+    sub.login(wires.cid("sub"))
+    assert sub.subscribe(topic, 2) == 2
+    cid = wires.cid("pub")
+    pub = wires()
+    pub.login(cid, clean=False)
+    pub.send(publish_packet(topic, b"exactly once", qos=2, packet_id=9))
+    assert pub.read_kind(PUBREC).packet_id == 9
+    pub.drop()  # no PUBREL
+    again = wires()
+    assert again.login(cid, clean=False)[0] == 1
+    resend = bytearray(publish_packet(topic, b"exactly once", qos=2, packet_id=9))
+    resend[0] |= 0x08  # DUP
+    again.send(bytes(resend))
+    assert again.read_kind(PUBREC).packet_id == 9
+    again.ack(PUBREL, 9)
+    assert again.read_kind(PUBCOMP).packet_id == 9
+    copies = []
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline:
+        try:
+            packet = sub.read(deadline - time.monotonic())
+        except TimeoutError:
+            break
+        if packet.kind == PUBLISH:
+            _t, pid, payload = packet.publish()
+            copies.append(payload)
+            sub.ack(PUBREC, pid)
+        elif packet.kind == PUBREL:
+            sub.ack(PUBCOMP, packet.packet_id)
+    assert copies == [b"exactly once"], f"delivered {len(copies)} times"
+    again.disconnect()
+    sub.disconnect()
+    wires().login(cid, clean=True)
+
+
 def test_mqtt_3_3_1_5_and_10_retained_message_and_its_removal(wires) -> None:
     topic = wires.topic("r")
     publish(wires, topic, b"kept", 1, retain=True)
