@@ -24,6 +24,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Final
 
+import orjson
+
 from .codec import MAX_CLIENT_ID, loads
 from .errors import ProtocolError
 from .validate import describe, show_key
@@ -344,6 +346,14 @@ def _fresh(default: Any) -> Any:
 
 def _bad(field: BodyField, value: Any) -> ProtocolError:
     return ProtocolError(f"{field.name}: expected {field.spec.words()}, got {describe(value)}")
+
+
+def dump(body: dict[str, Any], client_id: str | None) -> bytes:
+    """Encode a control body (``read``'s counterpart); ``client_id`` goes last and only when set (bodies without it
+    stay as before)."""
+    if client_id is not None:
+        body["client_id"] = client_id
+    return orjson.dumps(body)
 
 
 def read(fields: tuple[BodyField, ...], data: Any, *, shape: str, strict: bool = True,

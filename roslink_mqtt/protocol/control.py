@@ -58,6 +58,7 @@ from .body import (
     Obj,
     Strings,
     Text,
+    dump,
     read,
     refuse,
 )
@@ -147,7 +148,7 @@ class ErrorReport:
             body["sequence_number"] = self.sequence_number
         if self.id is not None:
             body["id"] = self.id
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ErrorReport:
@@ -188,7 +189,7 @@ class Notice:
             body["message_id"] = int(self.message_id)
         if self.sequence_number is not None:
             body["sequence_number"] = self.sequence_number
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> Notice:
@@ -205,20 +206,6 @@ def error_reply(topic: str, reason: str, *, message_id: int | None = None,
     the program that sent it shows the report.
     """
     return ErrorReport(topic, reason, message_id, sequence_number, client_id, request_id).to_json()
-
-
-def request_id(payload: bytes | bytearray | memoryview | str | None) -> str | int | None:
-    """The ``id`` a refused control body names (a goal's, a cancel's), None if none; the refusal path only."""
-    if not payload or len(payload) > MAX_SENDER_PARSE:
-        return None
-    try:
-        body = loads(payload)
-    except ProtocolError:
-        return None
-    rid = body.get("id") if isinstance(body, dict) else None
-    if isinstance(rid, str) and 0 < len(rid) <= MAX_CALL_ID or _is_int(rid):
-        return rid
-    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -270,13 +257,6 @@ class AccessReport:
         return cls(**values)
 
 
-def _dump(body: dict[str, Any], client_id: str | None) -> bytes:
-    """Encode a control body; ``client_id`` goes last and only when set (bodies without it stay as before)."""
-    if client_id is not None:
-        body["client_id"] = client_id
-    return orjson.dumps(body)
-
-
 def _outcome(call_id: Any, result: bool, values: Any, error: str | None) -> dict[str, Any]:
     """The shape every answer shares (a call reply, a provider response): values on success, error otherwise."""
     return {"id": call_id, "result": True, "values": values} if result else {"id": call_id, "result": False,
@@ -313,7 +293,7 @@ class CallRequest:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"id": self.id, "args": self.args}
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallRequest:
@@ -352,7 +332,7 @@ class CallReply:
 
     def to_json(self) -> bytes:
         body = _outcome(self.id, self.result, self.values or {}, self.error)
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallReply:
@@ -396,7 +376,7 @@ class ServiceOffer:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"type": self.type, "timeout": self.timeout}
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ServiceOffer:
@@ -429,7 +409,7 @@ class ProviderRequest:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"id": self.id, "args": self.args}
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderRequest:
@@ -475,7 +455,7 @@ class ProviderResponse:
 
     def to_json(self) -> bytes:
         body = _outcome(self.id, self.result, self.values, self.error)
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderResponse:
@@ -506,7 +486,7 @@ class Advertisement:
 
     def to_json(self) -> bytes:
         body: dict[str, Any] = {"type": self.type}
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> Advertisement:

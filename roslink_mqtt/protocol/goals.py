@@ -13,8 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Choice, Id, Obj, Text, read
-from .control import _dump
+from .body import SENDER, BodyField, Choice, Id, Obj, Text, dump, read
 
 MAX_GOAL_ID = 128  # characters
 _DOC, _R, _U = TopicTree(), "<robot>", "<user>"
@@ -51,7 +50,7 @@ class GoalRequest:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return _dump({"id": self.id, "goal": self.goal}, self.client_id)
+        return dump({"id": self.id, "goal": self.goal}, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalRequest:
@@ -71,7 +70,7 @@ class GoalCancel:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return _dump({"id": self.id}, self.client_id)
+        return dump({"id": self.id}, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalCancel:
@@ -102,7 +101,7 @@ class GoalStatus:
         body: dict[str, Any] = {"id": self.id, "status": self.status}
         if self.error is not None:
             body["error"] = self.error
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalStatus:
@@ -123,7 +122,7 @@ class GoalFeedback:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return _dump({"id": self.id, "feedback": self.feedback}, self.client_id)
+        return dump({"id": self.id, "feedback": self.feedback}, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalFeedback:
@@ -159,7 +158,7 @@ class GoalResult:
             body["result"] = self.result
         if self.error is not None:
             body["error"] = self.error
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalResult:

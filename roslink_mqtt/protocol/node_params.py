@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree
-from .body import SENDER, BodyField, Boolean, Id, Obj, Text, read, refuse
-from .control import MAX_CALL_ID, _dump
+from .body import SENDER, BodyField, Boolean, Id, Obj, Text, dump, read, refuse
+from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .params import TYPE_CODES, check_value
 
@@ -116,7 +116,7 @@ class ParamDeclaration:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return _dump({"parameters": {n: p.to_dict() for n, p in self.parameters.items()}}, self.client_id)
+        return dump({"parameters": {n: p.to_dict() for n, p in self.parameters.items()}}, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamDeclaration:
@@ -152,7 +152,7 @@ class ParamSetRequest:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return _dump({"id": self.id, "parameters": self.parameters}, self.client_id)
+        return dump({"id": self.id, "parameters": self.parameters}, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetRequest:
@@ -183,7 +183,7 @@ class ParamSetResult:
         body: dict[str, Any] = {"id": self.id, "successful": self.successful}
         if self.reason:
             body["reason"] = self.reason
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetResult:

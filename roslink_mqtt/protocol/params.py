@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, read, refuse
-from .control import MAX_CALL_ID, _dump
+from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, dump, read, refuse
+from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .validate import show_key
 
@@ -107,7 +107,7 @@ class ParamRequest:
             body["names"] = list(self.names)
         if self.values:
             body["values"] = self.values
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamRequest:
@@ -153,7 +153,7 @@ class ParamReply:
             body["values"] = self.values or {}
         else:
             body["error"] = self.error
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamReply:
@@ -180,7 +180,7 @@ class ParamEvent:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return _dump({"node": self.node, "new": self.new, "changed": self.changed, "deleted": list(self.deleted)},
+        return dump({"node": self.node, "new": self.new, "changed": self.changed, "deleted": list(self.deleted)},
                      None)
 
     @classmethod

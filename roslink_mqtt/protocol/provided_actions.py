@@ -14,8 +14,7 @@ from typing import Any
 
 from ..ros_names import is_interface
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, read, refuse
-from .control import _dump
+from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, dump, read, refuse
 
 DEFAULT_ACCEPT_TIMEOUT = 5.0  # s for the provider to accept or reject a goal
 DEFAULT_RESULT_TIMEOUT = 600.0  # s from acceptance to the final update
@@ -52,7 +51,7 @@ class ActionOffer:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return _dump({"type": self.type, "accept_timeout": self.accept_timeout,
+        return dump({"type": self.type, "accept_timeout": self.accept_timeout,
                       "result_timeout": self.result_timeout}, self.client_id)
 
     @classmethod
@@ -88,7 +87,7 @@ class ActionRequest:
         body: dict[str, Any] = {"id": self.id, "op": self.op}
         if self.op == "goal":
             body["goal"] = self.goal
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionRequest:
@@ -131,7 +130,7 @@ class ActionUpdate:
             body["result"] = self.result
         if self.error is not None:
             body["error"] = self.error
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionUpdate:

@@ -12,8 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..topics import TopicTree
-from .body import SENDER, BodyField, Integer, Levels, Text, read, refuse
-from .control import _dump
+from .body import SENDER, BodyField, Integer, Levels, Text, dump, read, refuse
 
 LEVELS = {10: "debug", 20: "info", 30: "warn", 40: "error", 50: "fatal"}
 MAX_MSG = 16 * 1024  # characters of one log line; longer ones are cut (with a mark) by the sender
@@ -48,7 +47,7 @@ class LogLine:
         body: dict[str, Any] = {"level": self.level, "msg": self.msg}
         if self.file:
             body.update(file=self.file, function=self.function, line=self.line)
-        return _dump(body, self.client_id)
+        return dump(body, self.client_id)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LogLine:
