@@ -38,9 +38,10 @@ def _unlocked(lock_file: Path) -> bool:
         os.close(fd)
 
 
-# A process that starts creates a segment and its companion first and locks the companion a moment later: in that
-# moment the pair looks like a zombie. Removing it would leave the new process writing to, or listening on, a file
-# nobody else can open any more (its DDS data lost while discovery, over UDP, still works). Younger pairs are left.
+# Between creating a segment's companion and locking it, a starting process's pair looks like a zombie; removing it
+# then would leave that process on a file nobody else can open (its DDS data lost while discovery, over UDP, still
+# works: what a test of two parallel workers once showed, a probe that got no /cmd_vel at all). Not proven from
+# Fast DDS's source, but cheap to rule out: young pairs are never judged, a real zombie is removed a little later.
 MIN_ZOMBIE_AGE = 5.0  # s since the companion was created
 
 

@@ -60,25 +60,24 @@ def domains_in_use(shm_dir: Path = SHM_DIR, udp_tables: Iterable[Path] = _PROC_U
     return {d for p in ports if (d := domain_of_port(p)) is not None}
 
 
-def unused_domain_id(rng: random.Random | None = None, *, in_use: set[int] | None = None) -> int:
-    """A random ROS domain id in 1..101 that no DDS participant on this machine uses."""
+def unused_domain_ids(count: int, rng: random.Random | None = None, *, in_use: set[int] | None = None) -> list[int]:
+    """``count`` different domain ids in 1..101 that no DDS participant on this machine uses, picked at once:
+    processes that start together (a test run's parallel workers) each take one, and none can pick what another
+    picked a moment before it bound a port."""
     taken = domains_in_use() if in_use is None else in_use
     free = [d for d in SAFE_DOMAINS if d not in taken]
     if not free:
         raise RuntimeError(f"every ROS domain id {SAFE_DOMAINS.start}..{SAFE_DOMAINS.stop - 1} is in use on this "
                            "machine: stop some ROS processes (ros2 daemon stop, leftover demos)")
-    return (rng or random).choice(free)
-
-
-def unused_domain_ids(count: int, rng: random.Random | None = None, *, in_use: set[int] | None = None) -> list[int]:
-    """``count`` different unused domain ids, picked at once: processes that start together (a test run's
-    parallel workers) each take one, and none can pick what another picked a moment before it bound a port."""
-    taken = domains_in_use() if in_use is None else in_use
-    free = [d for d in SAFE_DOMAINS if d not in taken]
     if len(free) < count:
         raise RuntimeError(f"{count} ROS domain ids are needed and only {len(free)} of {SAFE_DOMAINS.start}.."
                            f"{SAFE_DOMAINS.stop - 1} are unused on this machine: stop some ROS processes")
     return (rng or random).sample(free, count)
+
+
+def unused_domain_id(rng: random.Random | None = None, *, in_use: set[int] | None = None) -> int:
+    """A random ROS domain id in 1..101 that no DDS participant on this machine uses."""
+    return unused_domain_ids(1, rng, in_use=in_use)[0]
 
 
 def local_ros_env(domain_id: int | None = None, base: dict[str, str] | None = None) -> dict[str, str]:

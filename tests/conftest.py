@@ -26,7 +26,10 @@ MAX_WORKERS = 8
 def _domain_of_this_process() -> int:
     worker = os.environ.get("PYTEST_XDIST_WORKER")  # "gw0", "gw1", ... in a worker; unset in a plain run
     if worker and os.environ.get(DOMAINS_VAR):
-        return int(os.environ[DOMAINS_VAR].split(",")[1 + int(worker.removeprefix("gw"))])
+        picked, index = os.environ[DOMAINS_VAR].split(","), 1 + int(worker.removeprefix("gw"))
+        if index >= len(picked):
+            raise pytest.UsageError(f"at most {MAX_WORKERS} workers (-n): each needs a ROS domain of its own")
+        return int(picked[index])
     domains = unused_domain_ids(1 + MAX_WORKERS)
     os.environ[DOMAINS_VAR] = ",".join(map(str, domains))
     return domains[0]
