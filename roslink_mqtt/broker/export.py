@@ -105,7 +105,7 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
             lines.append(f"socket_domain {domain}\n")
     if b.tls is not None:
         base = Path(fleet.file).resolve().parent
-        lines += [f"listener {b.tls.port} {b.host}\n", f"certfile {base / b.tls.certfile}\n",
+        lines += [f"listener {b.tls.port} {b.tls_host()}\n", f"certfile {base / b.tls.certfile}\n",
                   f"keyfile {base / b.tls.keyfile}\n"]
         if b.tls.cafile:
             lines += [f"cafile {base / b.tls.cafile}\n"]

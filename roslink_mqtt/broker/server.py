@@ -78,7 +78,7 @@ class ServerOptions:
         if self.ws_port:
             out.append(Listener("ws", "ws", self.host, self.ws_port))
         if self.tls is not None:
-            out.append(Listener("tls", "tls", self.host, self.tls.port))
+            out.append(Listener("tls", "tls", self.tls.host or self.host, self.tls.port))
         return out
 
 

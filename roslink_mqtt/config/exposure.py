@@ -37,19 +37,23 @@ def demo_logins(fleet: Fleet) -> list[str]:
 
 def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None = None) -> list[str]:
     """Why a broker for ``fleet`` must not listen on ``host`` (default ``broker.host``) with these listeners; empty when
-    it may. ``ws_port``: the WebSocket listener in use when not the fleet's (a command-line override; 0 = off)."""
+    it may. ``ws_port``: the WebSocket listener in use when not the fleet's (a command-line override; 0 = off). A TLS
+    listener on a host of its own (``broker.tls.host``) beyond loopback needs fresh passwords, not allow_plaintext."""
+    tls_host = fleet.broker.tls_host(host)
     host = fleet.broker.host if host is None else host
-    if is_loopback(host):
+    public = [h for h in (host, tls_host) if h is not None and not is_loopback(h)]
+    if not public:
         return []
     problems = []
     ws = fleet.broker.ws_port if ws_port is None else ws_port
-    if not fleet.broker.allow_plaintext:
+    if not is_loopback(host) and not fleet.broker.allow_plaintext:
         plain = "plain MQTT" + (" and MQTT over WebSocket" if ws else "")
         problems.append(f"broker.host {host} is not loopback, and {plain} would carry every login's password in clear "
-                        "text: keep host: 127.0.0.1 behind a TLS terminator, or set broker.allow_plaintext: true "
-                        "for a network you trust")
+                        "text: keep host: 127.0.0.1 and give TLS an address of its own (broker.tls.host) or a TLS "
+                        "terminator, or set broker.allow_plaintext: true for a network you trust")
     demo = demo_logins(fleet)
     if demo:
         problems.append(f"{', '.join(demo)} still log in with the demo fleet's published passwords (<login>-demo): "
-                        f"make new ones with `roslink-mqtt passwd NAME` before the broker listens on {host}")
+                        f"make new ones with `roslink-mqtt passwd NAME` before the broker listens on "
+                        f"{' and '.join(dict.fromkeys(public))}")
     return problems

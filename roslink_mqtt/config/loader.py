@@ -272,9 +272,10 @@ class _FleetReader:
         tls = None
         if self.get(path) and self.get(path).get("tls") is not None:
             tp = path + ("tls",)
-            self.mapping(tp, ("port", "certfile", "keyfile", "cafile"))
+            self.mapping(tp, ("port", "certfile", "keyfile", "cafile", "host"))
             tls = TlsSettings(self.value(tp, "port", port, 8883), self.value(tp, "certfile", self.string),
-                              self.value(tp, "keyfile", self.string), self.value(tp, "cafile", self.string, None))
+                              self.value(tp, "keyfile", self.string), self.value(tp, "cafile", self.string, None),
+                              self.value(tp, "host", self.string, None))
         return BrokerSettings(
             host=self.value(path, "host", self.string, "127.0.0.1"),
             port=self.value(path, "port", port, 1883),

@@ -81,6 +81,9 @@ class TlsSettings:
     certfile: str
     keyfile: str
     cafile: str | None = None
+    # The address the TLS listener binds when not broker.host: a public TLS listener while the plain and WebSocket
+    # ones stay on loopback (for local programs and a TLS-terminating proxy)
+    host: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,6 +96,12 @@ class BrokerSettings:
     # Plain (not TLS) listeners on a non-loopback host carry every password in clear text: refused unless this says
     # the network is trusted (config/exposure.py)
     allow_plaintext: bool = False
+
+    def tls_host(self, host: str | None = None) -> str | None:
+        """Where the TLS listener binds (None: no TLS); ``host``: the plain listeners' host when overridden."""
+        if self.tls is None:
+            return None
+        return self.tls.host or (self.host if host is None else host)
 
 
 LIMIT_NORM, LIMIT_PER_AXIS = "norm", "per_axis"

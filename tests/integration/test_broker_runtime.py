@@ -250,21 +250,28 @@ def test_console_script_is_installed() -> None:
 
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
 def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes) -> None:
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.1",
-                    "-addext", "subjectAltName=IP:127.0.0.1", "-keyout", str(tmp_path / "key.pem"),
+    """TLS on an address of its own (broker.tls.host, here 127.0.0.2 standing for a public one), plain MQTT on
+    127.0.0.1 only: the TLS address answers MQTT over TLS and nothing else."""
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.2",
+                    "-addext", "subjectAltName=IP:127.0.0.2", "-keyout", str(tmp_path / "key.pem"),
                     "-out", str(tmp_path / "cert.pem")], check=True, capture_output=True)
     tls_port = free_port()
     fleet = write_fleet(tmp_path, edit=lambda t: t.replace(
-        "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{port: {tls_port}, certfile: cert.pem, keyfile: key.pem}}\n"))
+        "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{host: 127.0.0.2, port: {tls_port}, certfile: cert.pem, "
+                          "keyfile: key.pem}\n"))
     with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
-        assert f"mqtts://127.0.0.1:{tls_port}" in broker.output()
-        p = probes(tls_port, "alice")
+        assert f"mqtts://127.0.0.2:{tls_port}" in broker.output()
+        p = probes(tls_port, "alice", host="127.0.0.2")
         p.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
         assert p.connect() == 0
         assert p.subscribe("roslink/turtle2/#") == [128]  # same ACL on every listener
-        bad = probes(tls_port, "alice", "wrong")
+        bad = probes(tls_port, "alice", "wrong", host="127.0.0.2")
         bad.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
         assert bad.connect() == REFUSED
+        for where in (("127.0.0.2", broker.port), ("127.0.0.1", tls_port)):  # plain MQTT beside TLS: not there
+            with socket.socket() as s:
+                assert s.connect_ex(where) != 0, f"something listens on {where}"
+        assert probes(broker.port, "alice").connect() == 0  # plain MQTT on loopback, for local programs
 
     (tmp_path / "key.pem").unlink()
     done = _broker_cli("--config", str(fleet), "--port", str(free_port()), "--ws-port", "0")

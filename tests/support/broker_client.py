@@ -34,7 +34,8 @@ class Msg:
 class Probe:
     def __init__(self, port: int, username: str | None, password: str | None, client_id: str = "", *,
                  clean: bool = True, keepalive: int = 30, transport: str = "tcp",
-                 will: tuple[str, bytes, int, bool] | None = None, bind_address: str = "") -> None:
+                 will: tuple[str, bytes, int, bool] | None = None, bind_address: str = "",
+                 host: str = "127.0.0.1") -> None:
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2,
                                   client_id=client_id or f"probe-{time.monotonic_ns()}", clean_session=clean,
                                   protocol=mqtt.MQTTv311, transport=transport)
@@ -44,7 +45,7 @@ class Probe:
             self.client.will_set(*will)
         self.client.on_socket_open = lambda _c, _u, sock: set_nodelay(sock)
         self.client.reconnect_delay_set(0.1, 0.5)  # quick to reconnect, quick to stop when the broker is gone
-        self.port, self.keepalive, self.bind_address = port, keepalive, bind_address
+        self.port, self.keepalive, self.bind_address, self.host = port, keepalive, bind_address, host
         self.messages: queue.Queue[Msg] = queue.Queue()
         self.session_present = False
         self.disconnected = threading.Event()
@@ -70,7 +71,7 @@ class Probe:
 
     def connect(self, timeout: float = 10.0) -> int:
         """0 when accepted, else paho's reason code (135 = not authorized)."""
-        self.client.connect("127.0.0.1", self.port, keepalive=self.keepalive, bind_address=self.bind_address)
+        self.client.connect(self.host, self.port, keepalive=self.keepalive, bind_address=self.bind_address)
         self.client.loop_start()
         return self._connack.get(timeout=timeout)
 

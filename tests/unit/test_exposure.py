@@ -9,6 +9,7 @@ import pytest
 
 from roslink_mqtt.config import hash_password, load_fleet
 from roslink_mqtt.config.exposure import demo_logins, exposure_problems, is_loopback
+from roslink_mqtt.config.model import TlsSettings
 
 DEMO = Path(__file__).resolve().parents[2] / "config" / "robots.yaml"
 
@@ -55,3 +56,17 @@ def test_fresh_passwords_and_allow_plaintext_pass_and_each_is_needed(demo) -> No
                                                                                         allow_plaintext=True)),
                                   "0.0.0.0")
     assert len(only_demo) == 1 and "demo fleet's published passwords" in only_demo[0]
+
+
+def test_a_public_tls_listener_beside_loopback_plain_ones_needs_fresh_passwords_only(demo) -> None:
+    """broker.tls.host 0.0.0.0 with host 127.0.0.1: plain MQTT stays on this machine, so allow_plaintext is not
+    needed; the demo's published passwords are refused on the TLS address as anywhere public."""
+    tls = TlsSettings(8883, "cert.pem", "key.pem", host="0.0.0.0")
+    [passwords] = exposure_problems(dataclasses.replace(demo, broker=dataclasses.replace(demo.broker, tls=tls)))
+    assert "demo fleet's published passwords" in passwords and passwords.endswith("listens on 0.0.0.0")
+    assert exposure_problems(_fresh(demo, tls=tls)) == []
+    assert _fresh(demo, tls=tls).broker.tls_host() == "0.0.0.0"
+    # plain ones public too: both reasons, both addresses named once
+    both = exposure_problems(dataclasses.replace(demo, broker=dataclasses.replace(demo.broker, tls=tls)), "10.0.0.5")
+    assert len(both) == 2 and both[1].endswith("listens on 10.0.0.5 and 0.0.0.0")
+    assert "broker.tls.host" in both[0]
