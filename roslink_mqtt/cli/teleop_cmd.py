@@ -101,9 +101,11 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"roslink-mqtt teleop: {held}")
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
-    print(f"teleop {args.robot}: {HELP}\r")
     try:
-        tty.setcbreak(fd)
+        # keys typed while connecting are dropped (TCSAFLUSH: they were not meant for a robot that now moves); the
+        # help appears once the keyboard is read key by key, so every key pressed after it counts
+        tty.setcbreak(fd, termios.TCSAFLUSH)
+        print(f"teleop {args.robot}: {HELP}\r", flush=True)
         while True:
             if select.select([sys.stdin], [], [], 0.1)[0]:
                 action = drive.key(sys.stdin.read(1))
