@@ -130,6 +130,8 @@ class ClampNotices:
             self._streams[stream] = now
             if len(self._streams) > self.KEPT:
                 self._streams = {k: t for k, t in self._streams.items() if now - t <= self.pause}
+                if len(self._streams) > self.KEPT:  # a flood of client ids, all live: forget them (at worst a
+                    self._streams = {stream: now}  # sender hears of its clamping again), never rebuild per twist
         return clamped and not told
 
 

@@ -262,6 +262,9 @@ def test_clamp_notices_forget_ended_streams_beyond_their_bound() -> None:
     assert len(notices._streams) <= ClampNotices.KEPT
     assert not notices.tell(("alice", f"prog{ClampNotices.KEPT + 9}", "twist"), ClampNotices.KEPT + 9.5,
                             clamped=True, standstill=False)  # the live one is still remembered
+    for i in range(3 * ClampNotices.KEPT):  # a flood of live client ids within one pause: still bounded
+        notices.tell(("alice", f"flood{i}", "twist"), 1000.0, clamped=True, standstill=False)
+        assert len(notices._streams) <= ClampNotices.KEPT + 1
 
 
 def test_a_generic_rule_carries_ros_json(h: Harness) -> None:
