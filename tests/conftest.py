@@ -53,7 +53,8 @@ FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 # rate-limited link; beside another worker's tests they would measure that worker (and starve it: a pub's notice
 # came after its wait, a bridge missed its broker's answer by 50 ms).
 ALONE = ("tests/security/", "tests/integration/test_weak_link.py", "tests/integration/test_presence_flood.py",
-         "tests/integration/test_large_slow_viewer.py", "tests/integration/test_rabbitmq_cluster.py")
+         "tests/integration/test_large_slow_viewer.py", "tests/integration/test_rabbitmq_cluster.py",
+         "tests/integration/test_wss.py")  # the last: how far 1.5 s of twists move the robot (0.13 m once, beside)
 
 
 def pytest_collection_modifyitems(config, items) -> None:
