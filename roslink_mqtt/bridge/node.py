@@ -422,8 +422,10 @@ class Bridge:
             lane.start()
         if self.stop_link is not None:
             self.stop_link.start()
-        self.link.start()
+        # READY before the command link dials: its connected status comes from paho's thread and must not
+        # overtake READY (systemd, and the unit test, read them in order)
         self.systemd.ready(f"connecting to {self.link.url}")
+        self.link.start()
 
     def stop(self) -> None:
         """Clean shutdown: stop the robot, tell everyone we are offline (the will covers unclean ones)."""
