@@ -339,3 +339,93 @@ def test_an_emergency_stop_overtakes_a_flooded_downlink(tmp_path) -> None:
     assert stop_delay < 1.5, f"the emergency stop took {stop_delay:.2f} s through the flooded downlink"
     assert mode_delay > stop_delay + 1.0, (f"the ordinary command was not held up ({mode_delay:.2f} s vs the stop's "
                                            f"{stop_delay:.2f} s): the flood did not congest the downlink")
+
+
+@pytest.mark.parametrize("mode", ["scheduled", "fifo"])
+def test_a_disk_backlog_drains_behind_live_poses_on_a_thin_uplink(tmp_path, mode: str) -> None:
+    """The robot's link (64 kbit/s) goes down for a while; a ``buffer: disk`` rule keeps 50 kB of events meanwhile.
+    When the link returns the backlog takes seconds of link time, and it drains *behind* live data: the viewer's
+    poses are fresh and keep their rate while the backlog is still crossing, and every buffered event still arrives,
+    oldest first. In both uplink modes: with ``fifo`` poses and the backlog share one connection, and only the
+    drain's pacing keeps the backlog from sitting in front of them (handed at once, poses arrive 4 s old)."""
+    from nav_msgs.msg import Odometry
+    from std_msgs.msg import String
+
+    uplink_kbit, event_bytes, offline_events = 64, 1000, 50  # 50 kB ≈ 6 s of the uplink
+    rules = ("    rules: &rules\n"
+             "      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,\n"
+             "         mqtt_topic: state/pose, preset: global_motion}\n"
+             "      - {direction: ros_to_mqtt, ros_topic: /wl/events, ros_type: std_msgs/msg/String,\n"
+             "         mqtt_topic: state/events, mqtt_qos: 1, buffer: disk}\n")
+    settings = f"      keepalive: 2\n      uplink: {mode}\n      buffer_dir: {tmp_path / 'spool'}\n"
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
+        "      keepalive: 2\n", settings, 1))
+    poses: list[tuple[float, float]] = []  # (arrival, age)
+    events: list[tuple[float, int]] = []  # (arrival, index)
+    offline = threading.Event()
+
+    def on_message(_c, _u, m) -> None:
+        now = time.time()
+        leaf = m.topic.rsplit("/", 1)[-1]
+        if leaf == "pose":
+            poses.append((now, now - orjson.loads(m.payload)["payload"]["time_boot_ms"] / 1000))
+        elif leaf == "events":
+            events.append((now, int(orjson.loads(m.payload)["data"][:8])))
+        elif leaf == "heartbeat" and m.payload and orjson.loads(m.payload)["payload"]["system_status"] == 8:
+            offline.set()  # the bridge's last will: the broker saw the robot's connection go
+
+    link_port = free_port()
+    link_cmd = ["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to", "", "--delay-ms",
+                "20", "--jitter-ms", "0", "--up-kbit", str(uplink_kbit), "--down-kbit", "512"]
+    probe = RosProbe()
+    stop = threading.Event()
+    try:
+        odom = probe.publisher(Odometry, "/wl/odom")
+        event_pub = probe.publisher(String, "/wl/events")
+
+        def live_poses() -> None:
+            while not stop.wait(0.1):
+                msg = Odometry()
+                now = time.time()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                odom.publish(msg)
+
+        with EmbeddedBrokerProcess(tmp_path, fleet) as broker, TestClient(broker.port, "bob", "bob-demo") as bob:
+            link_cmd[link_cmd.index("--to") + 1] = f"127.0.0.1:{broker.port}"
+            assert bob.connect() == 0
+            bob.client.on_message = on_message
+            bob.subscribe("roslink/turtle1/state/#", qos=1)
+            bob.subscribe("roslink/turtle1/heartbeat", qos=1)
+            with run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                      f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")):
+                threading.Thread(target=live_poses, daemon=True).start()
+                with run(link_cmd, tmp_path / "link1.log"):
+                    deadline = time.monotonic() + 30
+                    while not poses and time.monotonic() < deadline:
+                        time.sleep(0.1)
+                    assert poses, f"no pose arrived: {(tmp_path / 'bridge.log').read_text()[-2000:]}"
+                assert offline.wait(15), "the broker never published the bridge's will when its link went"
+                for n in range(offline_events):  # the link is down: kept on disk
+                    event_pub.publish(String(data=f"{n:<8}" + "e" * (event_bytes - 8)))
+                    time.sleep(0.01)
+                time.sleep(0.5)  # the last of them reach the bridge
+                with run(link_cmd, tmp_path / "link2.log"):
+                    back = time.time()
+                    deadline = time.monotonic() + 60
+                    while len({n for _, n in events}) < offline_events and time.monotonic() < deadline:
+                        time.sleep(0.2)
+    finally:
+        stop.set()
+        probe.close()
+    received = [n for _, n in events]
+    assert sorted(set(received)) == list(range(offline_events)), f"lost while the link was down: {received}"
+    assert received == sorted(received), f"buffered events out of order: {received}"
+    drained = max(t for t, _ in events)
+    first_pose = min(t for t, _ in poses if t > back)
+    assert drained - first_pose > 3.0, (f"the backlog took {drained - first_pose:.1f} s after the first live pose: "
+                                        "too short to show which goes first")
+    during = [age for t, age in poses if first_pose <= t <= drained]
+    assert len(during) >= 4 * (drained - first_pose), (  # the demo's 10 Hz global_motion: at least 4 Hz of it
+        f"{len(during)} poses in the {drained - first_pose:.1f} s the backlog took: it held live data back")
+    assert _quantile(during, 0.9) < 1.5, f"poses arrived stale while the backlog drained: {sorted(during)[-5:]}"
+    assert first_pose - back < 10.0, f"the first live pose took {first_pose - back:.1f} s after the link returned"
