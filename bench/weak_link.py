@@ -9,7 +9,8 @@ four times faster). The simulated robot publishes the demo's telemetry (20 Hz od
 OccupancyGrid (CBOR) every 10 s. bob, a viewer on the broker's side, times what arrives; alice, an operator,
 calls the robot's ``reset`` service once a second and times each reply (the control round trip), and presses the
 emergency stop every 3 s, timed from her call to the stop's ``std_msgs/Bool`` on the robot's ROS topic (an
-rclpy subscriber in this process), then arms again.
+rclpy subscriber in this process) and to the bridge's acknowledgement on ``state/ack`` back at her, then arms
+again.
 
 Each row runs twice in one run, with the fleet file's ``bridge.uplink: fifo`` (every message handed to the
 network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's) and ``scheduled``.
@@ -128,6 +129,7 @@ class Run:
     heartbeats: list[float] = field(default_factory=list)  # arrival times
     replies: list[float] = field(default_factory=list)  # round trips (s)
     stops: list[float] = field(default_factory=list)  # emergency stop sent → its Bool on the robot's ROS topic (s)
+    stop_acks: list[float] = field(default_factory=list)  # emergency stop sent → the bridge's state/ack (s; inf: none)
     failed_calls: int = 0
     failures: list[str] = field(default_factory=list)  # why calls failed
     link: Any = None  # the bridge's last state/link report (a LinkReport)
@@ -298,13 +300,16 @@ def stopper(operator: Any, watch: StopWatch, stop: threading.Event, run_: list[R
     """alice presses the emergency stop every STOP_PERIOD s, times it to the robot's ROS topic, and arms again."""
     while not stop.wait(STOP_PERIOD):
         sent, row = time.monotonic(), run_[0]  # the row it was sent in (a stop sent between rows meets no bridge)
-        try:
-            operator.emergency_stop(ROBOT, "bench")
+        acked: float | None = None
+        try:  # the stop, then its acknowledgement on state/ack (the SDK's emergency_stop_all times it)
+            ack = operator.emergency_stop_all("bench", robots=[ROBOT], timeout=5.0)[ROBOT]
+            acked = ack.seconds if ack.acknowledged else None
         except Exception:  # noqa: BLE001 - a stop the broker did not confirm: counted as not arrived below
             pass
         arrived = watch.wait_after(sent, 5.0)
         if row is not None and (arrived is not None or row is run_[0]):  # an ended row's bridge may be gone
             row.stops.append(float("inf") if arrived is None else arrived - sent)
+            row.stop_acks.append(float("inf") if acked is None else acked)
         try:
             operator.arm(ROBOT)
         except Exception:  # noqa: BLE001 - the next stop is measured all the same
@@ -366,14 +371,14 @@ def stream_cell(run: Run, name: str) -> str:
     return f"{rate:5.1f}/s {pct(ages, 0.5) * 1000:6.0f}/{pct(ages, 0.99) * 1000:6.0f} ms"
 
 
-def stop_cell(run: Run) -> str:
-    """The slowest emergency stop of the row (sent → on the robot's ROS topic), and how many there were."""
-    if not run.stops:
+def stop_cell(times: list[float]) -> str:
+    """The slowest of a row's emergency stops (inf: not seen within 5 s), and how many there were."""
+    if not times:
         return "-"
-    unseen = sum(1 for t in run.stops if t == float("inf"))
-    seen = [t for t in run.stops if t != float("inf")]
+    unseen = sum(1 for t in times if t == float("inf"))
+    seen = [t for t in times if t != float("inf")]
     text = f"{max(seen) * 1000:.0f} ms" if seen else "unseen"
-    return text + (f" ({len(seen)}/{len(run.stops)})" if unseen else f" ({len(run.stops)})")
+    return text + (f" ({len(seen)}/{len(times)})" if unseen else f" ({len(times)})")
 
 
 def heartbeat_gap(run: Run) -> float:
@@ -384,7 +389,7 @@ def heartbeat_gap(run: Run) -> float:
 def report(runs: list[Run]) -> None:
     extras = any(r.case.extras for r in runs)
     head = (f"{'uplink':<26} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
-            f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15} {'e-stop max':>10}")
+            f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15} {'e-stop max':>10} {'ack max':>10}")
     if extras:
         head += f"  {'image rate, age p50/p99':<30} {'map rate, age p50/p99':<30}"
     print()
@@ -399,13 +404,14 @@ def report(runs: list[Run]) -> None:
             replies += f" ({run.failed_calls} failed)"
         line = (f"{run.case.label:<26} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
                 f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {run.silent:>6} {replies:>15}"
-                f" {stop_cell(run):>10}")
+                f" {stop_cell(run.stops):>10} {stop_cell(run.stop_acks):>10}")
         if extras:
             line += f"  {stream_cell(run, IMAGE_STATE):<30} {stream_cell(run, MAP_STATE):<30}"
         print(line)
     print("\nsilent: heartbeats the broker did not acknowledge in time (each one is a failsafe stop of a driven robot)")
     print(f"e-stop max: alice's emergency stops (one every {STOP_PERIOD:g} s) from her call to the Bool on the robot's "
-          f"{ESTOP_TOPIC}, the slowest (seen/sent when some were not seen within 5 s)")
+          f"{ESTOP_TOPIC}, the slowest (seen/sent when some were not seen within 5 s); ack max: the same stops "
+          "from her call to the bridge's acknowledgement on state/ack, back at alice")
     print(f"rates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
           "the scan is 5 Hz); age = arrival − the message's own timestamp")
 
