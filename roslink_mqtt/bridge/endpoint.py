@@ -293,8 +293,9 @@ class CommandEndpoint:
                 msg = route.build(body)
             if route.is_velocity:
                 clamped = make_safe_twist(msg, route.limits)
-        except INPUT_REFUSALS as err:
-            self.refuse(user, topic, str(err), message_id, sequence, payload=payload)
+        except INPUT_REFUSALS as err:  # the sender: the envelope's or body's, as far as parsing got (never re-parsed)
+            self.refuse(user, topic, str(err), message_id, sequence,
+                        client_id=sender if sender is not None else getattr(err, "client_id", None))
             return
         with self.lock:
             if not behaviour.never_stale and not self.operators.is_live(user):

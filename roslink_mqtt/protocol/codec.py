@@ -27,6 +27,7 @@ _HEADER_BOUNDS: dict[str, tuple[int, int]] = {
     "sequence_number": (0, 2**32 - 1),
 }
 CLIENT_ID_KEY = "client_id"  # optional header: the sender's id, repeated in error reports (docs/protocol.md)
+GENERIC_SENDER_KEY = "$client_id"  # the same in generic ROS JSON bodies (never a ROS field name)
 MAX_CLIENT_ID = 128
 _ENVELOPE_KEYS = frozenset(_HEADER_BOUNDS) | {"payload", CLIENT_ID_KEY}
 
@@ -113,9 +114,26 @@ def decode(data: bytes | bytearray | memoryview | str, expected: int | None = No
 
 
 def decode_object(obj: Any, expected: int | None = None) -> Envelope:
-    """Like :func:`decode` for an already-parsed JSON value."""
+    """Like :func:`decode` for an already-parsed JSON value.
+
+    A refused object's error names its sender (``err.client_id``) when it named one, so the refusal is addressed
+    without parsing the payload again."""
     if not isinstance(obj, dict):
         raise ProtocolError(f"expected a JSON object, got {describe(obj)}")
+    try:
+        return _decode_dict(obj, expected)
+    except ProtocolError as err:
+        err.naming(err.request_id, _named_sender(obj))
+        raise
+
+
+def _named_sender(obj: dict[str, Any]) -> str | None:
+    """The client id a JSON object names (``$client_id`` wins, as in generic bodies), if it is a valid one."""
+    value = obj.get(GENERIC_SENDER_KEY, obj.get(CLIENT_ID_KEY))
+    return value if isinstance(value, str) and 0 < len(value) <= MAX_CLIENT_ID else None
+
+
+def _decode_dict(obj: dict[str, Any], expected: int | None) -> Envelope:
     if "message_id" not in obj and "payload" not in obj:
         if expected is None:
             raise ProtocolError("missing field 'message_id' (a bare payload needs a topic that names the message)")

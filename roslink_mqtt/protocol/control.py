@@ -62,14 +62,13 @@ from .body import (
     read,
     refuse,
 )
-from .codec import MAX_CLIENT_ID, loads
+from .codec import GENERIC_SENDER_KEY, MAX_CLIENT_ID, loads
 from .errors import ProtocolError
 from .validate import describe
 
 _DOC = TopicTree()  # topics as docs/protocol.md shows them: placeholders in angle brackets
 _R, _U = "<robot>", "<user>"
 
-GENERIC_SENDER_KEY = "$client_id"  # in generic ROS JSON bodies (never a ROS field name)
 ROLES = ("operator", "viewer")
 MAX_CALL_ID = 128  # characters of a string call id
 MAX_SENDER_PARSE = 64 * 1024  # bytes: a larger refused input is not parsed again for its sender (see sender_id)
@@ -85,8 +84,12 @@ def check_client_id(value: Any, where: str = "client_id") -> str:
 def sender_id(payload: bytes | bytearray | memoryview | str | None) -> str | None:
     """The client id a request names (envelope, control body or generic JSON), None if it names none.
 
-    Used on the refusal path only: a refused input is parsed once more to find
-    out whom to address the report to, and a malformed one simply has no sender.
+    Used on the refusal path only, for inputs refused before their body was
+    parsed (a verb this bridge does not serve, a role that may not send it, a
+    retained command): the one parse, to find out whom to address the report to.
+    Inputs refused while parsing name their sender through ``ProtocolError``
+    (``err.client_id``) or the parser's own result, so nothing is parsed twice.
+    A malformed input simply has no sender.
     Inputs over MAX_SENDER_PARSE bytes are not parsed again (their report names
     nobody): a flood of large refused messages, e.g. from a viewer on a broker
     without ACLs, must not cost the bridge's MQTT thread a second parse each.

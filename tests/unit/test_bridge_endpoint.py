@@ -494,6 +494,27 @@ def test_refusals_name_the_sender_and_use_the_error_qos(h: Harness) -> None:
                                                                             False)
 
 
+
+@pytest.mark.parametrize(("leaf", "payload"), [
+    ("cmd/twist", b'{"message_id": 100, "client_id": "alice-prog", "payload": {"lx": "fast"}}'),  # a bad field
+    ("cmd/twist", b'{"client_id": "alice-prog", "lx": 0.1, "speed": 3}'),  # a bare payload with an unknown field
+    ("lights", b'{"dta": true, "$client_id": "alice-prog"}'),  # a generic rule's unknown ROS field
+])
+def test_a_malformed_input_names_its_sender_from_its_one_parse(h: Harness, monkeypatch: pytest.MonkeyPatch,
+                                                               leaf: str, payload: bytes) -> None:
+    """The refusal is addressed to the program that sent it, from what the parser read: the payload is not
+    parsed a second time to find the sender (a flood of malformed input costs one parse each)."""
+    import roslink_mqtt.bridge.endpoint as endpoint_module
+
+    def second_parse(_payload: bytes) -> str | None:
+        raise AssertionError("parsed again for its sender")
+
+    monkeypatch.setattr(endpoint_module, "sender_id", second_parse)
+    h.present()
+    h.raw(leaf, payload)
+    (report,) = h.link.errors("alice")
+    assert report.client_id == "alice-prog", report
+
 # -- action goals: the same gates as motion, canceled where velocity stops ---------------------------------
 @pytest.mark.parametrize(("end", "whose", "why"), [
     ("last-will", "alice", "operator alice went away (last-will)"),
