@@ -1,10 +1,11 @@
 """The dashboard's view of the protocol, generated: ``static/protocol.js`` (constants and every body's fields).
 
 The page builds and reads topics with ``static/topics.js`` (roslink_mqtt/topics.py's TopicTree over the words
-generated here) and reads bodies with ``static/body.js`` (the lenient reader of
-:func:`roslink_mqtt.protocol.body.read` in JavaScript), from the same declarations the bridge and the SDK parse
-with and docs/protocol.md renders, so they cannot drift apart: tests/unit/test_dashboard_js.py fails when this
-file is stale and runs ``node`` on both readers against cases Python reads first. Regenerate:
+generated here), reads bodies with ``static/body.js`` (the lenient reader of
+:func:`roslink_mqtt.protocol.body.read` in JavaScript) and ROSLink messages with ``static/message.js``
+(:func:`roslink_mqtt.protocol.codec.decode_object` in JavaScript), from the same declarations the bridge and
+the SDK parse with and docs/protocol.md renders, so they cannot drift apart: tests/unit/test_dashboard_js.py
+fails when this file is stale and runs ``node`` on the readers against cases Python reads first. Regenerate:
 ``python -m roslink_mqtt.dashboard.protocol_js --write``.
 """
 
@@ -18,7 +19,9 @@ import orjson
 
 from ..client.directory import DEFAULT_STALE_AFTER
 from ..mqtt import CONNACK_REFUSALS, LOGIN_WAIT
+from ..protocol.codec import envelope_rules
 from ..protocol.enums import FlightMode, SystemStatus
+from ..protocol.messages import SPECS
 from ..protocol.reference import DOCUMENTED_BODIES
 from ..topics import grammar_words
 
@@ -38,6 +41,11 @@ def bodies() -> dict[str, list[dict[str, Any]]]:
             for title, _topic, cls in DOCUMENTED_BODIES}
 
 
+def messages() -> dict[str, Any]:
+    """Every ROSLink message's payload fields (:meth:`MessageSpec.as_data`) by name, and the envelope's rules."""
+    return {"envelope": envelope_rules(), "specs": {spec.name: spec.as_data() for spec in SPECS}}
+
+
 def constants() -> dict[str, Any]:
     return {
         "STALE_AFTER_MS": round(DEFAULT_STALE_AFTER * 1000),  # as the SDK: a heartbeat older than this is stale
@@ -51,7 +59,7 @@ def constants() -> dict[str, Any]:
 
 
 def render() -> str:
-    data = {"constants": constants(), "bodies": bodies(), "topics": grammar_words()}
+    data = {"constants": constants(), "bodies": bodies(), "messages": messages(), "topics": grammar_words()}
     text = orjson.dumps(data, option=orjson.OPT_INDENT_2 | orjson.OPT_SORT_KEYS).decode()
     return (HEADER + '"use strict";\n\n'
             "// window.ROSLINK in the page; module.exports under node (tests/js)\n"

@@ -61,6 +61,7 @@ def _routes(mqtt_js: Path, config: PageConfig) -> dict[str, tuple[str, Path | by
         "/app.js": ("text/javascript; charset=utf-8", STATIC / "app.js"),
         "/protocol.js": ("text/javascript; charset=utf-8", STATIC / "protocol.js"),
         "/body.js": ("text/javascript; charset=utf-8", STATIC / "body.js"),
+        "/message.js": ("text/javascript; charset=utf-8", STATIC / "message.js"),
         "/topics.js": ("text/javascript; charset=utf-8", STATIC / "topics.js"),
         "/style.css": ("text/css; charset=utf-8", STATIC / "style.css"),
         "/vendor/mqtt.min.js": ("text/javascript; charset=utf-8", mqtt_js),

@@ -67,6 +67,15 @@ class Field:
     def required(self) -> bool:
         return self.default is _REQUIRED
 
+    def as_data(self) -> dict[str, Any]:
+        """The field as JSON data: the dashboard reads messages from the same declarations (static/message.js)."""
+        out: dict[str, Any] = {"name": self.name, "kind": self.kind.name.lower(), "required": self.required}
+        if not self.required:
+            out["default"] = self.default
+        if self.bounds is not None:
+            out["bounds"] = list(self.bounds)
+        return out
+
 
 class Direction(Enum):
     STATE = "state"  # robot → users
@@ -80,6 +89,9 @@ class MessageSpec:
     direction: Direction
     fields: tuple[Field, ...]
     doc: str = ""
+
+    def as_data(self) -> dict[str, Any]:
+        return {"id": int(self.message_id), "fields": [f.as_data() for f in self.fields]}
 
     def defaults(self) -> dict[str, Any]:
         """A payload with every optional field at its default (required ones absent)."""

@@ -17,6 +17,8 @@ import pytest
 from roslink_mqtt.dashboard.protocol_js import OUTPUT, body_key, render
 from roslink_mqtt.protocol import ProtocolError
 from roslink_mqtt.protocol.body import read
+from roslink_mqtt.protocol.codec import decode_object
+from roslink_mqtt.protocol.messages import SPECS, FieldKind, MessageSpec
 from roslink_mqtt.protocol.reference import _CONTROL_EXAMPLES, DOCUMENTED_BODIES
 from roslink_mqtt.topics import TopicTree, Verb, param_events_node
 
@@ -55,6 +57,49 @@ def cases() -> list[dict[str, Any]]:
             inputs.append({k: v for k, v in example.items() if k != field.name})
             inputs += [{**example, field.name: value} for value in ODD_VALUES]
         out += [{"body": body_key(title), "input": i, "expected": python_reads(cls, i)} for i in inputs]
+    return out
+
+
+# a valid value of each payload field kind (no float with a zero fraction: see ODD_VALUES)
+SAMPLE: dict[FieldKind, Any] = {FieldKind.INT: 3, FieldKind.FLOAT: 0.25, FieldKind.STR: "s", FieldKind.BOOL: True,
+                                FieldKind.FLOAT_LIST: [0.5, -1.25], FieldKind.RANGE_LIST: [0.5, None],
+                                FieldKind.INT_LIST: [1, 2], FieldKind.BASE64: "aGk="}
+# wrong for most payload fields and list items; a header's out of bounds and unknown keys
+ODD_ITEMS: list[Any] = [None, "x", 1.5, -1, True, 2**40]
+
+
+def python_decodes(spec: MessageSpec, obj: Any) -> Any:
+    try:
+        return orjson.loads(orjson.dumps(decode_object(obj, spec.message_id).payload))
+    except ProtocolError:
+        return None
+
+
+def message_cases() -> list[dict[str, Any]]:
+    out = []
+    for spec in SPECS:
+        full = {f.name: SAMPLE[f.kind] for f in spec.fields}
+        required = {f.name: SAMPLE[f.kind] for f in spec.fields if f.required}
+        other = next(s for s in SPECS if s.message_id != spec.message_id)
+
+        def envelope(payload: Any, **header: Any) -> dict[str, Any]:
+            return {"message_id": int(spec.message_id), "system_id": 1, "sequence_number": 5, **header,  # noqa: B023
+                    "payload": payload}
+
+        inputs: list[Any] = [full, required, envelope(full), envelope(required), {}, [], "x", None,
+                             {"payload": full}, {"message_id": int(spec.message_id)},
+                             envelope(full, message_id=int(other.message_id)), envelope(full, message_id=250),
+                             envelope(full, client_id="laptop"), envelope(full, client_id=""),
+                             envelope(full, client_id="c" * 129), envelope(full, system_id=70_000),
+                             envelope(full, sequence_number=-1), envelope(full, key="secret"),
+                             envelope(full, roslink_version=True), {**full, "unknown": 1},
+                             envelope({**full, "unknown": 1}), envelope([full])]
+        for field in spec.fields:
+            inputs.append(envelope({k: v for k, v in full.items() if k != field.name}))
+            inputs += [envelope({**full, field.name: value}) for value in ODD_VALUES + ODD_ITEMS]
+            if field.kind in (FieldKind.FLOAT_LIST, FieldKind.RANGE_LIST, FieldKind.INT_LIST):
+                inputs += [envelope({**full, field.name: [value]}) for value in ODD_ITEMS]
+        out += [{"message": spec.name, "input": i, "expected": python_decodes(spec, i)} for i in inputs]
     return out
 
 
@@ -98,14 +143,26 @@ def topic_cases() -> dict[str, list[dict[str, Any]]]:
             "paramEvents": [{"name": n, "expected": param_events_node(n)} for n in names]}
 
 
-def test_the_dashboard_reads_bodies_and_topics_as_python_does(tmp_path: Path) -> None:
+def test_the_dashboard_reads_bodies_messages_and_topics_as_python_does(tmp_path: Path) -> None:
     node = shutil.which("node")
     assert node, "node is needed (make install)"
-    bodies, topics = tmp_path / "bodies.json", tmp_path / "topics.json"
+    bodies, topics, messages = tmp_path / "bodies.json", tmp_path / "topics.json", tmp_path / "messages.json"
     bodies.write_bytes(orjson.dumps(cases()))
     topics.write_bytes(orjson.dumps(topic_cases()))
+    messages.write_bytes(orjson.dumps(message_cases()))
     run = subprocess.run([node, "--test", str(ROOT / "tests" / "js")], capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "ROSLINK_BODY_CASES": str(bodies), "ROSLINK_TOPIC_CASES": str(topics)},
-                         check=False)
+                         env={**os.environ, "ROSLINK_BODY_CASES": str(bodies), "ROSLINK_TOPIC_CASES": str(topics),
+                              "ROSLINK_MESSAGE_CASES": str(messages)}, check=False)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
-    assert "# pass 3" in run.stdout and "# skipped 0" in run.stdout, run.stdout[-2000:]
+    assert "# pass 4" in run.stdout and "# skipped 0" in run.stdout, run.stdout[-2000:]
+
+
+def test_every_file_the_page_loads_is_served() -> None:
+    """Each script and stylesheet index.html names is one of the server's routes (a new static file needs both)."""
+    from roslink_mqtt.dashboard.server import PageConfig, _routes
+
+    page = (OUTPUT.parent / "index.html").read_text()
+    loaded = re.findall(r'<script src="([^"]+)"', page) + re.findall(r'<link rel="stylesheet" href="([^"]+)"', page)
+    routes = _routes(Path("mqtt.min.js"), PageConfig())
+    assert "message.js" in loaded and "app.js" in loaded, loaded
+    assert [f for f in loaded if "/" + f not in routes] == []

@@ -11,6 +11,9 @@
   const BODIES = window.ROSLINK.bodies;
   // one body, named as in docs/protocol.md ("control state" → control_state): its declared fields, or null
   const read = (name, payload) => window.roslinkBody.readBody(BODIES[name], parse(payload));
+  // one ROSLink message (heartbeat, global_motion, ack …), read as the SDK decodes it (message.js): its payload, or null
+  const { envelope: ENVELOPE, specs: MESSAGES } = window.ROSLINK.messages;
+  const message = (name, payload) => window.roslinkMessage.readMessage(MESSAGES[name], parse(payload), ENVELOPE);
   const { TopicTree, leafOf, paramEventsNode } = window.roslinkTopics;  // topics.py's grammar (topics.js)
   const KINDS = window.ROSLINK.topics.kinds;  // what a parsed topic is: heartbeat, state, from, to, operator
   let tree = new TopicTree("roslink");  // the broker's prefix, once config.json has said it
@@ -314,9 +317,8 @@
       if (dash.selected === name) selectRobot(null);
       return;
     }
-    const env = parse(payload);
-    const hb = env && env.payload;
-    if (!hb || typeof hb !== "object") return;
+    const hb = message("heartbeat", payload);
+    if (!hb) return;
     let robot = dash.robots.get(name);
     if (!robot) {
       robot = newRobot(name);
@@ -344,8 +346,7 @@
       const raw = new TextDecoder().decode(payload);
       if (raw === robot.descRaw) return;  // the same retained description again (a reconnect)
       robot.descRaw = raw;
-      const d = raw ? parse(payload) : null;
-      robot.description = isLayout(d) ? d : null;
+      robot.description = raw ? read("robot_description", payload) : null;
       presenceIfNeeded(robot);
       if (dash.selected === robot.name) buildControls(robot);
       return;
@@ -353,8 +354,8 @@
     const paramNode = paramEventsNode(name);
     if (paramNode !== null) { onParamEvent(robot, paramNode, payload); return; }
     if (name === "robot_status") {
-      const env = parse(payload);
-      if (env && env.payload) robot.status = env.payload;
+      const status = message("robot_status", payload);
+      if (status) robot.status = status;
       return;
     }
     if (name === "control") {  // who drives (docs/protocol.md, "control state")
@@ -368,8 +369,7 @@
       return;
     }
     if (name === "ack" && dash.stopRound) {  // STOP ALL waits for every robot's acknowledgement
-      const m = parse(payload);
-      const a = m && (m.payload || m);
+      const a = message("ack", payload);
       if (a) noteStopAck(robot, a);
     }
     if (dash.selected !== robot.name) return;  // other robots: counted, not parsed
@@ -377,11 +377,9 @@
     if (encoding === "raw") { showImageBytes(robot, name, payload); return; }
     if (encoding && encoding !== "json") { notDecoded(robot, name, encoding); return; }
     if (name === "global_motion") {
-      const m = parse(payload);
-      const p = m && (m.payload || m);
-      if (!p || typeof p.x !== "number" || typeof p.y !== "number") return;
-      robot.pose = { x: p.x, y: p.y, yaw: typeof p.yaw === "number" ? p.yaw : 0, vx: p.vx, wz: p.wz,
-                     t: typeof p.time_boot_ms === "number" ? p.time_boot_ms : 0 };
+      const p = message("global_motion", payload);
+      if (!p) return;
+      robot.pose = { x: p.x, y: p.y, yaw: p.yaw, vx: p.vx, wz: p.wz, t: p.time_boot_ms };
       robot.poses += 1;
       robot.recent.push(robot.pose);
       if (robot.recent.length > RECENT_MAX) robot.recent.shift();
@@ -393,31 +391,27 @@
       updatePose(robot);
       dirty = true;
     } else if (name === "range_finder_data") {
-      const m = parse(payload);
-      const s = m && (m.payload || m);
-      if (s && Array.isArray(s.ranges)) {
+      const s = message("range_finder_data", payload);
+      if (s) {
         robot.scan = s;
         dirty = true;
       }
     } else if (name === "gps_raw_info") {
-      const m = parse(payload);
-      const g = m && (m.payload || m);
-      if (g && typeof g.lat === "number" && typeof g.lon === "number" && g.fix_type >= 2) {
+      const g = message("gps_raw_info", payload);
+      if (g && g.fix_type >= 2) {
         robot.gpsFix = g;
         robot.gps.push([g.lat, g.lon]);
         if (robot.gps.length > GPS_MAX) robot.gps.splice(0, robot.gps.length - GPS_MAX);
         drawGps(robot);
       }
     } else if (name === "image") {
-      const m = parse(payload);
-      const im = m && (m.payload || m);
-      if (im && typeof im.data === "string" && /^[a-z0-9.+-]+$/i.test(im.format || "")) {
+      const im = message("image", payload);
+      if (im && /^[a-z0-9.+-]+$/i.test(im.format)) {
         ui.camera.src = `data:image/${im.format.toLowerCase()};base64,${im.data}`;
         show(ui.cameraBox, true);
       }
     } else if (name === "ack") {
-      const m = parse(payload);
-      const a = m && (m.payload || m);
+      const a = message("ack", payload);
       if (a) {
         const result = ["accepted", "rejected", "failed", "failsafe"][a.result] || `result ${a.result}`;
         addLog(ui.acks, `${result}: command ${a.command} seq ${a.command_sequence} ${a.text || ""}`,
@@ -1537,16 +1531,15 @@
   function onParamEvent(robot, name, payload) {
     const p = robot.paramPanels && robot.paramPanels.get(name);
     if (!p) return;
-    const ev = parse(payload);
-    if (!isLayout(ev)) return;
+    const ev = read("parameter_event", payload);
+    if (!ev) return;
     for (const key of ["new", "changed"]) {
-      if (!isLayout(ev[key])) continue;
       for (const [n, v] of Object.entries(ev[key])) {
         if (key === "new" && p.rows.size < PARAMS_MAX) paramRow(robot, p, n);
         setParamValue(p, n, v);
       }
     }
-    if (Array.isArray(ev.deleted)) for (const n of ev.deleted) {
+    for (const n of ev.deleted) {
       const row = p.rows.get(n);
       if (row) { row.tr.remove(); p.rows.delete(n); }
     }

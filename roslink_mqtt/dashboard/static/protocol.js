@@ -1283,6 +1283,729 @@ const ROSLINK = {
       "offline"
     ]
   },
+  "messages": {
+    "envelope": {
+      "client_id": "client_id",
+      "client_id_max": 128,
+      "header": {
+        "message_id": [
+          0,
+          255
+        ],
+        "ros_version": [
+          0,
+          255
+        ],
+        "roslink_version": [
+          0,
+          255
+        ],
+        "sequence_number": [
+          0,
+          4294967295
+        ],
+        "system_id": [
+          0,
+          65535
+        ]
+      }
+    },
+    "specs": {
+      "ack": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "command",
+            "required": true
+          },
+          {
+            "bounds": [
+              -2147483648,
+              2147483647
+            ],
+            "default": -1,
+            "kind": "int",
+            "name": "command_sequence",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "result",
+            "required": true
+          },
+          {
+            "default": "",
+            "kind": "str",
+            "name": "text",
+            "required": false
+          }
+        ],
+        "id": 109
+      },
+      "arm": {
+        "fields": [],
+        "id": 104
+      },
+      "disarm": {
+        "fields": [],
+        "id": 105
+      },
+      "emergency_stop": {
+        "fields": [
+          {
+            "default": "",
+            "kind": "str",
+            "name": "reason",
+            "required": false
+          }
+        ],
+        "id": 108
+      },
+      "geo_tagged_image": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_usec",
+            "required": false
+          },
+          {
+            "kind": "float",
+            "name": "lat",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "lon",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "alt",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "width",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "height",
+            "required": false
+          },
+          {
+            "kind": "str",
+            "name": "format",
+            "required": true
+          },
+          {
+            "kind": "base64",
+            "name": "data",
+            "required": true
+          }
+        ],
+        "id": 7
+      },
+      "get_map": {
+        "fields": [],
+        "id": 107
+      },
+      "global_motion": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_boot_ms",
+            "required": false
+          },
+          {
+            "kind": "float",
+            "name": "x",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "y",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "z",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "vx",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "vy",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "vz",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "wx",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "wy",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "wz",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "roll",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "pitch",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "yaw",
+            "required": true
+          }
+        ],
+        "id": 2
+      },
+      "go_to_waypoint": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "frame_type",
+            "required": false
+          },
+          {
+            "kind": "float",
+            "name": "x",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "y",
+            "required": true
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "z",
+            "required": false
+          }
+        ],
+        "id": 101
+      },
+      "gps_raw_info": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_usec",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "fix_type",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "lat",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "lon",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "alt",
+            "required": true
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "eph",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "epv",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "vel",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "cog",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "satellites_visible",
+            "required": false
+          }
+        ],
+        "id": 3
+      },
+      "heartbeat": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "type",
+            "required": true
+          },
+          {
+            "kind": "str",
+            "name": "name",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "system_status",
+            "required": true
+          },
+          {
+            "kind": "str",
+            "name": "owner_id",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "kind": "int",
+            "name": "mode",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "session",
+            "required": false
+          },
+          {
+            "default": "",
+            "kind": "str",
+            "name": "instance",
+            "required": false
+          },
+          {
+            "default": "",
+            "kind": "str",
+            "name": "host",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "pid",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "since",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              255
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "take_over",
+            "required": false
+          }
+        ],
+        "id": 0
+      },
+      "image": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_usec",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "width",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "height",
+            "required": false
+          },
+          {
+            "kind": "str",
+            "name": "format",
+            "required": true
+          },
+          {
+            "kind": "base64",
+            "name": "data",
+            "required": true
+          }
+        ],
+        "id": 5
+      },
+      "land": {
+        "fields": [],
+        "id": 103
+      },
+      "map": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_usec",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "kind": "int",
+            "name": "width",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "kind": "int",
+            "name": "height",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "resolution",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "origin_x",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "origin_y",
+            "required": true
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "origin_yaw",
+            "required": false
+          },
+          {
+            "bounds": [
+              -1,
+              100
+            ],
+            "kind": "int_list",
+            "name": "data",
+            "required": true
+          }
+        ],
+        "id": 6
+      },
+      "range_finder_data": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              18446744073709551615
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "time_usec",
+            "required": false
+          },
+          {
+            "kind": "float",
+            "name": "range_min",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "range_max",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "angle_min",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "angle_max",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "angle_increment",
+            "required": true
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "time_increment",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "scan_time",
+            "required": false
+          },
+          {
+            "kind": "range_list",
+            "name": "ranges",
+            "required": true
+          },
+          {
+            "default": [],
+            "kind": "float_list",
+            "name": "intensities",
+            "required": false
+          }
+        ],
+        "id": 4
+      },
+      "robot_status": {
+        "fields": [
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "onboard_control_sensors_present",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "onboard_control_sensors_enabled",
+            "required": false
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "onboard_control_sensors_health",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "load",
+            "required": false
+          },
+          {
+            "kind": "float",
+            "name": "voltage_battery",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "current_battery",
+            "required": true
+          },
+          {
+            "kind": "float",
+            "name": "battery_remaining",
+            "required": true
+          },
+          {
+            "bounds": [
+              0,
+              4294967295
+            ],
+            "default": 0,
+            "kind": "int",
+            "name": "errors_count",
+            "required": false
+          }
+        ],
+        "id": 1
+      },
+      "set_mode": {
+        "fields": [
+          {
+            "kind": "str",
+            "name": "mode",
+            "required": true
+          }
+        ],
+        "id": 106
+      },
+      "takeoff": {
+        "fields": [
+          {
+            "kind": "float",
+            "name": "altitude",
+            "required": true
+          }
+        ],
+        "id": 102
+      },
+      "twist": {
+        "fields": [
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "lx",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "ly",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "lz",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "ax",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "ay",
+            "required": false
+          },
+          {
+            "default": 0.0,
+            "kind": "float",
+            "name": "az",
+            "required": false
+          }
+        ],
+        "id": 100
+      }
+    }
+  },
   "topics": {
     "any": "+",
     "from": "from",

@@ -1,0 +1,24 @@
+// The dashboard's message reader (roslink_mqtt/dashboard/static/message.js) reads every case as Python's
+// decode_object does. The cases come from tests/unit/test_dashboard_js.py (ROSLINK_MESSAGE_CASES names the file).
+"use strict";
+const test = require("node:test");
+const assert = require("node:assert");
+const fs = require("node:fs");
+const path = require("node:path");
+
+const STATIC = path.join(__dirname, "..", "..", "roslink_mqtt", "dashboard", "static");
+const ROSLINK = require(path.join(STATIC, "protocol.js"));
+const { readMessage } = require(path.join(STATIC, "message.js"));
+
+const casesFile = process.env.ROSLINK_MESSAGE_CASES;
+
+test("each message reads as Python decodes it", { skip: !casesFile && "run through tests/unit/test_dashboard_js.py" },
+  () => {
+    const cases = JSON.parse(fs.readFileSync(casesFile, "utf8"));
+    assert.ok(cases.length > 500);
+    const { envelope, specs } = ROSLINK.messages;
+    for (const c of cases) {
+      assert.deepStrictEqual(readMessage(specs[c.message], c.input, envelope), c.expected,
+                             `${c.message}: ${JSON.stringify(c.input)}`);
+    }
+  });
