@@ -20,6 +20,7 @@ import orjson
 from ..client.directory import DEFAULT_STALE_AFTER
 from ..mqtt import CONNACK_REFUSALS, LOGIN_WAIT
 from ..protocol.codec import envelope_rules
+from ..protocol.description import DESCRIPTION_ENTRIES
 from ..protocol.enums import FlightMode, SystemStatus
 from ..protocol.messages import SPECS
 from ..protocol.reference import DOCUMENTED_BODIES
@@ -35,10 +36,18 @@ def body_key(title: str) -> str:
     return title.lower().replace(" ", "_").replace("-", "_")
 
 
+def entry_key(key: str) -> str:
+    """``"state"`` → ``"description_state_entry"``: how the page names the entries of one list of the description."""
+    return f"description_{key}_entry"
+
+
 def bodies() -> dict[str, list[dict[str, Any]]]:
-    """Every documented body's fields, as :meth:`BodyField.as_data` gives them, by :func:`body_key`."""
-    return {body_key(title): [f.as_data() for f in getattr(cls, "FIELDS")]  # noqa: B009 - any body type
-            for title, _topic, cls in DOCUMENTED_BODIES}
+    """Every documented body's fields, as :meth:`BodyField.as_data` gives them, by :func:`body_key`; and the
+    description's entries, by :func:`entry_key`."""
+    out = {body_key(title): [f.as_data() for f in getattr(cls, "FIELDS")]  # noqa: B009 - any body type
+           for title, _topic, cls in DOCUMENTED_BODIES}
+    out.update({entry_key(key): [f.as_data() for f in entry.FIELDS] for key, entry in DESCRIPTION_ENTRIES})
+    return out
 
 
 def messages() -> dict[str, Any]:
@@ -55,6 +64,8 @@ def constants() -> dict[str, Any]:
         "CONNACK": {str(code): text for code, text in sorted(CONNACK_REFUSALS.items())},
         # how long the page waits for a CONNACK: longer than the broker's login throttle may hold one
         "LOGIN_WAIT_MS": round(LOGIN_WAIT * 1000),
+        # the description's lists of entries → the body each entry is read as
+        "DESCRIPTION_ENTRIES": {key: entry_key(key) for key, _entry in DESCRIPTION_ENTRIES},
     }
 
 

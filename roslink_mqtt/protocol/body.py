@@ -198,6 +198,22 @@ class Strings(Spec):
 
 
 @dataclass(frozen=True)
+class TextMap(Spec):
+    """A JSON object whose values are all strings (a name → name mapping)."""
+
+    wording: str = "object of strings"
+    KIND: ClassVar[str] = "text_map"
+
+    def words(self) -> str:
+        return self.wording
+
+    def check(self, value: Any) -> dict[str, str]:
+        if not isinstance(value, dict) or not all(isinstance(v, str) for v in value.values()):
+            raise _Bad
+        return dict(value)
+
+
+@dataclass(frozen=True)
 class Objects(Spec):
     """An array of JSON objects (each one read by its own entry type); read as a tuple."""
 
@@ -357,14 +373,18 @@ def dump(body: dict[str, Any], client_id: str | None) -> bytes:
 
 
 def read(fields: tuple[BodyField, ...], data: Any, *, shape: str, strict: bool = True,
-         what: str = "") -> dict[str, Any]:
+         what: str = "", known_only: bool | None = None) -> dict[str, Any]:
     """The declared fields of one body, checked: name → value (absent optional fields: their default, or left out).
 
     ``data``: the payload (bytes or str, decoded here) or a body already decoded (a dict). ``shape``: the
     refusal when it is not a JSON object (it shows the expected form). ``strict`` (the bridge): unknown fields
     and malformed values are refused. Lenient (a client): unknown fields are ignored, a malformed field with a
     default takes it. ``what`` prefixes lenient refusals ("reply: id: expected …"): a client's log names the body.
+    ``known_only=False`` with ``strict``: unknown fields are ignored, malformed values still refused (the
+    description's entries: a newer bridge may add fields, a wrong one is a broken description).
     """
+    if known_only is None:
+        known_only = strict
     body = loads(data) if isinstance(data, (bytes, bytearray, memoryview, str)) else data
     if not isinstance(body, Mapping):
         raise ProtocolError(f"{shape}, got {describe(body)}")
@@ -401,7 +421,7 @@ def read(fields: tuple[BodyField, ...], data: Any, *, shape: str, strict: bool =
                 raise err.naming(None, sender) from None
             request = out.get(field.name)
     try:
-        if strict:
+        if known_only:
             known = tuple(f.name for f in fields)
             unknown = sorted(set(body) - set(known))
             if unknown:

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
-from typing import Any, Literal, overload
+from typing import Any
 
 import orjson
 
 from ..topics import TopicTree, Verb, join_leaf
-from .body import BodyField, Integer, Obj, Objects, Text, read
+from .body import BodyField, Boolean, Choice, Integer, Nullable, Number, Obj, Objects, Text, TextMap, read
 from .codec import ROS_VERSION, ROSLINK_VERSION
 from .errors import ProtocolError
 from .validate import describe
@@ -49,58 +49,30 @@ def _where(path: str, what: str, value: Any) -> ProtocolError:
     return ProtocolError(f"description: {path}: expected {what}, got {describe(value)}")
 
 
-@overload
-def _str(body: dict[str, Any], key: str, path: str, *, required: Literal[True] = True) -> str: ...
-@overload
-def _str(body: dict[str, Any], key: str, path: str, *, required: bool) -> str | None: ...
-def _str(body: dict[str, Any], key: str, path: str, *, required: bool = True) -> str | None:
-    value = body.get(key)
-    if value is None and not required:
-        return None
-    if not isinstance(value, str) or not value:
-        raise _where(f"{path}.{key}" if path else key, "a non-empty string", value)
-    return value
+_ENTRY_SHAPE = "expected an object"
 
 
-def _num(body: dict[str, Any], key: str, path: str, default: float | None = None) -> float | None:
-    value = body.get(key, default)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _where(f"{path}.{key}", "a number", value)
-    return float(value)
-
-
-def _bool(body: dict[str, Any], key: str, path: str) -> bool:
-    value = body.get(key, False)
-    if not isinstance(value, bool):
-        raise _where(f"{path}.{key}", "true or false", value)
-    return value
-
-
-def _who(body: dict[str, Any], path: str, default: str) -> str:
-    value = body.get("who", default)
-    if not isinstance(value, str) or value not in WHO:
-        raise _where(f"{path}.who", f"{OPERATORS} or {VIEWERS}", value)
-    return value
-
-
-def _fields(body: dict[str, Any], path: str) -> dict[str, str]:
-    value = body.get("fields") or {}
-    if not isinstance(value, dict) or not all(isinstance(v, str) for v in value.values()):
-        raise _where(f"{path}.fields", "an object of MQTT field → ROS field path", value)
-    return dict(value)
-
-
-def _encoding(body: dict[str, Any], path: str) -> str | None:
-    """A state entry's payload encoding; "json" (the default, normally left out) reads as None."""
-    value = _str(body, "encoding", path, required=False)
-    return None if value == "json" else value
+def _read_entry(fields: tuple[BodyField, ...], body: Any, path: str) -> dict[str, Any]:
+    """One entry's declared fields: values as declared (a wrong one is a broken description), unknown ones ignored
+    (a newer bridge may add some); refusals say where (``description: state[0].name: …``)."""
+    try:
+        return read(fields, body, shape=_ENTRY_SHAPE, known_only=False)
+    except ProtocolError as err:
+        text = str(err)
+        raise ProtocolError(f"description: {path}: {text}" if text.startswith(_ENTRY_SHAPE) else
+                            f"description: {path}.{text}") from None
 
 
 def _drop_empty(body: dict[str, Any]) -> dict[str, Any]:
     """Leave out optional keys that say nothing (None, False, {}), so the body stays small."""
     return {k: v for k, v in body.items() if v is not None and v is not False and v != {}}
+
+
+_TIMEOUT = BodyField("timeout", Nullable(Number()), False, "s the bridge waits for ROS", None)
+
+
+def _who(default: str) -> BodyField:
+    return BodyField("who", Choice(WHO), False, f"who may use it (`{VIEWERS}`: viewers and operators)", default)
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +89,25 @@ class StateEntry:
     encoding: str | None = None  # generic rules: "cbor" or "raw" (docs/protocol.md, "State encodings"); None: JSON
     warning: str | None = None  # why it may send nothing: its ROS topic has no publisher (the bridge checks)
 
+    FIELDS = (
+        BodyField("name", Text(1), True, "its topic: `state/<name>`"),
+        BodyField("message", Nullable(Text(1)), False, "the ROSLink message it carries (presets); without it the "
+                                                        "body is the ROS message of `ros_type` as JSON", None),
+        BodyField("ros_type", Nullable(Text(1)), False, "the ROS type it comes from (none: the bridge's own, "
+                                                         "`ack`)", None),
+        BodyField("retained", Boolean(), False, "published retained", False),
+        BodyField("max_rate", Nullable(Number()), False, "Hz at most, newest wins", None),
+        BodyField("fields", TextMap("object of strings (MQTT field → ROS field path)"), False,
+                  "the fields a generic rule selects", {}),
+        _who(VIEWERS),
+        BodyField("encoding", Nullable(Text(1)), False, "`cbor` or `raw` (\"State encodings\"); left out for JSON",
+                  None),
+        BodyField("warning", Nullable(Text(1)), False, "while its ROS topic has no publisher (the bridge checks a "
+                                                        "few seconds after it starts, then every few seconds: "
+                                                        "`reads ROS topic /odm, which has no publisher (did you "
+                                                        "mean /odom?)`)", None),
+    )
+
     def to_body(self) -> dict[str, Any]:
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
@@ -124,12 +115,8 @@ class StateEntry:
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> StateEntry:
-        if not isinstance(body, dict):
-            raise _where(path, "an object", body)
-        return cls(_str(body, "name", path), _str(body, "message", path, required=False),
-                   _str(body, "ros_type", path, required=False), _bool(body, "retained", path),
-                   _num(body, "max_rate", path), _fields(body, path), _who(body, path, VIEWERS),
-                   _encoding(body, path), _str(body, "warning", path, required=False))
+        got = _read_entry(cls.FIELDS, body, path)
+        return cls(**{**got, "encoding": None if got["encoding"] == "json" else got["encoding"]})
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,6 +132,21 @@ class CommandEntry:
     who: str = OPERATORS
     warning: str | None = None  # why it may fail: the ROS service it calls has no server (the bridge checks)
 
+    FIELDS = (
+        BodyField("name", Text(1), True, "the topic under `from/<user>/`: `cmd/twist`, a generic rule's `lights`"),
+        BodyField("message", Nullable(Text(1)), False, "the ROSLink command (presets); without it the body is the "
+                                                        "ROS JSON of `ros_type`", None),
+        BodyField("ros_type", Nullable(Text(1)), False, "what the bridge publishes to ROS (or the ROS service a "
+                                                         "preset calls)", None),
+        BodyField("on_demand", Boolean(), False, "the bridge creates its ROS publisher on first use", False),
+        BodyField("fields", TextMap("object of strings (MQTT field → ROS field path)"), False,
+                  "the fields a generic rule takes", {}),
+        BodyField("limits", Obj(), False, "velocity inputs: what the bridge clamps to (`linear`, `angular`, "
+                                          "`mode`)", {}),
+        _who(OPERATORS),
+        BodyField("warning", Nullable(Text(1)), False, "while the ROS service a command calls has no server", None),
+    )
+
     def to_body(self) -> dict[str, Any]:
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "on_demand": self.on_demand, "fields": self.fields, "limits": self.limits,
@@ -152,15 +154,7 @@ class CommandEntry:
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> CommandEntry:
-        if not isinstance(body, dict):
-            raise _where(path, "an object", body)
-        limits = body.get("limits") or {}
-        if not isinstance(limits, dict):
-            raise _where(f"{path}.limits", "an object", limits)
-        return cls(_str(body, "name", path), _str(body, "message", path, required=False),
-                   _str(body, "ros_type", path, required=False), _bool(body, "on_demand", path),
-                   _fields(body, path), limits, _who(body, path, OPERATORS),
-                   _str(body, "warning", path, required=False))
+        return cls(**_read_entry(cls.FIELDS, body, path))
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +168,15 @@ class ServiceEntry:
     who: str = OPERATORS
     warning: str | None = None  # why calls may fail: the ROS service has no server (the bridge checks)
 
+    FIELDS = (
+        BodyField("name", Text(1), True, "the service's name in `call/<name>`"),
+        BodyField("ros_type", Text(1), True, "its ROS type, `pkg/srv/Type`"),
+        BodyField("read_only", Boolean(), False, "it changes nothing: viewers may call it", False),
+        _TIMEOUT,
+        BodyField("who", Choice(WHO), False, "`viewers` when read-only, else `operators`", OPERATORS),
+        BodyField("warning", Nullable(Text(1)), False, "while the ROS service has no server", None),
+    )
+
     def to_body(self) -> dict[str, Any]:
         body = {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
                 "who": self.who}
@@ -181,11 +184,7 @@ class ServiceEntry:
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ServiceEntry:
-        if not isinstance(body, dict):
-            raise _where(path, "an object", body)
-        return cls(_str(body, "name", path), _str(body, "ros_type", path), _bool(body, "read_only", path),
-                   _num(body, "timeout", path), _who(body, path, OPERATORS),
-                   _str(body, "warning", path, required=False))
+        return cls(**_read_entry(cls.FIELDS, body, path))
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,16 +198,22 @@ class ActionEntry:
     feedback_rate: float | None = None  # Hz at most per goal
     who: str = OPERATORS
 
+    FIELDS = (
+        BodyField("name", Text(1), True, "the action's name in `goal/<name>`"),
+        BodyField("ros_type", Text(1), True, "its ROS type, `pkg/action/Type`"),
+        BodyField("viewers", Boolean(), False, "viewers may send goals too", False),
+        BodyField("timeout", Nullable(Number()), False, "s from acceptance to result", None),
+        BodyField("feedback_rate", Nullable(Number()), False, "Hz of feedback at most, per goal", None),
+        BodyField("who", Choice(WHO), False, "`viewers` when open to viewers, else `operators`", OPERATORS),
+    )
+
     def to_body(self) -> dict[str, Any]:
         return {"name": self.name, "ros_type": self.ros_type, "viewers": self.viewers, "timeout": self.timeout,
                 "feedback_rate": self.feedback_rate, "who": self.who}
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ActionEntry:
-        if not isinstance(body, dict):
-            raise _where(path, "an object", body)
-        return cls(_str(body, "name", path), _str(body, "ros_type", path), _bool(body, "viewers", path),
-                   _num(body, "timeout", path), _num(body, "feedback_rate", path), _who(body, path, OPERATORS))
+        return cls(**_read_entry(cls.FIELDS, body, path))
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,19 +226,29 @@ class ParameterEntry:
     timeout: float | None = None  # s for the node to answer
     who: str = VIEWERS  # who may use it: reading is open to every granted user
 
+    FIELDS = (
+        BodyField("name", Text(1), True, "the name in `param/<name>`"),
+        BodyField("node", Text(1), True, "the ROS node"),
+        BodyField("set_by", Choice(WHO), False, "who may set its parameters (`viewers` where the fleet file opens "
+                                                "it)", OPERATORS),
+        BodyField("timeout", Nullable(Number()), False, "s for the node to answer", None),
+        BodyField("who", Choice(WHO), False, "who may read them: `viewers`", VIEWERS),
+    )
+
     def to_body(self) -> dict[str, Any]:
         return {"name": self.name, "node": self.node, "set_by": self.set_by, "timeout": self.timeout,
                 "who": self.who}
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ParameterEntry:
-        if not isinstance(body, dict):
-            raise _where(path, "an object", body)
-        set_by = body.get("set_by", OPERATORS)
-        if set_by not in WHO:
-            raise _where(f"{path}.set_by", f"{OPERATORS} or {VIEWERS}", set_by)
-        return cls(_str(body, "name", path), _str(body, "node", path), set_by, _num(body, "timeout", path),
-                   _who(body, path, VIEWERS))
+        return cls(**_read_entry(cls.FIELDS, body, path))
+
+
+# the description's lists of entries: key → entry type (docs/protocol.md renders a table of each)
+DESCRIPTION_ENTRIES: tuple[tuple[str, type[StateEntry | CommandEntry | ServiceEntry | ActionEntry |
+                                          ParameterEntry]], ...] = (
+    ("state", StateEntry), ("commands", CommandEntry), ("services", ServiceEntry), ("actions", ActionEntry),
+    ("parameters", ParameterEntry))
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,36 +280,13 @@ class RobotDescription:
         BodyField("limits", Obj(), True, "the bridge's velocity limits: `linear` (m/s), `angular` (rad/s), "
                                             "`mode` (`norm` or `per_axis`); a velocity command may have its "
                                             "own (`limits` in its entry)", {}),
-        BodyField("state", Objects(), True, "what the robot publishes on `state/<name>`: `name`, "
-                                                     "`message` (the ROSLink message, for presets), `ros_type` "
-                                                     "(the ROS type it comes from; without `message` the body is "
-                                                     "that message as JSON), optional `retained`, `max_rate` "
-                                                     "(Hz), `fields` (MQTT field → ROS field path), `encoding` "
-                                                     "(`cbor` or `raw`, see \"State encodings\"; left out for "
-                                                     "JSON), `who`: `viewers`, and `warning` while its ROS "
-                                                     "topic has no publisher (the bridge checks a few seconds "
-                                                     "after it starts, then every few seconds: `reads ROS topic "
-                                                     "/odm, which has no publisher (did you mean /odom?)`). "
-                                                     "Includes the "
-                                                     "bridge's own `ack`", ()),
-        BodyField("commands", Objects(), True, "what the robot takes on `from/<user>/<name>`: `name` "
-                                                        "(`cmd/twist`, a generic rule's `lights`), `message` "
-                                                        "(ROSLink command) or the ROS JSON of `ros_type`, optional "
-                                                        "`on_demand`, `fields`, `limits` (velocity inputs: what "
-                                                        "the bridge clamps to), `who`: `operators`, and `warning` "
-                                                        "while the ROS service a command calls has no server", ()),
-        BodyField("services", Objects(), True, "ROS services to `call/<name>`: `name`, `ros_type`, "
-                                                        "`read_only`, `timeout` (s), `who` (`viewers` when "
-                                                        "read-only, else `operators`), and `warning` while the "
-                                                        "ROS service has no server", ()),
-        BodyField("actions", Objects(), True, "ROS actions to send `goal/<name>`: `name`, `ros_type`, "
-                                                       "`viewers`, `timeout` (s), `feedback_rate` (Hz), `who` "
-                                                       "(`viewers` when open to viewers, else `operators`)", ()),
-        BodyField("parameters", Objects(), True, "ROS nodes whose parameters `param/<name>` reads "
-                                                          "(get, list, describe: `who` is `viewers`) and sets "
-                                                          "(`set_by`: `operators`, or `viewers` where the fleet "
-                                                          "file opens it): `name`, `node` (the ROS node), "
-                                                          "`set_by`, `timeout` (s), `who`", ()),
+        BodyField("state", Objects(), True, "what the robot publishes on `state/<name>` (entries below), the "
+                                            "bridge's own `ack` included", ()),
+        BodyField("commands", Objects(), True, "what the robot takes on `from/<user>/<name>` (entries below)", ()),
+        BodyField("services", Objects(), True, "ROS services to `call/<name>` (entries below)", ()),
+        BodyField("actions", Objects(), True, "ROS actions to send `goal/<name>` (entries below)", ()),
+        BodyField("parameters", Objects(), True, "ROS nodes whose parameters `param/<name>` reads and sets "
+                                                 "(entries below)", ()),
         BodyField("types", Obj(), True, "every ROS type named above → its field layout: field → primitive "
                                            "type as a .msg file spells it (`float64`, `string`, `float64[36]`, "
                                            "`int32[]`, `string<=10`) or, "
@@ -337,8 +329,7 @@ class RobotDescription:
         got = read(cls.FIELDS, data, shape="description: expected a JSON object", strict=False, what="description")
         if not all(isinstance(v, dict) for v in got["types"].values()):
             raise _where("types", "an object of ROS type → field layout", got["types"])
-        for key, entry in (("state", StateEntry), ("commands", CommandEntry), ("services", ServiceEntry),
-                           ("actions", ActionEntry), ("parameters", ParameterEntry)):
+        for key, entry in DESCRIPTION_ENTRIES:
             got[key] = tuple(entry.from_body(item, f"{key}[{i}]") for i, item in enumerate(got[key]))
         return cls(**{**got, "type": got["type"] or "generic"})
 

@@ -29,7 +29,7 @@ from .control import (
     ProviderResponse,
     ServiceOffer,
 )
-from .description import DESCRIPTION_BODIES, RobotDescription
+from .description import DESCRIPTION_BODIES, DESCRIPTION_ENTRIES, RobotDescription
 from .description import EXAMPLE as DESCRIPTION_EXAMPLE
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
 from .lease import LEASE_BODIES, ControlState
@@ -189,6 +189,10 @@ Rules every control body follows (the sections below give each one's fields):
   {low}..{high}, got …`)."""
 
 
+def _field_rows(fields: tuple[BodyField, ...]) -> list[str]:
+    return [f"| `{f.name}` | {f.type} | {'required' if f.required else 'optional'} | {f.doc} |" for f in fields]
+
+
 def render_control() -> str:
     """The field tables of the control bodies (``protocol.control``), with one example each."""
     low, high = _HEADER_BOUNDS["roslink_version"]
@@ -199,8 +203,13 @@ def render_control() -> str:
         flags = f"QoS {example.QOS}, {'retained' if example.RETAINED else 'not retained'}"
         out += [f"#### {title}", "", f"Topic: {topic}. Published with {flags}.", "",
                 "| field | type | | meaning |", "|---|---|---|---|"]
-        out += [f"| `{f.name}` | {f.type} | {'required' if f.required else 'optional'} | {f.doc} |"
-                for f in example.FIELDS]
+        out += _field_rows(example.FIELDS)
+        if cls is RobotDescription:  # its entries
+            out += ["", "In an entry a client ignores fields it does not know (a newer bridge may add some); a "
+                        "known field with a wrong value makes the whole description unreadable."]
+            for key, entry in DESCRIPTION_ENTRIES:
+                out += ["", f"Each entry of `{key}`:", "", "| field | type | | meaning |", "|---|---|---|---|",
+                        *_field_rows(entry.FIELDS)]
         out += ["", "```json", example.to_json().decode(), "```", ""]
     out.append(END_CONTROL)
     return "\n".join(out)

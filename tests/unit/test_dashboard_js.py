@@ -14,10 +14,12 @@ from typing import Any
 import orjson
 import pytest
 
-from roslink_mqtt.dashboard.protocol_js import OUTPUT, body_key, render
+from roslink_mqtt.dashboard.protocol_js import OUTPUT, body_key, entry_key, render
 from roslink_mqtt.protocol import ProtocolError
 from roslink_mqtt.protocol.body import read
 from roslink_mqtt.protocol.codec import decode_object
+from roslink_mqtt.protocol.description import DESCRIPTION_ENTRIES
+from roslink_mqtt.protocol.description import EXAMPLE as DESCRIPTION_EXAMPLE
 from roslink_mqtt.protocol.messages import SPECS, FieldKind, MessageSpec
 from roslink_mqtt.protocol.reference import _CONTROL_EXAMPLES, DOCUMENTED_BODIES
 from roslink_mqtt.topics import TopicTree, Verb, param_events_node
@@ -57,6 +59,13 @@ def cases() -> list[dict[str, Any]]:
             inputs.append({k: v for k, v in example.items() if k != field.name})
             inputs += [{**example, field.name: value} for value in ODD_VALUES]
         out += [{"body": body_key(title), "input": i, "expected": python_reads(cls, i)} for i in inputs]
+    for key, entry in DESCRIPTION_ENTRIES:  # the description's entries, from the documented example's
+        example = next(e.to_body() for e in getattr(DESCRIPTION_EXAMPLE, key))
+        inputs = [example, {}, {**example, "unknown": 1}]
+        for field in entry.FIELDS:
+            inputs.append({k: v for k, v in example.items() if k != field.name})
+            inputs += [{**example, field.name: value} for value in ODD_VALUES + [{"a": "b"}]]
+        out += [{"body": entry_key(key), "input": i, "expected": python_reads(entry, i)} for i in inputs]
     return out
 
 

@@ -156,16 +156,20 @@ def test_unknown_fields_are_ignored_missing_lists_are_empty() -> None:
     (b"[]", "description: expected a JSON object, got an array of 0"),
     (b'{"system_id": 1}', "description: robot: missing (expected non-empty string)"),
     (b'{"robot": "r", "system_id": "1"}', 'description: system_id: expected integer, got "1"'),
+    (b'{"robot": "r", "system_id": 1, "services": [{"ros_type": "t"}]}',
+     "description: services[0].name: missing; expected an object"),
+    (b'{"robot": "r", "system_id": 1, "commands": [{"name": "c", "fields": {"lx": 1}}]}',
+     "description: commands[0].fields: expected object of strings (MQTT field → ROS field path), got an object"),
     (b'{"robot": "r", "system_id": 1, "state": [{"name": 5}]}',
-     "description: state[0].name: expected a non-empty string, got 5"),
+     "description: state[0].name: expected non-empty string, got 5"),
     (b'{"robot": "r", "system_id": 1, "services": [{"name": "s", "ros_type": "t", "who": "admins"}]}',
-     'description: services[0].who: expected operators or viewers, got "admins"'),
+     'description: services[0].who: expected "operators" or "viewers", got "admins"'),
     (b'{"robot": "r", "system_id": 1, "actions": [{"name": "a", "ros_type": "t", "timeout": "long"}]}',
-     'description: actions[0].timeout: expected a number, got "long"'),
+     'description: actions[0].timeout: expected number or null, got "long"'),
     (b'{"robot": "r", "system_id": 1, "commands": [{"name": "c", "on_demand": 1}]}',
-     "description: commands[0].on_demand: expected true or false, got 1"),
+     "description: commands[0].on_demand: expected boolean, got 1"),
     (b'{"robot": "r", "system_id": 1, "parameters": [{"name": "p", "node": "n", "set_by": "all"}]}',
-     'description: parameters[0].set_by: expected operators or viewers, got "all"'),
+     'description: parameters[0].set_by: expected "operators" or "viewers", got "all"'),
     (b'{"robot": "r", "system_id": 1, "types": {"a/msg/B": 3}}',
      "description: types: expected an object of ROS type → field layout, got an object"),
 ])
@@ -180,3 +184,9 @@ def test_optional_keys_that_say_nothing_stay_off_the_wire() -> None:
                                                                      "who": VIEWERS}
     body = orjson.loads(EXAMPLE.to_json())
     assert set(body) == {f.name for f in RobotDescription.FIELDS}
+
+
+def test_an_entry_that_is_not_an_object_is_refused_where_it_is() -> None:
+    with pytest.raises(ProtocolError) as err:
+        StateEntry.from_body(5, "state[0]")
+    assert str(err.value) == "description: state[0]: expected an object, got 5"

@@ -333,6 +333,15 @@
     else if (dash.selected === name) updateBanner(robot);
   }
 
+  // The robot's description with every entry read from its declaration (an unreadable entry is left out).
+  function readDescription(payload) {
+    const d = read("robot_description", payload);
+    if (d) for (const [key, body] of Object.entries(window.ROSLINK.constants.DESCRIPTION_ENTRIES)) {
+      d[key] = d[key].map((e) => window.roslinkBody.readBody(BODIES[body], e)).filter(Boolean);
+    }
+    return d;
+  }
+
   function count(robot, key) {
     let r = robot.rates.get(key);
     if (!r) { r = { n: 0, prevN: 0, hz: 0, last: 0, row: null }; robot.rates.set(key, r); }
@@ -346,7 +355,7 @@
       const raw = new TextDecoder().decode(payload);
       if (raw === robot.descRaw) return;  // the same retained description again (a reconnect)
       robot.descRaw = raw;
-      robot.description = raw ? read("robot_description", payload) : null;
+      robot.description = raw ? readDescription(payload) : null;
       presenceIfNeeded(robot);
       if (dash.selected === robot.name) buildControls(robot);
       return;

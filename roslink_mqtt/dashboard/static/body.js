@@ -24,6 +24,8 @@
         return typeof v === "boolean" ? v : BAD;
       case "object":
         return isObject(v) && (spec.max === null || Object.keys(v).length <= spec.max) ? v : BAD;
+      case "text_map":
+        return isObject(v) && Object.values(v).every((s) => typeof s === "string") ? v : BAD;
       case "objects":
         return Array.isArray(v) && v.every(isObject) ? v : BAD;
       case "strings":

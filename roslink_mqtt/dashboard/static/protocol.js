@@ -387,6 +387,391 @@ const ROSLINK = {
         }
       }
     ],
+    "description_actions_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "ros_type",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "default": false,
+        "name": "viewers",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "default": null,
+        "name": "timeout",
+        "required": false,
+        "spec": {
+          "inner": {
+            "high": null,
+            "kind": "number",
+            "low": null,
+            "low_open": false
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": null,
+        "name": "feedback_rate",
+        "required": false,
+        "spec": {
+          "inner": {
+            "high": null,
+            "kind": "number",
+            "low": null,
+            "low_open": false
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": "operators",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      }
+    ],
+    "description_commands_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "default": null,
+        "name": "message",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": null,
+        "name": "ros_type",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": false,
+        "name": "on_demand",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "default": {},
+        "name": "fields",
+        "required": false,
+        "spec": {
+          "kind": "text_map"
+        }
+      },
+      {
+        "default": {},
+        "name": "limits",
+        "required": false,
+        "spec": {
+          "kind": "object",
+          "max": null
+        }
+      },
+      {
+        "default": "operators",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      },
+      {
+        "default": null,
+        "name": "warning",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      }
+    ],
+    "description_parameters_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "node",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "default": "operators",
+        "name": "set_by",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      },
+      {
+        "default": null,
+        "name": "timeout",
+        "required": false,
+        "spec": {
+          "inner": {
+            "high": null,
+            "kind": "number",
+            "low": null,
+            "low_open": false
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": "viewers",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      }
+    ],
+    "description_services_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "ros_type",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "default": false,
+        "name": "read_only",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "default": null,
+        "name": "timeout",
+        "required": false,
+        "spec": {
+          "inner": {
+            "high": null,
+            "kind": "number",
+            "low": null,
+            "low_open": false
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": "operators",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      },
+      {
+        "default": null,
+        "name": "warning",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      }
+    ],
+    "description_state_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "default": null,
+        "name": "message",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": null,
+        "name": "ros_type",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": false,
+        "name": "retained",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "default": null,
+        "name": "max_rate",
+        "required": false,
+        "spec": {
+          "inner": {
+            "high": null,
+            "kind": "number",
+            "low": null,
+            "low_open": false
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": {},
+        "name": "fields",
+        "required": false,
+        "spec": {
+          "kind": "text_map"
+        }
+      },
+      {
+        "default": "viewers",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      },
+      {
+        "default": null,
+        "name": "encoding",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      },
+      {
+        "default": null,
+        "name": "warning",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "string",
+            "max": null,
+            "min": 1
+          },
+          "kind": "nullable"
+        }
+      }
+    ],
     "error_report": [
       {
         "name": "topic",
@@ -1258,6 +1643,13 @@ const ROSLINK = {
       "3": "the broker is unavailable",
       "4": "wrong username or password",
       "5": "wrong username or password"
+    },
+    "DESCRIPTION_ENTRIES": {
+      "actions": "description_actions_entry",
+      "commands": "description_commands_entry",
+      "parameters": "description_parameters_entry",
+      "services": "description_services_entry",
+      "state": "description_state_entry"
     },
     "LOGIN_WAIT_MS": 12000,
     "MODES": [
