@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from ..protocol import SPECS, SPECS_BY_NAME, Envelope, FieldKind, MessageId, MessageSpec, decode, spec_for
+from ..protocol.codec import decode_object
 
 _SEQUENCES = (FieldKind.FLOAT_LIST, FieldKind.RANGE_LIST, FieldKind.INT_LIST)
 
@@ -376,8 +377,15 @@ def parse_state(payload: bytes, *, robot: str, state_name: str) -> RoslinkMessag
     return from_envelope(decode(payload, expected), robot=robot, state_name=state_name)
 
 
+def state_message(body: Any, *, robot: str, state_name: str) -> RoslinkMessage:
+    """Like :func:`parse_state` for a payload already parsed from JSON (so a caller that falls back to a generic
+    rule's plain ROS JSON parses it once)."""
+    return from_envelope(decode_object(body, _EXPECTED.get(state_name)), robot=robot, state_name=state_name)
+
+
 _EXPECTED: dict[str, int] = {spec.name: int(spec.message_id) for spec in SPECS}
 
 __all__ = ["MESSAGE_CLASSES", "Ack", "Arm", "Disarm", "EmergencyStop", "GeoTaggedImage", "GetMap", "GlobalMotion",
            "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land", "Map", "RangeFinderData", "RobotStatus",
-           "RoslinkMessage", "SetMode", "Takeoff", "Twist", "from_envelope", "message_class", "parse_state"]
+           "RoslinkMessage", "SetMode", "Takeoff", "Twist", "from_envelope", "message_class", "parse_state",
+           "state_message"]

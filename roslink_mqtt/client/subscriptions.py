@@ -26,7 +26,7 @@ from ..protocol.link import LINK, LinkReport
 from .dispatch import CallbackQueue
 from .encodings import JSON, decode_state, sniff
 from .errors import SubscriptionFailed, WaitTimeout
-from .messages import RoslinkMessage, parse_state
+from .messages import RoslinkMessage, state_message
 
 log = logging.getLogger("roslink_mqtt.client")
 
@@ -56,17 +56,17 @@ def parse_state_item(payload: bytes, robot: str, name: str, encoding: str | None
             return None
         return body if isinstance(body, dict) else None
     try:
-        return parse_state(payload, robot=robot, state_name=name)
+        body = loads(payload)  # once: a ROSLink message, or else a generic rule's ROS message
     except ProtocolError as err:
-        roslink_error = err
+        log.debug("ignoring malformed state message on %s/%s: %s", robot, name, err)
+        return None
     try:
-        body = loads(payload)
-    except ProtocolError:
-        body = None
-    if isinstance(body, dict) and "message_id" not in body:
-        return body  # a generic rule's ROS message
-    log.debug("ignoring malformed state message on %s/%s: %s", robot, name, roslink_error)
-    return None
+        return state_message(body, robot=robot, state_name=name)
+    except ProtocolError as err:
+        if isinstance(body, dict) and "message_id" not in body:
+            return body  # a generic rule's ROS message
+        log.debug("ignoring malformed state message on %s/%s: %s", robot, name, err)
+        return None
 
 
 class StateSubscription:
