@@ -11,10 +11,10 @@ readable by that user alone (the ACL every broker already applies to ``to/<user>
 
 from __future__ import annotations
 
+from ..authorize import allowed
 from ..config import Fleet, Role
 from ..protocol.control import AccessReport
 from ..topics import TopicTree, Verb
-from .authorize import allowed
 
 
 def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, bytes]:

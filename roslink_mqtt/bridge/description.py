@@ -7,7 +7,7 @@ it loads the interface classes (:func:`~roslink_mqtt.bridge.ros_types.load_inter
 ``SLOT_TYPES``, nested messages expanded, spelling types as a ``.msg`` file does (what ``ros2 interface show``
 prints). :func:`description_message` gives the bridge the topic and the body to publish.
 
-Who may use an entry is the one authorization rule's answer for a viewer (:func:`.authorize.allowed`): state
+Who may use an entry is the one authorization rule's answer for a viewer (:func:`roslink_mqtt.authorize.allowed`): state
 is for everyone granted the robot, commands for operators, services and actions for viewers where the fleet
 file opens them (``read_only``, ``viewers: true``); parameters are read by everyone and set by operators, or by
 viewers where ``viewers_may_set``.
@@ -21,6 +21,7 @@ from dataclasses import asdict
 from functools import cache
 from typing import Any
 
+from ..authorize import allowed
 from ..config import Direction, Robot, Role
 from ..config.interfaces import VELOCITY_TYPES
 from ..config.model import ENCODING_JSON
@@ -39,7 +40,6 @@ from ..protocol.description import (
 from ..protocol.enums import RobotType
 from ..ros_names import interface_name
 from ..topics import TopicTree, Verb, join_leaf, state_name
-from .authorize import allowed
 
 log = logging.getLogger("roslink_mqtt.bridge")
 

@@ -1,7 +1,7 @@
 """The bridge's command endpoint: topic and bytes in → a refusal out, or one thing for ROS to carry out. ROS-free.
 
 Everything a user sends the robot passes here: parse the topic (:mod:`roslink_mqtt.topics`), authorize
-(:mod:`.authorize`), decode and validate the body, make velocities safe, then the gates — operator presence,
+(:mod:`roslink_mqtt.authorize`), decode and validate the body, make velocities safe, then the gates — operator presence,
 motion blocked by an emergency stop or a disarm, motion that waited too long inside the bridge — and the
 sequence rule (stale and duplicate numbers are dropped; a number is recorded only once every other check has
 passed). State-changing inputs also need the control lease (:mod:`.lease`: one driver at a time; an emergency
@@ -29,6 +29,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import Any, Protocol
 
+from ..authorize import refusal
 from ..config import Fleet, Robot, Role
 from ..presence import MAX_PRESENCE_BYTES, OperatorTracker, Presence, classify_presence
 from ..protocol import (
@@ -47,7 +48,6 @@ from ..protocol.control import ErrorReport, Notice, pop_generic_sender
 from ..protocol.errors import ProtocolError
 from ..protocol.lease import CONTROL, ControlState
 from ..topics import Kind, TopicTree, Verb
-from .authorize import refusal
 from .capabilities import Capability, Control, Refusal, Request
 from .claim import Claim
 from .failsafe import Failsafe, late_motion

@@ -8,7 +8,8 @@ import sys
 
 from ..client import CommandRefused, RobotClient, RoslinkError
 from ..protocol import ProtocolError
-from ..protocol.lease import CONTROL, ControlState
+from ..protocol.lease import CONTROL, ControlOp, ControlState
+from ..topics import Verb
 from .connect import add_connection_options, open_client
 
 ACTIONS = ("claim", "release", "take-over", "status")
@@ -84,7 +85,7 @@ def _hold(client: RobotClient, robot: str) -> int:
 def claim_if_free(client: RobotClient, robot: str, timeout: float = 2.0) -> str | None:
     """What ``pub``, ``teleop`` and the dashboard's drive pad do before driving: claim control when nobody holds it.
     None when we hold it now (or the robot has no control leases); else why not, naming the holder."""
-    if client._refusal(robot, "command") is not None:
+    if client._refusal(robot, Verb.CONTROL, ControlOp.CLAIM.value) is not None:
         return None  # not an operator: the command itself says so (with the broker's reason), not a claim
     state = client.control(robot, timeout=timeout)
     if state is None or state.holder == client.username:

@@ -49,7 +49,7 @@ def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: flo
     client.connection.require(f"control/{op.value} of {robot}")
     client.watch(robot)
     me, topic = client.username, client.topics.control(robot, client.username, op.value)
-    refused = client._refusal(robot, "command")
+    refused = client._refusal(robot, Verb.CONTROL, op.value)
     if refused is not None:  # a viewer: the broker would drop the request without a word
         raise CommandRefused(RobotError(robot, topic, refused, client_id=client.client_id))
     done, box = threading.Event(), []

@@ -31,6 +31,7 @@ from ..protocol.node_params import (
     check_parameter_name,
 )
 from ..protocol.params import check_value, ros_type_of
+from ..topics import Verb
 from .errors import InvalidArgument, RobotError, RoslinkError
 
 if TYPE_CHECKING:
@@ -368,12 +369,8 @@ class NodeParameters:
         except ProtocolError as err:
             self._refuse(str(err))
             return
-        why = self.client._refusal(self.robot, "declare")  # waits briefly for the robot's access report
+        why = self.client._refusal(self.robot, Verb.DECLARE, self.node_name)  # waits briefly for the access report
         if why is not None:
-            report = self.client.access(self.robot)
-            if report is not None and not report.operator:
-                why = (f"user '{self.client.username}' may not declare parameters on {self.robot} (as node "
-                       f"'{self.node_name}') (operators only): not an operator of {self.robot} (a viewer)")
             self._refuse(why)
             return
         self.refused = None

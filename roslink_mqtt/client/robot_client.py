@@ -32,6 +32,8 @@ from typing import Any
 import paho.mqtt.client as mqtt
 
 # The connection vocabulary (names, defaults, environment) is shared with the bridge, the CLI and the examples.
+from ..authorize import refusal
+from ..config.model import Role
 from ..connection_options import (
     DEFAULT_URL,
     ENV_USERNAME,
@@ -415,10 +417,10 @@ class RobotClient:
             if urgent:
                 info = self._send(topic, data, qos, leaf)
                 self.watch(robot, timeout=ACCESS_WAIT)
-                self._raise_if_refused(robot, topic, "estop")  # the broker dropped it: say so
+                self._raise_if_refused(robot, topic, leaf)  # the broker dropped it: say so
             else:
                 self.watch(robot)
-                self._raise_if_refused(robot, topic)
+                self._raise_if_refused(robot, topic, leaf)
                 info = self._send(topic, data, qos, leaf)
             if deadline is not None and qos > 0:
                 self._confirm(info, deadline, f"{leaf} to {robot}", confirm)
@@ -430,10 +432,10 @@ class RobotClient:
                     self._error_waiters.remove(waiter)
         return seq
 
-    def _raise_if_refused(self, robot: str, topic: str, action: str = "command") -> None:
-        refusal = self._refusal(robot, action)
-        if refusal is not None:
-            raise CommandRefused(RobotError(robot, topic, refusal, client_id=self.client_id))
+    def _raise_if_refused(self, robot: str, topic: str, leaf: str) -> None:
+        why = self._refusal(robot, Verb.CMD, leaf)
+        if why is not None:
+            raise CommandRefused(RobotError(robot, topic, why, client_id=self.client_id))
 
     def _send(self, topic: str, data: bytes, qos: int, what: str) -> mqtt.MQTTMessageInfo:
         """Publish (presence says "commanding" first); a message paho could not even queue raises."""
@@ -507,7 +509,7 @@ class RobotClient:
             if info is not None and not info.online:
                 reason = f"robot {robot} is offline"
             else:
-                reason = self._refusal(robot, "call", service)
+                reason = self._refusal(robot, Verb.CALL, service)
         if reason is not None:
             future.set_exception(ServiceError(robot, service, reason))
             return future
@@ -537,7 +539,7 @@ class RobotClient:
         self.connection.require(f"goal for {action}")
         self.watch(robot)
         handle = self._goals.send(robot, action, goal, feedback_callback, goal_id=goal_id)
-        reason = self._refusal(robot, "goal", action)
+        reason = self._refusal(robot, Verb.GOAL, action)
         if reason is not None:
             self._goals.on_error(RobotError(robot, self.topics.goal(robot, self.username, action), reason,
                                             client_id=self.client_id, request_id=handle.id))
@@ -586,10 +588,10 @@ class RobotClient:
         """
         self.connection.require(f"serving {action}", now=False)
         self.watch(robot)
-        refusal = self._refusal(robot, "provide")
-        if refusal is not None:
+        why = self._refusal(robot, Verb.PROVIDE_ACTION, action)
+        if why is not None:
             raise CommandRefused(RobotError(robot, self.topics.user_topic(robot, self.username, Verb.PROVIDE_ACTION,
-                                                                          action), refusal, client_id=self.client_id))
+                                                                          action), why, client_id=self.client_id))
         return self._action_servers.serve(robot, action, action_type, execute, goal_callback=goal_callback,
                                           accept_timeout=accept_timeout, result_timeout=result_timeout)
 
@@ -633,10 +635,10 @@ class RobotClient:
         """
         self.connection.require(f"offer of {service}", now=False)
         self.watch(robot)
-        refusal = self._refusal(robot, "provide")
-        offer = self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout, refused=refusal)
-        if refusal is not None:
-            self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, service), refusal,
+        why = self._refusal(robot, Verb.PROVIDE, service)
+        offer = self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout, refused=why)
+        if why is not None:
+            self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, service), why,
                                              client_id=self.client_id))
         return offer
 
@@ -711,13 +713,15 @@ class RobotClient:
                 self._no_grant.discard(robot)
             self._access_changed.notify_all()
         if report is not None and not report.operator:
-            reason = self._refusal(robot, "provide", wait=False)
+            reason = self._refusal(robot, Verb.PROVIDE, wait=False)
             for offer in self._providers.refuse_robot(robot, reason or ""):
                 self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, offer.name),
                                                  offer.refused or "", client_id=self.client_id))
 
-    def _refusal(self, robot: str, action: str, service: str = "", *, wait: bool = True) -> str | None:
-        """Why the broker would drop ``action`` on ``robot`` (from its access report), None if it would not.
+    def _refusal(self, robot: str, verb: Verb, name: str = "", *, wait: bool = True) -> str | None:
+        """Why the broker would drop ``verb`` on ``name`` (a command's leaf, a service, an action, a node) on
+        ``robot``, None if it would not: the one authorization rule (:func:`roslink_mqtt.authorize.refusal`) with
+        the role of our access report, worded as the robot words it, plus what a viewer may use instead.
 
         The report is retained and arrives right after our subscription's SUBACK, so a
         command made at once waits up to ACCESS_WAIT for it; a robot whose bridge does not
@@ -734,29 +738,20 @@ class RobotClient:
             report = self._access.get(robot)
         if report is None:
             return None
-        user = self.username
-        if action == "call":
-            if report.may_call(service):
+        role = Role.OPERATOR if report.operator else Role.VIEWER
+        if verb is Verb.CMD and roslink_command(name) == "emergency_stop":  # any granted user may, unless it says not
+            if report.operator or report.estop:
                 return None
-            allowed = ", ".join(report.services) or "none"
-            return (f"user '{user}' may not call '{service}' (operators only; it is not read-only); as a viewer of "
-                    f"{robot} you may call: {allowed}")
-        if action == "goal":
-            if report.may_send_goal(service):
-                return None
-            allowed = ", ".join(report.actions) or "none"
-            return (f"user '{user}' may not send goals to '{service}' (operators only; it is not open to viewers); "
-                    f"as a viewer of {robot} you may use: {allowed}")
-        if report.operator:
-            return None
-        if action == "estop":
-            if report.estop:
-                return None
-            return (f"user '{user}' may not press the emergency stop of {robot}: it says `estop: operators` and you "
-                    "are a viewer")
-        if action == "provide":
-            return f"user '{user}' may not provide services on {robot} (operators only; you are a viewer)"
-        return f"user '{user}' is not an operator of {robot} (a viewer): the broker drops your commands"
+            why = refusal(self.username, role, verb, name, robot=robot)
+            return f"{why}; {robot} says `estop: operators`"
+        read_only = (report.may_call(name) if verb is Verb.CALL else
+                     report.may_send_goal(name) if verb is Verb.GOAL else False)
+        why = refusal(self.username, role, verb, name, robot=robot, read_only=read_only)
+        if why is not None and verb is Verb.CALL:
+            return f"{why}; you may call: {', '.join(report.services) or 'none'}"
+        if why is not None and verb is Verb.GOAL:
+            return f"{why}; you may use: {', '.join(report.actions) or 'none'}"
+        return why
 
     def _on_login_refused(self, failure: LoginRefused) -> None:
         """The broker refused our login on reconnect (network thread): fail what waits, tell the caller."""

@@ -229,7 +229,8 @@ def test_sdk_send_goal_feedback_result_and_cancel(stack) -> None:
             alice.send_goal("turtle1", ACTION, {"order": "many"}).result(timeout=10)
     with RobotClient("bob", "bob-demo", url=url, robots=["turtle1"]) as bob:
         bob.wait_for_robot("turtle1", timeout=10)
-        with pytest.raises(GoalError, match=r"not open to viewers\); as a viewer of turtle1 you may use: fib_public"):
+        with pytest.raises(GoalError, match=r"not open to viewers\): not an operator of turtle1 \(a viewer\); "
+                                            r"you may use: fib_public"):
             bob.send_goal("turtle1", ACTION, {"order": 3}).result(timeout=10)
 
 

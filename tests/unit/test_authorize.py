@@ -1,4 +1,4 @@
-"""The bridge's one authorization rule (roslink_mqtt/bridge/authorize.py): every role x verb, and the wording.
+"""The one authorization rule (roslink_mqtt/authorize.py): every role x verb, and the wording, bridge and SDK.
 
 Pure logic without rclpy: the same decisions the bridge's four checks and the access report make.
 """
@@ -10,8 +10,9 @@ import sys
 
 import pytest
 
-from roslink_mqtt.bridge.authorize import allowed, refusal
+from roslink_mqtt.authorize import allowed, refusal
 from roslink_mqtt.config import Role
+from roslink_mqtt.protocol.control import AccessReport
 from roslink_mqtt.topics import USER_VERBS, Verb
 
 NAMES = {Verb.CMD: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.RESPONSE: "plan",
@@ -71,5 +72,32 @@ def test_a_user_without_a_grant_is_told_so() -> None:
 
 def test_the_rule_imports_no_ros() -> None:
     """The module is the ROS-free core the bridge's rclpy handlers call; importing it must not pull rclpy in."""
-    code = "import sys, roslink_mqtt.bridge.authorize; sys.exit('rclpy' in sys.modules)"
+    code = "import sys, roslink_mqtt.authorize; sys.exit('rclpy' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
+
+
+@pytest.mark.parametrize(("verb", "name", "report", "extra"), [
+    (Verb.CMD, "cmd/twist", AccessReport("viewer", ()), ""),
+    (Verb.CALL, "reset", AccessReport("viewer", ("status",)), "; you may call: status"),
+    (Verb.GOAL, "dock", AccessReport("viewer", (), ("patrol",)), "; you may use: patrol"),
+    (Verb.PROVIDE, "", AccessReport("viewer", ()), ""),
+    (Verb.PROVIDE_ACTION, "", AccessReport("viewer", ()), ""),
+    (Verb.DECLARE, "legacy_arm", AccessReport("viewer", ()), ""),
+    (Verb.CONTROL, "claim", AccessReport("viewer", ()), ""),
+    (Verb.CMD, "cmd/emergency_stop", AccessReport("viewer", (), estop=False), "; turtle1 says `estop: operators`"),
+])
+def test_the_sdk_refuses_in_the_bridges_words(verb: Verb, name: str, report: AccessReport, extra: str) -> None:
+    """What the SDK refuses at once (the broker would drop it) is worded by the same rule as the bridge's refusal,
+    from the role of the robot's access report, plus what a viewer may use instead."""
+    from roslink_mqtt.client import RobotClient
+
+    client = RobotClient("bob", "x", url="mqtt://127.0.0.1:1")  # never connected: the report is given
+    client._access["turtle1"] = report
+    expected = refusal("bob", Role.VIEWER, verb, name, robot="turtle1")
+    assert expected is not None and client._refusal("turtle1", verb, name) == expected + extra
+    client._access["turtle1"] = AccessReport("viewer", ("reset",), ("dock",), estop=True)  # what viewers may use
+    assert client._refusal("turtle1", Verb.CALL, "reset") is None
+    assert client._refusal("turtle1", Verb.GOAL, "dock") is None
+    assert client._refusal("turtle1", Verb.CMD, "cmd/emergency_stop") is None
+    client._access["turtle1"] = AccessReport("operator", ())
+    assert client._refusal("turtle1", verb, name) is None

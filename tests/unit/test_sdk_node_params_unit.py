@@ -178,7 +178,7 @@ def test_remote_set_runs_in_the_callback_queue_and_answers(params: NodeParameter
 
 
 def test_the_bridge_and_the_sdk_word_a_viewers_refusal_alike() -> None:
-    from roslink_mqtt.bridge.authorize import refusal
+    from roslink_mqtt.authorize import refusal
     from roslink_mqtt.config import Role
 
     assert refusal("bob", Role.VIEWER, Verb.DECLARE, "viewer_arm", robot="turtle1") == (

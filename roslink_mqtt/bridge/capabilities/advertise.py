@@ -12,9 +12,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Set
 from typing import Protocol
 
+from ...authorize import refusal
 from ...protocol.control import Advertisement
 from ...topics import Verb
-from ..authorize import refusal
 from .base import Gates, Refusal, Report, Request, Withdrawal
 
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from ...authorize import refusal
 from ...config import Robot, Role, ServiceRule
 from ...protocol.control import CallReply, CallRequest
 from ...topics import TopicTree, Verb
-from ..authorize import refusal
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
 

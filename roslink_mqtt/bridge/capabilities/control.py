@@ -13,10 +13,10 @@ import time
 from dataclasses import dataclass
 from typing import Protocol
 
+from ...authorize import refusal
 from ...config import Role
 from ...protocol.lease import ControlOp, read_request
 from ...topics import Verb
-from ..authorize import refusal
 from ..lease import ControlLease, Outcome
 from .base import Gates, Refusal, Report, Request
 

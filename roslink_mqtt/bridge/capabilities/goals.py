@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import Protocol
 
+from ...authorize import refusal
 from ...config import ActionRule, Robot, Role
 from ...protocol.goals import GoalCancel, GoalRequest
 from ...topics import TopicTree, Verb
-from ..authorize import refusal
 from .base import Gates, Refusal, Report, Request
 
 

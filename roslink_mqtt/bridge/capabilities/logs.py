@@ -13,9 +13,9 @@ import threading
 import time
 from typing import Protocol
 
+from ...authorize import refusal
 from ...protocol.rosout import LogLine
 from ...topics import Verb
-from ..authorize import refusal
 from .base import Gates, Refusal, Report, Request
 
 RATE, BURST = 100.0, 200  # log lines per second per user, and how many may come at once

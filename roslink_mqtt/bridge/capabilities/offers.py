@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Generic, Protocol, TypeVar
 
+from ...authorize import refusal
 from ...topics import Verb
-from ..authorize import refusal
 from .base import Gates, Refusal, Report, Request, Withdrawal
 
 

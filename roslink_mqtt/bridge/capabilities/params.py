@@ -13,10 +13,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from ...authorize import refusal
 from ...config import ParameterRule, Robot, Role
 from ...protocol.params import READ_OPS, ParamReply, ParamRequest
 from ...topics import TopicTree, Verb
-from ..authorize import refusal
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
 

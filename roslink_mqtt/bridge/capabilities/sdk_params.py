@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from typing import Protocol
 
+from ...authorize import refusal
 from ...protocol.node_params import ParamDeclaration, ParamSetResult, check_node_name
 from ...topics import Verb
-from ..authorize import refusal
 from .base import Gates, Refusal, Report, Request
 from .offers import Offers
 

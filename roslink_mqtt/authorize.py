@@ -1,9 +1,11 @@
-"""The one authorization rule of the bridge: may this role use this verb on this name, and if not, why.
+"""The one authorization rule: may this role use this verb on this name, and if not, why.
 
 The bridge used to restate the rule in four places (commands in ``node.py``, service calls and offers in
 ``services.py``, advertisements in ``on_demand.py``), each worded its own way; the access report
-(``access.py``) restated it a fifth time. Every check now asks :func:`refusal`, so the rule and its wording
-change in one place, and this module imports nothing from ROS so that it is unit-tested without rclpy.
+(``access.py``) restated it a fifth time, and the SDK a sixth (refusing at once what the broker would drop).
+Every check now asks :func:`refusal` — the bridge with the fleet file's role, the SDK with the role of the
+robot's access report — so the rule and its wording change in one place. It imports nothing from ROS, so the
+SDK and the unit tests use it without rclpy.
 
 The rule mirrors the broker's ACL (``broker/acl.py``), which reads the same fleet file: an operator may do
 everything; a viewer may only call services marked ``read_only``; a user without a grant may do nothing.
@@ -15,8 +17,8 @@ user whose grant was revoked.
 
 from __future__ import annotations
 
-from ..config import Role
-from ..topics import Verb
+from .config import Role
+from .topics import Verb
 
 # what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true,
 # reading parameters, setting those of a node with viewers_may_set)
