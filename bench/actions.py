@@ -27,7 +27,15 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
-from roslink_mqtt.localproc import ChildExited, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
+from roslink_mqtt.localproc import (
+    ChildExited,
+    Mosquitto,
+    fleet_copy,
+    free_port,
+    mosquitto_exe,
+    start_child,
+    start_embedded_broker,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "robots.yaml"
@@ -96,9 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             stack.callback(mosquitto.stop)
             mosquitto.start()
             embedded_port = free_port()
-            start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                "127.0.0.1", "--port", str(embedded_port), "--ws-port", "0"], work / "broker.log",
-                        env, port=embedded_port)
+            start_embedded_broker(stack, fleet, embedded_port, work / "broker.log", env, log_level="INFO")
             start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
             for label, port in (("mosquitto", mosquitto.port), ("embedded", embedded_port)):
                 start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet),

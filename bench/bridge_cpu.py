@@ -130,14 +130,12 @@ def wait_online(port: int, log: Path, timeout: float = 30.0) -> None:
 
 
 def measure(executor: str, seconds: float, env: dict[str, str], work: Path, counter: Counter) -> Row:
-    from roslink_mqtt.localproc import fleet_copy, free_port, start_child
+    from roslink_mqtt.localproc import fleet_copy, free_port, start_child, start_embedded_broker
 
     with ExitStack() as stack:
         port = free_port()
         fleet = fleet_copy(work / f"robots-{executor}.yaml", CONFIG, port=port, ws_port=0)
-        start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                            "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
-                    work / f"broker-{executor}.log", env, port=port, what="embedded broker")
+        start_embedded_broker(stack, fleet, port, work / f"broker-{executor}.log", env)
         sim = start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / f"sim-{executor}.log", env)
         bridge = start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet),
                                      "--robot", ROBOT, "--url", f"mqtt://127.0.0.1:{port}", "--log-level",

@@ -32,7 +32,7 @@ from pathlib import Path
 import orjson
 from _support import cpu_seconds
 
-from roslink_mqtt.localproc import LocalProcess, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child
+from roslink_mqtt.localproc import LocalProcess, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_embedded_broker
 from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.topics import TopicTree
 
@@ -45,9 +45,7 @@ TOPIC = TOPICS.state("turtle1", "robot_status")
 
 def start_embedded(stack: ExitStack, acl: bool, log: Path) -> tuple[LocalProcess, int]:
     port = free_port()
-    args = [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(CONFIG), "--host", "127.0.0.1",
-            "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"] + ([] if acl else ["--no-acl"])
-    proc = start_child(stack, args, log, dict(os.environ), port=port, what="embedded broker")
+    proc = start_embedded_broker(stack, CONFIG, port, log, dict(os.environ), *([] if acl else ["--no-acl"]))
     return proc, port
 
 

@@ -268,11 +268,8 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
         if kind == "rabbitmq":
             pass
         elif kind == "embedded":
-            broker_pids = [lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.broker", "--config",
-                                                   str(fleet), "--host", "127.0.0.1", "--port", str(port),
-                                                   "--ws-port", "0", "--log-level", "WARNING", "--loop", loop],
-                                           work / f"embedded-{robots}.log", env, port=port,
-                                           what="embedded broker").pid]
+            broker_pids = [lat.start_embedded_broker(phase, fleet, port, work / f"embedded-{robots}.log", env,
+                                                     "--loop", loop).pid]
         else:
             if lat.mosquitto_exe() is None:
                 return None

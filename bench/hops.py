@@ -269,10 +269,8 @@ def run_broker(ros: RosSide, kind: str, work: Path, env: dict[str, str], count: 
         port = lat.free_port()
         fleet = bench_fleet(work, port)
         if kind == "embedded":
-            lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                    "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING",
-                                    "--limit", "user_publish_rate=0"],  # see PACING_NOTE
-                            work / f"embedded-{port}.log", env, port=port, what="embedded broker")
+            lat.start_embedded_broker(phase, fleet, port, work / f"embedded-{port}.log", env,
+                                      "--limit", "user_publish_rate=0")  # see PACING_NOTE
         else:
             if lat.mosquitto_exe() is None:
                 return None

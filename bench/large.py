@@ -191,9 +191,7 @@ def start_broker(stack: ExitStack, work: Path, env: dict[str, str], kind: str) -
     port = lat.free_port()
     fleet = bench_fleet(work, port)
     if kind == "embedded":
-        child = lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                        "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
-                                work / "embedded.log", env, port=port, what="embedded broker")
+        child = lat.start_embedded_broker(stack, fleet, port, work / "embedded.log", env)
         return port, fleet, child.pid
     if lat.mosquitto_exe() is None:
         return None

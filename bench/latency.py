@@ -59,7 +59,16 @@ import paho.mqtt.client as mqtt
 
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.config import load_fleet
-from roslink_mqtt.localproc import ChildExited, Mosquitto, fleet_copy, free_port, mosquitto_exe, start_child, tail
+from roslink_mqtt.localproc import (
+    ChildExited,
+    Mosquitto,
+    fleet_copy,
+    free_port,
+    mosquitto_exe,
+    start_child,
+    start_embedded_broker,
+    tail,
+)
 from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.protocol import SystemStatus
 from roslink_mqtt.topics import TopicTree, Verb, join_leaf, state_leaf
@@ -135,9 +144,7 @@ def start_embedded(stack: ExitStack, work: Path, env: dict[str, str], keep_throt
     """The embedded amqtt broker as deployed (logins + ACL), on a free loopback port."""
     port = free_port()
     fleet = bench_fleet(work, port, keep_throttle)
-    start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                        "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
-                work / "embedded.log", env, port=port, what="embedded broker")
+    start_embedded_broker(stack, fleet, port, work / "embedded.log", env)
     return port, fleet
 
 

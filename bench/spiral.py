@@ -301,9 +301,7 @@ def start_path(phase: ExitStack, path: Route, work: Path, env: dict[str, str]) -
     port = lat.free_port()
     fleet = bench_fleet(work, port)
     if path.broker == "embedded":
-        lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", "WARNING"],
-                        work / f"embedded-{port}.log", env, port=port, what="embedded broker")
+        lat.start_embedded_broker(phase, fleet, port, work / f"embedded-{port}.log", env)
     else:
         if lat.mosquitto_exe() is None:
             return None

@@ -481,9 +481,7 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(tmp)
         port = lat.free_port()
         fleet = bench_fleet(work, port, "scheduled", True)
-        lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host",
-                                "127.0.0.1", "--port", str(port), "--ws-port", "0", "--log-level", BROKER_LOG_LEVEL],
-                        work / "broker.log", env, port=port, what="embedded broker")
+        lat.start_embedded_broker(stack, fleet, port, work / "broker.log", env, log_level=BROKER_LOG_LEVEL)
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
         viewer = Viewer(port, lat.load_fleet(fleet).prefix)
         stack.callback(viewer.close)

@@ -29,6 +29,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
@@ -256,6 +257,16 @@ def start_child(stack: ExitStack, args: Sequence[str], log: Path, env: Mapping[s
     child.spawn()
     child.wait_ready()
     return child
+
+
+def start_embedded_broker(stack: ExitStack, fleet: Path | str, port: int, log: Path,
+                          env: Mapping[str, str] | None = None, *extra: str, log_level: str = "WARNING",
+                          ws_port: int = 0) -> LocalProcess:
+    """The embedded broker on 127.0.0.1:``port`` for ``fleet`` (no WebSocket unless ``ws_port``), stopped with
+    ``stack``; ``extra``: more command-line options (``--limit user_publish_rate=0``, ``--no-acl``, ``--loop``)."""
+    args = [sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--host", LOOPBACK, "--port",
+            str(port), "--ws-port", str(ws_port), "--log-level", log_level, *extra]
+    return start_child(stack, args, log, env, port=port, what="embedded broker")
 
 
 # -- Mosquitto ---------------------------------------------------------------------------------------

@@ -63,6 +63,7 @@ class Spool:
         self._sizes = {n: self._size_on_disk(n) for n in self._segments}  # kept here: no stat() per record
         self._cache: tuple[int, int, bytes] | None = None  # (segment, size, its bytes): the segment being read
         self._read_segment, self._read_offset = self._load_position()
+        self._unread: tuple[int, int] | None = None  # where the record next() returned last begins
 
     # -- files ---------------------------------------------------------------------------------------------
     def _segment_numbers(self) -> list[int]:
@@ -170,10 +171,11 @@ class Spool:
         """The oldest record not yet read and not older than ``max_age`` (it counts as read); None when empty."""
         while self._segments:
             for end, record in self._records(self._read(self._read_segment), self._read_offset):
-                self._read_offset = end
+                start, self._read_offset = self._read_offset, end
                 if now - record.stamp > self.max_age:
                     self.dropped_old += 1
                     continue
+                self._unread = (self._read_segment, start)
                 return record
             if self._read_segment >= self._segments[-1]:
                 return None  # the newest segment: more may be appended
@@ -183,6 +185,12 @@ class Spool:
             self._read_segment, self._read_offset = self._segments[0], 0
             self._save_position()
         return None
+
+    def unread(self) -> None:
+        """Put back the record :meth:`next` returned last (it could not be sent after all): next() returns it again."""
+        if self._unread is not None and self._unread[0] in self._segments:
+            self._read_segment, self._read_offset = self._unread
+        self._unread = None
 
     def commit(self) -> None:
         """Remember the read position on disk (at-least-once across restarts)."""

@@ -200,10 +200,22 @@ class Uplink:
                 stream.bytes_sent += message.size
                 if lane.paced:
                     lane.credit -= message.size
-                lane.link.publish(topic, payload, qos, retain)
+                if lane.link.publish(topic, payload, qos, retain) is None and not lane.link.connected.is_set():
+                    self._keep(stream, topic, payload, qos)  # the connection went just now (buffered streams)
                 return
             self.scheduler.offer(stream, message)
             self.lock.notify()
+
+    def _set_aside(self, stream: Stream) -> None:
+        """What ``stream`` has waiting when its connection is gone: a ``buffer: disk`` stream's goes to the disk
+        buffer, in order (it is sent after reconnecting); anything else is stale by then and dropped."""
+        kept = 0
+        if stream.name in self._buffered and self.spool is not None:
+            kept = sum(1 for m in list(stream.waiting) if self._keep(stream, m.topic, m.payload, m.qos))
+        dropped = self.scheduler.drop(stream)
+        if not stream.latest_only:
+            stream.dropped -= kept  # on disk, not lost
+        self.not_connected += dropped - kept
 
     def _keep(self, stream: Stream, topic: str, payload: bytes, qos: int) -> bool:
         """Offline: a ``buffer: disk`` stream's message goes to the disk buffer (True); others are not kept."""
@@ -279,8 +291,7 @@ class Uplink:
         disk buffer goes last, when nothing live waits."""
         if not self.main.link.connected.is_set():
             for stream in self.scheduler.ready():  # what waited when the broker went: buffered streams keep it
-                for message in list(stream.waiting):
-                    self._keep(stream, message.topic, message.payload, message.qos)
+                self._set_aside(stream)
         self._measure(now)
         for lane in self.lanes:
             self._refill(lane, now)
@@ -294,7 +305,7 @@ class Uplink:
                 if lane.index in blocked:
                     continue
                 if not lane.link.connected.is_set():
-                    self.not_connected += self.scheduler.drop(stream)  # stale by the time it is back: not replayed
+                    self._set_aside(stream)  # its own connection went first: the same as the broker going
                     continue
                 if self._blocked(lane, handed.get(lane.index, 0)) is not None:
                     if not lane.paced:
@@ -302,7 +313,9 @@ class Uplink:
                     blocked.add(lane.index)
                     continue
                 message = self.scheduler.take_from(stream)
-                lane.link.publish(message.topic, message.payload, message.qos, message.retain)
+                if lane.link.publish(message.topic, message.payload, message.qos, message.retain) is None and \
+                        not lane.link.connected.is_set():
+                    self._keep(stream, message.topic, message.payload, message.qos)  # went just now (buffered)
                 handed[lane.index] = handed.get(lane.index, 0) + message.size
                 if lane.paced:
                     lane.credit -= message.size
@@ -313,16 +326,20 @@ class Uplink:
     def _drain_spool(self, handed: dict[int, int]) -> None:
         """After reconnecting, the disk buffer's records, oldest first, when no live message waits."""
         self._draining = False
-        if self.spool is None or self.scheduler or not self.main.link.connected.is_set():
-            return
         lane = self.state_lane
+        if self.spool is None or self.scheduler or not self.main.link.connected.is_set() or \
+                not lane.link.connected.is_set():
+            return  # offline: the disk buffer waits for the connections (live data waiting goes first)
         sent = 0
         try:
             while self._blocked(lane, handed.get(lane.index, 0)) is None:
                 record = self.spool.next(time.time())
                 if record is None:
                     break
-                lane.link.publish(record.topic, record.payload, record.qos, False)
+                if lane.link.publish(record.topic, record.payload, record.qos, False) is None and \
+                        not lane.link.connected.is_set():
+                    self.spool.unread()  # the connection went just now: it stays on disk for the next one
+                    break
                 handed[lane.index] = handed.get(lane.index, 0) + len(record.payload)
                 if lane.paced:
                     lane.credit -= len(record.payload)

@@ -94,8 +94,9 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
     lines = [HEADER.format(file=fleet.file),
              "# Mosquitto started as root drops to the user 'mosquitto', which must be able to read the\n"
              "# passwd and acl files below (chown them, or add a `user` line for the account that owns them).\n",
-             "per_listener_settings false\n",
-             f"listener {b.port} {b.host}\n"]
+             "per_listener_settings false\n"]
+    if b.port:  # port: 0 turns plain MQTT off (a TLS-only deployment)
+        lines.append(f"listener {b.port} {b.host}\n")
     if b.ws_port:
         lines += [f"listener {b.ws_port} {b.host}\n", "protocol websockets\n"]
         # Mosquitto 2.0.11 (libwebsockets) ignores the listener's address and binds every interface

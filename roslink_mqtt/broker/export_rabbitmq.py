@@ -145,7 +145,8 @@ def rabbitmq_conf_text(fleet: Fleet, definitions_file: Path, *, vhost: str = VHO
     return "".join([
         HEADER.format(file=fleet.file),
         "# Each node of a cluster gets this file; the definitions are imported once (they are cluster-wide).\n",
-        f"mqtt.listeners.tcp.default = {b.host}:{b.port}\n",
+        # port: 0 (TLS only): no plain listener; RabbitMQ's TLS one (mqtt.listeners.ssl.*) is the operator's to add
+        f"mqtt.listeners.tcp.default = {b.host}:{b.port}\n" if b.port else "mqtt.listeners.tcp = none\n",
         "mqtt.allow_anonymous = false\n",
         f"mqtt.vhost = {vhost}\n",
         f"mqtt.exchange = {EXCHANGE}\n",

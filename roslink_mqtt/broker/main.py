@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0].strip())
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.add_argument("--host", help="address to listen on (default: broker.host from the config)")
-    p.add_argument("--port", type=_port, help="MQTT/TCP port (default: broker.port)")
+    p.add_argument("--port", type=_port, help="MQTT/TCP port, 0 = off (default: broker.port)")
     p.add_argument("--ws-port", type=_port, help="MQTT/WebSocket port, 0 = off (default: broker.ws_port)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
@@ -159,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     from ..config.exposure import exposure_problems
 
-    problems = exposure_problems(fleet, args.host, args.ws_port)
+    problems = exposure_problems(fleet, args.host, args.ws_port, args.port)
     for problem in problems:
         print(f"{PROG}: refused to start: {problem}", file=sys.stderr)
     if problems:

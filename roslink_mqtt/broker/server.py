@@ -74,7 +74,8 @@ class ServerOptions:
         return replace(options, **{k: v for k, v in overrides.items() if v is not None})
 
     def listeners(self) -> list[Listener]:
-        out = [Listener("default", "tcp", self.host, self.port)]
+        """The listeners that accept connections (port 0: no plain MQTT one)."""
+        out = [Listener("default", "tcp", self.host, self.port)] if self.port else []
         if self.ws_port:
             out.append(Listener("ws", "ws", self.host, self.ws_port))
         if self.tls is not None:
@@ -84,7 +85,9 @@ class ServerOptions:
 
 def amqtt_config(options: ServerOptions, live: LiveFleet) -> dict[str, Any]:
     """The dict ``amqtt.broker.Broker`` takes (0.12.1: underscores in top-level keys, strict)."""
-    listeners: dict[str, Any] = {}
+    # amqtt needs a listener called default; without a bind address it is off (bind must be None: amqtt's own default
+    # for a missing one is 0.0.0.0:1883, every interface)
+    listeners: dict[str, Any] = {"default": {"type": "tcp", "bind": None}}
     for lst in options.listeners():
         bind = f"[{lst.host}]:{lst.port}" if ":" in lst.host else f"{lst.host}:{lst.port}"
         entry: dict[str, Any] = {"type": "ws" if lst.kind == "ws" else "tcp", "bind": bind}

@@ -35,10 +35,12 @@ def demo_logins(fleet: Fleet) -> list[str]:
     return [name for name, hashed in logins if hashed and verify_password(f"{name}{DEMO_PASSWORD_SUFFIX}", hashed)]
 
 
-def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None = None) -> list[str]:
+def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None = None,
+                      port: int | None = None) -> list[str]:
     """Why a broker for ``fleet`` must not listen on ``host`` (default ``broker.host``) with these listeners; empty when
-    it may. ``ws_port``: the WebSocket listener in use when not the fleet's (a command-line override; 0 = off). A TLS
-    listener on a host of its own (``broker.tls.host``) beyond loopback needs fresh passwords, not allow_plaintext."""
+    it may. ``ws_port``, ``port``: the WebSocket and plain MQTT listeners in use when not the fleet's (command-line
+    overrides; 0 = off). A TLS listener on a host of its own (``broker.tls.host``) beyond loopback needs fresh
+    passwords, not allow_plaintext; so does a TLS-only broker (``port: 0``, ``ws_port: 0``) on a public host."""
     tls_host = fleet.broker.tls_host(host)
     host = fleet.broker.host if host is None else host
     public = [h for h in (host, tls_host) if h is not None and not is_loopback(h)]
@@ -46,11 +48,14 @@ def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None
         return []
     problems = []
     ws = fleet.broker.ws_port if ws_port is None else ws_port
-    if not is_loopback(host) and not fleet.broker.allow_plaintext:
-        plain = "plain MQTT" + (" and MQTT over WebSocket" if ws else "")
+    mqtt = fleet.broker.port if port is None else port
+    plain_listeners = [name for name, on in (("plain MQTT", mqtt), ("MQTT over WebSocket", ws)) if on]
+    if not is_loopback(host) and plain_listeners and not fleet.broker.allow_plaintext:
+        plain = " and ".join(plain_listeners)
         problems.append(f"broker.host {host} is not loopback, and {plain} would carry every login's password in clear "
                         "text: keep host: 127.0.0.1 and give TLS an address of its own (broker.tls.host) or a TLS "
-                        "terminator, or set broker.allow_plaintext: true for a network you trust")
+                        "terminator, turn them off (port: 0, ws_port: 0), or set broker.allow_plaintext: true for a "
+                        "network you trust")
     demo = demo_logins(fleet)
     if demo:
         problems.append(f"{', '.join(demo)} still log in with the demo fleet's published passwords (<login>-demo): "

@@ -276,14 +276,18 @@ class _FleetReader:
             tls = TlsSettings(self.value(tp, "port", port, 8883), self.value(tp, "certfile", self.string),
                               self.value(tp, "keyfile", self.string), self.value(tp, "cafile", self.string, None),
                               self.value(tp, "host", self.string, None))
-        return BrokerSettings(
+        settings = BrokerSettings(
             host=self.value(path, "host", self.string, "127.0.0.1"),
-            port=self.value(path, "port", port, 1883),
+            port=self.value(path, "port", self.integer(0, 65535), 1883),  # 0: no plain MQTT listener
             ws_port=self.value(path, "ws_port", self.integer(0, 65535), 8083) or None,
             tls=tls,
             max_payload=self.value(path, "max_payload", self.integer(1024, 256 * 1024 * 1024), 4 * 1024 * 1024),
             allow_plaintext=self.value(path, "allow_plaintext", self.boolean, False),
         )
+        if not settings.port and not settings.ws_port and tls is None:
+            raise self.err(path + ("port",), "port: 0 turns the plain MQTT listener off, and there is no other "
+                                             "(ws_port is off and no tls): the broker would accept no connection")
+        return settings
 
     def robots(self, path: Path) -> dict[str, Robot]:
         data = self.get(path) if "robots" in self.src.data else None

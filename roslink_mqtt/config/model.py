@@ -89,7 +89,7 @@ class TlsSettings:
 @dataclass(frozen=True, slots=True)
 class BrokerSettings:
     host: str = "127.0.0.1"
-    port: int = 1883
+    port: int = 1883  # 0: no plain MQTT listener (a TLS-only deployment)
     ws_port: int | None = 8083
     tls: TlsSettings | None = None
     max_payload: int = 4 * 1024 * 1024

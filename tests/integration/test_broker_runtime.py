@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import socket
@@ -276,6 +277,46 @@ def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes
     (tmp_path / "key.pem").unlink()
     done = _broker_cli("--config", str(fleet), "--port", str(free_port()), "--ws-port", "0")
     assert done.returncode == 1 and "broker.tls.keyfile: cannot read" in done.stderr
+
+
+def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes) -> None:
+    """``port: 0`` (here the command line's ``--port 0``) and no WebSocket: the broker's only listener is TLS on its
+    address (127.0.0.2 standing for a public one); a TLS client logs in, and the broker holds no other listening
+    socket."""
+    from roslink_mqtt.localproc import LocalProcess, wait_for_port
+
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.2",
+                    "-addext", "subjectAltName=IP:127.0.0.2", "-keyout", str(tmp_path / "key.pem"),
+                    "-out", str(tmp_path / "cert.pem")], check=True, capture_output=True)
+    tls_port = free_port()
+    fleet = write_fleet(tmp_path, edit=lambda t: t.replace(
+        "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{host: 127.0.0.2, port: {tls_port}, certfile: cert.pem, "
+                          "keyfile: key.pem}\n"))
+    broker = LocalProcess([sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--port", "0",
+                           "--ws-port", "0", "--log-level", "INFO"], tmp_path / "broker.log", cwd=ROOT)
+    broker.spawn()
+    try:
+        wait_for_port(tls_port, 15, host="127.0.0.2")
+        assert f"listening on mqtts://127.0.0.2:{tls_port}; fleet" in broker.output(), broker.output()
+        p = probes(tls_port, "alice", host="127.0.0.2")
+        p.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
+        assert p.connect() == 0
+        assert _listening_ports(broker.pid) == {tls_port}  # nothing else of the broker's listens, anywhere
+    finally:
+        broker.stop()
+
+
+def _listening_ports(pid: int | None) -> set[int]:
+    """The TCP ports process ``pid`` listens on (its sockets' inodes in /proc/net/tcp and tcp6, state LISTEN)."""
+    assert pid is not None
+    inodes = {os.readlink(fd) for fd in Path(f"/proc/{pid}/fd").iterdir() if os.readlink(fd).startswith("socket:")}
+    ports = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for row in Path(table).read_text().splitlines()[1:]:
+            fields = row.split()
+            if fields[3] == "0A" and f"socket:[{fields[9]}]" in inodes:
+                ports.add(int(fields[1].rsplit(":", 1)[1], 16))
+    return ports
 
 
 def test_a_public_plain_listener_and_the_demo_passwords_are_refused_at_start(tmp_path: Path) -> None:

@@ -59,3 +59,13 @@ def test_a_record_torn_by_a_crash_is_ignored(tmp_path) -> None:
     with open(segment, "ab") as f:
         f.write(b"\x00\x00\x01\x00partial")  # a record header promising 256 bytes, cut short
     assert _drain(Spool(tmp_path, "turtle1", max_bytes=1 << 20, max_age=3600), 2.0) == [b"whole"]
+
+
+def test_a_record_that_could_not_be_sent_is_put_back(tmp_path) -> None:
+    spool = Spool(tmp_path, "turtle1", max_bytes=1 << 20, max_age=3600)
+    for i in range(3):
+        spool.append("t", b"%d" % i, 1, 100.0)
+    assert spool.next(100.0).payload == b"0"
+    assert spool.next(100.0).payload == b"1"
+    spool.unread()  # "1" was refused by a closed connection
+    assert _drain(spool) == [b"1", b"2"]

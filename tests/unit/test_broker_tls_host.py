@@ -39,3 +39,27 @@ def test_without_tls_host_tls_follows_the_broker_host(tmp_path: Path) -> None:
 def test_a_misspelt_tls_key_is_named(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="hots"):
         load_fleet(_fleet(tmp_path, "{hots: 0.0.0.0, port: 8883, certfile: c.pem, keyfile: k.pem}"))
+
+
+def test_port_0_turns_plain_mqtt_off_everywhere(tmp_path: Path) -> None:
+    """A TLS-only broker: no plain listener in the embedded broker (amqtt's required 'default' left unbound) or the
+    Mosquitto export; a fleet with no listener at all is refused with the reason."""
+    from roslink_mqtt.broker.acl import LiveFleet
+    from roslink_mqtt.broker.export_rabbitmq import rabbitmq_conf_text
+    from roslink_mqtt.broker.server import amqtt_config
+
+    path = _fleet(tmp_path, "{host: 0.0.0.0, port: 8883, certfile: c.pem, keyfile: k.pem}")
+    path.write_text(path.read_text().replace("  port: 1883\n", "  port: 0\n", 1).replace("  ws_port: 8083\n",
+                                                                                           "  ws_port: 0\n", 1))
+    fleet = load_fleet(path)
+    options = ServerOptions.from_fleet(fleet)
+    assert [(lst.kind, lst.host, lst.port) for lst in options.listeners()] == [("tls", "0.0.0.0", 8883)]
+    listeners = amqtt_config(options, LiveFleet(fleet))["listeners"]
+    assert listeners["default"] == {"type": "tcp", "bind": None} and listeners["tls"]["bind"] == "0.0.0.0:8883"
+    conf = mosquitto_conf_text(fleet, tmp_path / "passwd", tmp_path / "acl")
+    assert [line for line in conf.splitlines() if line.startswith("listener ")] == ["listener 8883 0.0.0.0"]
+    assert "mqtt.listeners.tcp = none\n" in rabbitmq_conf_text(fleet, tmp_path / "definitions.json")
+    path.write_text(path.read_text().replace("  tls: {host: 0.0.0.0, port: 8883, certfile: c.pem, keyfile: k.pem}\n",
+                                             "", 1))
+    with pytest.raises(ConfigError, match="the broker would accept no connection"):
+        load_fleet(path)

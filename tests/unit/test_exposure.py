@@ -70,3 +70,15 @@ def test_a_public_tls_listener_beside_loopback_plain_ones_needs_fresh_passwords_
     both = exposure_problems(dataclasses.replace(demo, broker=dataclasses.replace(demo.broker, tls=tls)), "10.0.0.5")
     assert len(both) == 2 and both[1].endswith("listens on 10.0.0.5 and 0.0.0.0")
     assert "broker.tls.host" in both[0]
+
+
+def test_a_tls_only_broker_on_a_public_host_needs_fresh_passwords_only(demo) -> None:
+    """port: 0 and ws_port: 0 turn the plain listeners off: on 0.0.0.0 only TLS listens, nothing in clear text, so
+    allow_plaintext is not needed; a plain listener turned back on by the command line is refused again."""
+    tls = TlsSettings(8883, "cert.pem", "key.pem")
+    tls_only = _fresh(demo, host="0.0.0.0", port=0, ws_port=None, tls=tls)
+    assert exposure_problems(tls_only) == []
+    [plain] = exposure_problems(tls_only, port=1883)
+    assert "plain MQTT would carry every login's password in clear text" in plain and "port: 0" in plain
+    [ws] = exposure_problems(tls_only, ws_port=8083)
+    assert "MQTT over WebSocket would carry" in ws
