@@ -177,7 +177,9 @@ class Uplink:
                     return
                 stream.sent += 1
                 stream.bytes_sent += len(payload) + len(topic) + 4
-            self.main.link.publish(topic, payload, qos, retain)
+            if self.main.link.publish(topic, payload, qos, retain) is None and not self.main.link.connected.is_set():
+                with self.lock:
+                    self._keep(stream, topic, payload, qos)  # the connection went just now (buffered streams)
             return
         lane = self.lane_of(stream)
         message = Outgoing(topic, payload, qos, retain, time.monotonic())
