@@ -17,6 +17,8 @@ language):
   the reader's own): :data:`FRAGMENT_PRELUDE` makes them, and the client is closed after it.
 * ```` ```sh norun <reason> ```` -- not run; the reason is required (an interactive terminal, a
   placeholder such as ``<pid>``, root on a real host...).
+* ```` ```sh ns <host> [serve=1] ```` -- docs/deploy.md's steps, each on its machine: run by
+  tests/integration/test_deploy_guide.py in network namespaces (a server, a robot, a laptop).
 
 Only ``ROS_DOMAIN_ID=<n>`` is rewritten, to this test run's fresh domain (DDS stays on this machine
 and apart from other runs); everything else runs exactly as a newcomer would type it.
@@ -114,9 +116,9 @@ RUNNABLE = [s for s in SNIPPETS if s.runnable]
 
 
 def test_every_snippet_is_marked() -> None:
-    unmarked = [s.id for s in SNIPPETS if not s.words or s.words[0] not in ("run", "norun")]
+    unmarked = [s.id for s in SNIPPETS if not s.words or s.words[0] not in ("run", "norun", "ns")]
     no_reason = [s.id for s in SNIPPETS if s.words[:1] == ["norun"] and len(s.words) < 2]
-    assert not unmarked, f"mark these blocks `run …` or `norun <reason>` ({__file__}): {unmarked}"
+    assert not unmarked, f"mark these blocks `run …`, `ns <host>` or `norun <reason>` ({__file__}): {unmarked}"
     assert not no_reason, f"`norun` needs a reason: {no_reason}"
     assert len(RUNNABLE) >= len(SNIPPETS) // 2, "most documentation snippets should run"
 
