@@ -145,6 +145,7 @@ import asyncio
 import contextvars
 import itertools
 import logging
+import ssl
 import time
 from typing import Any
 
@@ -514,6 +515,22 @@ class HardenedBroker(Broker):
         self._budgets: dict[str, PartialBudget] = {}  # per login, likewise
         self._connecting: set[asyncio.Task[Any]] = set()  # connections between their first byte and CONNACK
         self._stopping = False
+        self.ssl_contexts: list[ssl.SSLContext] = []  # the TLS listeners': reload_certificates() renews them
+
+    def _create_ssl_context(self, listener: Any) -> ssl.SSLContext:
+        """amqtt's context for a TLS listener, kept: a reload gives it a new certificate for new handshakes."""
+        context = Broker._create_ssl_context(listener)
+        self.ssl_contexts.append(context)
+        return context
+
+    def reload_certificates(self, certfile: str, keyfile: str) -> int:
+        """Serve ``certfile``/``keyfile`` to new TLS connections from now on (connections made before keep theirs:
+        nothing is dropped); how many listeners took it. The pair is checked on a context of its own first, so a
+        bad pair (unreadable, a key that does not match) raises ``OSError``/``ssl.SSLError`` and changes nothing."""
+        ssl.create_default_context(ssl.Purpose.CLIENT_AUTH).load_cert_chain(certfile, keyfile)
+        for context in self.ssl_contexts:
+            context.load_cert_chain(certfile, keyfile)
+        return len(self.ssl_contexts)
 
     def _pacer_of(self, login: str | None) -> Pacer | None:
         """The PUBLISH allowance shared by every connection of ``login`` (None: not paced)."""

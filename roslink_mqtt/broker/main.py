@@ -5,7 +5,8 @@
 Listens on TCP, WebSocket (browsers, Node-RED dashboards) and, when robots.yaml names a
 certificate and key, TLS. Every connection must log in as a robot or user of the fleet;
 topics are checked per broker/README.md, "What it enforces". SIGHUP re-reads robots, users and grants (connected
-clients stay; a revoked grant stops deliveries at once). SIGINT/SIGTERM stop cleanly.
+clients stay; a revoked grant stops deliveries at once) and the TLS certificate (new connections get it).
+SIGINT/SIGTERM stop cleanly.
 Exit codes: 0 after a clean stop, 2 for a bad config or arguments, 1 when the broker
 cannot start (port in use, unreadable certificate).
 """

@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import logging
 import socket
+import ssl
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -153,7 +154,21 @@ class EmbeddedBroker:
         log.info("reloaded %s: %d robots, %d users; removed %s, added %s, new password %s; %d connection(s) "
                  "dropped", self.config_path, len(fleet.robots), len(fleet.users),
                  list(change.removed_logins), list(change.added_logins), list(change.changed_passwords), dropped)
+        self._reload_certificate()
         return True
+
+    def _reload_certificate(self) -> None:
+        """A renewed certificate (certbot, a new CA) on SIGHUP: new TLS connections get it, connected clients stay."""
+        tls = self.options.tls
+        if tls is None or self.broker is None:
+            return
+        try:
+            listeners = self.broker.reload_certificates(tls.certfile, tls.keyfile)
+        except (OSError, ssl.SSLError) as err:
+            log.error("reload: TLS certificate %s not taken, still serving the previous one: %s", tls.certfile, err)
+            return
+        log.info("reloaded the TLS certificate %s: new connections get it (%d listener(s)); connected clients keep "
+                 "theirs", tls.certfile, listeners)
 
     def _check_tls_files(self) -> None:
         tls = self.options.tls

@@ -6,6 +6,7 @@ import os
 import shutil
 import signal
 import socket
+import ssl
 import subprocess
 import sys
 import threading
@@ -277,6 +278,74 @@ def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes
     (tmp_path / "key.pem").unlink()
     done = _broker_cli("--config", str(fleet), "--port", str(free_port()), "--ws-port", "0")
     assert done.returncode == 1 and "broker.tls.keyfile: cannot read" in done.stderr
+
+
+def _ca_and_server_cert(tmp_path: Path, name: str) -> tuple[Path, Path, Path]:
+    """A throwaway CA ``name`` and a certificate for 127.0.0.1 it signed: (ca.pem, cert.pem, key.pem)."""
+    d = tmp_path / name
+    d.mkdir()
+
+    def openssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], check=True, capture_output=True, cwd=d, timeout=60)
+
+    openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", f"/CN={name}", "-keyout",
+            "ca.key", "-out", "ca.pem")
+    openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", "key.pem", "-out", "s.csr")
+    (d / "san.ext").write_text("subjectAltName=IP:127.0.0.1\n")
+    openssl("x509", "-req", "-in", "s.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial", "-days", "1",
+            "-extfile", "san.ext", "-out", "cert.pem")
+    return d / "ca.pem", d / "cert.pem", d / "key.pem"
+
+
+def test_a_renewed_certificate_is_served_after_sighup_and_nobody_is_dropped(tmp_path: Path, probes) -> None:
+    """certbot renews the broker's certificate (here: one from another CA, so the two can be told apart) and
+    reloads the broker: new TLS connections get the new one at once, the clients connected before stay connected
+    and keep receiving; a key that does not match the certificate is refused and the previous pair kept."""
+    old_ca, old_cert, old_key = _ca_and_server_cert(tmp_path, "old-ca")
+    new_ca, new_cert, new_key = _ca_and_server_cert(tmp_path, "new-ca")
+    shutil.copy(old_cert, tmp_path / "cert.pem")
+    shutil.copy(old_key, tmp_path / "key.pem")
+    tls_port = free_port()
+    fleet = write_fleet(tmp_path, edit=lambda t: t.replace(
+        "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{port: {tls_port}, certfile: cert.pem, keyfile: key.pem}}\n"))
+
+    def tls_probe(ca: Path, login: str = "alice") -> Probe:
+        p = probes(tls_port, login)
+        p.client.tls_set(ca_certs=str(ca))
+        return p
+
+    def refused_by_tls(ca: Path) -> bool:
+        try:
+            tls_probe(ca).connect(timeout=5)
+        except ssl.SSLError:
+            return True
+        return False
+
+    with EmbeddedBrokerProcess(tmp_path, fleet, "--log-level", "INFO") as broker:
+        before = tls_probe(old_ca)
+        assert before.connect() == 0
+        assert before.subscribe("roslink/turtle1/state/#") == [1]
+        shutil.copy(new_cert, tmp_path / "cert.pem")  # renewed in place, as certbot does
+        shutil.copy(new_key, tmp_path / "key.pem")
+        broker.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while "reloaded the TLS certificate" not in broker.output() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "reloaded the TLS certificate" in broker.output(), broker.output()[-2000:]
+        after = tls_probe(new_ca)
+        assert after.connect() == 0  # the new certificate, at once
+        assert refused_by_tls(old_ca)  # and not the old one any more
+        with Probe(broker.port, "turtle1", PW["turtle1"]) as robot:  # the connection made before is still there
+            assert robot.connect() == 0
+            robot.publish("roslink/turtle1/state/battery", b"{}", qos=1)
+            assert before.wait_for(lambda m: m.topic == "roslink/turtle1/state/battery", timeout=10)
+        shutil.copy(old_key, tmp_path / "key.pem")  # a key of another certificate: refused, nothing changes
+        broker.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while "not taken, still serving the previous one" not in broker.output() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "not taken, still serving the previous one" in broker.output(), broker.output()[-2000:]
+        assert tls_probe(new_ca).connect() == 0
 
 
 def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes) -> None:

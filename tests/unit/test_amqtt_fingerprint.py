@@ -45,6 +45,10 @@ RELIED_ON: dict[str, str] = {
     "amqtt.broker:Broker.shutdown": "wrapped (fix 30: connections still logging in are cancelled first); waits for "
                                     "its listeners to close",
     "amqtt.broker:Broker.ws_connected": "replaced (fix 15: SafeWebSocketsReader)",
+    "amqtt.broker:Broker._create_ssl_context": "wrapped: the TLS listeners' contexts are kept so that SIGHUP gives "
+                                               "them a renewed certificate (HardenedBroker.reload_certificates)",
+    "amqtt.broker:Broker._start_listeners": "calls self._create_ssl_context(listener) once per TLS listener and "
+                                            "hands the context to its server (a reload changes that object)",
     "amqtt.broker:Broker.stream_connected": "TCP connections reach our _client_connected through it (fix 14)",
     "amqtt.broker:Broker._client_connected": "wrapped (fix 14: the packet gate wraps the reader)",
     "amqtt.broker:Broker._initialize_client_session": "replaced (fixes 1, 4-7, 10, 27); the part after "
