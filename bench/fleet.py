@@ -68,7 +68,7 @@ def fleet_file(path: Path, robots: int, port: int) -> Path:
     """``robots`` robots, one operator each, a monitor; one password hashed once (the bench is not about logins)."""
     from roslink_mqtt.config.passwords import hash_password
 
-    hashed = hash_password(PASSWORD)
+    hashed = hash_password(PASSWORD, iterations=1000)  # random-strength robot passwords: the bench measures messages
     data: dict[str, Any] = {
         "prefix": PREFIX,
         "broker": {"host": "127.0.0.1", "port": port, "ws_port": 0},

@@ -25,6 +25,7 @@ from amqtt.session import Session
 
 from .. import __version__
 from ..config import verify_password
+from ..config.passwords import DEFAULT_ITERATIONS, VerifiedLogins
 from ..topics import sys_topic
 from .acl import DecisionCache, LiveFleet
 from .hardened import AMQTT_VERSION, ATTR_DENY_REASON, describe_session
@@ -34,8 +35,9 @@ log = logging.getLogger("roslink_mqtt.broker")
 
 ATTR_ACL_CACHE = "roslink.acl"
 ADMISSION_POLL = 0.005  # s between tries for a place among the logins being checked (LoginThrottle.try_begin)
-# Verified against when the login is unknown, so a wrong name costs as long as a wrong password.
-_DUMMY_HASH = "$7$1000$AAAAAAAAAAAAAAAA$" + "A" * 86 + "=="
+# Verified against when the login is unknown, so a wrong name costs as long as a wrong password (of a hash made
+# with the default iteration count).
+_DUMMY_HASH = f"$7${DEFAULT_ITERATIONS}$AAAAAAAAAAAAAAAA$" + "A" * 86 + "=="
 
 
 def plugin_path(cls: type) -> str:
@@ -47,14 +49,19 @@ class FleetAuthPlugin(BaseAuthPlugin):
     """Every connection presents a robot or user login from robots.yaml; anonymous is refused.
 
     Passwords are checked against the Mosquitto ``$7$`` PBKDF2 hashes in a worker thread
-    (a large iteration count must not stall every other client). Failed attempts feed the
-    :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle` (per login, per address, per pair).
+    (a large iteration count must not stall every other client), once per login: a verified one is remembered
+    (:class:`~roslink_mqtt.config.passwords.VerifiedLogins`), so reconnects cost a keyed SHA-256. Failed attempts
+    feed the :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle` (per login, per address, per pair).
     """
 
     @dataclass
     class Config:
         fleet: Any = None  # LiveFleet
         throttle: Any = None  # LoginThrottle | None
+
+    def __init__(self, context: BrokerContext) -> None:
+        super().__init__(context)
+        self.verified = VerifiedLogins()  # a login's PBKDF2 once, not on every reconnect
 
     async def authenticate(self, *, session: Session) -> bool | None:
         live: LiveFleet = self.config.fleet
@@ -93,8 +100,8 @@ class FleetAuthPlugin(BaseAuthPlugin):
             reason = "no password"
         else:
             stored = live.password_hash(username)
-            ok = await asyncio.get_running_loop().run_in_executor(
-                None, verify_password, password, stored or _DUMMY_HASH)
+            verify = self.verified.verify if stored is not None else verify_password
+            ok = await asyncio.get_running_loop().run_in_executor(None, verify, password, stored or _DUMMY_HASH)
             if stored is None:
                 reason = "unknown login"
             elif not ok:

@@ -198,9 +198,13 @@ def test_a_refused_command_does_not_use_up_its_sequence_number(stack) -> None:
     alice, cmd_vel = stack["alice"], stack["cmd_vel"]
     twist = {"message_id": 100, "sequence_number": 9000, "payload": {"lx": 0.35}}
     t_stop = time.monotonic()
+    alice.drain(0)  # what earlier tests left in alice's queue
     alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {})
-    # the stop travels on the bridge's own stop connection: the twist may overtake it unless we wait for it
+    # the stop travels on the bridge's own stop connection: the twist may overtake it unless we wait for it (a zero
+    # on cmd_vel alone is not enough: supervision repeats the stops of earlier tests' streams), and for the robot's
+    # heartbeat to say so
     cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=t_stop)
+    alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 6)
     alice.publish("roslink/turtle1/from/alice/cmd/twist", twist)
     err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error") and m.json().get("sequence_number") == 9000)
     assert "emergency stop by alice: send cmd/arm to resume" in err.json()["error"]
