@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 
-from ..config import Fleet, load_fleet
+from ..config import Fleet, Role, load_fleet
 from ..config.interfaces import interface_table
 
 
@@ -18,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "when it starts).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.set_defaults(run=run)
-    actions = p.add_subparsers(dest="fleet_action", metavar="{split}")
+    actions = p.add_subparsers(dest="fleet_action", metavar="{split,user,grant,revoke}")
     split = actions.add_parser("split", help="write one robot file per robot: its part of the fleet, no passwords",
                                description="Write OUT/<robot>.yaml for each robot (or the ones named): its rules, "
                                            "services, actions, parameters, bridge settings and who may do what with "
@@ -30,6 +31,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     split.add_argument("--out", required=True, help="directory for the robot files (created if missing)")
     split.add_argument("robots", nargs="*", metavar="ROBOT", help="only these robots (default: every robot)")
     split.set_defaults(run=run_split)
+    _register_edits(actions)
+
+
+EDIT_NOTE = ("Edits the fleet file in place, keeping its comments and layout, after checking the result as the "
+             "broker would (nothing is written otherwise). Then reload the broker: `systemctl reload "
+             "roslink-mqtt-broker` (SIGHUP; a removed login's connections are closed), or export again for "
+             "Mosquitto/RabbitMQ.")
+
+
+def _register_edits(actions: argparse._SubParsersAction) -> None:
+    def editing(name: str, help_text: str) -> argparse.ArgumentParser:
+        p = actions.add_parser(name, help=help_text, description=f"{help_text[0].upper()}{help_text[1:]}. "
+                                                                 f"{EDIT_NOTE}")
+        p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+        return p
+
+    user = actions.add_parser("user", help="add or remove a user", description=f"Add or remove a user. {EDIT_NOTE}")
+    users = user.add_subparsers(dest="user_action", metavar="{add,remove}", required=True)
+    add = users.add_parser("add", help="add a user (no grants yet, or an administrator)")
+    add.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    add.add_argument("name")
+    add.add_argument("--password-file", required=True, metavar="FILE",
+                     help="the user's password (first line); when FILE does not exist a random one is written "
+                          "there (mode 600) for you to hand over")
+    add.add_argument("--admin", action="store_true", help="every robot, every role (the fleet's administrators)")
+    add.add_argument("--iterations", type=int, default=None, help="PBKDF2 iterations of the hash (default: "
+                                                                  "passwd's)")
+    add.set_defaults(run=run_user_add)
+    remove = users.add_parser("remove", help="remove a user (and every grant of theirs)")
+    remove.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
+    remove.add_argument("name")
+    remove.set_defaults(run=run_user_remove)
+    grant = editing("grant", "give a user a role on a robot (operator or viewer), by the robot's key")
+    grant.add_argument("user")
+    grant.add_argument("robot")
+    grant.add_argument("--role", choices=[r.value for r in Role], default=Role.OPERATOR.value,
+                       help="default: %(default)s")
+    grant.set_defaults(run=run_grant)
+    revoke = editing("revoke", "take a user's grant on a robot away")
+    revoke.add_argument("user")
+    revoke.add_argument("robot")
+    revoke.set_defaults(run=run_revoke)
 
 
 def summary(fleet: Fleet) -> str:
@@ -66,4 +109,98 @@ def run_split(args: argparse.Namespace) -> int:
 
     for path in split_fleet(args.config, args.out, args.robots or None):
         print(f"wrote {path} (mode 0600; no password hashes)")
+    return 0
+
+
+RELOAD_HINT = "reload the broker to apply it (systemctl reload roslink-mqtt-broker, or SIGHUP)"
+
+
+def _edited(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """Run an edit; an edit that cannot be made says why on stderr and exits 2."""
+    import functools
+
+    @functools.wraps(run)
+    def wrapper(args: argparse.Namespace) -> int:
+        from ..config.edit import FleetEditError
+
+        try:
+            return run(args)
+        except FleetEditError as err:
+            print(f"roslink-mqtt fleet: {err}", file=sys.stderr)
+            return 2
+    return wrapper
+
+
+def _password(path: str) -> tuple[str, bool]:
+    """The password in ``path`` (first line), or a new random one written there (mode 600): (password, made)."""
+    import os
+    import secrets
+    from pathlib import Path
+
+    file = Path(path)
+    if file.exists():
+        lines = file.read_text(encoding="utf-8").splitlines()
+        password = lines[0].strip() if lines else ""
+        if len(password) < 8:
+            from ..config.edit import FleetEditError
+
+            raise FleetEditError(f"{path}: the password must have at least 8 characters")
+        return password, False
+    password = secrets.token_urlsafe(18)
+    fd = os.open(file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(password + "\n")
+    return password, True
+
+
+@_edited
+def run_user_add(args: argparse.Namespace) -> int:
+    from ..config.edit import FleetEdit
+    from ..config.passwords import DEFAULT_ITERATIONS, hash_password
+
+    edit = FleetEdit(args.config)
+    password, made = _password(args.password_file)
+    edit.add_user(args.name, hash_password(password, iterations=args.iterations or DEFAULT_ITERATIONS),
+                  admin=args.admin)
+    edit.save()
+    made_text = f"; a new password is in {args.password_file} (mode 600)" if made else ""
+    what = "administrator" if args.admin else "no grants yet: `roslink-mqtt fleet grant`"
+    print(f"{args.config}: added user {args.name} ({what}){made_text}; {RELOAD_HINT}")
+    return 0
+
+
+@_edited
+def run_user_remove(args: argparse.Namespace) -> int:
+    from ..config.edit import FleetEdit
+
+    edit = FleetEdit(args.config)
+    edit.remove_user(args.name)
+    edit.save()
+    print(f"{args.config}: removed user {args.name}; {RELOAD_HINT} (their connections are closed)")
+    return 0
+
+
+@_edited
+def run_grant(args: argparse.Namespace) -> int:
+    from ..config.edit import FleetEdit
+
+    edit = FleetEdit(args.config)
+    changed = edit.grant(args.user, args.robot, Role(args.role))
+    if not changed:
+        print(f"{args.config}: {args.user} is already {args.role} of {args.robot}; nothing changed")
+        return 0
+    edit.save()
+    print(f"{args.config}: {args.user} is now {args.role} of {args.robot}; {RELOAD_HINT}")
+    return 0
+
+
+@_edited
+def run_revoke(args: argparse.Namespace) -> int:
+    from ..config.edit import FleetEdit
+
+    edit = FleetEdit(args.config)
+    edit.revoke(args.user, args.robot)
+    edit.save()
+    print(f"{args.config}: {args.user} has no grant on {args.robot} any more; {RELOAD_HINT} (deliveries to them "
+          "stop at once)")
     return 0

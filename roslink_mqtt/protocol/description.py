@@ -69,6 +69,12 @@ def _drop_empty(body: dict[str, Any]) -> dict[str, Any]:
 
 
 _TIMEOUT = BodyField("timeout", Nullable(Number()), False, "s the bridge waits for ROS", None)
+_FIELD_MAP = TextMap("object of strings (MQTT field → ROS field path)")
+
+
+def _text_or_null(name: str, doc: str) -> BodyField:
+    """An optional non-empty string (null or left out: none)."""
+    return BodyField(name, Nullable(Text(1)), False, doc, None)
 
 
 def _who(default: str) -> BodyField:
@@ -91,21 +97,17 @@ class StateEntry:
 
     FIELDS = (
         BodyField("name", Text(1), True, "its topic: `state/<name>`"),
-        BodyField("message", Nullable(Text(1)), False, "the ROSLink message it carries (presets); without it the "
-                                                        "body is the ROS message of `ros_type` as JSON", None),
-        BodyField("ros_type", Nullable(Text(1)), False, "the ROS type it comes from (none: the bridge's own, "
-                                                         "`ack`)", None),
+        _text_or_null("message", "the ROSLink message it carries (presets); without it the body is the ROS "
+                                 "message of `ros_type` as JSON"),
+        _text_or_null("ros_type", "the ROS type it comes from (none: the bridge's own, `ack`)"),
         BodyField("retained", Boolean(), False, "published retained", False),
         BodyField("max_rate", Nullable(Number()), False, "Hz at most, newest wins", None),
-        BodyField("fields", TextMap("object of strings (MQTT field → ROS field path)"), False,
-                  "the fields a generic rule selects", {}),
+        BodyField("fields", _FIELD_MAP, False, "the fields a generic rule selects", {}),
         _who(VIEWERS),
-        BodyField("encoding", Nullable(Text(1)), False, "`cbor` or `raw` (\"State encodings\"); left out for JSON",
-                  None),
-        BodyField("warning", Nullable(Text(1)), False, "while its ROS topic has no publisher (the bridge checks a "
-                                                        "few seconds after it starts, then every few seconds: "
-                                                        "`reads ROS topic /odm, which has no publisher (did you "
-                                                        "mean /odom?)`)", None),
+        _text_or_null("encoding", "`cbor` or `raw` (\"State encodings\"); left out for JSON"),
+        _text_or_null("warning", "while its ROS topic has no publisher (the bridge checks a few seconds after it "
+                                 "starts, then every few seconds: `reads ROS topic /odm, which has no publisher "
+                                 "(did you mean /odom?)`)"),
     )
 
     def to_body(self) -> dict[str, Any]:
@@ -134,17 +136,15 @@ class CommandEntry:
 
     FIELDS = (
         BodyField("name", Text(1), True, "the topic under `from/<user>/`: `cmd/twist`, a generic rule's `lights`"),
-        BodyField("message", Nullable(Text(1)), False, "the ROSLink command (presets); without it the body is the "
-                                                        "ROS JSON of `ros_type`", None),
-        BodyField("ros_type", Nullable(Text(1)), False, "what the bridge publishes to ROS (or the ROS service a "
-                                                         "preset calls)", None),
+        _text_or_null("message", "the ROSLink command (presets); without it the body is the ROS JSON of "
+                                 "`ros_type`"),
+        _text_or_null("ros_type", "what the bridge publishes to ROS (or the ROS service a preset calls)"),
         BodyField("on_demand", Boolean(), False, "the bridge creates its ROS publisher on first use", False),
-        BodyField("fields", TextMap("object of strings (MQTT field → ROS field path)"), False,
-                  "the fields a generic rule takes", {}),
+        BodyField("fields", _FIELD_MAP, False, "the fields a generic rule takes", {}),
         BodyField("limits", Obj(), False, "velocity inputs: what the bridge clamps to (`linear`, `angular`, "
                                           "`mode`)", {}),
         _who(OPERATORS),
-        BodyField("warning", Nullable(Text(1)), False, "while the ROS service a command calls has no server", None),
+        _text_or_null("warning", "while the ROS service a command calls has no server"),
     )
 
     def to_body(self) -> dict[str, Any]:
@@ -174,7 +174,7 @@ class ServiceEntry:
         BodyField("read_only", Boolean(), False, "it changes nothing: viewers may call it", False),
         _TIMEOUT,
         BodyField("who", Choice(WHO), False, "`viewers` when read-only, else `operators`", OPERATORS),
-        BodyField("warning", Nullable(Text(1)), False, "while the ROS service has no server", None),
+        _text_or_null("warning", "while the ROS service has no server"),
     )
 
     def to_body(self) -> dict[str, Any]:

@@ -248,12 +248,9 @@ def test_console_script_is_installed() -> None:
 
 
 # -- TLS listener ------------------------------------------------------------------------------------
-
-
-@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
-def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes) -> None:
-    """TLS on an address of its own (broker.tls.host, here 127.0.0.2 standing for a public one), plain MQTT on
-    127.0.0.1 only: the TLS address answers MQTT over TLS and nothing else."""
+def _tls_on_127_0_0_2(tmp_path: Path) -> tuple[int, Path]:
+    """A self-signed certificate for 127.0.0.2 (standing for a public address) and a fleet whose TLS listener binds
+    it on a free port: (that port, the fleet file)."""
     subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.2",
                     "-addext", "subjectAltName=IP:127.0.0.2", "-keyout", str(tmp_path / "key.pem"),
                     "-out", str(tmp_path / "cert.pem")], check=True, capture_output=True)
@@ -261,6 +258,15 @@ def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes
     fleet = write_fleet(tmp_path, edit=lambda t: t.replace(
         "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{host: 127.0.0.2, port: {tls_port}, certfile: cert.pem, "
                           "keyfile: key.pem}\n"))
+    return tls_port, fleet
+
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
+def test_tls_listener_when_the_config_names_a_certificate(tmp_path: Path, probes) -> None:
+    """TLS on an address of its own (broker.tls.host, here 127.0.0.2 standing for a public one), plain MQTT on
+    127.0.0.1 only: the TLS address answers MQTT over TLS and nothing else."""
+    tls_port, fleet = _tls_on_127_0_0_2(tmp_path)
     with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
         assert f"mqtts://127.0.0.2:{tls_port}" in broker.output()
         p = probes(tls_port, "alice", host="127.0.0.2")
@@ -354,13 +360,7 @@ def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes)
     socket."""
     from roslink_mqtt.localproc import LocalProcess, wait_for_port
 
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=127.0.0.2",
-                    "-addext", "subjectAltName=IP:127.0.0.2", "-keyout", str(tmp_path / "key.pem"),
-                    "-out", str(tmp_path / "cert.pem")], check=True, capture_output=True)
-    tls_port = free_port()
-    fleet = write_fleet(tmp_path, edit=lambda t: t.replace(
-        "  ws_port: 0\n", f"  ws_port: 0\n  tls: {{host: 127.0.0.2, port: {tls_port}, certfile: cert.pem, "
-                          "keyfile: key.pem}\n"))
+    tls_port, fleet = _tls_on_127_0_0_2(tmp_path)
     broker = LocalProcess([sys.executable, "-m", "roslink_mqtt.broker", "--config", str(fleet), "--port", "0",
                            "--ws-port", "0", "--log-level", "INFO"], tmp_path / "broker.log", cwd=ROOT)
     broker.spawn()
