@@ -92,7 +92,7 @@ class FleetEdit:
         grants = entry["grants"]
         for grant in grants:
             if grant.get("key") == key:
-                if grant.get("role") == role.value:
+                if grant["role"] == role.value:  # a loaded fleet file has a role in every grant
                     return False
                 grant["role"] = role.value
                 return True
