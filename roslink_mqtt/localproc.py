@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import getpass
 import os
+import random
 import shutil
 import signal
 import socket
@@ -44,8 +45,29 @@ class ChildExited(RuntimeError):
 
 
 # -- ports ------------------------------------------------------------------------------------------
+def _ephemeral_low() -> int:
+    """The lowest port the kernel hands to outgoing connections (Linux: 32768 unless configured)."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+_PORTS = random.Random()  # seeded from the OS per process: parallel test workers draw different ports
+
+
 def free_port(host: str = LOOPBACK) -> int:
-    """A TCP port on ``host`` (loopback) that is free right now."""
+    """A TCP port on ``host`` (loopback) that is free right now, for a server started next.
+
+    Drawn below the kernel's ephemeral range: a port the kernel picks for ``bind(0)`` is one it also gives to
+    outgoing connections, so between our pick and the server's bind any client connection on the machine (another
+    test worker's, a bridge reconnecting) could take it, and the server would fail with "address already in use"."""
+    low = min(_ephemeral_low(), 32768)
+    if low > 11000:
+        for _ in range(200):
+            port = _PORTS.randrange(10000, low - 1000)
+            if port_free(port, host):
+                return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
         return s.getsockname()[1]
