@@ -83,13 +83,10 @@ def port_free(port: int, host: str = LOOPBACK) -> bool:
             return False
 
 
-def listener_of(port: int) -> str | None:
-    """Who listens on TCP ``port`` on this machine: "pid N: command line", or None when nobody (or unknown).
-
-    Read from /proc (the listening socket's inode, then the process holding it): processes of other
-    accounts are only found when we may read their file descriptors.
-    """
-    inodes: set[str] = set()
+def listening_sockets() -> dict[str, int]:
+    """Every listening TCP socket on this machine (this network namespace): ``socket:[inode]`` → its port, as a
+    process's /proc/<pid>/fd links name them."""
+    out: dict[str, int] = {}
     for table in ("/proc/net/tcp", "/proc/net/tcp6"):
         try:
             rows = Path(table).read_text().splitlines()[1:]
@@ -97,8 +94,18 @@ def listener_of(port: int) -> str | None:
             continue
         for row in rows:
             fields = row.split()
-            if len(fields) > 9 and fields[3] == "0A" and int(fields[1].rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
-                inodes.add(f"socket:[{fields[9]}]")
+            if len(fields) > 9 and fields[3] == "0A":  # 0A: LISTEN
+                out[f"socket:[{fields[9]}]"] = int(fields[1].rsplit(":", 1)[1], 16)
+    return out
+
+
+def listener_of(port: int) -> str | None:
+    """Who listens on TCP ``port`` on this machine: "pid N: command line", or None when nobody (or unknown).
+
+    Read from /proc (the listening socket's inode, then the process holding it): processes of other
+    accounts are only found when we may read their file descriptors.
+    """
+    inodes = {inode for inode, listening in listening_sockets().items() if listening == port}
     if not inodes:
         return None
     for proc in Path("/proc").iterdir():

@@ -137,17 +137,18 @@ def _password(path: str) -> tuple[str, bool]:
     import secrets
     from pathlib import Path
 
-    file = Path(path)
-    if file.exists():
-        lines = file.read_text(encoding="utf-8").splitlines()
-        password = lines[0].strip() if lines else ""
-        if len(password) < 8:
+    from ..connection_options import read_password_file
+    from .passwd_cmd import MIN_LENGTH
+
+    if Path(path).exists():
+        password = read_password_file(path, "roslink-mqtt fleet")
+        if len(password) < MIN_LENGTH:
             from ..config.edit import FleetEditError
 
-            raise FleetEditError(f"{path}: the password must have at least 8 characters")
+            raise FleetEditError(f"{path}: the password must have at least {MIN_LENGTH} characters")
         return password, False
     password = secrets.token_urlsafe(18)
-    fd = os.open(file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(password + "\n")
     return password, True

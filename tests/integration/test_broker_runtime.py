@@ -376,16 +376,12 @@ def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes)
 
 
 def _listening_ports(pid: int | None) -> set[int]:
-    """The TCP ports process ``pid`` listens on (its sockets' inodes in /proc/net/tcp and tcp6, state LISTEN)."""
+    """The TCP ports process ``pid`` listens on (its sockets among the machine's listening ones)."""
+    from roslink_mqtt.localproc import listening_sockets
+
     assert pid is not None
-    inodes = {os.readlink(fd) for fd in Path(f"/proc/{pid}/fd").iterdir() if os.readlink(fd).startswith("socket:")}
-    ports = set()
-    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
-        for row in Path(table).read_text().splitlines()[1:]:
-            fields = row.split()
-            if fields[3] == "0A" and f"socket:[{fields[9]}]" in inodes:
-                ports.add(int(fields[1].rsplit(":", 1)[1], 16))
-    return ports
+    fds = {os.readlink(fd) for fd in Path(f"/proc/{pid}/fd").iterdir()}
+    return {port for inode, port in listening_sockets().items() if inode in fds}
 
 
 def test_a_public_plain_listener_and_the_demo_passwords_are_refused_at_start(tmp_path: Path) -> None:
