@@ -14,6 +14,7 @@ traffic cheaply.
 Grammar (``P`` is the prefix, ``roslink`` unless configured)::
 
     P/<robot>/heartbeat                      robot presence (retained)
+    P/<robot>/grants                         who may use the robot (retained; admins write, the robot reads)
     P/<robot>/state/<name…>                  robot → everyone granted it
     P/<robot>/from/<user>/<verb>/<name…>     user → robot   (verbs sent by users)
     P/<robot>/from/<user>/<name…>            user → robot   (a generic rule's input: no verb)
@@ -33,9 +34,18 @@ SEPARATOR = "/"
 ANY = "+"  # one level of a subscription filter or ACL pattern
 REST = "#"  # every level below, as the last level of a filter
 SYS_TOPICS = "$SYS/#"  # the broker's own topics (outside the tree; admins may read them)
+# The embedded broker's control topic (broker/admin.py; Mosquitto's is $CONTROL/dynamic-security/v1): admins only
+FLEET_CONTROL = "$CONTROL/roslink/v1"
+FLEET_CONTROL_RESPONSE = FLEET_CONTROL + "/response"
+FLEET_CONTROL_FILTER = "$CONTROL/roslink/#"
+# Mosquitto's dynamic-security plugin's (broker/export_dynsec.py, cli/fleet_dynsec.py)
+DYNSEC_CONTROL = "$CONTROL/dynamic-security/v1"
+DYNSEC_RESPONSE = DYNSEC_CONTROL + "/response"
+DYNSEC_FILTER = "$CONTROL/dynamic-security/#"
 PARAM_EVENTS = "parameter_events"  # state/parameter_events/<node>
 # The levels after a robot's name (and the dashboard's topics.js, generated from these)
 HEARTBEAT, STATE, FROM, TO = "heartbeat", "state", "from", "to"
+GRANTS = "grants"  # P/<robot>/grants: the robot's users and roles, from the fleet's administrators
 
 
 class TopicError(ValueError):
@@ -261,7 +271,7 @@ def grammar_words() -> dict[str, Any]:
     """The words of this grammar as data, for its second implementation: the dashboard's topics.js (generated
     into its protocol.js by :mod:`roslink_mqtt.dashboard.protocol_js`, checked case by case against this module)."""
     return {"separator": SEPARATOR, "any": ANY, "rest": REST, "operators": OPERATORS, "heartbeat": HEARTBEAT,
-            "state": STATE, "from": FROM, "to": TO, "param_events": PARAM_EVENTS,
+            "state": STATE, "from": FROM, "to": TO, "param_events": PARAM_EVENTS, "grants": GRANTS,
             "kinds": {k.name.lower(): k.value for k in Kind},
             "verbs": {v.value: {"named": v.named, "sent_by_user": v.sent_by_user} for v in Verb}}
 
@@ -283,6 +293,7 @@ class Kind(Enum):
     FROM = FROM  # user → robot
     TO = TO  # robot → user
     OPERATOR = "operator"
+    GRANTS = GRANTS  # admins → robot
 
 
 @dataclass(frozen=True, slots=True)
@@ -317,6 +328,10 @@ class TopicTree:
 
     def heartbeat(self, robot: str) -> str:
         return _join(self.robot_root(robot), HEARTBEAT)
+
+    def grants(self, robot: str) -> str:
+        """Retained: who may use ``robot`` (protocol/grants.py), written by the fleet's administrators."""
+        return _join(self.robot_root(robot), GRANTS)
 
     def state(self, robot: str, name: str) -> str:
         return _join(self.robot_root(robot), STATE, check_path(name, "state name"))
@@ -404,6 +419,9 @@ class TopicTree:
     def heartbeat_filter(self, robot: str = ANY) -> str:
         return _join(self._root(robot), HEARTBEAT)
 
+    def grants_filter(self, robot: str = ANY) -> str:
+        return _join(self._root(robot), GRANTS)
+
     def state_filter(self, robot: str = ANY, name: str = REST) -> str:
         """State topics of ``robot`` (every robot with ANY) whose name matches ``name`` (a filter: ``nav/+``)."""
         check_filter_path(name, "state name")
@@ -459,6 +477,8 @@ class TopicTree:
         robot = rest[0]
         if len(rest) == 2 and rest[1] == HEARTBEAT:
             return ParsedTopic(Kind.HEARTBEAT, robot=robot)
+        if len(rest) == 2 and rest[1] == GRANTS:
+            return ParsedTopic(Kind.GRANTS, robot=robot)
         if len(rest) >= 3 and rest[1] == STATE:
             return ParsedTopic(Kind.STATE, robot=robot, name=_join(*rest[2:]))
         if len(rest) >= 4 and rest[1] in (FROM, TO):

@@ -62,6 +62,10 @@ SUPERVISION_RATE = 20.0  # Hz: failsafe checks, stop repeats, link check
 MAX_OVERSIZED_LOGGED = 256  # presence clients whose oversized payloads are logged (once each)
 ACK_QOS = 1  # state/ack: the outcome of a command (and every failsafe stop) must not be lost
 STOP_ACK_INTERVAL = 0.5  # s: a user's emergency stops are acknowledged at most this often (every one is obeyed)
+# A robot file's bridge before the broker's grants (protocol/grants.py) arrive: it knows nobody, so nobody may do
+# anything; the refusal says what is missing and who supplies it.
+NO_GRANTS_YET = ("{robot} has no grants from the broker yet, so it obeys nobody: the fleet's administrators "
+                 "publish them (`roslink-mqtt fleet apply`; the embedded broker does at start)")
 MAX_QUEUE_ALLOWANCE = 1.0  # s a heartbeat's PUBACK may take beyond link_timeout because of a busy uplink
 
 
@@ -180,6 +184,10 @@ class CommandEndpoint:
         if parsed.kind is not Kind.FROM or parsed.robot != self.robot.name or not parsed.user:
             return
         user, verb = parsed.user, parsed.verb
+        if self._grants[0].grants_pending:
+            if payload:  # (an empty retained message withdraws an offer: nothing to refuse)
+                self.refuse(user, topic, NO_GRANTS_YET.format(robot=self.robot.name), payload=payload)
+            return
         if retained and not (verb is not None and verb.retained_by_sender):
             # A retained command is replayed by the broker whenever the bridge (re)subscribes: executing it
             # would drive the robot on a stale order. Only offers and advertisements are meant to be retained.

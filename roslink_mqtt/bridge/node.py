@@ -9,7 +9,9 @@ timers that drive heartbeats and supervision.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -18,11 +20,14 @@ from typing import Any
 from rclpy.node import Node
 
 from ..config import Fleet, Priority, Robot, Role
+from ..config.grants import with_grants
 from ..config.model import BUFFER_DISK
 from ..protocol import AckResult, SystemStatus
+from ..protocol.errors import ProtocolError
+from ..protocol.grants import RobotGrants
 from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
-from ..topics import Verb, join_leaf, state_name
+from ..topics import ANY, Verb, join_leaf, state_name
 from . import trace
 from .access import access_reports, cleared_reports
 from .action_caller import ActionCaller
@@ -305,6 +310,10 @@ class Bridge:
                                         capabilities=capabilities)
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
         self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
+        self._grants_topic = self.topics.grants(robot.name)
+        self.grants: RobotGrants | None = None  # the broker's latest (protocol/grants.py); None: the file's apply
+        self.grants_arrived = threading.Event()  # start() holds the command link back until they have (briefly)
+        self._reload_lock = threading.Lock()  # SIGHUP (main thread) and a grants message (paho's) both reload
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
         self._on_fenced = on_fenced
         self.login_refused: str | None = None  # why the bridge exits (bridge.exit_on_refused_login)
@@ -358,6 +367,9 @@ class Bridge:
         if topic == self._announce_topic:
             self.claims.on_announcement(self.robot.name, payload, retained)
             return
+        if topic == self._grants_topic:
+            self.on_grants(payload)
+            return
         if self._stop_leaves and topic.endswith(self._stop_leaves) and self._stops.seen(topic, payload):
             return  # the other copy of an emergency stop (stop link and command link both carry it)
         self.endpoint.on_mqtt(topic, payload, retained, arrived)
@@ -365,13 +377,45 @@ class Bridge:
     def _publish_reliable(self, topic: str, payload: bytes) -> None:
         self.link.publish(topic, payload, qos=1)
 
+    def on_grants(self, payload: bytes) -> None:
+        """The robot's grants from the broker (``P/<robot>/grants``, written by the fleet's administrators; paho's
+        thread): they replace the users the bridge knows, at once. A malformed message keeps the grants the bridge
+        has; an empty one (the retained message cleared) leaves it none, refusing everyone until new ones arrive."""
+        if not payload:
+            log.warning("the grants of %s were withdrawn on the broker: every command is refused until new ones "
+                        "arrive", self.robot.name)
+            with self._reload_lock:
+                self.grants = None
+                self._reload(dataclasses.replace(self.fleet, users={}, grants_pending=True), "withdrawn grants")
+            return
+        try:
+            grants = RobotGrants.from_json(payload)
+        except ProtocolError as err:
+            log.error("ignored grants on %s, keeping the current ones: %s", self._grants_topic, err)
+            return
+        if grants.robot != self.robot.name:
+            log.error("ignored grants for robot %s on %s, keeping the current ones", grants.robot, self._grants_topic)
+            return
+        with self._reload_lock:
+            self.grants = grants
+            self._reload(with_grants(self.fleet, grants), f"grants from {grants.by or 'the broker'}")
+        self.grants_arrived.set()
+
     def reload(self, fleet: Fleet) -> None:
-        """Apply a re-read fleet file's users and grants now (SIGHUP); rule changes need a restart.
+        """Apply a re-read fleet file now (SIGHUP): its users and grants, unless the broker has sent the robot's
+        grants, which win over the file's; rule changes need a restart.
 
         The broker applies the same file on its own SIGHUP; the bridge must follow, or a newly granted
         operator stays refused and a revoked one keeps control until the dead-man stops the robot.
         Revoking an operator who owns the current motion stops the robot at once.
         """
+        with self._reload_lock:
+            grants = self.grants
+            if grants is not None and self.robot.name in fleet.robots:  # (_reload says why it is missing)
+                fleet = with_grants(fleet, grants)
+            self._reload(fleet, fleet.file)
+
+    def _reload(self, fleet: Fleet, source: str) -> None:
         robot = fleet.robots.get(self.robot.name)
         if robot is None:
             log.error("reload: robot %s is no longer in %s; keeping the current grants", self.robot.name, fleet.file)
@@ -399,7 +443,7 @@ class Bridge:
         for link, (old, new) in links.items():
             for topic, qos in sorted(set(new) - set(old)):
                 link.subscribe(topic, qos)
-        log.info("reloaded %s: %d users may see %s (%s)", fleet.file, len(after), self.robot.name,
+        log.info("reloaded %s: %d users may see %s (%s)", source, len(after), self.robot.name,
                  ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
 
     # -- lifecycle ---------------------------------------------------------------
@@ -411,6 +455,11 @@ class Bridge:
         while not self.viewer_link.subscribed.wait(0.05) and time.monotonic() < head_start_ends:
             if self.login_refused is not None:
                 return  # refused, and the fleet says to exit: main() stops the bridge at once; nothing more dials
+        # a robot file's bridge knows its users once the broker's retained grants arrive (right after the viewer
+        # link subscribed, where the broker has them): operators' commands then find the command link subscribed
+        while (self.fleet.grants_pending and self.viewer_link.subscribed.is_set()
+               and not self.grants_arrived.wait(0.05) and time.monotonic() < head_start_ends):
+            pass
         if not self.viewer_link.subscribed.is_set():
             # not connected: the viewer link's own lines say why (unreachable, refused login); connected but not
             # subscribed yet is worth a line of its own
@@ -466,6 +515,10 @@ class Bridge:
         fleet = fleet or self.fleet
         granted = fleet.users_of(self.robot.name)
         subs = []
+        if link is self.viewer_link:
+            subs.append((self._grants_topic, 1))
+            if fleet.grants_pending:  # nobody known yet: hear everyone, to refuse with that reason
+                subs.append((self.topics.from_user_filter(self.robot.name, ANY), 1))
         for user in sorted(fleet.users):
             role = granted.get(user)
             if self._link_for(role) is link:

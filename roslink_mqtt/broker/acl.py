@@ -7,15 +7,17 @@ list as a Mosquitto ACL file, so the two brokers cannot drift apart.
 With ``P`` the fleet prefix (``roslink``):
 
 * robot ``R`` writes ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/+/#``, and reads
-  ``P/R/from/+/#``, ``P/R/heartbeat`` and ``P/R/state/bridge`` (where a second bridge of ``R`` shows itself:
-  one live bridge per robot) plus ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
+  ``P/R/from/+/#``, ``P/R/heartbeat``, ``P/R/state/bridge`` (where a second bridge of ``R`` shows itself:
+  one live bridge per robot) and ``P/R/grants`` (its users, written by admins only) plus
+  ``P/operators/<u>/#`` for every user ``u`` granted ``R``.
 * user ``U`` granted ``R`` reads ``P/R/heartbeat``, ``P/R/state/#`` and ``P/R/to/U/#``, and
   writes ``P/operators/U/#``. An operator also writes ``P/R/from/U/#``; a viewer only
   ``P/R/from/U/call/<svc>`` for the services of ``R`` marked ``read_only``, and ``P/R/from/U/goal/<a>`` and
   ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``, ``P/R/from/U/param/<n>`` for
   its exposed parameter nodes (reads; the bridge refuses a viewer's set unless ``viewers_may_set``), and the
   robot's emergency-stop inputs (``P/R/from/U/cmd/emergency_stop``) unless the robot says ``estop: operators``.
-* an admin reads and writes ``#`` and reads ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
+* an admin reads and writes ``#`` and ``$CONTROL/roslink/#`` (``fleet apply``: broker/admin.py) and reads
+  ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
 * an unknown login (and anonymous) may do nothing.
 
 The three actions a broker asks about:
@@ -38,7 +40,7 @@ from typing import Any
 
 from ..compat import StrEnum
 from ..config import Fleet, Role
-from ..topics import ANY, SYS_TOPICS, Kind, Verb, filter_levels
+from ..topics import ANY, FLEET_CONTROL_FILTER, SYS_TOPICS, Kind, Verb, filter_levels
 
 
 class Access(IntFlag):
@@ -133,6 +135,7 @@ def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
     entries = [
         AclEntry(t.heartbeat(robot), Access.READWRITE),  # read: another bridge of the robot shows itself there
         AclEntry(t.state(robot, "bridge"), Access.READ),  # a starting bridge's claim (bridge/claim.py)
+        AclEntry(t.grants(robot), Access.READ),  # its users and roles (protocol/grants.py): admins write them
         AclEntry(t.state_filter(robot), Access.WRITE),
         AclEntry(t.to_user_filter(robot, ANY), Access.WRITE),
         AclEntry(t.from_user_filter(robot, ANY), Access.READ),
@@ -144,7 +147,8 @@ def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
 def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
     t = fleet.topics
     if fleet.users[user].admin:
-        return [AclEntry("#", Access.READWRITE), AclEntry(SYS_TOPICS, Access.READ)]
+        return [AclEntry("#", Access.READWRITE), AclEntry(SYS_TOPICS, Access.READ),
+                AclEntry(FLEET_CONTROL_FILTER, Access.READWRITE)]  # fleet apply (broker/admin.py)
     entries = [AclEntry(t.operators_filter(user, deep=True), Access.WRITE)]
     for robot, role in sorted(fleet.roles_of(user).items()):
         entries += [
@@ -267,6 +271,7 @@ class FleetChange:
     removed_logins: tuple[str, ...]
     added_logins: tuple[str, ...]
     changed_passwords: tuple[str, ...]
+    reduced_grants: tuple[str, ...] = ()  # users who lost a robot or an operator role: their connections close
 
 
 class LiveFleet:
@@ -291,7 +296,20 @@ class LiveFleet:
                                if old.password_hash(login) != fleet.password_hash(login)))
         self.acl = FleetAcl(fleet)
         self.fleet = fleet
-        return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed)
+        return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed,
+                           reduced_grants(old, fleet))
+
+
+def reduced_grants(old: Fleet, new: Fleet) -> tuple[str, ...]:
+    """Users of both fleets who lost a robot, or an operator role on one (their connections are closed: what they
+    subscribed to and may still hold of the robot ends with the grant)."""
+    reduced = []
+    for user in sorted(set(old.users) & set(new.users)):
+        before, after = old.roles_of(user), new.roles_of(user)
+        if any(robot not in after or role is Role.OPERATOR and after[robot] is not Role.OPERATOR
+               for robot, role in before.items()):
+            reduced.append(user)
+    return tuple(reduced)
 
 
 

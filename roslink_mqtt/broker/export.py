@@ -89,12 +89,18 @@ def _socket_domain(host: str) -> str | None:
 
 
 def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLimits | None = None) -> str:
+    """mosquitto.conf for the exported ``passwd`` and ``acl`` files (re-read on SIGHUP)."""
+    return mosquitto_conf_with(fleet, ["# Mosquitto started as root drops to the user 'mosquitto', which must be able "
+                                       "to read the\n# passwd and acl files below (chown them, or add a `user` line "
+                                       "for the account that owns them).\n"],
+                               [f"password_file {passwd.resolve()}\n", f"acl_file {acl.resolve()}\n"], limits)
+
+
+def mosquitto_conf_with(fleet: Fleet, notes: list[str], auth: list[str], limits: BrokerLimits | None = None) -> str:
+    """mosquitto.conf: the fleet's listeners and limits, with ``auth`` (the lines that say who may do what)."""
     b = fleet.broker
     limits = limits or BrokerLimits()
-    lines = [HEADER.format(file=fleet.file),
-             "# Mosquitto started as root drops to the user 'mosquitto', which must be able to read the\n"
-             "# passwd and acl files below (chown them, or add a `user` line for the account that owns them).\n",
-             "per_listener_settings false\n"]
+    lines = [HEADER.format(file=fleet.file), *notes, "per_listener_settings false\n"]
     if b.port:  # port: 0 turns plain MQTT off (a TLS-only deployment)
         lines.append(f"listener {b.port} {b.host}\n")
     if b.ws_port:
@@ -112,8 +118,7 @@ def mosquitto_conf_text(fleet: Fleet, passwd: Path, acl: Path, limits: BrokerLim
             lines += [f"cafile {base / b.tls.cafile}\n"]
     lines += [
         "allow_anonymous false\n",
-        f"password_file {passwd.resolve()}\n",
-        f"acl_file {acl.resolve()}\n",
+        *auth,
         # payload limit with the embedded broker's semantics: the message is dropped, the client stays. Mosquitto 2.0
         # notes at start that it recommends max_packet_size instead; that one disconnects the client, and one camera
         # frame too large must not cut a robot's bridge off, so both are set (max_packet_size above any PUBLISH)

@@ -163,6 +163,7 @@ from amqtt.session import OUTGOING, Session
 from amqtt.utils import gen_client_id
 
 from .. import netstat
+from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE
 from .conflate import Conflator
 from .guard import (
     CONNECT,
@@ -516,6 +517,8 @@ class HardenedBroker(Broker):
         self._connecting: set[asyncio.Task[Any]] = set()  # connections between their first byte and CONNACK
         self._stopping = False
         self.ssl_contexts: list[ssl.SSLContext] = []  # the TLS listeners': reload_certificates() renews them
+        self.control: Any = None  # broker/admin.py's FleetControl: answers $CONTROL/roslink/v1 (fleet apply)
+        self._control_tasks: set[asyncio.Task[None]] = set()
 
     def _create_ssl_context(self, listener: Any) -> ssl.SSLContext:
         """amqtt's context for a TLS listener, kept: a reload gives it a new certificate for new handshakes."""
@@ -765,6 +768,9 @@ class HardenedBroker(Broker):
                 # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
                 # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
                 _drop_connection(handler, "PUBLISH with an empty topic")
+                return True
+            if topic == FLEET_CONTROL and self.control is not None:
+                self._answer_control(client_session.username, bytes(message.data or b""))
                 return True
             if topic.startswith("$"):
                 _log_once(client_session, "$" + topic, logging.INFO,
@@ -1077,6 +1083,29 @@ class HardenedBroker(Broker):
         return True
 
     # -- administration -----------------------------------------------------------------------
+    def _answer_control(self, login: str | None, payload: bytes) -> None:
+        """A request on the fleet control topic (broker/admin.py), answered in a task of its own: a reload it
+        asks for closes connections, which must not wait on the asking client's packet loop."""
+        control = self.control
+        if control is None:
+            return
+
+        async def answer() -> None:
+            response = await control.handle(login, payload)
+            if response is not None:
+                await self.internal_message_broadcast(FLEET_CONTROL_RESPONSE, response, 1)
+
+        task = asyncio.create_task(answer())
+        self._control_tasks.add(task)
+        task.add_done_callback(self._control_tasks.discard)
+
+    async def publish_retained(self, topic: str, data: bytes, qos: int = 1) -> None:
+        """Publish as the broker itself (the robots' grants): kept for later subscribers, delivered now to those
+        subscribed whose ACL lets them read it; an empty ``data`` clears the retained message."""
+        await self.retain_message(None, topic, data, qos)
+        if data:
+            await self.internal_message_broadcast(topic, data, qos)
+
     async def disconnect_user(self, username: str) -> int:
         """Drop every live connection of ``username`` (e.g. a login removed on reload); wills fire."""
         dropped = 0

@@ -12,6 +12,7 @@ import errno
 import logging
 import socket
 import ssl
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,9 @@ from typing import Any
 from amqtt.errors import BrokerError
 
 from ..config import ConfigError, Fleet, TlsSettings, load_fleet
+from ..config.grants import grants_of
 from .acl import LiveFleet, TopicPolicy
+from .admin import FleetControl
 from .hardened import CONNECT_TIMEOUT, HardenedBroker
 from .limits import BrokerLimits
 from .plugins import FleetAclPlugin, FleetAuthPlugin, SysInfoPlugin, plugin_path
@@ -125,8 +128,10 @@ class EmbeddedBroker:
             await broker.start()
         except BrokerError as err:
             raise StartError(self._explain(err)) from None
+        broker.control = FleetControl(lambda: self.live.fleet, self.config_path, self.reload)
         self.broker = broker
         fleet = self.live.fleet
+        await self.publish_grants(fleet)
         log.info("listening on %s; fleet %s: %d robots, %d users%s",
                  ", ".join(lst.url for lst in self.options.listeners()), self.config_path, len(fleet.robots),
                  len(fleet.users), "" if self.options.acl else "; TOPIC ACL OFF (benchmark mode)")
@@ -146,16 +151,31 @@ class EmbeddedBroker:
         if fleet.broker != self.live.fleet.broker:
             log.warning("reload: broker listener settings changed in %s; they apply after a restart",
                         self.config_path)
+        old = self.live.fleet
         change = self.live.replace(fleet)
         dropped = 0
         if self.broker is not None:
-            for login in change.removed_logins + change.changed_passwords:
+            for login in change.removed_logins + change.changed_passwords + change.reduced_grants:
                 dropped += await self.broker.disconnect_user(login)
-        log.info("reloaded %s: %d robots, %d users; removed %s, added %s, new password %s; %d connection(s) "
-                 "dropped", self.config_path, len(fleet.robots), len(fleet.users),
-                 list(change.removed_logins), list(change.added_logins), list(change.changed_passwords), dropped)
+        await self.publish_grants(fleet, gone=[robot for robot in old.robots if robot not in fleet.robots])
+        log.info("reloaded %s: %d robots, %d users; removed %s, added %s, new password %s, fewer grants %s; %d "
+                 "connection(s) dropped", self.config_path, len(fleet.robots), len(fleet.users),
+                 list(change.removed_logins), list(change.added_logins), list(change.changed_passwords),
+                 list(change.reduced_grants), dropped)
         self._reload_certificate()
         return True
+
+    async def publish_grants(self, fleet: Fleet, gone: list[str] | None = None) -> None:
+        """Each robot's grants, retained on ``P/<robot>/grants`` (protocol/grants.py), where its bridge reads who
+        may use the robot: a robot carries no fleet file. A removed robot's are cleared."""
+        if self.broker is None:
+            return
+        issued = time.time()
+        for robot in fleet.robots:
+            await self.broker.publish_retained(fleet.topics.grants(robot),
+                                               grants_of(fleet, robot, issued=issued, by="broker").to_json())
+        for robot in gone or ():
+            await self.broker.publish_retained(fleet.topics.grants(robot), b"")
 
     def _reload_certificate(self) -> None:
         """A renewed certificate (certbot, a new CA) on SIGHUP: new TLS connections get it, connected clients stay."""

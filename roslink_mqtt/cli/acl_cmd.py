@@ -6,9 +6,9 @@ import argparse
 import sys
 
 from ..broker.export import ExportError, default_owner, export_mosquitto, unreadable_parent
-from ..config import load_fleet
+from ..config import Fleet, load_fleet
 
-FORMATS = ("mosquitto", "rabbitmq", "emqx")
+FORMATS = ("mosquitto", "mosquitto-dynsec", "rabbitmq", "emqx")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,6 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     e = acl_sub.add_parser("export", help="write a broker's logins and access rules (Mosquitto, RabbitMQ)",
                            description="mosquitto: write passwd, acl and mosquitto.conf into DIR; run Mosquitto with "
                                        "`mosquitto -c DIR/mosquitto.conf`, send it SIGHUP after exporting again. "
+                                       "mosquitto-dynsec: write dynamic-security.json and mosquitto.conf (the "
+                                       "dynamic-security plugin) into DIR once; change the running broker with "
+                                       "`roslink-mqtt fleet apply --broker-kind mosquitto`. "
                                        "rabbitmq: write definitions.json and rabbitmq.conf (MQTT plugin) into DIR; "
                                        "load them with `rabbitmqctl import_definitions DIR/definitions.json` on "
                                        "any node of the cluster. emqx: write acl.conf (file authorization) and "
@@ -45,6 +48,8 @@ def run_export(args: argparse.Namespace) -> int:
               "hashes as they are)", file=sys.stderr)
         return 2
     owner = args.owner if args.owner is not None else default_owner()
+    if args.format == "mosquitto-dynsec":
+        return _export_dynsec(args, fleet, owner)
     try:
         files = export_mosquitto(fleet, args.out, owner=owner)
     except (ExportError, OSError) as err:
@@ -86,4 +91,18 @@ def _export_with_passwords(args: argparse.Namespace, fleet) -> int:
           + (f" (owner {owner}, mode 600)" if owner else " (mode 600)"))
     print(f"load: rabbitmqctl import_definitions {files.definitions}     (once per cluster; again after editing "
           "robots.yaml)")
+    return 0
+
+
+def _export_dynsec(args: argparse.Namespace, fleet: Fleet, owner: str | None) -> int:
+    from ..broker.export_dynsec import export_dynsec
+
+    try:
+        files = export_dynsec(fleet, args.out, owner=owner)
+    except (ExportError, OSError) as err:
+        print(f"roslink-mqtt acl export: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {files.config} ({len(fleet.robots) + len(fleet.users)} logins), {files.conf}"
+          + (f" (owner {owner}, mode 600)" if owner else " (mode 600)"))
+    print(f"run: mosquitto -c {files.conf}     change it live: roslink-mqtt fleet apply --broker-kind mosquitto")
     return 0

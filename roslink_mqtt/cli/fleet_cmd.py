@@ -19,12 +19,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "when it starts).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.set_defaults(run=run)
-    actions = p.add_subparsers(dest="fleet_action", metavar="{split,user,grant,revoke}")
+    actions = p.add_subparsers(dest="fleet_action", metavar="{split,user,grant,revoke,apply}")
     split = actions.add_parser("split", help="write one robot file per robot: its part of the fleet, no passwords",
                                description="Write OUT/<robot>.yaml for each robot (or the ones named): its rules, "
-                                           "services, actions, parameters, bridge settings and who may do what with "
-                                           "it -- no password hash of any login and no other robot's key, so that "
-                                           "a stolen robot exposes no login. Run its bridge with --config "
+                                           "services, actions, parameters and bridge settings -- no password hash "
+                                           "of any login, no other robot's key and no users (its bridge takes the "
+                                           "robot's grants from the broker), so that a stolen robot exposes no "
+                                           "login. Run its bridge with --config "
                                            "OUT/<robot>.yaml and the robot's password in ROSLINK_PASSWORD or "
                                            "--password-file. Split again after every change of the fleet file.")
     split.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
@@ -32,12 +33,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     split.add_argument("robots", nargs="*", metavar="ROBOT", help="only these robots (default: every robot)")
     split.set_defaults(run=run_split)
     _register_edits(actions)
+    from .fleet_apply import register as register_apply
+
+    register_apply(actions)
 
 
 EDIT_NOTE = ("Edits the fleet file in place, keeping its comments and layout, after checking the result as the "
-             "broker would (nothing is written otherwise). Then reload the broker: `systemctl reload "
-             "roslink-mqtt-broker` (SIGHUP; a removed login's connections are closed), or export again for "
-             "Mosquitto/RabbitMQ.")
+             "broker would (nothing is written otherwise). Then `roslink-mqtt fleet apply`: the broker (embedded, or "
+             "Mosquitto with dynamic security) enforces it at once and each robot's bridge gets its grants; "
+             "a removed user's connections are closed.")
 
 
 def _register_edits(actions: argparse._SubParsersAction) -> None:
@@ -112,7 +116,7 @@ def run_split(args: argparse.Namespace) -> int:
     return 0
 
 
-RELOAD_HINT = "reload the broker to apply it (systemctl reload roslink-mqtt-broker, or SIGHUP)"
+RELOAD_HINT = "apply it with `roslink-mqtt fleet apply` (the broker and the robots' grants, live)"
 
 
 def _edited(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:

@@ -240,6 +240,13 @@ class _FleetReader:
         if self.robot_file is not None and list(robots) != [self.robot_file]:
             raise self.err(("robots",), f"a robot file holds its own robot only ('{self.robot_file}'), found: "
                                         f"{', '.join(robots)}")
+        if self.robot_file is not None:
+            if "users" in self.get(root):
+                raise self.err(("users",), "a robot file holds no users: its bridge takes the robot's grants from "
+                                           "the broker (roslink/<robot>/grants); write it again with "
+                                           "`roslink-mqtt fleet split`")
+            return Fleet(self.src.file, prefix, broker, robots, {}, tuple(self.notes), self.robot_file,
+                         grants_pending=True)
         users = self.users(("users",), robots)
         self.check_supervisors(robots, users)
         return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes), self.robot_file)

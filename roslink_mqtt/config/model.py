@@ -328,6 +328,9 @@ class Fleet:
     # A robot file (``roslink-mqtt fleet split``): this robot's part of the fleet for its bridge, with no password
     # hash of any login (every password_hash is ""); None for the fleet file itself.
     robot_file: str | None = None
+    # A robot file's users come from the broker (``P/<robot>/grants``, protocol/grants.py): until they arrive the
+    # bridge knows nobody and refuses every command with that reason. False once they have (config/grants.py).
+    grants_pending: bool = False
 
     @cached_property
     def topics(self) -> TopicTree:

@@ -40,12 +40,12 @@ def hash_password(password: str, *, iterations: int = DEFAULT_ITERATIONS, salt: 
 
 def check_hash_format(stored: str) -> None:
     """Raise PasswordHashError unless ``stored`` is a hash we can verify."""
-    _parse(stored)
+    parse_hash(stored)
 
 
 def verify_password(password: str, stored: str) -> bool:
     """True when ``password`` matches ``stored``; constant-time comparison."""
-    algorithm, iterations, salt, expected = _parse(stored)
+    algorithm, iterations, salt, expected = parse_hash(stored)
     if algorithm == "7":
         actual = hashlib.pbkdf2_hmac("sha512", password.encode(), salt, iterations)
     else:
@@ -88,7 +88,8 @@ class VerifiedLogins:
         return True
 
 
-def _parse(stored: str) -> tuple[str, int, bytes, bytes]:
+def parse_hash(stored: str) -> tuple[str, int, bytes, bytes]:
+    """A stored hash's parts: (scheme "7" or "6", iterations, salt, digest); PasswordHashError when malformed."""
     if not isinstance(stored, str):
         raise PasswordHashError("password hash must be a string")
     parts = stored.split("$")

@@ -1,10 +1,12 @@
-"""``roslink-mqtt fleet split``: one robot's part of the fleet file, for its bridge, with nobody's password hash.
+"""``roslink-mqtt fleet split``: one robot's part of the fleet file, for its bridge, with nobody's secrets.
 
-The bridge needs its robot (rules, services, actions, parameters, bridge settings), the broker's address and who
-may do what with the robot; it never checks a password. The fleet file (robots.yaml) also holds every login's
-PBKDF2 hash and every robot's key: copied to a robot, a stolen robot would carry material for an offline attack on
-every login. A robot file keeps the robot's own key (its ACL root, which the robot has anyway) and, per granted user,
-the role only; the loader refuses a password in it (``robot_file``), and the broker refuses to run from it.
+The bridge needs its robot (rules, services, actions, parameters, bridge settings) and the broker's address; it
+never checks a password. The fleet file (robots.yaml) also holds every login's PBKDF2 hash and every robot's key:
+copied to a robot, a stolen robot would carry material for an offline attack on every login. A robot file keeps
+the robot's own key (its ACL root, which the robot has anyway) and nothing about other logins: who may use the
+robot reaches its bridge from the broker (``P/<robot>/grants``, protocol/grants.py), so a grant changes without
+touching the robot. The loader refuses a password or a ``users`` section in it (``robot_file``), and the broker
+refuses to run from it.
 """
 
 from __future__ import annotations
@@ -20,30 +22,24 @@ from .model import ROBOT_FILE, Fleet
 from .yamlsource import ConfigError
 
 HEADER = ("# The robot file of {robot}: its part of {source}, written by `roslink-mqtt fleet split`.\n"
-          "# No password hash of any login and no other robot's key: safe to copy to the robot. Do not edit;\n"
+          "# No password hash of any login, no other robot's key, no users (its grants come from the broker):\n"
+          "# safe to copy to the robot. Do not edit;\n"
           "# change {source} and split again. The robot's own password comes from ROSLINK_PASSWORD or\n"
           "# --password-file.\n")
 
 
 def robot_file_data(raw: dict[str, Any], fleet: Fleet, robot: str) -> dict[str, Any]:
     """The robot file of ``robot`` as YAML data, from the fleet file's data ``raw`` (anchors expanded) and its
-    loaded ``fleet`` (who is granted what)."""
+    loaded ``fleet``."""
     if robot not in fleet.robots:
         raise ConfigError(f"no robot '{robot}' in the fleet (robots: {', '.join(fleet.robots)})", file=fleet.file)
     own = {k: v for k, v in raw["robots"][robot].items() if k != "password"}
-    key = fleet.robots[robot].key
-    users: dict[str, Any] = {}
-    for name in fleet.users_of(robot):
-        user = fleet.users[name]
-        users[name] = {"admin": True} if user.admin else {
-            "grants": [{"key": g.key, "role": g.role.value} for g in user.grants if g.key == key]}
     data: dict[str, Any] = {ROBOT_FILE: robot}
     if "prefix" in raw:
         data["prefix"] = raw["prefix"]
     if raw.get("broker") is not None:
         data["broker"] = raw["broker"]
     data["robots"] = {robot: own}
-    data["users"] = users
     return data
 
 

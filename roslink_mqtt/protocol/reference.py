@@ -31,7 +31,9 @@ from .control import (
 )
 from .description import DESCRIPTION_BODIES, DESCRIPTION_ENTRIES, RobotDescription
 from .description import EXAMPLE as DESCRIPTION_EXAMPLE
+from .fleet_control import ControlRequest, ControlResponse
 from .goals import GOAL_BODIES, GoalCancel, GoalFeedback, GoalRequest, GoalResult, GoalStatus
+from .grants import GRANTS_BODIES, RobotGrants
 from .lease import LEASE_BODIES, ControlState
 from .link import LINK_BODIES, LinkReport, StreamReport
 from .messages import SPECS, Direction, Field, FieldKind, MessageSpec
@@ -49,7 +51,7 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
-                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES)
+                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES + GRANTS_BODIES)
 
 
 
@@ -77,6 +79,13 @@ _CONTROL_EXAMPLES: dict[type, _DocumentedBody] = {
     ActionUpdate: ActionUpdate("turtle1-g7", "succeeded", result={"sequence": [0, 1, 1, 2, 3, 5]}),
     LogLine: LogLine(20, "gripper closed", "legacy_arm.py", "close", 42, "alice-legacy_arm-5f2c9e0a1b3d4c6e"),
     ControlState: ControlState("alice", 1764158585.2, False, "auto", ("admin",), "viewers", "claimed by alice"),
+    ControlRequest: ControlRequest(({"command": "getFleet", "correlationData": "apply-1-0"},), "apply-1"),
+    ControlResponse: ControlResponse(({"command": "reload", "correlationData": "apply-2-0", "data": {
+        "file": "/etc/roslink-mqtt/robots.yaml", "sha256": "9f2c…",
+        "logins": {"alice": {"kind": "user", "password": "5e1d0c9a8b7f6e21"}},
+        "grants": {"turtle1": {"alice": "operator"}}}},), "apply-2"),
+    RobotGrants: RobotGrants("turtle1", {"admin": "operator", "alice": "operator", "bob": "viewer"}, 1764158585.2,
+                             "admin"),
     LinkReport: LinkReport("scheduled", 243.5, True, 3300, 81.2, 2.0, {
         "global_motion": StreamReport("motion", True, 10.0, 10.0, 0, 0, 10.0, 39.2),
         "range_finder_data": StreamReport("state", True, 5.0, 3.5, 3, 0, 5.0, 196.1)}),

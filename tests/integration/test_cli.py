@@ -36,8 +36,9 @@ def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.Com
 
 
 def test_the_bridge_runs_from_its_robot_file_which_holds_no_password_hash(port, work) -> None:
-    """``fleet split``'s robot file: no login's hash, no other robot's key or users; the stack's bridge runs from it,
-    and its grants hold (an operator's call runs, a viewer's is refused)."""
+    """``fleet split``'s robot file: no login's hash, no other robot's key, no users; the stack's bridge runs from
+    it, takes turtle1's grants from the (embedded) broker, and they hold (an operator's call runs, a viewer's is
+    refused)."""
     from roslink_mqtt.config import load_fleet
 
     robot_file = work / "robot-files" / "turtle1.yaml"
@@ -47,7 +48,9 @@ def test_the_bridge_runs_from_its_robot_file_which_holds_no_password_hash(port, 
     assert robot_file.stat().st_mode & 0o777 == 0o600
     fleet = load_fleet(robot_file)
     assert fleet.robot_file == "turtle1" and list(fleet.robots) == ["turtle1"]
-    assert fleet.users_of("turtle1") == load_fleet(ROOT / "config/robots.yaml").users_of("turtle1")
+    assert fleet.users == {} and fleet.grants_pending and "alice" not in text and "users:" not in text
+    assert "grants from broker: 3 users may see turtle1 (admin:operator, alice:operator, bob:viewer)" in \
+        (work / "bridge.log").read_text()
     _reset(port)
     refused = cli(port, "bob", "call", "turtle1", "reset")
     assert refused.returncode != 0, refused.stdout

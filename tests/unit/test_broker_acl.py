@@ -71,7 +71,7 @@ def test_rules_per_login_follow_design() -> None:
 
     assert table("turtle1") == {
         ("roslink/turtle1/heartbeat", Access.READWRITE), ("roslink/turtle1/state/#", Access.WRITE),
-        ("roslink/turtle1/state/bridge", Access.READ),
+        ("roslink/turtle1/state/bridge", Access.READ), ("roslink/turtle1/grants", Access.READ),
         ("roslink/turtle1/to/+/#", Access.WRITE), ("roslink/turtle1/from/+/#", Access.READ),
         ("roslink/operators/alice/#", Access.READ), ("roslink/operators/bob/#", Access.READ),
         ("roslink/operators/admin/#", Access.READ)}
@@ -86,7 +86,8 @@ def test_rules_per_login_follow_design() -> None:
         ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/bob/#", Access.READ),
         ("roslink/turtle1/from/bob/param/sim_robot", Access.WRITE),
         ("roslink/turtle1/from/bob/cmd/emergency_stop", Access.WRITE)}  # any granted user may stop the robot
-    assert table("admin") == {("#", Access.READWRITE), ("$SYS/#", Access.READ)}
+    assert table("admin") == {("#", Access.READWRITE), ("$SYS/#", Access.READ),
+                              ("$CONTROL/roslink/#", Access.READWRITE)}
     assert ACL.entries("nobody") == () and ACL.entries(None) == ()
 
 

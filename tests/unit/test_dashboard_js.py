@@ -135,8 +135,9 @@ def topic_cases() -> dict[str, list[dict[str, Any]]]:
         build("stateFilter", ["r1", "nav/+"], tree.state_filter("r1", "nav/+"))
         build("toUserFilter", ["+", "alice"], tree.to_user_filter("+", "alice"))
         build("operator", ["alice", "c1"], tree.operator("alice", "c1"))
-        topics = [tree.heartbeat("r1"), tree.state("r1", "global_motion"), tree.param_events("r1", "planner"),
-                  tree.operator("alice", "c1"), tree.from_user("r1", "alice", "lights"),
+        topics = [tree.heartbeat("r1"), tree.grants("r1"), tree.state("r1", "global_motion"),
+                  tree.param_events("r1", "planner"), tree.operator("alice", "c1"),
+                  tree.from_user("r1", "alice", "lights"),
                   tree.from_user("r1", "alice", "nav/goal"), tree.from_user("r1", "alice", Verb.CALL.value),
                   tree.to_user("r1", "alice", "error/x"), tree.from_user("r1", "alice", "reply/x"),
                   prefix, tree.robot_root("r1"), "elsewhere/r1/heartbeat", tree.heartbeat("r1") + "/x",

@@ -69,7 +69,7 @@ def test_an_edit_the_broker_would_refuse_is_not_written(fleet_file: Path) -> Non
     assert fleet_file.read_text() == before
 
 
-def test_the_cli_makes_a_password_grants_and_says_to_reload(fleet_file: Path, tmp_path: Path, capsys) -> None:
+def test_the_cli_makes_a_password_grants_and_says_to_apply(fleet_file: Path, tmp_path: Path, capsys) -> None:
     password_file = tmp_path / "dave.password"
     assert main(["fleet", "user", "add", "dave", "--config", str(fleet_file), "--password-file",
                  str(password_file), "--iterations", "1000"]) == 0
@@ -77,7 +77,7 @@ def test_the_cli_makes_a_password_grants_and_says_to_reload(fleet_file: Path, tm
     assert len(password) >= 20 and oct(password_file.stat().st_mode & 0o777) == "0o600"
     assert verify_password(password, load_fleet(fleet_file).users["dave"].password_hash)
     assert main(["fleet", "grant", "dave", "turtle2", "--role", "viewer", "--config", str(fleet_file)]) == 0
-    assert "dave is now viewer of turtle2; reload the broker" in capsys.readouterr().out
+    assert "dave is now viewer of turtle2; apply it with `roslink-mqtt fleet apply`" in capsys.readouterr().out
     assert load_fleet(fleet_file).users_of("turtle2")["dave"] is Role.VIEWER
     assert main(["fleet", "revoke", "dave", "turtle1", "--config", str(fleet_file)]) == 2
     assert "roslink-mqtt fleet: user 'dave' has no grant on turtle1" in capsys.readouterr().err

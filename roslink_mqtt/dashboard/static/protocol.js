@@ -833,6 +833,42 @@ const ROSLINK = {
         }
       }
     ],
+    "fleet_control_request": [
+      {
+        "name": "commands",
+        "required": true,
+        "spec": {
+          "kind": "objects"
+        }
+      },
+      {
+        "default": null,
+        "name": "id",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": 64,
+          "min": 1
+        }
+      }
+    ],
+    "fleet_control_response": [
+      {
+        "name": "responses",
+        "required": true,
+        "spec": {
+          "kind": "objects"
+        }
+      },
+      {
+        "default": null,
+        "name": "id",
+        "required": false,
+        "spec": {
+          "kind": "any"
+        }
+      }
+    ],
     "goal": [
       {
         "name": "id",
@@ -1509,6 +1545,44 @@ const ROSLINK = {
         "spec": {
           "kind": "object",
           "max": null
+        }
+      }
+    ],
+    "robot_grants": [
+      {
+        "name": "robot",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "users",
+        "required": true,
+        "spec": {
+          "kind": "text_map"
+        }
+      },
+      {
+        "name": "issued",
+        "required": true,
+        "spec": {
+          "high": null,
+          "kind": "number",
+          "low": null,
+          "low_open": false
+        }
+      },
+      {
+        "default": "",
+        "name": "by",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 0
         }
       }
     ],
@@ -2401,9 +2475,11 @@ const ROSLINK = {
   "topics": {
     "any": "+",
     "from": "from",
+    "grants": "grants",
     "heartbeat": "heartbeat",
     "kinds": {
       "from": "from",
+      "grants": "grants",
       "heartbeat": "heartbeat",
       "operator": "operator",
       "state": "state",

@@ -48,6 +48,7 @@
       }
       const robot = rest[0];
       if (rest.length === 2 && rest[1] === T.heartbeat) return { ...out, kind: T.kinds.heartbeat, robot };
+      if (rest.length === 2 && rest[1] === T.grants) return { ...out, kind: T.kinds.grants, robot };
       if (rest.length >= 3 && rest[1] === T.state) {
         return { ...out, kind: T.kinds.state, robot, name: join(...rest.slice(2)) };
       }

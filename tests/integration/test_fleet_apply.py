@@ -1,0 +1,167 @@
+"""``roslink-mqtt fleet apply``: a fleet change reaches the broker and the robots live, with nothing restarted.
+
+Real processes: the embedded broker (started from a copy of the demo fleet), the simulated turtle1 and its bridge,
+which runs from its robot file (``fleet split``: no users) and so knows who may drive only from the grants the
+broker side publishes. The test edits the fleet file with the CLI (``fleet user add``, ``fleet grant``, ``fleet
+revoke``) and applies it with ``fleet apply``, as an administrator would.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from roslink_mqtt.config.split import split_fleet
+from tests.support.broker_setup import write_fleet
+from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
+from tests.support.mqtt_client import TestClient
+from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.ros import RosProbe
+
+pytestmark = pytest.mark.timeout(180)
+
+TWIST = "roslink/turtle1/from/{user}/cmd/twist"
+
+
+def cli(*args: str, env_password: str = "admin-demo") -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args], capture_output=True, text=True,
+                          cwd=ROOT, timeout=60, env={**os.environ, "ROSLINK_PASSWORD": env_password},
+                          stdin=subprocess.DEVNULL)
+
+
+class Apply:
+    """``fleet apply`` as a process whose lines are read as they come: ``planned`` is when the plan was printed
+    (the change is applied right after), ``done`` when it exited."""
+
+    def __init__(self, fleet: Path, port: int) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "roslink_mqtt.cli.main", "fleet", "apply", "--config", str(fleet), "--url",
+             f"mqtt://127.0.0.1:{port}", "-u", "admin"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, cwd=ROOT, env={**os.environ, "ROSLINK_PASSWORD": "admin-demo"}, stdin=subprocess.DEVNULL)
+        self.lines: list[str] = []
+        self.planned: float | None = None
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+            if self.planned is None and line.startswith("embedded broker"):
+                self.planned = time.monotonic()
+        self.rc = self.proc.wait(timeout=30)
+        self.done = time.monotonic()
+        assert self.rc == 0, self.output
+
+    @property
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+
+def _stream(client: TestClient, user: str, lx: float, stop: threading.Event) -> threading.Thread:
+    def loop() -> None:
+        while not stop.is_set():
+            client.publish(TWIST.format(user=user), {"lx": lx}, qos=0)
+            time.sleep(0.05)
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    return thread
+
+
+def _wait_for_log(proc, text: str, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while text not in proc.output():
+        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{proc.output()[-3000:]}"
+        time.sleep(0.05)
+
+
+def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off_on_the_embedded_broker(tmp_path: Path) -> None:
+    from geometry_msgs.msg import Twist
+
+    fleet = write_fleet(tmp_path, read_only_service=False)
+    robot_file = split_fleet(fleet, tmp_path / "robot-files", ["turtle1"])[0]
+    dave_password = tmp_path / "dave.password"
+    probe = RosProbe()
+    cmd_vel = probe.watch(Twist, "/cmd_vel")
+    try:
+        with EmbeddedBrokerProcess(tmp_path, fleet) as broker, \
+                run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"), \
+                run(bridge_args("turtle1", broker.port, config=robot_file), tmp_path / "bridge.log",
+                    bridge_env("turtle1")) as bridge, \
+                TestClient(broker.port, "admin", "admin-demo") as admin, \
+                TestClient(broker.port, "alice", "alice-demo", operator=True) as alice:
+            for client in (admin, alice):
+                assert client.connect() == 0
+            admin.subscribe("roslink/turtle1/heartbeat")
+            admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
+            admin.subscribe("roslink/turtle1/state/ack")
+            alice.subscribe("roslink/turtle1/to/alice/error")
+            _wait_for_log(bridge, "grants from broker: 3 users may see turtle1")
+
+            # 0. grants withdrawn on the broker (the retained message cleared): the bridge obeys nobody, and says so
+            admin.publish("roslink/turtle1/grants", b"", retain=True)
+            _wait_for_log(bridge, "grants of turtle1 were withdrawn")
+            alice.publish(TWIST.format(user="alice"), {"lx": 0.1})
+            refusal = alice.wait_for(lambda m: "has no grants from the broker yet" in m.json().get("error", ""))
+            assert refusal.json()["topic"] == TWIST.format(user="alice")
+            restored = Apply(fleet, broker.port)  # the broker enforces the file: only the grants are published
+            assert "nothing to change" in restored.output and "grants   turtle1: published" in restored.output
+            _wait_for_log(bridge, "grants from admin: 3 users may see turtle1")
+
+            # 1. a new user, granted turtle1: can log in and drive once apply has run
+            added = cli("fleet", "user", "add", "--config", str(fleet), "dave", "--password-file",
+                        str(dave_password), "--iterations", "1000")
+            assert added.returncode == 0, added.stderr
+            granted = cli("fleet", "grant", "--config", str(fleet), "dave", "turtle1")
+            assert granted.returncode == 0, granted.stderr
+            with TestClient(broker.port, "dave", dave_password.read_text().strip(), operator=True) as early:
+                assert early.connect() != 0  # not yet: the broker has not been told
+            applied = Apply(fleet, broker.port)
+            assert "add      dave: user" in applied.output and "grants   turtle1:" in applied.output
+            assert applied.planned is not None
+            with TestClient(broker.port, "dave", dave_password.read_text().strip(), operator=True) as dave:
+                assert dave.connect() == 0
+                stop = threading.Event()
+                streamer = _stream(dave, "dave", 0.27, stop)
+                try:
+                    drove_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.27), after=applied.done,
+                                                   timeout=10)
+                finally:
+                    stop.set()
+                    streamer.join()
+                dave.publish("roslink/turtle1/from/dave/control/release", b"")
+            record_measurement("fleet apply: a new user drives, after the plan was printed", drove_at - applied.planned,
+                               3.0)
+            assert drove_at - applied.planned < 3.0
+
+            # 2. alice loses turtle1 while she drives: the broker drops her connection and her publishes, the bridge
+            #    stops the robot at once (not the dead-man's timeout later)
+            stop = threading.Event()
+            t0 = time.monotonic()
+            streamer = _stream(alice, "alice", 0.33, stop)
+            try:
+                cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.33), after=t0, timeout=10)
+                revoked = cli("fleet", "revoke", "--config", str(fleet), "alice", "turtle1")
+                assert revoked.returncode == 0, revoked.stderr
+                applied = Apply(fleet, broker.port)
+                assert applied.planned is not None
+                stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0,
+                                                 after=applied.planned, timeout=5)
+                time.sleep(1.0)  # her stream goes on (her client reconnects): none of it may reach the robot
+            finally:
+                stop.set()
+                streamer.join()
+            record_measurement("fleet apply: a revoked driver's robot stops, after the plan was printed",
+                               stopped_at - applied.planned, 1.0)
+            assert stopped_at - applied.planned < 1.0
+            late = [m for _, m in cmd_vel.since(stopped_at + 0.1) if m.linear.x != 0]
+            assert not late, f"{len(late)} non-zero twists reached the robot after the revocation"
+            ack = admin.wait_for(lambda m: m.topic.endswith("/state/ack")
+                                 and "operator grant removed" in m.json()["payload"]["text"], timeout=5)
+            assert "alice" in ack.json()["payload"]["text"]
+            assert "fewer grants ['alice']" in broker.output() and "1 connection(s) dropped" in broker.output()
+    finally:
+        probe.close()
