@@ -364,6 +364,23 @@ class Mosquitto(LocalProcess):
         return mosquitto
 
 
+    @classmethod
+    def exported_dynsec(cls, workdir: Path, config: Path, extra_conf: str = "", *,
+                        export_dir: str = "mosquitto-dynsec", conf_name: str = "mosquitto-run.conf",
+                        **kwargs: Any) -> Mosquitto:
+        """Mosquitto with its dynamic-security plugin, from ``acl export --format mosquitto-dynsec`` of ``config``
+        (changed live by ``fleet apply --broker-kind mosquitto``)."""
+        from .broker.export_dynsec import export_dynsec  # amqtt-free
+        from .config import load_fleet
+
+        fleet = load_fleet(config)
+        files = export_dynsec(fleet, Path(workdir) / export_dir)
+        conf = files.conf.read_text() + f"{_run_as()}{extra_conf}\n"
+        mosquitto = cls(workdir, conf, fleet.broker.port, conf_name=conf_name, **kwargs)
+        mosquitto.fleet, mosquitto.files = fleet, files
+        return mosquitto
+
+
 # -- fleet copies ------------------------------------------------------------------------------------
 def replace_once(text: str, old: str, new: str) -> str:
     """``text`` with ``old`` replaced by ``new``; ValueError unless ``old`` occurs exactly once.

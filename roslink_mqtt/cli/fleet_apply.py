@@ -69,14 +69,16 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         with AdminChannel(login, timeout=args.timeout) as channel:
+            published = channel.retained(fleet.topics.grants_filter())  # read first: apply then writes at once
             if args.broker_kind == "embedded":
                 changed = apply_embedded(channel, fleet, Path(args.config), dry_run=args.dry_run)
             else:
                 from .fleet_dynsec import apply_mosquitto
 
                 changed = apply_mosquitto(channel, fleet, passwords_file=args.passwords, dry_run=args.dry_run)
-            if not args.dry_run:
-                changed += publish_grants(channel, fleet, by=login.username)
+            if not args.dry_run and args.broker_kind == "embedded":  # it has just republished them (if it reloaded)
+                published = channel.retained(fleet.topics.grants_filter(), quiet=0.2)
+            changed += publish_grants(channel, fleet, published, by=login.username, dry_run=args.dry_run)
     except (AdminError, ValueError) as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return 1
@@ -119,11 +121,12 @@ def _state(response: dict) -> dict:
     return data
 
 
-def publish_grants(channel: AdminChannel, fleet: Fleet, *, by: str) -> int:
-    """Each robot's grants, retained, where its bridge reads them; only those that differ from what is there
-    (and a removed robot's are cleared). How many were written."""
+def publish_grants(channel: AdminChannel, fleet: Fleet, there: dict[str, bytes], *, by: str,
+                   dry_run: bool = False) -> int:
+    """Each robot's grants, retained, where its bridge reads them; only those that differ from ``there`` (what the
+    broker holds) and a removed robot's are cleared. How many were written (``dry_run``: would be)."""
+    verb = "would publish" if dry_run else "published"
     topics = fleet.topics
-    there = channel.retained(topics.grants_filter())
     written = 0
     issued = time.time()
     for robot in fleet.robots:
@@ -131,14 +134,17 @@ def publish_grants(channel: AdminChannel, fleet: Fleet, *, by: str) -> int:
         topic = topics.grants(robot)
         if _same_users(there.get(topic), want.users):
             continue
-        channel.publish(topic, want.to_json(), retain=True)
-        print(f"  grants   {robot}: published ({', '.join(f'{u}:{r}' for u, r in want.users.items()) or 'nobody'})")
+        if not dry_run:
+            channel.publish(topic, want.to_json(), retain=True)
+        print(f"  grants   {robot}: {verb} ({', '.join(f'{u}:{r}' for u, r in want.users.items()) or 'nobody'})")
         written += 1
     for topic, payload in there.items():
         parsed = topics.parse(topic)
         if payload and parsed is not None and parsed.robot not in fleet.robots:
-            channel.publish(topic, b"", retain=True)
-            print(f"  grants   {parsed.robot}: cleared (no such robot in the fleet)")
+            if not dry_run:
+                channel.publish(topic, b"", retain=True)
+            print(f"  grants   {parsed.robot}: {'would clear' if dry_run else 'cleared'} (no such robot in the "
+                  "fleet)")
             written += 1
     return written
 
