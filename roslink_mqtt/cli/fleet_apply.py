@@ -19,17 +19,19 @@ import argparse
 import hashlib
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from ..config import ConfigError, Fleet, load_fleet
 from ..config.grants import grants_of
 from ..config.plan import FleetState, Plan, plan
-from ..connection_options import ENV_PASSWORD, add_connection_options, resolve_login
+from ..connection_options import ENV_PASSWORD, Login, add_connection_options, resolve_login
+from ..mqtt import parse_broker_urls
 from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE
 from .fleet_admin import AdminChannel, AdminError
 
 PROG = "roslink-mqtt fleet apply"
-KINDS = ("embedded", "mosquitto")
+KINDS = ("embedded", "mosquitto", "rabbitmq")
 
 
 def register(actions: argparse._SubParsersAction) -> None:
@@ -43,9 +45,15 @@ def register(actions: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.add_argument("--broker-kind", choices=KINDS, default="embedded", help="default: %(default)s")
     p.add_argument("--dry-run", action="store_true", help="print the plan; change nothing")
+    p.add_argument("--grants-only", action="store_true",
+                   help="publish the robots' grants only: for a broker whose logins and rules are changed another "
+                        "way (Mosquitto from exported files, RabbitMQ definitions)")
     p.add_argument("--passwords", metavar="FILE",
                    help="mosquitto: 'login: password' lines for new logins and new passwords (its dynamic-security "
                         "plugin takes passwords in clear text only; each is checked against the fleet file's hash)")
+    p.add_argument("--rabbitmqctl", default="rabbitmqctl", metavar="COMMAND",
+                   help="rabbitmq: how to run rabbitmqctl against a node of the cluster (default: %(default)s)")
+    p.add_argument("--vhost", default="roslink", help="rabbitmq: the fleet's vhost (default: %(default)s)")
     p.add_argument("--timeout", type=float, default=10.0, help="s to wait for each answer (default: %(default)s)")
     add_connection_options(p)
     p.set_defaults(run=run)
@@ -68,23 +76,60 @@ def run(args: argparse.Namespace) -> int:
         return 2
     started = time.monotonic()
     try:
-        with AdminChannel(login, timeout=args.timeout) as channel:
-            published = channel.retained(fleet.topics.grants_filter())  # read first: apply then writes at once
-            if args.broker_kind == "embedded":
-                changed = apply_embedded(channel, fleet, Path(args.config), dry_run=args.dry_run)
-            else:
-                from .fleet_dynsec import apply_mosquitto
-
-                changed = apply_mosquitto(channel, fleet, passwords_file=args.passwords, dry_run=args.dry_run)
-            if not args.dry_run and args.broker_kind == "embedded":  # it has just republished them (if it reloaded)
-                published = channel.retained(fleet.topics.grants_filter(), quiet=0.2)
-            changed += publish_grants(channel, fleet, published, by=login.username, dry_run=args.dry_run)
+        changed = _apply(args, fleet, login)
     except (AdminError, ValueError) as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return 1
     if not args.dry_run:
         print(f"applied: {changed} change(s) in {(time.monotonic() - started) * 1000:.0f} ms")
     return 0
+
+
+def _apply(args: argparse.Namespace, fleet: Fleet, login: Login) -> int:
+    """Plan, change the broker, publish the grants: how many changes."""
+    changed = 0
+    with AdminChannel(login, timeout=args.timeout) as channel:
+        published = channel.retained(fleet.topics.grants_filter())  # read first: apply then writes at once
+
+        def grants() -> int:
+            return _publish_everywhere(args, channel, published, fleet, login)
+
+        if args.grants_only:
+            return grants()
+        if args.broker_kind == "embedded":
+            changed = apply_embedded(channel, fleet, Path(args.config), dry_run=args.dry_run)
+            if changed and not args.dry_run:  # it has just republished them
+                published = channel.retained(fleet.topics.grants_filter(), quiet=0.2)
+            return changed + grants()
+        if args.broker_kind == "mosquitto":
+            from .fleet_dynsec import apply_mosquitto
+
+            changed = apply_mosquitto(channel, fleet, passwords_file=args.passwords, dry_run=args.dry_run)
+            return changed + grants()
+        from .fleet_rabbitmq import Rabbitmqctl, plan_rabbitmq, run_rabbitmq
+
+        ctl = Rabbitmqctl(args.rabbitmqctl)
+        lines, document, removed, reconnect = plan_rabbitmq(fleet, ctl=ctl, vhost=args.vhost, url=login.url or "",
+                                                            passwords_file=args.passwords, dry_run=args.dry_run)
+        # the grants first: each rabbitmqctl call takes a second or two, and a bridge told first stops a revoked
+        # driver (and refuses them) at once; a user granted meanwhile is let in a moment later
+        changed = grants()
+        if not args.dry_run:
+            run_rabbitmq(ctl, document, removed, reconnect)
+        return changed + len(lines)
+
+
+def _publish_everywhere(args: argparse.Namespace, channel: AdminChannel, published: dict[str, bytes], fleet: Fleet,
+                        login: Login) -> int:
+    """The grants on the broker ``channel`` is connected to, then on every other node ``--url`` lists (a cluster
+    that keeps retained messages per node: RabbitMQ)."""
+    changed = publish_grants(channel, fleet, published, by=login.username or "", dry_run=args.dry_run)
+    for other in parse_broker_urls(login.url or "")[1:]:
+        with AdminChannel(replace(login, url=str(other)), timeout=args.timeout) as node:
+            print(f"node {other}:")
+            changed += publish_grants(node, fleet, node.retained(fleet.topics.grants_filter()),
+                                      by=login.username or "", dry_run=args.dry_run)
+    return changed
 
 
 def print_plan(title: str, steps: Plan | list[str]) -> None:

@@ -24,6 +24,7 @@ from roslink_mqtt.config.split import split_fleet
 from roslink_mqtt.localproc import Mosquitto
 from tests.support.broker_setup import write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.fleet_apply import Apply
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
@@ -38,32 +39,6 @@ def cli(*args: str, env_password: str = "admin-demo") -> subprocess.CompletedPro
     return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", *args], capture_output=True, text=True,
                           cwd=ROOT, timeout=60, env={**os.environ, "ROSLINK_PASSWORD": env_password},
                           stdin=subprocess.DEVNULL)
-
-
-class Apply:
-    """``fleet apply`` as a process whose lines are read as they come: ``planned`` is when the plan was printed
-    (the change is applied right after), ``done`` when it exited."""
-
-    def __init__(self, fleet: Path, port: int, *extra: str) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "roslink_mqtt.cli.main", "fleet", "apply", "--config", str(fleet), "--url",
-             f"mqtt://127.0.0.1:{port}", "-u", "admin", *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, cwd=ROOT, env={**os.environ, "ROSLINK_PASSWORD": "admin-demo"}, stdin=subprocess.DEVNULL)
-        self.started = time.monotonic()
-        self.lines: list[str] = []
-        self.planned: float | None = None
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-            if self.planned is None and line.startswith(("embedded broker", "mosquitto")):
-                self.planned = time.monotonic()
-        self.rc = self.proc.wait(timeout=30)
-        self.done = time.monotonic()
-        assert self.rc == 0, self.output
-
-    @property
-    def output(self) -> str:
-        return "\n".join(self.lines)
 
 
 def _stream(client: TestClient, user: str, lx: float, stop: threading.Event) -> threading.Thread:

@@ -21,11 +21,14 @@ import pytest
 
 from roslink_mqtt.bridge.claim import EXIT_DUPLICATE
 from roslink_mqtt.client import RobotClient
-from roslink_mqtt.rabbit_cluster import RabbitCluster, rabbitmq_available
+from roslink_mqtt.config.split import split_fleet
+from roslink_mqtt.rabbit_cluster import RABBIT_BIN, RabbitCluster, rabbitmq_available
 from tests.support.acl_matrix import CLASSES, EXPECTED, LOGINS, PRINCIPALS, SELF, may_read, topic_of
 from tests.support.broker_setup import write_fleet
 from tests.support.failover import drive, kill_and_measure, moving, zero
+from tests.support.fleet_apply import Apply
 from tests.support.measure import record_measurement
+from tests.support.mqtt_client import TestClient
 from tests.support.procs import DEMO_PASSWORDS, ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
 
@@ -264,6 +267,100 @@ def _drain(q: queue.Queue) -> list:
     while not q.empty():
         out.append(q.get())
     return out
+
+
+def test_fleet_apply_changes_users_and_grants_across_the_cluster(cluster, probe, tmp_path) -> None:
+    """``fleet apply --broker-kind rabbitmq``: the bridge (on node 1, from its robot file) has no grants until apply
+    publishes them on every node; a user added then drives from node 2; revoked while driving, the robot stops at
+    once and RabbitMQ closes the user's connection. Leaves the cluster's users as it found them."""
+    fleet = tmp_path / "robots.yaml"
+    fleet.write_text(cluster.fleet.read_text())
+    robot_file = split_fleet(fleet, tmp_path / "robot-files", ["turtle1"])[0]
+    node1, node2 = cluster.nodes[0], cluster.nodes[1]
+    ctl = ("--broker-kind", "rabbitmq", "--rabbitmqctl", f"{RABBIT_BIN / 'rabbitmqctl'} -n {node1.name}")
+    passwords = tmp_path / "passwords.yaml"
+    passwords.write_text("{}\n")
+    options = (*ctl, "--passwords", str(passwords))
+
+    def edit(*args: str) -> None:
+        done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "fleet", *args, "--config", str(fleet)],
+                              capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert done.returncode == 0, done.stderr
+
+    stop = threading.Event()
+    with ExitStack() as exits:
+        exits.callback(stop.set)
+        exits.enter_context(run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"))
+        bridge = exits.enter_context(run([*bridge_args("turtle1", 0, config=robot_file)[:-1], _urls(cluster, 0)],
+                                         tmp_path / "bridge.log", bridge_env("turtle1")))
+        alice = exits.enter_context(TestClient(node1.mqtt_port, "alice", "alice-demo", operator=True))
+        assert alice.connect() == 0
+        alice.subscribe("roslink/turtle1/to/alice/error")
+        deadline = time.monotonic() + 60
+        while "viewer link" not in bridge.output() and "connected" not in bridge.output():
+            assert time.monotonic() < deadline, bridge.output()
+            time.sleep(0.2)
+        refusal = None
+        while refusal is None:  # until the bridge hears alice: it has no grants, and says so
+            alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.1})
+            try:
+                refusal = alice.wait_for(lambda m: "has no grants from the broker yet" in m.json().get("error", ""),
+                                         timeout=1)
+            except TimeoutError:
+                assert time.monotonic() < deadline, bridge.output()
+        first = Apply(fleet, _urls(cluster, 0), *options, env=node1.env)
+        assert first.output.count("grants   turtle1: published") == 3, first.output  # one per node
+        assert "nothing to change" in first.output
+
+        edit("user", "add", "dave", "--password-file", str(tmp_path / "dave.password"), "--iterations", "1000")
+        edit("grant", "dave", "turtle1")
+        password = (tmp_path / "dave.password").read_text().strip()
+        passwords.write_text(f"dave: {password}\n")
+        added = Apply(fleet, _urls(cluster, 0), *options, env=node1.env)
+        assert "add      dave" in added.output and "acl      turtle1" in added.output, added.output
+        dave = exits.enter_context(TestClient(node2.mqtt_port, "dave", password, operator=True))
+        assert dave.connect() == 0
+        t0 = time.monotonic()
+
+        def stream() -> None:
+            while not stop.is_set():
+                dave.publish("roslink/turtle1/from/dave/cmd/twist", {"lx": 0.27}, qos=0)
+                time.sleep(0.05)
+
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        drove_at, _ = probe.cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.27), after=t0, timeout=15)
+        record_measurement("cluster: fleet apply adds a user, who drives from node 2 (from apply's start)",
+                           drove_at - added.started, 30.0)
+        assert added.planned is not None
+        record_measurement("cluster: fleet apply adds a user, who drives from node 2 (after the plan was printed)",
+                           drove_at - added.planned, 3.0)
+        assert drove_at - added.planned < 3.0
+        closed = threading.Event()
+        dave.client.on_disconnect = lambda *a: closed.set()
+
+        edit("revoke", "dave", "turtle1")
+        revoked = Apply(fleet, _urls(cluster, 0), *options, env=node1.env)
+        assert revoked.planned is not None
+        stopped_at, _ = probe.cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0,
+                                               after=revoked.planned, timeout=10)
+        assert closed.wait(10), f"RabbitMQ did not close the revoked user's connection:\n{revoked.output}"
+        closed_at = time.monotonic()
+        time.sleep(1.0)
+        stop.set()
+        streamer.join()
+        record_measurement("cluster: fleet apply revokes a driver: the robot stops, after the plan was printed",
+                           stopped_at - revoked.planned, 1.0)
+        record_measurement("cluster: fleet apply revokes a driver: RabbitMQ closes their connection (rabbitmqctl)",
+                           closed_at - revoked.planned, 10.0)
+        assert stopped_at - revoked.planned < 1.0
+        late = [m for _, m in probe.cmd_vel.since(stopped_at + 0.1) if m.linear.x != 0]
+        assert not late, f"{len(late)} non-zero twists reached the robot after the revocation"
+
+        edit("user", "remove", "dave")
+        removed = Apply(fleet, _urls(cluster, 0), *options, env=node1.env)
+        assert "remove   dave" in removed.output
+        assert "dave" not in cluster.ctl("list_users")
 
 
 def test_killing_the_node_the_bridge_and_operator_are_on(cluster, probe, tmp_path) -> None:
