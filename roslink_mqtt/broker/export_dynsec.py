@@ -76,9 +76,11 @@ def role_acls(fleet: Fleet, login: str, acl: FleetAcl | None = None) -> list[dic
     for entry in entries:
         if entry.access & Access.READ:
             out.append({"acltype": "publishClientReceive", "topic": entry.pattern, "allow": True})
+            if entry.pattern.startswith("$"):  # `#` does not reach $-topics (an admin's $SYS, $CONTROL)
+                out.append({"acltype": "subscribePattern", "topic": entry.pattern, "allow": True})
         if entry.access & Access.WRITE:
             out.append({"acltype": "publishClientSend", "topic": entry.pattern, "allow": True})
-    if kind_of(fleet, login) == "admin":
+    if kind_of(fleet, login) == "admin":  # the plugin's own control topic
         out += [{"acltype": "publishClientSend", "topic": DYNSEC_FILTER, "allow": True},
                 {"acltype": "publishClientReceive", "topic": DYNSEC_FILTER, "allow": True},
                 {"acltype": "subscribePattern", "topic": DYNSEC_FILTER, "allow": True}]

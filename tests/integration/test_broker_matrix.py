@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
+from roslink_mqtt.localproc import Mosquitto
 from roslink_mqtt.mqtt import make_client
 from tests.support.acl_matrix import (
     ACTIONS,
@@ -192,11 +193,15 @@ def mosquitto(acl_mosquitto: ExportedMosquitto) -> ExportedMosquitto:
 
 
 RUNS: dict[str, Run] = {}
+PORTS: dict[str, int] = {}  # backend → port, set by the runs fixture
 
 
 @pytest.fixture(scope="module")
-def runs(request, embedded: EmbeddedBrokerProcess, mosquitto: ExportedMosquitto) -> Iterator[dict[str, Run]]:
-    ports = {"embedded": embedded.port, "mosquitto": mosquitto.port}
+def runs(request, embedded: EmbeddedBrokerProcess, mosquitto: ExportedMosquitto,
+         acl_mosquitto_dynsec: Mosquitto) -> Iterator[dict[str, Run]]:
+    PORTS.update({"embedded": embedded.port, "mosquitto": mosquitto.port,
+                  "mosquitto-dynsec": acl_mosquitto_dynsec.port})
+    ports = PORTS
     threads = [threading.Thread(target=lambda b=b: RUNS.__setitem__(b, run_matrix(b, ports[b]))) for b in BACKENDS]
     for t in threads:
         t.start()
@@ -248,7 +253,7 @@ def test_matrix(runs: dict[str, Run], backend: str, principal: str, cls: str, ac
 
     if action == "publish":
         expected = "w" in exp
-    elif action == "subscribe" and backend == "mosquitto" and connected:
+    elif action == "subscribe" and backend.startswith("mosquitto") and connected:
         expected = MOSQUITTO_GRANTS_EVERY_FILTER or "r" in exp
     elif action == "retained" and backend == "embedded" and cls.split("@")[0] in NEVER_RETAINED_EMBEDDED:
         expected = False
@@ -266,7 +271,7 @@ def test_wildcard_subscriptions(runs: dict[str, Run], backend: str, principal: s
     run = runs[backend]
     universe = {topic_of(c, SELF[p]) for p in PRINCIPALS for c in CLASSES}
     readable_match = any(matches(flt, t) and may_read(principal, t) for t in universe)
-    expected = True if backend == "mosquitto" and MOSQUITTO_GRANTS_EVERY_FILTER else readable_match
+    expected = True if backend.startswith("mosquitto") and MOSQUITTO_GRANTS_EVERY_FILTER else readable_match
     run.checked.add((principal, flt, "subscribe-wildcard"))
     assert (run.suback[principal][flt] < 128) is expected
 
@@ -299,7 +304,7 @@ needs_clients = pytest.mark.skipif(not (MOSQUITTO_SUB and MOSQUITTO_PUB), reason
 
 
 def _port(backend: str, embedded: EmbeddedBrokerProcess, mosquitto: ExportedMosquitto) -> int:
-    return embedded.port if backend == "embedded" else mosquitto.port
+    return PORTS[backend]
 
 
 def _sub(port: int, user: str | None, password: str | None, *args: str,

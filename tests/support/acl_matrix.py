@@ -12,7 +12,7 @@ import paho.mqtt.client as mqtt
 from roslink_mqtt.topics import TopicTree
 from tests.support.procs import DEMO_PASSWORDS
 
-BACKENDS = ("embedded", "mosquitto")
+BACKENDS = ("embedded", "mosquitto", "mosquitto-dynsec")  # the last: its dynamic-security plugin
 ROBOTS = ("turtle1", "turtle2")
 PRINCIPALS = ("turtle1", "turtle2", "alice", "bob", "carol", "admin", "wrong-password", "anonymous")
 LOGINS: dict[str, tuple[str | None, str | None]] = {
@@ -23,7 +23,7 @@ LOGINS: dict[str, tuple[str | None, str | None]] = {
 SELF = {**{p: p for p in DEMO_PASSWORDS}, "wrong-password": "alice", "anonymous": "nobody"}
 
 ROBOT_CLASSES = ("heartbeat", "state", "from/self/cmd", "from/other/cmd", "from/self/estop", "to/self", "to/other",
-                 "call/read-only", "call/read-write")
+                 "call/read-only", "call/read-write", "grants")
 CLASSES = tuple(f"{c}@{r}" for r in ROBOTS for c in ROBOT_CLASSES) + ("operators/self", "operators/other", "$SYS")
 ACTIONS = ("publish", "subscribe", "receive", "retained")
 WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "roslink/turtle2/#",
@@ -32,11 +32,14 @@ WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "rosl
 # The documented outcome (broker/README.md "What it enforces", issue 3). r = may read (subscribe, receive, retained),
 # w = may publish. Unlisted classes: nothing. "other" is bob (alice for bob himself).
 EXPECTED: dict[str, dict[str, str]] = {
-    "turtle1": {"heartbeat@turtle1": "rw", "state@turtle1": "w", "to/self@turtle1": "w", "to/other@turtle1": "w",
+    # a robot reads its own grants (who may use it: written by admins only) and nobody else's
+    "turtle1": {"heartbeat@turtle1": "rw", "state@turtle1": "w", "grants@turtle1": "r",
+                "to/self@turtle1": "w", "to/other@turtle1": "w",
                 "from/self/cmd@turtle1": "r", "from/other/cmd@turtle1": "r", "from/self/estop@turtle1": "r",
                 "call/read-only@turtle1": "r", "call/read-write@turtle1": "r",
                 "operators/other": "r"},  # bob is granted turtle1
-    "turtle2": {"heartbeat@turtle2": "rw", "state@turtle2": "w", "to/self@turtle2": "w", "to/other@turtle2": "w",
+    "turtle2": {"heartbeat@turtle2": "rw", "state@turtle2": "w", "grants@turtle2": "r",
+                "to/self@turtle2": "w", "to/other@turtle2": "w",
                 "from/self/cmd@turtle2": "r", "from/other/cmd@turtle2": "r", "from/self/estop@turtle2": "r",
                 "call/read-only@turtle2": "r",
                 "call/read-write@turtle2": "r"},  # bob is not granted turtle2: his presence is not for turtle2
@@ -53,7 +56,8 @@ EXPECTED: dict[str, dict[str, str]] = {
     "wrong-password": {},
     "anonymous": {},
 }
-MOSQUITTO_GRANTS_EVERY_FILTER = True  # Mosquitto 2.0.11 with acl_file: SUBACK ok, read checked per delivery
+MOSQUITTO_GRANTS_EVERY_FILTER = True  # Mosquitto 2.0.11 (acl_file, or dynsec's subscribePattern #): SUBACK ok,
+# read checked per delivery
 # The embedded broker drops retained commands and calls (a retained copy would run again on every
 # bridge reconnect), whoever sends them -- admin included. Mosquitto cannot: docs/safety.md says so.
 NEVER_RETAINED_EMBEDDED = ("from/self/cmd", "from/other/cmd", "from/self/estop", "call/read-only", "call/read-write")
@@ -83,6 +87,7 @@ def topic_of(cls: str, me: str, *, publish: bool = False) -> str:
         "from/self/estop": TREE.command(robot, me, "emergency_stop"),
         "to/self": TREE.reply(robot, me, "reset"), "to/other": TREE.reply(robot, other_of(me), "reset"),
         "call/read-only": TREE.call(robot, me, "status"), "call/read-write": TREE.call(robot, me, "reset"),
+        "grants": TREE.grants(robot),
     }[kind]
 
 
@@ -98,7 +103,7 @@ def _read(topic: str) -> dict[str, str] | None:
     if parts[1] == "operators":
         return {"kind": "operators", "user": parts[2]} if len(parts) == 4 else None
     robot, kind, rest = parts[1], parts[2], parts[3:]
-    if kind == "heartbeat" and not rest:
+    if kind in ("heartbeat", "grants") and not rest:
         return {"kind": kind, "robot": robot}
     if kind == "state" and rest:
         return {"kind": kind, "robot": robot, "name": "/".join(rest)}
@@ -121,8 +126,8 @@ def may_read(login: str, topic: str) -> bool:
         # shows itself: one per robot)
         return (t["kind"] == "from" and t["robot"] == login) \
             or (t["kind"] == "operators" and t["user"] in GRANTED[login]) \
-            or (t.get("robot") == login and (t["kind"] == "heartbeat" or (t["kind"] == "state"
-                                                                           and t["name"] == "bridge")))
+            or (t.get("robot") == login and (t["kind"] in ("heartbeat", "grants") or (t["kind"] == "state"
+                                                                                       and t["name"] == "bridge")))
     robots = OPERATORS.get(login, set()) | VIEWERS.get(login, set())
     return t.get("robot") in robots and (t["kind"] in ("heartbeat", "state")
                                          or (t["kind"] == "to" and t["user"] == login))
