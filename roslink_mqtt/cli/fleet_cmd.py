@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "when it starts).")
     p.add_argument("--config", default="config/robots.yaml", help="fleet file (default: %(default)s)")
     p.set_defaults(run=run)
-    actions = p.add_subparsers(dest="fleet_action", metavar="{split,user,grant,revoke,apply}")
+    actions = p.add_subparsers(dest="fleet_action", metavar="{split,user,robot,grant,revoke,apply}")
     split = actions.add_parser("split", help="write one robot file per robot: its part of the fleet, no passwords",
                                description="Write OUT/<robot>.yaml for each robot (or the ones named): its rules, "
                                            "services, actions, parameters and bridge settings -- no password hash "
@@ -34,7 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     split.set_defaults(run=run_split)
     _register_edits(actions)
     from .fleet_apply import register as register_apply
+    from .fleet_robot import register as register_robot
 
+    register_robot(actions, _edited)
     register_apply(actions)
 
 

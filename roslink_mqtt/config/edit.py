@@ -1,4 +1,4 @@
-"""Changes to robots.yaml that keep its comments and layout: ``roslink-mqtt fleet user|grant|revoke``.
+"""Changes to robots.yaml that keep its comments and layout: ``roslink-mqtt fleet user|grant|revoke|robot``.
 
 A fleet file is written by people: comments say whose password is whose, anchors share a robot's rules. Loading
 it with PyYAML and dumping it back would drop all of that, so these edits go through ruamel.yaml's round trip,
@@ -9,6 +9,7 @@ broker refuse the file is not written at all.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import io
 import os
@@ -108,6 +109,32 @@ class FleetEdit:
         if len(kept) == len(grants):
             raise FleetEditError(f"user '{user}' has no grant on {robot}")
         grants[:] = kept
+
+    def add_robot(self, name: str, *, key: str, password_hash: str, like: str | None = None,
+                  broker_url: str | None = None) -> int:
+        """A new robot with the next free system_id (returned), its own key and password hash; ``like``: the
+        rules, services, actions, parameters, type and bridge settings of that robot (shared, as YAML aliases,
+        so the two stay alike), else none. ``broker_url``: where its bridge dials (``bridge.broker``)."""
+        robots = self.data["robots"]
+        if name in robots:
+            raise FleetEditError(f"robot '{name}' is already in {self.path}")
+        if name in self._users():
+            raise FleetEditError(f"'{name}' is a user's login in {self.path}: a robot needs a name of its own")
+        used = {int(r["system_id"]) for r in robots.values() if isinstance(r, dict) and "system_id" in r}
+        system_id = next(i for i in range(1, 65536) if i not in used)
+        entry = CommentedMap([("system_id", system_id), ("key", key), ("password", password_hash)])
+        if like is not None:
+            template = self._robot(like)
+            for field, value in template.items():
+                if field not in entry:
+                    entry[field] = value  # the same node: dumped as an alias of the template's
+        if broker_url is not None:
+            # its own copy (the template's with a broker of its own), not an alias with a changed key
+            bridge = copy.deepcopy(entry["bridge"]) if isinstance(entry.get("bridge"), dict) else CommentedMap()
+            bridge["broker"] = broker_url
+            entry["bridge"] = bridge
+        robots[name] = entry
+        return system_id
 
     # -- writing --------------------------------------------------------------------------------------------
     def _dump(self, data: Any) -> str:

@@ -177,3 +177,32 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
                 assert "fewer grants ['alice']" in broker_log() and "1 connection(s) dropped" in broker_log()
     finally:
         probe.close()
+
+
+def test_a_robot_added_with_fleet_robot_add_runs_from_its_bundle(tmp_path: Path) -> None:
+    """``fleet robot add``: after ``fleet apply`` the new robot's login works, and its bridge runs as the bundle's
+    systemd drop-in says (its ExecStart, with the bundle's environment file), from the robot file alone."""
+    fleet = write_fleet(tmp_path, read_only_service=False)
+    bundle = tmp_path / "bundle"
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        added = cli("fleet", "robot", "add", "--config", str(fleet), "turtle3", "--like", "turtle1", "--bundle",
+                    str(bundle), "--broker-url", f"mqtt://127.0.0.1:{broker.port}")
+        assert added.returncode == 0, added.stderr
+        env = dict(line.split("=", 1) for line in (bundle / "turtle3.env").read_text().splitlines()
+                   if line.startswith("ROSLINK_"))  # the ROS graph's settings stay the test's (its own domain)
+        with TestClient(broker.port, "turtle3", env["ROSLINK_PASSWORD"]) as early:
+            assert early.connect() != 0  # not before apply
+        applied = Apply(fleet, broker.port)
+        assert "add      turtle3: robot" in applied.output and "grants   turtle3" in applied.output
+        drop_in = (bundle / "roslink-mqtt-bridge.service.d" / "turtle3.conf").read_text()
+        exec_start = [x for x in drop_in.splitlines() if x.startswith("ExecStart=/")][0].split("=", 1)[1]
+        argv = exec_start.replace("${ROSLINK_ROBOT}", env["ROSLINK_ROBOT"]).replace(
+            "$ROSLINK_BRIDGE_ARGS", env["ROSLINK_BRIDGE_ARGS"]).replace("/etc/roslink-mqtt/", f"{bundle}/").split()
+        assert argv[0].endswith("/.venv/bin/roslink-mqtt-bridge")
+        with run(["-m", "roslink_mqtt.bridge.main", *argv[1:]], tmp_path / "bridge3.log",
+                 {**os.environ, "ROSLINK_PASSWORD": env["ROSLINK_PASSWORD"]}) as bridge, \
+                TestClient(broker.port, "admin", "admin-demo") as admin:
+            assert admin.connect() == 0
+            admin.subscribe("roslink/turtle3/heartbeat")
+            admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
+            _wait_for_log(bridge, "grants from broker: 1 users may see turtle3 (admin:operator)")

@@ -81,3 +81,48 @@ def test_the_cli_makes_a_password_grants_and_says_to_apply(fleet_file: Path, tmp
     assert load_fleet(fleet_file).users_of("turtle2")["dave"] is Role.VIEWER
     assert main(["fleet", "revoke", "dave", "turtle1", "--config", str(fleet_file)]) == 2
     assert "roslink-mqtt fleet: user 'dave' has no grant on turtle1" in capsys.readouterr().err
+
+
+def test_robot_add_writes_the_robot_and_a_bundle_that_holds_nothing_of_anyone_else(fleet_file: Path,
+                                                                                  tmp_path: Path) -> None:
+    original = fleet_file.read_text().splitlines()
+    bundle = tmp_path / "bundle"
+    assert main(["fleet", "robot", "add", "--config", str(fleet_file), "turtle3", "--bundle", str(bundle),
+                 "--like", "turtle1", "--broker-url", "mqtts://broker.example.net:8883"]) == 0
+    fleet = load_fleet(fleet_file, need_hashes=True)
+    turtle3, turtle1 = fleet.robots["turtle3"], fleet.robots["turtle1"]
+    assert turtle3.system_id == 3 and turtle3.key not in (r.key for r in fleet.robots.values() if r is not turtle3)
+    assert turtle3.rules == turtle1.rules and turtle3.bridge.broker_url == "mqtts://broker.example.net:8883"
+    assert turtle1.bridge.broker_url != turtle3.bridge.broker_url  # its own bridge settings, not the template's changed
+    lines = iter(fleet_file.read_text().splitlines())  # the author's file, only turtle3 added
+    assert all(any(line == new for new in lines) for line in original)
+    password = (bundle / "turtle3.password").read_text().strip()
+    assert len(password) >= 24 and verify_password(password, turtle3.password_hash)
+    robot_file = (bundle / "turtle3.yaml").read_text()
+    assert "$7$" not in robot_file and turtle1.key not in robot_file and "alice" not in robot_file
+    assert load_fleet(bundle / "turtle3.yaml").robot_file == "turtle3"
+    env = dict(line.split("=", 1) for line in (bundle / "turtle3.env").read_text().splitlines()
+               if line and not line.startswith("#"))
+    assert env["ROSLINK_ROBOT"] == "turtle3" and env["ROSLINK_PASSWORD"] == password
+    assert env["ROSLINK_BRIDGE_ARGS"] == "--url mqtts://broker.example.net:8883"
+    for private in ("turtle3.password", "turtle3.env", "turtle3.yaml"):
+        assert oct((bundle / private).stat().st_mode & 0o777) == "0o600", private
+    drop_in = (bundle / "roslink-mqtt-bridge.service.d" / "turtle3.conf").read_text().splitlines()
+    # systemd: an empty assignment resets the unit's list, so the drop-in replaces, never adds a second command
+    assert drop_in.index("ExecStart=") < drop_in.index(next(x for x in drop_in if x.startswith("ExecStart=/")))
+    assert "EnvironmentFile=/etc/roslink-mqtt/turtle3.env" in drop_in and "EnvironmentFile=" in drop_in
+    assert any("--config /etc/roslink-mqtt/turtle3.yaml" in x for x in drop_in)
+
+
+@pytest.mark.parametrize("args, why", [
+    (["turtle1"], "robot 'turtle1' is already in"),
+    (["alice"], "'alice' is a user's login"),
+    (["turtle3", "--like", "turtle9"], "no robot 'turtle9'"),
+])
+def test_robot_add_refuses_with_a_reason(fleet_file: Path, tmp_path: Path, capsys, args: list[str],
+                                         why: str) -> None:
+    before = fleet_file.read_text()
+    assert main(["fleet", "robot", "add", "--config", str(fleet_file), "--bundle", str(tmp_path / "b"),
+                 *args]) == 2
+    assert why in capsys.readouterr().err and fleet_file.read_text() == before
+    assert not (tmp_path / "b").exists()
