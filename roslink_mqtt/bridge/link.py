@@ -104,6 +104,10 @@ class MqttLink:
         """The broker we are connected to (or trying next)."""
         return self.brokers.url
 
+    def set_password(self, password: str) -> None:
+        """Use ``password`` from the next connection on (a rotated robot password, SIGHUP); this one stays."""
+        self.client.username_pw_set(self.username, password)
+
     def set_will(self, topic: str, payload: bytes) -> None:
         """The retained last-will the broker publishes if we vanish; before :meth:`start` (it goes with CONNECT)."""
         self.client.will_set(topic, payload, qos=1, retain=True)

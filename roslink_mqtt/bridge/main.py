@@ -113,6 +113,22 @@ def reload_grants(bridge: Any, config: str) -> None:
     bridge.reload(fleet)
 
 
+def reload_password(args: argparse.Namespace, robot: Any, password: str, bridge: Any) -> str:
+    """SIGHUP: read the robot's password again (a password file: rotation); a new one is used from the next
+    connection on, and nothing is dropped now. The password in use."""
+    try:
+        fresh = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
+                                 Path(args.config).resolve().parent)
+    except SystemExit as err:  # the file is gone or empty: keep the one that works
+        logging.getLogger("roslink_mqtt.bridge").error("reload: keeping the robot's password: %s", err)
+        return password
+    if fresh != password:
+        logging.getLogger("roslink_mqtt.bridge").info("reload: the robot's password changed; the next connection "
+                                                      "uses it (the current ones stay)")
+        bridge.set_password(fresh)
+    return fresh
+
+
 class StartCheck(threading.Thread):
     """The one-bridge check (bridge/claim.py), run while ROS starts: it needs the broker, not ROS."""
 
@@ -273,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
             if reload_asked.is_set() and not stopping.is_set():
                 reload_asked.clear()
                 reload_grants(bridge, args.config)
+                password = reload_password(args, robot, password, bridge)
     finally:
         bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
         for executor, _, handoff in spun:

@@ -496,6 +496,13 @@ class Bridge:
                       (self._heartbeat_topic, self.endpoint.heartbeat(SystemStatus.OFFLINE), 1, True)]
         self.link.stop([] if yielded else last_words)
 
+    def set_password(self, password: str) -> None:
+        """A rotated password (SIGHUP): every connection uses it from its next connect on; none is dropped (the
+        broker accepts the previous one until the fleet file drops it: docs/operations.md)."""
+        for link in (self.link, self.viewer_link, self.stop_link, *self.lanes):
+            if link is not None:
+                link.set_password(password)
+
     @property
     def lanes(self) -> list[MqttLink]:
         """The uplink's extra connections (state, bulk), started and stopped with the bridge."""

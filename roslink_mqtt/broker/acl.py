@@ -292,8 +292,11 @@ class LiveFleet:
     def replace(self, fleet: Fleet) -> FleetChange:
         old = self.fleet
         before, after = set(old.robots) | set(old.users), set(fleet.robots) | set(fleet.users)
+        # a login whose password changed is disconnected, unless the hash it had is still accepted (a robot's
+        # password being rotated: the new one and the previous one both work until its bridge has moved)
         changed = tuple(sorted(login for login in before & after
-                               if old.password_hash(login) != fleet.password_hash(login)))
+                               if old.password_hash(login) != fleet.password_hash(login)
+                               and old.password_hash(login) not in fleet.accepted_hashes(login)))
         self.acl = FleetAcl(fleet)
         self.fleet = fleet
         return FleetChange(tuple(sorted(before - after)), tuple(sorted(after - before)), changed,

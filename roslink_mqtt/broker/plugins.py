@@ -99,10 +99,9 @@ class FleetAuthPlugin(BaseAuthPlugin):
         elif password is None:
             reason = "no password"
         else:
-            stored = live.password_hash(username)
-            verify = self.verified.verify if stored is not None else verify_password
-            ok = await asyncio.get_running_loop().run_in_executor(None, verify, password, stored or _DUMMY_HASH)
-            if stored is None:
+            accepted = live.fleet.accepted_hashes(username)
+            ok = await asyncio.get_running_loop().run_in_executor(None, self._verify, password, accepted)
+            if not accepted:
                 reason = "unknown login"
             elif not ok:
                 reason = "wrong password"
@@ -114,6 +113,15 @@ class FleetAuthPlugin(BaseAuthPlugin):
         if throttle is not None:
             throttle.succeeded(address, username)
         return True
+
+
+    def _verify(self, password: str, accepted: tuple[str, ...]) -> bool:
+        """Whether ``password`` matches one of ``accepted`` (a robot's new and previous hash while it rotates); an
+        unknown login costs a full hash too, so a wrong name answers no faster than a wrong password."""
+        if not accepted:
+            verify_password(password, _DUMMY_HASH)
+            return False
+        return any(self.verified.verify(password, stored) for stored in accepted)
 
 
 class FleetAclPlugin(BaseTopicPlugin):

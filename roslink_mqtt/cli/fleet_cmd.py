@@ -137,7 +137,7 @@ def _edited(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Name
     return wrapper
 
 
-def _password(path: str) -> tuple[str, bool]:
+def read_or_make_password(path: str) -> tuple[str, bool]:
     """The password in ``path`` (first line), or a new random one written there (mode 600): (password, made)."""
     import os
     import secrets
@@ -166,7 +166,7 @@ def run_user_add(args: argparse.Namespace) -> int:
     from ..config.passwords import DEFAULT_ITERATIONS, hash_password
 
     edit = FleetEdit(args.config)
-    password, made = _password(args.password_file)
+    password, made = read_or_make_password(args.password_file)
     edit.add_user(args.name, hash_password(password, iterations=args.iterations or DEFAULT_ITERATIONS),
                   admin=args.admin)
     edit.save()

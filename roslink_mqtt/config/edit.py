@@ -136,6 +136,23 @@ class FleetEdit:
         robots[name] = entry
         return system_id
 
+    def rotate_password(self, robot: str, password_hash: str) -> None:
+        """A new password for ``robot``, its current one kept as ``previous_password``: the broker accepts both
+        until :meth:`finish_rotation`, so the robot's bridge moves over without being refused."""
+        entry = self._robot(robot)
+        if "previous_password" in entry:
+            raise FleetEditError(f"{robot} is already moving to a new password: finish that first "
+                                 f"(`roslink-mqtt fleet robot rotate {robot} --finish`)")
+        entry["previous_password"] = entry["password"]
+        entry["password"] = password_hash
+
+    def finish_rotation(self, robot: str) -> None:
+        """Stop accepting ``robot``'s previous password."""
+        entry = self._robot(robot)
+        if "previous_password" not in entry:
+            raise FleetEditError(f"{robot} has no previous password to drop")
+        del entry["previous_password"]
+
     # -- writing --------------------------------------------------------------------------------------------
     def _dump(self, data: Any) -> str:
         out = io.StringIO()

@@ -321,8 +321,8 @@ class _FleetReader:
         return robots
 
     def robot(self, path: Path, name: str) -> Robot:
-        self.mapping(path, ("system_id", "key", "password", "type", "bridge", "rules", "services", "actions",
-                            "parameters", "control", "supervisors", "estop"))
+        self.mapping(path, ("system_id", "key", "password", "previous_password", "type", "bridge", "rules",
+                            "services", "actions", "parameters", "control", "supervisors", "estop"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         return Robot(
@@ -339,7 +339,18 @@ class _FleetReader:
             control=self.value(path, "control", self.choice(CONTROL_MODES), "auto"),
             supervisors=self.names(path + ("supervisors",), "supervisor") if "supervisors" in self.get(path) else (),
             estop=self.value(path, "estop", self.choice(ESTOP_MODES), "viewers"),
+            previous_password_hash=self.previous_hash(path),
         )
+
+    def previous_hash(self, path: Path) -> str:
+        """A robot's ``previous_password`` (a hash, accepted with ``password`` while the robot moves to the new
+        one); a robot file holds none either."""
+        if "previous_password" not in self.get(path):
+            return ""
+        if self.robot_file is not None:
+            raise self.err(path + ("previous_password",), "a robot file holds no password hash: remove it")
+        hashed: str = self.value(path, "previous_password", self.password_hash)
+        return hashed
 
     def limits(self, path: Path) -> VelocityLimits:
         self.mapping(path, ("linear", "angular", "mode"))

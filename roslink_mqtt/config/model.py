@@ -286,6 +286,9 @@ class Robot:
     control: str = "auto"
     supervisors: tuple[str, ...] = ()
     estop: str = "viewers"
+    # A password being rotated (docs/operations.md, "Rotate a robot's password"): the previous one's hash, still
+    # accepted until the robot's bridge has moved to the new one; "" when none.
+    previous_password_hash: str = ""
 
     @property
     def estop_inputs(self) -> tuple[str, ...]:
@@ -362,6 +365,14 @@ class Fleet:
             if role is not None:
                 out[name] = role
         return out
+
+    def accepted_hashes(self, username: str) -> tuple[str, ...]:
+        """Every hash a login's password may match: its own, and a robot's previous one while it is rotated."""
+        robot = self.robots.get(username)
+        if robot is not None and robot.previous_password_hash:
+            return (robot.password_hash, robot.previous_password_hash)
+        stored = self.password_hash(username)
+        return (stored,) if stored is not None else ()
 
     def password_hash(self, username: str) -> str | None:
         """The stored hash for a robot or user login name."""

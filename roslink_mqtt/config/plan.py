@@ -6,7 +6,8 @@ on its control topic (broker/admin.py), Mosquitto's dynamic-security plugin and 
 adapters (cli/fleet_apply.py). A :class:`Plan` lists the steps in the order they must run: new logins first (a
 grant may name them), then passwords, then grants, removed logins last.
 
-The fingerprint is the first 16 hex digits of SHA-256 over the stored PBKDF2 hash: equal hashes, equal
+The fingerprint is the first 16 hex digits of SHA-256 over the stored PBKDF2 hash (hashes, while a robot's password
+rotates): equal hashes, equal
 fingerprints; it tells a changed password without sending a hash anywhere, and guessing passwords from it is
 harder than from the hash itself (which needs its salt and 210,000 iterations per guess anyway).
 """
@@ -36,9 +37,11 @@ class FleetState:
 
     @classmethod
     def of(cls, fleet: Fleet) -> FleetState:
-        logins = {name: (ROBOT, fingerprint(r.password_hash)) for name, r in fleet.robots.items()}
-        logins.update({name: (ADMIN if u.admin else USER, fingerprint(u.password_hash))
-                       for name, u in fleet.users.items()})
+        def accepted(login: str) -> str:  # every hash it may log in with (a robot's previous one while rotating)
+            return fingerprint("|".join(fleet.accepted_hashes(login)))
+
+        logins = {name: (ROBOT, accepted(name)) for name in fleet.robots}
+        logins.update({name: (ADMIN if u.admin else USER, accepted(name)) for name, u in fleet.users.items()})
         grants = {robot: {u: role.value for u, role in sorted(fleet.users_of(robot).items())}
                   for robot in fleet.robots}
         return cls(dict(sorted(logins.items())), grants)
@@ -107,7 +110,7 @@ def plan(target: FleetState, live: FleetState, *, passwords_known: bool = True) 
             if live_kind != kind:
                 steps.append(Step("kind", name, f"{live_kind} → {kind}"))
             if passwords_known and live_fp != fp:
-                steps.append(Step("password", name, "a new password hash"))
+                steps.append(Step("password", name, "new password hash(es)"))
     for robot in sorted(set(target.grants) | set(live.grants)):
         want, have = target.grants.get(robot), live.grants.get(robot)
         if want is not None and want != have:

@@ -2,10 +2,12 @@
 
 * ``<robot>.yaml`` -- its robot file (config/split.py): rules and settings, no login's hash, no other robot's key, no
   users (grants come from the broker);
-* ``<robot>.password`` -- its generated password (mode 600; robots.yaml holds only the hash);
-* ``<robot>.env`` -- the bridge unit's environment file (mode 600: robot name, password, broker URL, the ROS
-  graph's settings), to install as ``/etc/roslink-mqtt/<robot>.env``;
-* ``roslink-mqtt-bridge.service.d/<robot>.conf`` -- a systemd drop-in that points the unit at the two files above
+* ``<robot>.password`` -- its generated password (mode 600; robots.yaml holds only the hash), to install as
+  ``/etc/roslink-mqtt/<robot>.password`` readable by the bridge's group: the bridge reads it at start and again on
+  SIGHUP, which is how a rotated password reaches it without a restart (docs/operations.md);
+* ``<robot>.env`` -- the bridge unit's environment file (robot name, broker URL, the ROS graph's settings), to
+  install as ``/etc/roslink-mqtt/<robot>.env``;
+* ``roslink-mqtt-bridge.service.d/<robot>.conf`` -- a systemd drop-in that points the unit at the files above
   (``EnvironmentFile=`` and ``ExecStart=`` are reset first, as systemd needs for a replacement).
 
 The robot's password is random (144 bits), so its hash needs no slow PBKDF2: ``ROBOT_ITERATIONS`` (docs/config.md,
@@ -48,10 +50,10 @@ def _private(path: Path, text: str) -> None:
         f.write(text)
 
 
-def env_text(robot: str, password: str, url: str | None) -> str:
-    return (f"# {ETC}/{robot}.env: the bridge of {robot} (roslink-mqtt fleet robot add). Mode 600: the password.\n"
+def env_text(robot: str, url: str | None) -> str:
+    return (f"# {ETC}/{robot}.env: the bridge of {robot} (roslink-mqtt fleet robot add). Its password is in\n"
+            f"# {ETC}/{robot}.password (the drop-in passes --password-file).\n"
             f"ROSLINK_ROBOT={robot}\n"
-            f"ROSLINK_PASSWORD={password}\n"
             + (f"ROSLINK_BRIDGE_ARGS=--url {url}\n" if url else "ROSLINK_BRIDGE_ARGS=\n")
             + "ROS_DOMAIN_ID=0\nRMW_IMPLEMENTATION=rmw_fastrtps_cpp\nROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST\n")
 
@@ -64,7 +66,7 @@ def drop_in_text(robot: str, prefix: str = DEFAULT_PREFIX) -> str:
             f"EnvironmentFile={ETC}/{robot}.env\n"
             "ExecStart=\n"
             f"ExecStart={prefix}/.venv/bin/roslink-mqtt-bridge --config {ETC}/{robot}.yaml --robot ${{ROSLINK_ROBOT}} "
-            "$ROSLINK_BRIDGE_ARGS\n")
+            f"--password-file {ETC}/{robot}.password $ROSLINK_BRIDGE_ARGS\n")
 
 
 def write_bundle(config: str | Path, robot: str, password: str, out: str | Path, *, url: str | None,
@@ -76,7 +78,7 @@ def write_bundle(config: str | Path, robot: str, password: str, out: str | Path,
     bundle = Bundle(robot_file, out / f"{robot}.password", out / f"{robot}.env",
                     out / "roslink-mqtt-bridge.service.d" / f"{robot}.conf")
     _private(bundle.password, password + "\n")
-    _private(bundle.env, env_text(robot, password, url))
+    _private(bundle.env, env_text(robot, url))
     bundle.drop_in.parent.mkdir(exist_ok=True)
     bundle.drop_in.write_text(drop_in_text(robot, prefix))
     return bundle

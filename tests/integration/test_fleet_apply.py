@@ -10,6 +10,7 @@ and applies it with ``fleet apply``, as an administrator would.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -190,7 +191,8 @@ def test_a_robot_added_with_fleet_robot_add_runs_from_its_bundle(tmp_path: Path)
         assert added.returncode == 0, added.stderr
         env = dict(line.split("=", 1) for line in (bundle / "turtle3.env").read_text().splitlines()
                    if line.startswith("ROSLINK_"))  # the ROS graph's settings stay the test's (its own domain)
-        with TestClient(broker.port, "turtle3", env["ROSLINK_PASSWORD"]) as early:
+        password = (bundle / "turtle3.password").read_text().strip()
+        with TestClient(broker.port, "turtle3", password) as early:
             assert early.connect() != 0  # not before apply
         applied = Apply(fleet, broker.port)
         assert "add      turtle3: robot" in applied.output and "grants   turtle3" in applied.output
@@ -199,10 +201,53 @@ def test_a_robot_added_with_fleet_robot_add_runs_from_its_bundle(tmp_path: Path)
         argv = exec_start.replace("${ROSLINK_ROBOT}", env["ROSLINK_ROBOT"]).replace(
             "$ROSLINK_BRIDGE_ARGS", env["ROSLINK_BRIDGE_ARGS"]).replace("/etc/roslink-mqtt/", f"{bundle}/").split()
         assert argv[0].endswith("/.venv/bin/roslink-mqtt-bridge")
-        with run(["-m", "roslink_mqtt.bridge.main", *argv[1:]], tmp_path / "bridge3.log",
-                 {**os.environ, "ROSLINK_PASSWORD": env["ROSLINK_PASSWORD"]}) as bridge, \
+        environment = {k: v for k, v in os.environ.items() if k != "ROSLINK_PASSWORD"}  # the bundle's file only
+        with run(["-m", "roslink_mqtt.bridge.main", *argv[1:]], tmp_path / "bridge3.log", environment) as bridge, \
                 TestClient(broker.port, "admin", "admin-demo") as admin:
             assert admin.connect() == 0
             admin.subscribe("roslink/turtle3/heartbeat")
             admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
             _wait_for_log(bridge, "grants from broker: 1 users may see turtle3 (admin:operator)")
+
+
+def test_a_robot_password_rotates_without_dropping_the_robot(tmp_path: Path) -> None:
+    """``fleet robot rotate``: both passwords work until ``--finish``; the bridge takes the new one on SIGHUP from
+    its password file and keeps its connections throughout; after the broker restarts it logs in with the new one."""
+    fleet = write_fleet(tmp_path, read_only_service=False)
+    robot_file = split_fleet(fleet, tmp_path / "robot-files", ["turtle1"])[0]
+    password_file = tmp_path / "turtle1.password"
+    password_file.write_text("turtle1-demo\n")
+    new_password = tmp_path / "new.password"
+    environment = {k: v for k, v in os.environ.items() if k != "ROSLINK_PASSWORD"}
+
+    def logs_in(port: int, password: str) -> bool:
+        with TestClient(port, "turtle1", password) as probe:
+            return probe.connect() == 0
+
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker, \
+            run(bridge_args("turtle1", broker.port, "--password-file", str(password_file), config=robot_file),
+                tmp_path / "bridge.log", environment) as bridge, \
+            TestClient(broker.port, "admin", "admin-demo") as admin:
+        assert admin.connect() == 0
+        admin.subscribe("roslink/turtle1/heartbeat")
+        admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
+        rotated = cli("fleet", "robot", "rotate", "--config", str(fleet), "turtle1", "--password-file",
+                      str(new_password))
+        assert rotated.returncode == 0, rotated.stderr
+        applied = Apply(fleet, broker.port)
+        assert "password turtle1" in applied.output
+        new = new_password.read_text().strip()
+        assert logs_in(broker.port, "turtle1-demo") and logs_in(broker.port, new)  # both, meanwhile
+        password_file.write_text(new + "\n")  # the robot gets its new password, and its bridge is reloaded
+        bridge.signal(signal.SIGHUP)
+        _wait_for_log(bridge, "the robot's password changed")
+        finished = cli("fleet", "robot", "rotate", "--config", str(fleet), "turtle1", "--finish")
+        assert finished.returncode == 0, finished.stderr
+        Apply(fleet, broker.port)
+        assert not logs_in(broker.port, "turtle1-demo") and logs_in(broker.port, new)
+        assert "broker lost" not in bridge.output()  # nothing dropped the robot meanwhile
+        assert "0 connection(s) dropped" in broker.output()
+        broker.stop()  # the next connection of the bridge: with the new password
+        broker.start()
+        admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4 and not m.retain, timeout=30)
+        assert "refused" not in bridge.output()

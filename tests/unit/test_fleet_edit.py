@@ -103,7 +103,7 @@ def test_robot_add_writes_the_robot_and_a_bundle_that_holds_nothing_of_anyone_el
     assert load_fleet(bundle / "turtle3.yaml").robot_file == "turtle3"
     env = dict(line.split("=", 1) for line in (bundle / "turtle3.env").read_text().splitlines()
                if line and not line.startswith("#"))
-    assert env["ROSLINK_ROBOT"] == "turtle3" and env["ROSLINK_PASSWORD"] == password
+    assert env["ROSLINK_ROBOT"] == "turtle3" and "ROSLINK_PASSWORD" not in env and password not in str(env)
     assert env["ROSLINK_BRIDGE_ARGS"] == "--url mqtts://broker.example.net:8883"
     for private in ("turtle3.password", "turtle3.env", "turtle3.yaml"):
         assert oct((bundle / private).stat().st_mode & 0o777) == "0o600", private
@@ -111,7 +111,8 @@ def test_robot_add_writes_the_robot_and_a_bundle_that_holds_nothing_of_anyone_el
     # systemd: an empty assignment resets the unit's list, so the drop-in replaces, never adds a second command
     assert drop_in.index("ExecStart=") < drop_in.index(next(x for x in drop_in if x.startswith("ExecStart=/")))
     assert "EnvironmentFile=/etc/roslink-mqtt/turtle3.env" in drop_in and "EnvironmentFile=" in drop_in
-    assert any("--config /etc/roslink-mqtt/turtle3.yaml" in x for x in drop_in)
+    assert any("--config /etc/roslink-mqtt/turtle3.yaml" in x and "--password-file /etc/roslink-mqtt/turtle3.password"
+               in x for x in drop_in)
 
 
 @pytest.mark.parametrize("args, why", [
