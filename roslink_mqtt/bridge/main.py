@@ -179,6 +179,14 @@ def main(argv: list[str] | None = None) -> int:
 
     args = parse_args(without_ros_args(argv)[1:])
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    import importlib.util
+
+    if importlib.util.find_spec("rclpy") is None:
+        print(f"{PROG}: rclpy is not importable in this Python ({sys.executable}): install the ROS 2 Jazzy wheels "
+              "(pip install 'roslink-mqtt[bridge]', Python 3.11) or source your ROS installation first (source "
+              "/opt/ros/jazzy/setup.bash; under systemd, its PYTHONPATH, LD_LIBRARY_PATH and AMENT_PREFIX_PATH in "
+              "the unit's environment file): bridge/README.md, 'ROS from apt'", file=sys.stderr)
+        return 2
     try:
         fleet = load_fleet(args.config)
     except ConfigError as err:

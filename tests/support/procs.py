@@ -23,11 +23,12 @@ Proc = LocalProcess  # the old name: ``.popen``, ``.pid``, ``.signal()``, ``.out
 
 
 @contextmanager
-def run(args: list[str], log: Path, env: dict[str, str] | None = None) -> Iterator[LocalProcess]:
-    """Start ``python args…`` (a module or script) and stop it afterwards."""
+def run(args: list[str], log: Path, env: dict[str, str] | None = None, *,
+        python: str = sys.executable) -> Iterator[LocalProcess]:
+    """Start ``python args…`` (a module or script; ``python``: another interpreter) and stop it afterwards."""
     full_env = dict(os.environ if env is None else env)
     full_env.setdefault("PYTHONUNBUFFERED", "1")
-    proc = LocalProcess([sys.executable, *args], log, env=full_env, cwd=ROOT)
+    proc = LocalProcess([python, *args], log, env=full_env, cwd=ROOT)
     proc.spawn()
     try:
         yield proc
