@@ -386,7 +386,7 @@ class Bridge:
                         "arrive", self.robot.name)
             with self._reload_lock:
                 self.grants = None
-                self._reload(dataclasses.replace(self.fleet, users={}, grants_pending=True), "withdrawn grants")
+                self._reload(dataclasses.replace(self.fleet, users={}, grants_pending=True), "grants withdrawn")
             return
         try:
             grants = RobotGrants.from_json(payload)
@@ -398,12 +398,13 @@ class Bridge:
             return
         with self._reload_lock:
             self.grants = grants
-            self._reload(with_grants(self.fleet, grants), f"grants from {grants.by or 'the broker'}")
+            self._reload(with_grants(self.fleet, grants), f"applied grants from {grants.by or 'the broker'}")
         self.grants_arrived.set()
 
     def reload(self, fleet: Fleet) -> None:
-        """Apply a re-read fleet file now (SIGHUP): its users and grants, unless the broker has sent the robot's
-        grants, which win over the file's; rule changes need a restart.
+        """Apply a re-read fleet file now (SIGHUP); rule changes need a restart. A fleet file's users and grants
+        apply (until the broker's next grants message: the latest word wins); a robot file has none, so the
+        broker's grants stay.
 
         The broker applies the same file on its own SIGHUP; the bridge must follow, or a newly granted
         operator stays refused and a revoked one keeps control until the dead-man stops the robot.
@@ -411,9 +412,11 @@ class Bridge:
         """
         with self._reload_lock:
             grants = self.grants
-            if grants is not None and self.robot.name in fleet.robots:  # (_reload says why it is missing)
-                fleet = with_grants(fleet, grants)
-            self._reload(fleet, fleet.file)
+            if fleet.grants_pending and grants is not None and self.robot.name in fleet.robots:
+                fleet = with_grants(fleet, grants)  # (_reload says why a robot is missing)
+            elif not fleet.grants_pending:
+                self.grants = None  # the file's grants now; the broker's next message replaces them again
+            self._reload(fleet, f"reloaded {fleet.file}")
 
     def _reload(self, fleet: Fleet, source: str) -> None:
         robot = fleet.robots.get(self.robot.name)
@@ -443,7 +446,7 @@ class Bridge:
         for link, (old, new) in links.items():
             for topic, qos in sorted(set(new) - set(old)):
                 link.subscribe(topic, qos)
-        log.info("reloaded %s: %d users may see %s (%s)", source, len(after), self.robot.name,
+        log.info("%s: %d users may see %s (%s)", source, len(after), self.robot.name,
                  ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
 
     # -- lifecycle ---------------------------------------------------------------
