@@ -80,6 +80,16 @@ def acl_text(fleet: Fleet, acl: FleetAcl | None = None) -> str:
     return "".join(out)
 
 
+def _websocket_listener(port: int, host: str) -> list[str]:
+    lines = [f"listener {port} {host}\n", "protocol websockets\n"]
+    # Mosquitto 2.0.11 (libwebsockets) ignores the listener's address and binds every interface
+    # unless the socket domain is given: with it, the WebSocket listener binds the address above.
+    domain = _socket_domain(host)
+    if domain is not None:
+        lines.append(f"socket_domain {domain}\n")
+    return lines
+
+
 def _socket_domain(host: str) -> str | None:
     try:
         address = ipaddress.ip_address(host)
@@ -104,18 +114,16 @@ def mosquitto_conf_with(fleet: Fleet, notes: list[str], auth: list[str], limits:
     if b.port:  # port: 0 turns plain MQTT off (a TLS-only deployment)
         lines.append(f"listener {b.port} {b.host}\n")
     if b.ws_port:
-        lines += [f"listener {b.ws_port} {b.host}\n", "protocol websockets\n"]
-        # Mosquitto 2.0.11 (libwebsockets) ignores the listener's address and binds every interface
-        # unless the socket domain is given: with it, the WebSocket listener binds the address above.
-        domain = _socket_domain(b.host)
-        if domain is not None:
-            lines.append(f"socket_domain {domain}\n")
+        lines += _websocket_listener(b.ws_port, b.ws_bind())
     if b.tls is not None:
         base = Path(fleet.file).resolve().parent
-        lines += [f"listener {b.tls.port} {b.tls_host()}\n", f"certfile {base / b.tls.certfile}\n",
-                  f"keyfile {base / b.tls.keyfile}\n"]
+        tls_host = b.tls_host() or b.host
+        certificates = [f"certfile {base / b.tls.certfile}\n", f"keyfile {base / b.tls.keyfile}\n"]
         if b.tls.cafile:
-            lines += [f"cafile {base / b.tls.cafile}\n"]
+            certificates.append(f"cafile {base / b.tls.cafile}\n")
+        lines += [f"listener {b.tls.port} {tls_host}\n", *certificates]
+        if b.tls.ws_port:  # wss://: a WebSocket listener with the same certificate
+            lines += [*_websocket_listener(b.tls.ws_port, tls_host), *certificates]
     lines += [
         "allow_anonymous false\n",
         *auth,

@@ -38,13 +38,13 @@ class StartError(RuntimeError):
 @dataclass(frozen=True, slots=True)
 class Listener:
     name: str  # amqtt listener name; shows up in connect log lines
-    kind: str  # tcp | ws | tls
+    kind: str  # tcp | ws | tls | wss
     host: str
     port: int
 
     @property
     def url(self) -> str:
-        scheme = {"tcp": "mqtt", "ws": "ws", "tls": "mqtts"}[self.kind]
+        scheme = {"tcp": "mqtt", "ws": "ws", "tls": "mqtts", "wss": "wss"}[self.kind]
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"{scheme}://{host}:{self.port}"
 
@@ -56,6 +56,7 @@ class ServerOptions:
     host: str = "127.0.0.1"
     port: int = 1883
     ws_port: int | None = 8083  # None or 0: no WebSocket listener
+    ws_host: str | None = None  # the WebSocket listener's address when not ``host``
     tls: TlsSettings | None = None
     max_payload: int = 4 * 1024 * 1024
     connect_timeout: float = CONNECT_TIMEOUT
@@ -74,16 +75,19 @@ class ServerOptions:
             base = Path(fleet.file).resolve().parent
             tls = replace(tls, certfile=str(base / tls.certfile), keyfile=str(base / tls.keyfile),
                           cafile=str(base / tls.cafile) if tls.cafile else None)
-        options = cls(host=b.host, port=b.port, ws_port=b.ws_port, tls=tls, max_payload=b.max_payload)
+        options = cls(host=b.host, port=b.port, ws_port=b.ws_port, ws_host=b.ws_host, tls=tls,
+                      max_payload=b.max_payload)
         return replace(options, **{k: v for k, v in overrides.items() if v is not None})
 
     def listeners(self) -> list[Listener]:
         """The listeners that accept connections (port 0: no plain MQTT one)."""
         out = [Listener("default", "tcp", self.host, self.port)] if self.port else []
         if self.ws_port:
-            out.append(Listener("ws", "ws", self.host, self.ws_port))
+            out.append(Listener("ws", "ws", self.ws_host or self.host, self.ws_port))
         if self.tls is not None:
             out.append(Listener("tls", "tls", self.tls.host or self.host, self.tls.port))
+            if self.tls.ws_port:
+                out.append(Listener("wss", "wss", self.tls.host or self.host, self.tls.ws_port))
         return out
 
 
@@ -94,8 +98,8 @@ def amqtt_config(options: ServerOptions, live: LiveFleet) -> dict[str, Any]:
     listeners: dict[str, Any] = {"default": {"type": "tcp", "bind": None}}
     for lst in options.listeners():
         bind = f"[{lst.host}]:{lst.port}" if ":" in lst.host else f"{lst.host}:{lst.port}"
-        entry: dict[str, Any] = {"type": "ws" if lst.kind == "ws" else "tcp", "bind": bind}
-        if lst.kind == "tls":
+        entry: dict[str, Any] = {"type": "ws" if lst.kind in ("ws", "wss") else "tcp", "bind": bind}
+        if lst.kind in ("tls", "wss"):
             assert options.tls is not None
             entry.update(ssl=True, certfile=options.tls.certfile, keyfile=options.tls.keyfile)
             if options.tls.cafile:

@@ -42,20 +42,27 @@ def exposure_problems(fleet: Fleet, host: str | None = None, ws_port: int | None
     overrides; 0 = off). A TLS listener on a host of its own (``broker.tls.host``) beyond loopback needs fresh
     passwords, not allow_plaintext; so does a TLS-only broker (``port: 0``, ``ws_port: 0``) on a public host."""
     tls_host = fleet.broker.tls_host(host)
+    ws_host = fleet.broker.ws_bind(host)
     host = fleet.broker.host if host is None else host
-    public = [h for h in (host, tls_host) if h is not None and not is_loopback(h)]
+    ws = fleet.broker.ws_port if ws_port is None else ws_port
+    mqtt = fleet.broker.port if port is None else port
+    public = [h for h, on in ((host, mqtt), (ws_host, ws), (tls_host, True)) if on and h and not is_loopback(h)]
     if not public:
         return []
     problems = []
-    ws = fleet.broker.ws_port if ws_port is None else ws_port
-    mqtt = fleet.broker.port if port is None else port
-    plain_listeners = [name for name, on in (("plain MQTT", mqtt), ("MQTT over WebSocket", ws)) if on]
-    if not is_loopback(host) and plain_listeners and not fleet.broker.allow_plaintext:
-        plain = " and ".join(plain_listeners)
-        problems.append(f"broker.host {host} is not loopback, and {plain} would carry every login's password in clear "
-                        "text: keep host: 127.0.0.1 and give TLS an address of its own (broker.tls.host) or a TLS "
-                        "terminator, turn them off (port: 0, ws_port: 0), or set broker.allow_plaintext: true for a "
-                        "network you trust")
+    # the plain listeners beyond loopback, by the key that sets their address
+    by_key: dict[tuple[str, str], list[str]] = {}
+    ws_key = "broker.ws_host" if fleet.broker.ws_host else "broker.host"
+    for name, on, key, where in (("plain MQTT", mqtt, "broker.host", host),
+                                 ("MQTT over WebSocket", ws, ws_key, ws_host)):
+        if on and not is_loopback(where):
+            by_key.setdefault((key, where), []).append(name)
+    if by_key and not fleet.broker.allow_plaintext:
+        for (key, where), names in by_key.items():
+            problems.append(f"{key} {where} is not loopback, and {' and '.join(names)} would carry every login's "
+                            "password in clear text: keep host: 127.0.0.1 and give TLS an address of its own "
+                            "(broker.tls.host; tls.ws_port for wss://) or a TLS terminator, turn them off (port: 0, "
+                            "ws_port: 0), or set broker.allow_plaintext: true for a network you trust")
     demo = demo_logins(fleet)
     if demo:
         problems.append(f"{', '.join(demo)} still log in with the demo fleet's published passwords (<login>-demo): "

@@ -274,19 +274,20 @@ class _FleetReader:
                                    f"a supervisor must be an operator of the robot: {why}")
 
     def broker(self, path: Path) -> BrokerSettings:
-        self.mapping(path, ("host", "port", "ws_port", "tls", "max_payload", "allow_plaintext"))
+        self.mapping(path, ("host", "port", "ws_port", "ws_host", "tls", "max_payload", "allow_plaintext"))
         port = self.integer(1, 65535)
         tls = None
         if self.get(path) and self.get(path).get("tls") is not None:
             tp = path + ("tls",)
-            self.mapping(tp, ("port", "certfile", "keyfile", "cafile", "host"))
+            self.mapping(tp, ("port", "certfile", "keyfile", "cafile", "host", "ws_port"))
             tls = TlsSettings(self.value(tp, "port", port, 8883), self.value(tp, "certfile", self.string),
                               self.value(tp, "keyfile", self.string), self.value(tp, "cafile", self.string, None),
-                              self.value(tp, "host", self.string, None))
+                              self.value(tp, "host", self.string, None), self.value(tp, "ws_port", port, None))
         settings = BrokerSettings(
             host=self.value(path, "host", self.string, "127.0.0.1"),
             port=self.value(path, "port", self.integer(0, 65535), 1883),  # 0: no plain MQTT listener
             ws_port=self.value(path, "ws_port", self.integer(0, 65535), 8083) or None,
+            ws_host=self.value(path, "ws_host", self.string, None),
             tls=tls,
             max_payload=self.value(path, "max_payload", self.integer(1024, 256 * 1024 * 1024), 4 * 1024 * 1024),
             allow_plaintext=self.value(path, "allow_plaintext", self.boolean, False),

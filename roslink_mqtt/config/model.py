@@ -84,6 +84,7 @@ class TlsSettings:
     # The address the TLS listener binds when not broker.host: a public TLS listener while the plain and WebSocket
     # ones stay on loopback (for local programs and a TLS-terminating proxy)
     host: str | None = None
+    ws_port: int | None = None  # MQTT over secure WebSocket (wss://), on the TLS listener's address; None: none
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,11 +92,16 @@ class BrokerSettings:
     host: str = "127.0.0.1"
     port: int = 1883  # 0: no plain MQTT listener (a TLS-only deployment)
     ws_port: int | None = 8083
+    ws_host: str | None = None  # where the WebSocket listener binds when not ``host``
     tls: TlsSettings | None = None
     max_payload: int = 4 * 1024 * 1024
     # Plain (not TLS) listeners on a non-loopback host carry every password in clear text: refused unless this says
     # the network is trusted (config/exposure.py)
     allow_plaintext: bool = False
+
+    def ws_bind(self, host: str | None = None) -> str:
+        """Where the plain WebSocket listener binds; ``host``: the plain listeners' host when overridden."""
+        return self.ws_host or (self.host if host is None else host)
 
     def tls_host(self, host: str | None = None) -> str | None:
         """Where the TLS listener binds (None: no TLS); ``host``: the plain listeners' host when overridden."""

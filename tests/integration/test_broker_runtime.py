@@ -49,7 +49,9 @@ def _broker_cli(*args: str, timeout: float = 20) -> subprocess.CompletedProcess:
 # -- SIGHUP reload -----------------------------------------------------------------------------
 
 
-def test_sighup_revokes_bobs_grant_at_once_without_dropping_anyone(tmp_path: Path, probes) -> None:
+def test_sighup_revokes_bobs_grant_at_once_and_closes_only_his_connections(tmp_path: Path, probes) -> None:
+    """bob loses turtle1: deliveries to him stop at once and his connection is closed (what he subscribed to ends
+    with the grant: fleet apply's contract); alice, unchanged, keeps hers and her stream."""
     fleet = write_fleet(tmp_path, read_only_service=False)
     assert fleet.read_text().count(BOB_GRANT) == 1
     with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
@@ -84,10 +86,12 @@ def test_sighup_revokes_bobs_grant_at_once_without_dropping_anyone(tmp_path: Pat
         assert last < 1.0, f"bob still received turtle1 state {last:.2f} s after SIGHUP"
         assert not [m for m in after if m.at > hup_at + 1.0]
         assert alice_after or alice.drain(0.5), "alice (unchanged) stopped receiving"
-        assert not bob.disconnected.is_set() and not alice.disconnected.is_set(), "reload dropped a client"
-        assert "reloaded" in broker.output()
-        # a fresh subscription by bob is refused now
-        assert bob.subscribe("roslink/turtle1/state/#") == [128]
+        assert bob.disconnected.is_set(), "bob kept his connection"
+        assert not alice.disconnected.is_set(), "alice lost hers"
+        assert "fewer grants ['bob']; 1 connection(s) dropped" in broker.output()
+        # bob may log in again, but a fresh subscription of his to turtle1 is refused now
+        again = probes(broker.port, "bob")
+        assert again.connect() == 0 and again.subscribe("roslink/turtle1/state/#") == [128]
 
 
 def test_reload_with_a_broken_file_keeps_the_running_rules_and_removed_logins_are_dropped(tmp_path: Path,
@@ -373,6 +377,31 @@ def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes)
         assert _listening_ports(broker.pid) == {tls_port}  # nothing else of the broker's listens, anywhere
     finally:
         broker.stop()
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
+def test_each_listener_binds_its_own_address_and_wss_carries_mqtt(tmp_path: Path, probes) -> None:
+    """Four listeners, three addresses: plain MQTT on 127.0.0.1 (``host``), WebSocket on 127.0.0.3 (``ws_host``),
+    TLS and secure WebSocket on 127.0.0.2 (``tls.host``, ``tls.ws_port``). Each answers on its own address only,
+    and a client logs in over ``wss://`` trusting the certificate."""
+    tls_port, fleet = _tls_on_127_0_0_2(tmp_path)
+    ws_port, wss_port = free_port(), free_port()
+    text = fleet.read_text().replace("  ws_port: 0\n", f"  ws_port: {ws_port}\n  ws_host: 127.0.0.3\n", 1)
+    fleet.write_text(text.replace("keyfile: key.pem}", f"keyfile: key.pem, ws_port: {wss_port}}}", 1))
+    with EmbeddedBrokerProcess(tmp_path, fleet, "--ws-port", str(ws_port)) as broker:
+        log = broker.output()
+        for url in (f"mqtt://127.0.0.1:{broker.port}", f"ws://127.0.0.3:{ws_port}", f"mqtts://127.0.0.2:{tls_port}",
+                    f"wss://127.0.0.2:{wss_port}"):
+            assert url in log, log
+        where = {broker.port: "127.0.0.1", ws_port: "127.0.0.3", tls_port: "127.0.0.2", wss_port: "127.0.0.2"}
+        for port, address in where.items():
+            for other in ("127.0.0.1", "127.0.0.2", "127.0.0.3"):
+                with socket.socket() as probe:
+                    assert (probe.connect_ex((other, port)) == 0) is (other == address), (port, other)
+        secure = probes(wss_port, "alice", host="127.0.0.2", transport="websockets")
+        secure.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
+        assert secure.connect() == 0
+        assert secure.subscribe("roslink/turtle2/#") == [128]  # the same ACL on every listener
 
 
 def _listening_ports(pid: int | None) -> set[int]:

@@ -120,7 +120,9 @@ def test_every_snippet_is_marked() -> None:
     no_reason = [s.id for s in SNIPPETS if s.words[:1] == ["norun"] and len(s.words) < 2]
     assert not unmarked, f"mark these blocks `run …`, `ns <host>` or `norun <reason>` ({__file__}): {unmarked}"
     assert not no_reason, f"`norun` needs a reason: {no_reason}"
-    assert len(RUNNABLE) >= len(SNIPPETS) // 2, "most documentation snippets should run"
+    # `ns <host>` blocks run too, each on its machine (tests/integration/test_deploy_guide.py)
+    run_somewhere = [s for s in SNIPPETS if s.runnable or s.words[:1] == ["ns"]]
+    assert len(run_somewhere) >= len(SNIPPETS) // 2, "most documentation snippets should run"
 
 
 # -- the live demo fleet ----------------------------------------------------------------------------

@@ -82,3 +82,14 @@ def test_a_tls_only_broker_on_a_public_host_needs_fresh_passwords_only(demo) -> 
     assert "plain MQTT would carry every login's password in clear text" in plain and "port: 0" in plain
     [ws] = exposure_problems(tls_only, ws_port=8083)
     assert "MQTT over WebSocket would carry" in ws
+
+
+def test_a_websocket_listener_on_an_address_of_its_own_is_judged_there(demo) -> None:
+    """broker.ws_host: the WebSocket listener's own address. Public, it is refused (clear text) while plain MQTT on
+    loopback is not named; on loopback beside a public wss:// listener (tls.ws_port) nothing is in clear text."""
+    [plain] = exposure_problems(_fresh(demo, ws_host="0.0.0.0"))
+    assert plain.startswith("broker.ws_host 0.0.0.0 is not loopback, and MQTT over WebSocket would carry")
+    wss = TlsSettings(8883, "cert.pem", "key.pem", host="0.0.0.0", ws_port=8084)
+    assert exposure_problems(_fresh(demo, tls=wss)) == []
+    [passwords] = exposure_problems(dataclasses.replace(demo, broker=dataclasses.replace(demo.broker, tls=wss)))
+    assert "demo fleet's published passwords" in passwords
