@@ -197,8 +197,11 @@ def test_a_refused_command_does_not_use_up_its_sequence_number(stack) -> None:
     """The motion gate refuses sequence N; the same N once armed is a new command, not a duplicate."""
     alice, cmd_vel = stack["alice"], stack["cmd_vel"]
     twist = {"message_id": 100, "sequence_number": 9000, "payload": {"lx": 0.35}}
-    t_stop = time.monotonic()
     alice.drain(0)  # what earlier tests left in alice's queue
+    # the previous test's cmd/arm (command link) must have landed first: it could otherwise overtake this stop (stop
+    # link) and leave the robot armed, with no heartbeat ever saying EMERGENCY (seen once in CI)
+    alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4)
+    t_stop = time.monotonic()
     alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {})
     # the stop travels on the bridge's own stop connection: the twist may overtake it unless we wait for it (a zero
     # on cmd_vel alone is not enough: supervision repeats the stops of earlier tests' streams), and for the robot's
