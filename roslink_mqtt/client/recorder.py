@@ -1,0 +1,294 @@
+"""``roslink-mqtt record``: what a user may read of some robots, kept as MCAP (Foxglove, Lichtblick, ``mcap``).
+
+It logs in as the user, so the broker's ACL decides what is recorded: each robot's heartbeat, every state topic the
+user may read (acknowledgements, the description, the link report, who drives …) and what the robot sends this
+user (replies, errors, the access report). One MCAP channel per MQTT topic, each with a ``jsonschema`` schema
+(protocol/schemas.py) so Foxglove shows fields, not text:
+
+* JSON payloads are written as they came (``json`` message encoding);
+* ``encoding: cbor`` state is converted to JSON (byte strings as base64): every MCAP reader decodes JSON, while a
+  CBOR channel would need a decoder Foxglove does not have;
+* ``encoding: raw`` state (compressed images) becomes ``foxglove.CompressedImage`` in JSON (``data`` base64), the
+  schema Foxglove's Image panel reads.
+
+Log time is the arrival on this machine; publish time is the message's own stamp where it has one (a ROS
+``header.stamp``), else the arrival. The file is valid after Ctrl-C (the summary is written on the way out), and
+``split_size`` starts a new file (``name-001.mcap`` …) once one grows past it. Messages wait in a bounded queue
+between paho's thread and the writer: if the disk cannot keep up, the newest are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import orjson
+import paho.mqtt.client as mqtt
+
+from ..mqtt import connack_refusal, make_client, parse_broker_urls
+from ..protocol.description import RobotDescription
+from ..protocol.errors import ProtocolError
+from ..protocol.schemas import schema_for
+from ..topics import Kind, TopicTree
+from .errors import ConnectError
+
+log = logging.getLogger("roslink_mqtt.record")
+
+QUEUE_LIMIT = 10_000  # messages between paho's thread and the writer
+NS = 1_000_000_000
+
+
+@dataclass
+class Progress:
+    """What has been written: messages and bytes in all, messages per topic, and what was dropped."""
+
+    messages: int = 0
+    bytes: int = 0
+    dropped: int = 0
+    files: list[Path] = field(default_factory=list)
+    per_topic: Counter[str] = field(default_factory=Counter)
+
+
+class _McapFile:
+    """One MCAP file being written: schemas and channels registered once per topic."""
+
+    def __init__(self, path: Path) -> None:
+        from mcap.writer import Writer
+
+        self.path = path
+        self._stream: IO[bytes] = path.open("wb")
+        self.writer = Writer(self._stream)
+        self.writer.start(profile="", library="roslink-mqtt")
+        self.channels: dict[str, int] = {}
+        self.sequence: Counter[int] = Counter()
+
+    def channel(self, topic: str, schema: dict[str, Any]) -> int:
+        if topic not in self.channels:
+            schema_id = self.writer.register_schema(str(schema.get("title", topic)), "jsonschema",
+                                                    orjson.dumps(schema))
+            self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
+        return self.channels[topic]
+
+    def write(self, channel: int, log_time: int, publish_time: int, data: bytes) -> None:
+        self.sequence[channel] += 1
+        self.writer.add_message(channel, log_time, data, publish_time, self.sequence[channel])
+
+    def size(self) -> int:
+        return self._stream.tell()
+
+    def close(self) -> None:
+        self.writer.finish()
+        self._stream.close()
+
+
+class Recorder:
+    """Record ``robots`` as ``username`` into ``out`` (see the module's docstring); :meth:`run` until stopped."""
+
+    def __init__(self, *, url: str, username: str, password: str, robots: Sequence[str], out: str | Path,
+                 prefix: str = "roslink", ca_file: str | None = None, split_size: int = 0,
+                 topics: Sequence[str] = ()) -> None:
+        self.tree = TopicTree(prefix)
+        self.username, self.robots, self.out = username, list(robots), Path(out)
+        self.split_size, self.wanted = split_size, list(topics)
+        self.progress = Progress()
+        self.descriptions: dict[str, RobotDescription] = {}
+        self._schemas: dict[str, dict[str, Any]] = {}  # topic → its schema (from its robot's description)
+        self._robot_of: dict[str, str] = {}
+        self._inbox: queue.Queue[tuple[str, bytes, int, bool]] = queue.Queue(QUEUE_LIMIT)
+        self._retained_seen: set[tuple[str, int]] = set()  # a retained message is recorded once, whatever matched it
+        self._connected = threading.Event()
+        self._refused: str | None = None
+        self._file: _McapFile | None = None
+        self.url = url
+        self.client = make_client(f"{username}-record-{time.monotonic_ns() % 10**9}", username=username,
+                                  password=password, url=url, ca_file=ca_file)
+        self.client.on_connect = self._on_connect
+        self.client.on_message = self._on_message
+
+    # -- MQTT (paho's thread) ------------------------------------------------------------------------------
+    def filters(self) -> list[str]:
+        out = []
+        for robot in self.robots:
+            out += [self.tree.state(robot, "description"), self.tree.heartbeat(robot), self.tree.state_filter(robot),
+                    self.tree.to_user_filter(robot, self.username)]
+        return out
+
+    def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any = None) -> None:
+        if getattr(reason, "value", reason) != 0:
+            self._refused = connack_refusal(reason)
+        else:
+            client.subscribe([(f, 1) for f in self.filters()])
+        self._connected.set()
+
+    def _on_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
+        try:
+            self._inbox.put_nowait((message.topic, bytes(message.payload), time.time_ns(), bool(message.retain)))
+        except queue.Full:
+            self.progress.dropped += 1
+
+    # -- writing -------------------------------------------------------------------------------------------
+    def _path(self) -> Path:
+        index = len(self.progress.files)
+        if not self.split_size or index == 0:
+            return self.out
+        return self.out.with_name(f"{self.out.stem}-{index:03d}{self.out.suffix}")
+
+    def _open(self) -> _McapFile:
+        if self._file is None:
+            self._file = _McapFile(self._path())
+            self.progress.files.append(self._file.path)
+        return self._file
+
+    def _schema(self, topic: str) -> dict[str, Any] | None:
+        """The topic's schema (None: not a topic of the tree, or one the filters leave out)."""
+        if topic in self._schemas:
+            return self._schemas[topic]
+        parsed = self.tree.parse(topic)
+        if parsed is None or parsed.robot not in self.robots:
+            return None
+        if self.wanted and parsed.kind is Kind.STATE and parsed.name not in self.wanted:
+            return None
+        schema = schema_for(parsed, topic, self.descriptions.get(parsed.robot or ""))
+        self._schemas[topic], self._robot_of[topic] = schema, parsed.robot or ""
+        return schema
+
+    def _encoded(self, topic: str, payload: bytes, arrived: int) -> tuple[bytes, int]:
+        """(JSON for the channel, publish time) of one payload."""
+        parsed = self.tree.parse(topic)
+        encoding = None
+        if parsed is not None and parsed.kind is Kind.STATE and parsed.robot in self.descriptions:
+            entry = next((e for e in self.descriptions[parsed.robot].state if e.name == parsed.name), None)
+            encoding = entry.encoding if entry is not None else None
+        if encoding == "raw":
+            image = {"timestamp": {"sec": arrived // NS, "nsec": arrived % NS}, "frame_id": parsed.name if parsed
+                     else "", "data": base64.b64encode(payload).decode(), "format": _image_format(payload)}
+            return orjson.dumps(image), arrived
+        if encoding == "cbor":
+            import cbor2
+
+            value = _jsonable(cbor2.loads(payload))
+            return orjson.dumps(value), _stamp(value, arrived)
+        try:
+            value = orjson.loads(payload)
+        except orjson.JSONDecodeError:
+            return orjson.dumps({"text": payload.decode("utf-8", "replace")}), arrived
+        return payload, _stamp(value, arrived)
+
+    def write(self, topic: str, payload: bytes, arrived: int, retained: bool = False) -> None:
+        if not payload:
+            return  # a retained message cleared
+        if retained:  # the description comes first on a filter of its own, then again through state/#: once
+            key = (topic, hash(payload))
+            if key in self._retained_seen:
+                return
+            self._retained_seen.add(key)
+        parsed = self.tree.parse(topic)
+        if parsed is not None and parsed.kind is Kind.STATE and parsed.name == "description":
+            try:
+                self.descriptions[parsed.robot or ""] = RobotDescription.from_json(payload)
+                # schemas not yet written out follow the new description (a channel keeps the one it started with)
+                self._schemas = {t: s for t, s in self._schemas.items() if self._robot_of.get(t) != parsed.robot}
+            except ProtocolError as err:
+                log.warning("%s: %s (its topics are recorded with plain object schemas)", topic, err)
+        schema = self._schema(topic)
+        if schema is None:
+            return
+        try:
+            data, published = self._encoded(topic, payload, arrived)
+        except Exception as err:  # a malformed CBOR or image payload: kept out, counted, the recording goes on
+            log.warning("%s: not recorded: %s", topic, err)
+            self.progress.dropped += 1
+            return
+        mcap_file = self._open()
+        mcap_file.write(mcap_file.channel(topic, schema), arrived, published, data)
+        self.progress.messages += 1
+        self.progress.bytes += len(data)
+        self.progress.per_topic[topic] += 1
+        if self.split_size and mcap_file.size() >= self.split_size:
+            self.close()
+
+    def close(self) -> None:
+        """Finish the file being written (its summary and index): a complete MCAP file."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    # -- running -------------------------------------------------------------------------------------------
+    def connect(self, timeout: float = 10.0) -> None:
+        broker = parse_broker_urls(self.url)[0]
+        self.client.connect(broker.host, broker.port, keepalive=30)
+        self.client.loop_start()
+        if not self._connected.wait(timeout):
+            raise ConnectError(f"{self.url} did not answer within {timeout:g} s")
+        if self._refused is not None:
+            raise ConnectError(f"{self.url} refused {self.username}: {self._refused}")
+
+    def run(self, *, duration: float | None, stop: threading.Event,
+            on_progress: Callable[[Progress, float], None] | None = None, every: float = 1.0) -> Progress:
+        """Write until ``duration`` s have passed or ``stop`` is set; the file is complete when this returns."""
+        started = time.monotonic()
+        next_report = started + every
+        try:
+            while not stop.is_set():
+                now = time.monotonic()
+                if duration is not None and now - started >= duration:
+                    break
+                try:
+                    self.write(*self._inbox.get(timeout=0.1))
+                except queue.Empty:
+                    pass
+                if on_progress is not None and time.monotonic() >= next_report:
+                    on_progress(self.progress, time.monotonic() - started)
+                    next_report += every
+        finally:
+            self.client.disconnect()
+            self.client.loop_stop()
+            while not self._inbox.empty():  # what arrived before the disconnect
+                self.write(*self._inbox.get_nowait())
+            if self._file is None and not self.progress.files:
+                self._open()  # nothing came: still a valid (empty) file
+            self.close()
+        return self.progress
+
+
+def _jsonable(value: Any) -> Any:
+    """A decoded CBOR value as JSON can carry it: byte strings as base64 text, tags as their values."""
+    from cbor2 import CBORTag
+
+    if isinstance(value, CBORTag):
+        return _jsonable(value.value)
+    if isinstance(value, (bytes, bytearray)):
+        return base64.b64encode(value).decode()
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _image_format(data: bytes) -> str:
+    if data.startswith(b"\xff\xd8"):
+        return "jpeg"
+    if data.startswith(b"\x89PNG"):
+        return "png"
+    if data[8:12] == b"WEBP":
+        return "webp"
+    return "jpeg"
+
+
+def _stamp(value: Any, arrived: int) -> int:
+    """A ROS ``header.stamp`` in the message (generic rules carry it), in ns; else the arrival."""
+    header = value.get("header") if isinstance(value, dict) else None
+    stamp = header.get("stamp") if isinstance(header, dict) else None
+    if isinstance(stamp, dict) and isinstance(stamp.get("sec"), int):
+        nanos = stamp.get("nanosec", stamp.get("nsec", 0))
+        return stamp["sec"] * NS + (nanos if isinstance(nanos, int) else 0)
+    return arrived

@@ -1,0 +1,83 @@
+"""``roslink-mqtt record``'s pure parts: the JSON schemas (protocol/schemas.py) and how each payload is written
+(client/recorder.py), checked by reading the file back with the mcap reader. No broker: the recorder is fed."""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+from pathlib import Path
+
+import cbor2
+import orjson
+from mcap.reader import make_reader
+
+from roslink_mqtt.client.recorder import Recorder
+from roslink_mqtt.protocol.description import EXAMPLE, StateEntry
+from roslink_mqtt.protocol.schemas import DRAFT, ros_schema, schema_for
+from roslink_mqtt.topics import TopicTree
+
+T = TopicTree()
+DESCRIPTION = dataclasses.replace(EXAMPLE, robot="turtle1", state=(
+    *EXAMPLE.state, StateEntry("pose_cbor", ros_type="std_msgs/msg/Float32", encoding="cbor")))
+
+
+def _schema(topic: str) -> dict:
+    parsed = T.parse(topic)
+    assert parsed is not None
+    return schema_for(parsed, topic, DESCRIPTION)
+
+
+def test_each_kind_of_topic_gets_the_schema_of_its_declaration() -> None:
+    assert _schema(T.heartbeat("turtle1"))["title"] == "roslink.heartbeat"
+    ack = _schema(T.state("turtle1", "ack"))
+    assert ack["title"] == "roslink.ack" and ack["properties"]["payload"]["properties"]["result"]["type"] == "integer"
+    assert _schema(T.state("turtle1", "camera"))["title"] == "foxglove.CompressedImage"
+    voltage = _schema(T.state("turtle1", "battery_voltage"))
+    assert voltage["title"] == "std_msgs/msg/Float32" and voltage["properties"]["data"] == {"type": "number"}
+    assert _schema(T.state("turtle1", "control"))["properties"]["holder"]["anyOf"][1] == {"type": "null"}
+    error = _schema(T.error("turtle1", "bob"))
+    assert error["title"] == "ErrorReport" and "error" in error["required"]
+    assert _schema(T.state("turtle1", "unknown_thing")) == {"$schema": DRAFT, "type": "object",
+                                                             "title": "roslink/turtle1/state/unknown_thing"}
+
+
+def test_ros_layouts_become_nested_schemas_with_arrays() -> None:
+    types = {"x/msg/T": {"covariance": "float64[36]", "names": "string[]", "label": "string<=10", "count": "uint8",
+                         "stamp": {"type": "builtin_interfaces/msg/Time", "fields": {"sec": "int32"}}}}
+    schema = ros_schema("x/msg/T", types)
+    assert schema is not None
+    props = schema["properties"]
+    assert props["covariance"] == {"type": "array", "items": {"type": "number"}}
+    assert props["names"] == {"type": "array", "items": {"type": "string"}}
+    assert props["label"] == {"type": "string"} and props["count"] == {"type": "integer"}
+    assert props["stamp"]["properties"]["sec"] == {"type": "integer"}
+    assert ros_schema("y/msg/Unknown", types) is None
+
+
+def test_json_cbor_and_raw_payloads_are_written_as_json_channels(tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    recorder = Recorder(url="mqtt://127.0.0.1:1", username="bob", password="x", robots=["turtle1"], out=out)
+    recorder.write(T.state("turtle1", "description"), DESCRIPTION.to_json(), 1_000, retained=True)
+    recorder.write(T.state("turtle1", "description"), DESCRIPTION.to_json(), 1_001, retained=True)  # twice: once
+    recorder.write(T.state("turtle1", "pose_cbor"), cbor2.dumps({"data": 1.5, "raw": b"\x00\x01"}), 2_000)
+    jpeg = b"\xff\xd8\xff\xe0fake"
+    recorder.write(T.state("turtle1", "camera"), jpeg, 3_000_000_123)
+    stamped = {"header": {"stamp": {"sec": 7, "nanosec": 5}}, "data": 2.0}
+    recorder.write(T.state("turtle1", "battery_voltage"), orjson.dumps(stamped), 4_000)
+    recorder.write(T.state("turtle2", "battery_voltage"), orjson.dumps(stamped), 5_000)  # not a robot recorded
+    recorder.write(T.state("turtle1", "battery_voltage"), b"", 6_000)  # a cleared retained message
+    recorder.close()
+    with out.open("rb") as f:
+        got = [(channel.topic, schema.name, message)
+               for schema, channel, message in make_reader(f).iter_messages(log_time_order=False)]
+    assert [t for t, _, _ in got] == [T.state("turtle1", n) for n in ("description", "pose_cbor", "camera",
+                                                                    "battery_voltage")]
+    _, _, cbor_message = got[1]
+    assert json.loads(cbor_message.data) == {"data": 1.5, "raw": base64.b64encode(b"\x00\x01").decode()}
+    _, image_schema, image = got[2]
+    decoded = json.loads(image.data)
+    assert image_schema == "foxglove.CompressedImage" and decoded["format"] == "jpeg"
+    assert base64.b64decode(decoded["data"]) == jpeg and decoded["timestamp"] == {"sec": 3, "nsec": 123}
+    _, _, voltage = got[3]
+    assert voltage.publish_time == 7 * 10**9 + 5 and voltage.log_time == 4_000  # the message's own stamp
