@@ -770,7 +770,11 @@ class HardenedBroker(Broker):
                 _drop_connection(handler, "PUBLISH with an empty topic")
                 return True
             if topic == FLEET_CONTROL and self.control is not None:
-                self._answer_control(client_session.username, bytes(message.data or b""))
+                if self.control.is_admin(client_session.username):
+                    self._answer_control(client_session.username, bytes(message.data or b""))
+                else:  # anyone else's request is dropped here, logged once per session: no task, no log flood
+                    _log_once(client_session, "$control", logging.WARNING, "deny publish %s topic=%r: only the "
+                              "fleet's administrators may use it", describe_session(client_session), topic)
                 return True
             if topic.startswith("$"):
                 _log_once(client_session, "$" + topic, logging.INFO,

@@ -23,6 +23,7 @@ from . import (
     monitor_cmd,
     param_cmd,
     passwd_cmd,
+    play_cmd,
     pub_cmd,
     record_cmd,
     robots_cmd,
@@ -31,7 +32,7 @@ from . import (
 )
 
 SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, param_cmd, teleop_cmd, control_cmd, estop_cmd,
-               monitor_cmd, record_cmd, passwd_cmd, fleet_cmd, acl_cmd, dashboard_cmd, info_cmd, whoami_cmd)
+               monitor_cmd, record_cmd, play_cmd, passwd_cmd, fleet_cmd, acl_cmd, dashboard_cmd, info_cmd, whoami_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 

@@ -251,3 +251,27 @@ def test_a_robot_password_rotates_without_dropping_the_robot(tmp_path: Path) -> 
         broker.start()
         admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4 and not m.retain, timeout=30)
         assert "refused" not in bridge.output()
+
+
+def test_only_administrators_reach_the_fleet_control_topic(tmp_path: Path) -> None:
+    """bob (a viewer) as an attacker: 500 reload requests on ``$CONTROL/roslink/v1`` reload nothing, cost one log
+    line, and he cannot read the answers; an administrator's request meanwhile is answered."""
+    from roslink_mqtt.protocol.fleet_control import ControlRequest, ControlResponse
+
+    fleet = write_fleet(tmp_path, read_only_service=False)
+    request = ControlRequest(({"command": "reload"},), "attack").to_json()
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker, \
+            TestClient(broker.port, "bob", "bob-demo") as bob, TestClient(broker.port, "admin", "admin-demo") as admin:
+        assert bob.connect() == 0 and admin.connect() == 0
+        bob.subscribe("$CONTROL/roslink/v1/response")  # refused (SUBACK 0x80); and nothing may reach him there
+        for _ in range(500):
+            bob.publish("$CONTROL/roslink/v1", request, qos=0)
+        bob.publish("$CONTROL/roslink/v1", request, qos=1)  # acknowledged: everything before it was handled
+        admin.subscribe("$CONTROL/roslink/v1/response")
+        admin.publish("$CONTROL/roslink/v1", ControlRequest(({"command": "getFleet"},), "mine").to_json())
+        answer = ControlResponse.from_json(admin.wait_for(lambda m: m.topic.endswith("/response")).payload)
+        assert answer.id == "mine" and "bob" in answer.responses[0]["data"]["logins"]
+        assert not [m for m in bob.drain(0.5) if m.topic.startswith("$CONTROL")], "bob read the control answers"
+        log = broker.output()
+        assert "asks to reload" not in log and "reloaded" not in log
+        assert log.count("only the fleet's administrators may use it") == 1

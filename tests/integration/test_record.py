@@ -90,3 +90,34 @@ def test_an_independent_reader_agrees(recording: Path) -> None:
     for channel in found["channels"]:
         assert channel["monotonic"] and channel["encoding"] == "json", channel
         assert channel["schema"]["encoding"] == "jsonschema" and channel["schema"]["parsed"]["type"] == "object"
+
+
+def test_play_publishes_the_recording_again_as_its_robot(recording: Path, tmp_path: Path) -> None:
+    """``roslink-mqtt play`` at twice the speed into a broker with no robot: a viewer sees turtle1's motion as
+    recorded (same messages, same order, half the time), and the robot offline once the recording ends."""
+    from mcap.reader import make_reader
+
+    from tests.support.embedded_broker import EmbeddedBrokerProcess
+    from tests.support.mqtt_client import TestClient
+
+    motion_topic = "roslink/turtle1/state/global_motion"
+    with recording.open("rb") as f:
+        recorded = [(m.log_time, bytes(m.data)) for _, c, m in make_reader(f).iter_messages()
+                    if c.topic == motion_topic]
+    span = (recorded[-1][0] - recorded[0][0]) / 1e9
+    with EmbeddedBrokerProcess(tmp_path) as broker, TestClient(broker.port, "bob", "bob-demo") as bob:
+        assert bob.connect() == 0
+        bob.subscribe(motion_topic)
+        bob.subscribe("roslink/turtle1/heartbeat")
+        done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "play", str(recording), "--rate", "2",
+                               "--url", f"mqtt://127.0.0.1:{broker.port}", "-u", "turtle1"], capture_output=True,
+                              text=True, cwd=ROOT, timeout=60, stdin=subprocess.DEVNULL,
+                              env={**os.environ, "ROSLINK_PASSWORD": "turtle1-demo"})
+        assert done.returncode == 0 and "played" in done.stderr, done.stderr
+        got = bob.drain(1.0)
+    motion = [m for m in got if m.topic == motion_topic]
+    assert [m.payload for m in motion] == [payload for _, payload in recorded]
+    played_span = motion[-1].at - motion[0].at
+    assert span / 2 * 0.75 < played_span < span / 2 * 1.25, (played_span, span)
+    heartbeats = [m.json()["payload"]["system_status"] for m in got if m.topic.endswith("/heartbeat")]
+    assert heartbeats and heartbeats[-1] == 8  # offline: the recording is over

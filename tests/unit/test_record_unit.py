@@ -81,3 +81,23 @@ def test_json_cbor_and_raw_payloads_are_written_as_json_channels(tmp_path: Path)
     assert base64.b64decode(decoded["data"]) == jpeg and decoded["timestamp"] == {"sec": 3, "nsec": 123}
     _, _, voltage = got[3]
     assert voltage.publish_time == 7 * 10**9 + 5 and voltage.log_time == 4_000  # the message's own stamp
+
+
+def test_play_renames_a_robot_in_its_topics_and_in_the_bodies_that_name_it(tmp_path: Path) -> None:
+    from roslink_mqtt.client.player import frames
+
+    out = tmp_path / "r.mcap"
+    recorder = Recorder(url="mqtt://127.0.0.1:1", username="bob", password="x", robots=["turtle1"], out=out)
+    heartbeat = {"message_id": 0, "payload": {"type": 1, "name": "turtle1", "system_status": 4}}
+    recorder.write(T.state("turtle1", "description"), DESCRIPTION.to_json(), 1_000_000_000, retained=True)
+    recorder.write(T.heartbeat("turtle1"), orjson.dumps(heartbeat), 1_500_000_000)
+    recorder.write(T.error("turtle1", "bob"), orjson.dumps({"topic": "x", "error": "no"}), 1_600_000_000)
+    recorder.write(T.state("turtle1", "battery_voltage"), b'{"data": 1.0}', 2_000_000_000)
+    recorder.close()
+    played = list(frames(out, T, {"turtle1": "turtle2"}))
+    assert [(f.topic, f.retain, f.at) for f in played] == [
+        (T.state("turtle2", "description"), True, 0.0), (T.heartbeat("turtle2"), True, 0.5),
+        (T.state("turtle2", "battery_voltage"), False, 1.0)]  # bob's error is not played: it was his
+    assert json.loads(played[0].payload)["robot"] == "turtle2"
+    assert json.loads(played[1].payload)["payload"]["name"] == "turtle2"
+    assert played[2].payload == b'{"data": 1.0}'

@@ -1,0 +1,65 @@
+"""``roslink-mqtt play FILE.mcap``: publish a recording again as the robot it shows (client/player.py)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from ..connection_options import ENV_PASSWORD, resolve_ca_file, resolve_password, resolve_url, resolve_username
+from ..topics import TopicTree, check_name
+from .connect import PROG, add_connection_options
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("play", help="publish a recording (roslink-mqtt record) again, as its robot",
+                       description="Publish the heartbeats and state of a recording into a broker at the recorded "
+                                   "pace, logged in as a robot (-u ROBOT): dashboards, scripts and tests see that "
+                                   "robot as it was. What it sent one user is not played.")
+    p.add_argument("file", metavar="FILE.mcap")
+    p.add_argument("--rate", type=float, default=1.0, help="speed: 2 plays twice as fast (default: %(default)s)")
+    p.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
+    p.add_argument("--as", dest="rename", action="append", default=[], metavar="RECORDED=ROBOT",
+                   help="play the recorded robot's topics as another robot's (log in as that one)")
+    p.add_argument("--prefix", default="roslink", help="topic prefix of the fleet (default: %(default)s)")
+    add_connection_options(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..client.errors import ConnectError
+    from ..client.player import Player, frames
+
+    if args.rate <= 0:
+        print(f"{PROG} play: --rate must be above 0", file=sys.stderr)
+        return 2
+    rename = {}
+    for item in args.rename:
+        recorded, _, robot = item.partition("=")
+        rename[check_name(recorded, "robot")] = check_name(robot, "robot")
+    username, password = resolve_username(args), resolve_password(args, PROG)
+    if not username or password is None:
+        print(f"{PROG} play: needs the robot's login: -u ROBOT and {ENV_PASSWORD} or --password-file", file=sys.stderr)
+        return 2
+    tree = TopicTree(args.prefix)
+    player = Player(url=resolve_url(args, PROG), username=username, password=password, ca_file=resolve_ca_file(args),
+                    tree=tree)
+    try:
+        player.connect()
+    except (ConnectError, OSError) as err:
+        print(f"{PROG} play: {err}", file=sys.stderr)
+        return 1
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    played = 0
+    try:
+        while not stop.is_set():
+            played += player.play(frames(args.file, tree, rename), rate=args.rate, stop=stop)
+            if not args.loop:
+                break
+    finally:
+        player.close()
+    print(f"played {played} messages of {args.file}", file=sys.stderr)
+    return 0
