@@ -135,3 +135,18 @@ class AdminChannel:
                 out[topic] = payload
         self._client.unsubscribe(topic_filter)
         return out
+
+
+def new_login_password(fleet: Any, login: str, passwords: dict[str, str] | Any, broker: str) -> str:
+    """The clear-text password of ``login``, new to a broker that hashes passwords itself (``broker`` says which
+    and why, for the refusal), checked against robots.yaml's hash: the broker must never accept a password the
+    fleet file does not."""
+    from ..config import verify_password
+
+    password = passwords.get(login)
+    if password is None:
+        raise AdminError(f"{login} is new to {broker}: give its password in --passwords FILE ('login: password' "
+                         "lines)")
+    if not verify_password(password, fleet.password_hash(login) or ""):
+        raise AdminError(f"--passwords: the password given for {login} does not match robots.yaml's hash")
+    return str(password)

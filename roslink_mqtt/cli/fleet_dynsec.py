@@ -24,9 +24,9 @@ from ..broker.export_dynsec import (
     role_name,
 )
 from ..broker.export_rabbitmq import read_passwords
-from ..config import Fleet, verify_password
+from ..config import Fleet
 from ..topics import DYNSEC_CONTROL, DYNSEC_RESPONSE
-from .fleet_admin import AdminChannel, AdminError
+from .fleet_admin import AdminChannel, AdminError, new_login_password
 
 BATCH = 64  # commands per request
 
@@ -82,15 +82,11 @@ def dynsec_plan(fleet: Fleet, clients: Mapping[str, str], roles: Mapping[str, se
                              for t, topic, _ in sorted(extra)]
                 commands += [{"command": "addRoleACL", "rolename": role, **a} for a in missing]
         if login not in clients:
-            password = passwords.get(login)
-            if password is None and not need_passwords:
+            if login not in passwords and not need_passwords:
                 lines.append(f"add      {login}: {kind} (needs its password in --passwords)")
                 continue
-            if password is None:
-                raise AdminError(f"{login} is new to Mosquitto, whose dynamic-security plugin takes a password in "
-                                 "clear text only: give it in --passwords FILE ('login: password' lines)")
-            if not verify_password(password, fleet.password_hash(login) or ""):
-                raise AdminError(f"--passwords: the password given for {login} does not match robots.yaml's hash")
+            password = new_login_password(fleet, login, passwords, "Mosquitto, whose dynamic-security plugin "
+                                                                   "takes passwords in clear text only")
             lines.append(f"add      {login}: {kind}")
             commands.append({"command": "createClient", "username": login, "password": password,
                              "textname": TEXTNAME[kind], "roles": [{"rolename": role}]})

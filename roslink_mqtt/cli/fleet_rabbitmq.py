@@ -30,8 +30,8 @@ from ..broker.export_rabbitmq import (
     read_passwords,
     topic_permission_regex,
 )
-from ..config import Fleet, verify_password
-from .fleet_admin import AdminError
+from ..config import Fleet
+from .fleet_admin import AdminError, new_login_password
 
 ALL = "^.*$"
 
@@ -91,15 +91,11 @@ def rabbit_plan(fleet: Fleet, users: Sequence[str], topic: Mapping[str, tuple[st
     for login, (write, read) in want.items():
         rule = {"user": login, "vhost": vhost, "exchange": EXCHANGE, "write": write, "read": read}
         if login not in users:
-            password = passwords.get(login)
-            if password is None and not need_passwords:
+            if login not in passwords and not need_passwords:
                 lines.append(f"add      {login} (needs its password in --passwords)")
                 continue
-            if password is None:
-                raise AdminError(f"{login} is new to RabbitMQ, which cannot use robots.yaml's hashes: give its "
-                                 "password in --passwords FILE ('login: password' lines)")
-            if not verify_password(password, fleet.password_hash(login) or ""):
-                raise AdminError(f"--passwords: the password given for {login} does not match robots.yaml's hash")
+            password = new_login_password(fleet, login, passwords, "RabbitMQ, which cannot use robots.yaml's "
+                                                                   "hashes")
             lines.append(f"add      {login}")
             new_users.append({"name": login, "password_hash": rabbit_password_hash(password),
                               "hashing_algorithm": HASHING, "tags": []})

@@ -17,16 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import orjson
-import paho.mqtt.client as mqtt
 
-from ..mqtt import connack_refusal, make_client, parse_broker_urls
 from ..protocol import SystemStatus
 from ..protocol.description import RobotDescription
 from ..protocol.errors import ProtocolError
 from ..protocol.lease import CONTROL
 from ..protocol.link import LINK
 from ..topics import Kind, ParsedTopic, TopicTree
-from .errors import ConnectError
+from .plain_login import PlainLogin
 
 ALWAYS_RETAINED = ("description", CONTROL, LINK)  # state names the bridge itself retains
 
@@ -88,33 +86,14 @@ def _renamed(payload: bytes, parsed: ParsedTopic, robot: str) -> bytes:
         return payload
 
 
-class Player:
+class Player(PlainLogin):
     """Publish :func:`frames` into a broker as ``username`` (a robot's login)."""
 
     def __init__(self, *, url: str, username: str, password: str, ca_file: str | None = None,
                  tree: TopicTree | None = None) -> None:
-        self.url, self.username, self.tree = url, username, tree or TopicTree()
-        self._connected = threading.Event()
-        self._refused: str | None = None
-        self.client = make_client(f"{username}-play-{time.monotonic_ns() % 10**9}", username=username,
-                                  password=password, url=url, ca_file=ca_file)
-        self.client.on_connect = self._on_connect
+        super().__init__(url=url, username=username, password=password, ca_file=ca_file, role="play")
+        self.tree = tree or TopicTree()
         self._heartbeats: dict[str, bytes] = {}  # topic → the last heartbeat played
-
-    def _on_connect(self, _client: mqtt.Client, _userdata: object, _flags: object, reason: object,
-                    _props: object = None) -> None:
-        if getattr(reason, "value", reason) != 0:
-            self._refused = connack_refusal(reason)
-        self._connected.set()
-
-    def connect(self, timeout: float = 10.0) -> None:
-        broker = parse_broker_urls(self.url)[0]
-        self.client.connect(broker.host, broker.port, keepalive=30)
-        self.client.loop_start()
-        if not self._connected.wait(timeout):
-            raise ConnectError(f"{self.url} did not answer within {timeout:g} s")
-        if self._refused is not None:
-            raise ConnectError(f"{self.url} refused {self.username}: {self._refused}")
 
     def play(self, source: Iterator[Frame], *, rate: float = 1.0, stop: threading.Event,
              on_frame: Callable[[Frame], None] | None = None) -> int:
@@ -148,5 +127,4 @@ class Player:
             except (orjson.JSONDecodeError, KeyError, TypeError):
                 continue
             self.client.publish(topic, orjson.dumps(heartbeat), qos=1, retain=True).wait_for_publish(5)
-        self.client.disconnect()
-        self.client.loop_stop()
+        self.disconnect()

@@ -33,12 +33,11 @@ from typing import IO, Any
 import orjson
 import paho.mqtt.client as mqtt
 
-from ..mqtt import connack_refusal, make_client, parse_broker_urls
 from ..protocol.description import RobotDescription
 from ..protocol.errors import ProtocolError
 from ..protocol.schemas import schema_for
 from ..topics import Kind, TopicTree
-from .errors import ConnectError
+from .plain_login import PlainLogin
 
 log = logging.getLogger("roslink_mqtt.record")
 
@@ -89,7 +88,7 @@ class _McapFile:
         self._stream.close()
 
 
-class Recorder:
+class Recorder(PlainLogin):
     """Record ``robots`` as ``username`` into ``out`` (see the module's docstring); :meth:`run` until stopped."""
 
     def __init__(self, *, url: str, username: str, password: str, robots: Sequence[str], out: str | Path,
@@ -104,13 +103,8 @@ class Recorder:
         self._robot_of: dict[str, str] = {}
         self._inbox: queue.Queue[tuple[str, bytes, int, bool]] = queue.Queue(QUEUE_LIMIT)
         self._retained_seen: set[tuple[str, int]] = set()  # a retained message is recorded once, whatever matched it
-        self._connected = threading.Event()
-        self._refused: str | None = None
         self._file: _McapFile | None = None
-        self.url = url
-        self.client = make_client(f"{username}-record-{time.monotonic_ns() % 10**9}", username=username,
-                                  password=password, url=url, ca_file=ca_file)
-        self.client.on_connect = self._on_connect
+        super().__init__(url=url, username=username, password=password, ca_file=ca_file, role="record")
         self.client.on_message = self._on_message
 
     # -- MQTT (paho's thread) ------------------------------------------------------------------------------
@@ -121,12 +115,8 @@ class Recorder:
                     self.tree.to_user_filter(robot, self.username)]
         return out
 
-    def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any = None) -> None:
-        if getattr(reason, "value", reason) != 0:
-            self._refused = connack_refusal(reason)
-        else:
-            client.subscribe([(f, 1) for f in self.filters()])
-        self._connected.set()
+    def on_connected(self, client: mqtt.Client) -> None:
+        client.subscribe([(f, 1) for f in self.filters()])
 
     def _on_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
         try:
@@ -222,15 +212,6 @@ class Recorder:
             self._file = None
 
     # -- running -------------------------------------------------------------------------------------------
-    def connect(self, timeout: float = 10.0) -> None:
-        broker = parse_broker_urls(self.url)[0]
-        self.client.connect(broker.host, broker.port, keepalive=30)
-        self.client.loop_start()
-        if not self._connected.wait(timeout):
-            raise ConnectError(f"{self.url} did not answer within {timeout:g} s")
-        if self._refused is not None:
-            raise ConnectError(f"{self.url} refused {self.username}: {self._refused}")
-
     def run(self, *, duration: float | None, stop: threading.Event,
             on_progress: Callable[[Progress, float], None] | None = None, every: float = 1.0) -> Progress:
         """Write until ``duration`` s have passed or ``stop`` is set; the file is complete when this returns."""
@@ -249,8 +230,7 @@ class Recorder:
                     on_progress(self.progress, time.monotonic() - started)
                     next_report += every
         finally:
-            self.client.disconnect()
-            self.client.loop_stop()
+            self.disconnect()
             while not self._inbox.empty():  # what arrived before the disconnect
                 self.write(*self._inbox.get_nowait())
             if self._file is None and not self.progress.files:
