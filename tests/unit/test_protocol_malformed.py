@@ -92,7 +92,7 @@ def check_decode(data: bytes, expected: int | None) -> None:
         (envelope.message_id, envelope.payload, envelope.client_id)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)  # 200 random cases a run keep the unit suite in seconds
 @given(st.binary(max_size=200) | st.text(max_size=200).map(str.encode))
 def test_random_bytes_raise_only_protocol_error(data: bytes) -> None:
     for expected in (None, TWIST, MessageId.HEARTBEAT):
@@ -105,7 +105,7 @@ json_values = st.recursive(
     max_leaves=12)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)  # 200 random cases a run keep the unit suite in seconds
 @given(st.dictionaries(st.sampled_from(["lx", "ly", "az", "message_id", "payload", "sequence_number", "x"]),
                        json_values, max_size=5))
 def test_random_json_objects_raise_only_protocol_error(obj) -> None:
