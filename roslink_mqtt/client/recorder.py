@@ -56,6 +56,17 @@ class Progress:
     per_topic: Counter[str] = field(default_factory=Counter)
 
 
+@dataclass(frozen=True, slots=True)
+class _Route:
+    """How one topic is recorded: its robot and state name, its channel's schema, its payload encoding."""
+
+    robot: str
+    name: str
+    schema: dict[str, Any]
+    encoding: str | None  # "cbor", "raw" or None (JSON)
+    description: bool  # the robot's description: read, then recorded like any state
+
+
 class _McapFile:
     """One MCAP file being written: schemas and channels registered once per topic."""
 
@@ -99,8 +110,7 @@ class Recorder(PlainLogin):
         self.split_size, self.wanted = split_size, list(topics)
         self.progress = Progress()
         self.descriptions: dict[str, RobotDescription] = {}
-        self._schemas: dict[str, dict[str, Any]] = {}  # topic → its schema (from its robot's description)
-        self._robot_of: dict[str, str] = {}
+        self._routes: dict[str, _Route | None] = {}  # topic → how it is recorded (from its robot's description)
         self._inbox: queue.Queue[tuple[str, bytes, int, bool]] = queue.Queue(QUEUE_LIMIT)
         self._retained_seen: set[tuple[str, int]] = set()  # a retained message is recorded once, whatever matched it
         self._file: _McapFile | None = None
@@ -137,31 +147,31 @@ class Recorder(PlainLogin):
             self.progress.files.append(self._file.path)
         return self._file
 
-    def _schema(self, topic: str) -> dict[str, Any] | None:
-        """The topic's schema (None: not a topic of the tree, or one the filters leave out)."""
-        if topic in self._schemas:
-            return self._schemas[topic]
+    def _route(self, topic: str) -> _Route | None:
+        """How ``topic`` is recorded, worked out once per topic (None: not a topic of the tree, another robot's, or
+        one the filters leave out): the per-message path then parses nothing and searches no description."""
+        if topic in self._routes:
+            return self._routes[topic]
         parsed = self.tree.parse(topic)
-        if parsed is None or parsed.robot not in self.robots:
-            return None
-        if self.wanted and parsed.kind is Kind.STATE and parsed.name not in self.wanted:
-            return None
-        schema = schema_for(parsed, topic, self.descriptions.get(parsed.robot or ""))
-        self._schemas[topic], self._robot_of[topic] = schema, parsed.robot or ""
-        return schema
+        route = None
+        if parsed is not None and parsed.robot in self.robots and not (
+                self.wanted and parsed.kind is Kind.STATE and parsed.name not in self.wanted):
+            description = self.descriptions.get(parsed.robot or "")
+            entry = next((e for e in description.state if e.name == parsed.name), None) \
+                if description is not None and parsed.kind is Kind.STATE else None
+            route = _Route(parsed.robot or "", parsed.name or "", schema_for(parsed, topic, description),
+                           entry.encoding if entry is not None else None,
+                           parsed.kind is Kind.STATE and parsed.name == "description")
+        self._routes[topic] = route
+        return route
 
-    def _encoded(self, topic: str, payload: bytes, arrived: int) -> tuple[bytes, int]:
+    def _encoded(self, route: _Route, payload: bytes, arrived: int) -> tuple[bytes, int]:
         """(JSON for the channel, publish time) of one payload."""
-        parsed = self.tree.parse(topic)
-        encoding = None
-        if parsed is not None and parsed.kind is Kind.STATE and parsed.robot in self.descriptions:
-            entry = next((e for e in self.descriptions[parsed.robot].state if e.name == parsed.name), None)
-            encoding = entry.encoding if entry is not None else None
-        if encoding == "raw":
-            image = {"timestamp": {"sec": arrived // NS, "nsec": arrived % NS}, "frame_id": parsed.name if parsed
-                     else "", "data": base64.b64encode(payload).decode(), "format": _image_format(payload)}
+        if route.encoding == "raw":
+            image = {"timestamp": {"sec": arrived // NS, "nsec": arrived % NS}, "frame_id": route.name,
+                     "data": base64.b64encode(payload).decode(), "format": _image_format(payload)}
             return orjson.dumps(image), arrived
-        if encoding == "cbor":
+        if route.encoding == "cbor":
             import cbor2
 
             value = _jsonable(cbor2.loads(payload))
@@ -180,25 +190,25 @@ class Recorder(PlainLogin):
             if key in self._retained_seen:
                 return
             self._retained_seen.add(key)
-        parsed = self.tree.parse(topic)
-        if parsed is not None and parsed.kind is Kind.STATE and parsed.name == "description":
+        route = self._route(topic)
+        if route is None:
+            return
+        if route.description:
             try:
-                self.descriptions[parsed.robot or ""] = RobotDescription.from_json(payload)
-                # schemas not yet written out follow the new description (a channel keeps the one it started with)
-                self._schemas = {t: s for t, s in self._schemas.items() if self._robot_of.get(t) != parsed.robot}
+                self.descriptions[route.robot] = RobotDescription.from_json(payload)
+                # routes not yet used follow the new description (a channel keeps the schema it started with)
+                self._routes = {t: r for t, r in self._routes.items()
+                                if r is None or r.robot != route.robot or r.description}
             except ProtocolError as err:
                 log.warning("%s: %s (its topics are recorded with plain object schemas)", topic, err)
-        schema = self._schema(topic)
-        if schema is None:
-            return
         try:
-            data, published = self._encoded(topic, payload, arrived)
+            data, published = self._encoded(route, payload, arrived)
         except Exception as err:  # a malformed CBOR or image payload: kept out, counted, the recording goes on
             log.warning("%s: not recorded: %s", topic, err)
             self.progress.dropped += 1
             return
         mcap_file = self._open()
-        mcap_file.write(mcap_file.channel(topic, schema), arrived, published, data)
+        mcap_file.write(mcap_file.channel(topic, route.schema), arrived, published, data)
         self.progress.messages += 1
         self.progress.bytes += len(data)
         self.progress.per_topic[topic] += 1
