@@ -431,5 +431,7 @@ def test_a_disk_backlog_drains_behind_live_poses_on_a_thin_uplink(tmp_path, mode
     during = [age for t, age in poses if first_pose <= t <= drained]
     assert len(during) >= 4 * (drained - first_pose), (  # the demo's 10 Hz global_motion: at least 4 Hz of it
         f"{len(during)} poses in the {drained - first_pose:.1f} s the backlog took: it held live data back")
-    assert _quantile(during, 0.9) < 1.5, f"poses arrived stale while the backlog drained: {sorted(during)[-5:]}"
+    # the failure this guards against leaves poses ~4 s old (the backlog in front of them); a loaded CI machine has
+    # shown 1.7-2.1 s with the drain paced as it should be: the line sits between the two
+    assert _quantile(during, 0.9) < 3.0, f"poses arrived stale while the backlog drained: {sorted(during)[-5:]}"
     assert first_pose - back < 10.0, f"the first live pose took {first_pose - back:.1f} s after the link returned"
