@@ -462,6 +462,39 @@ class TopicTree:
         return self.heartbeat_filter()
 
     # -- parsing -----------------------------------------------------------
+    # -- names outside MQTT: what the Foxglove gateway calls a robot's services, parameters and inputs -------
+    def gateway_name(self, robot: str, verb: Verb, name: str) -> str:
+        """``<prefix>/<robot>/<verb>/<name>``: the topic tree's name for one of ``robot``'s services
+        (``call/status``), parameters (``param/<node>/<name>``) or commands (``cmd/twist``), without the user
+        level (the gateway is one user's)."""
+        return _join(self.robot_root(robot), verb.value, name)
+
+    def gateway_param(self, robot: str, node: str, name: str) -> str:
+        """``<prefix>/<robot>/param/<node>/<name>``: one parameter of a node the robot exposes."""
+        return self.gateway_name(robot, Verb.PARAM, _join(node, name))
+
+    def parse_gateway_param(self, text: str) -> tuple[str, str, str] | None:
+        """``(robot, node, name)`` of a :meth:`gateway_param`; None for anything else."""
+        parsed = self.parse_gateway_name(text)
+        if parsed is None or parsed[1] is not Verb.PARAM:
+            return None
+        node, name = _split_first(parsed[2])
+        return (parsed[0], node, name) if name else None
+
+    def parse_gateway_name(self, text: str) -> tuple[str, Verb, str] | None:
+        """``(robot, verb, name)`` of a :meth:`gateway_name`; None for anything else."""
+        parts = _levels(text)
+        if _join(*parts[: self._levels]) != self.prefix:
+            return None
+        rest = parts[self._levels:]
+        if len(rest) < 3 or any(not level for level in rest):
+            return None
+        try:
+            verb = Verb(rest[1])
+        except ValueError:
+            return None
+        return rest[0], verb, _join(*rest[2:])
+
     def parse(self, topic: str) -> ParsedTopic | None:
         """Classify a concrete topic; None if it is not part of the tree."""
         parts = _levels(topic)

@@ -2,14 +2,9 @@
 
 It logs in as the user, so the broker's ACL decides what is recorded: each robot's heartbeat, every state topic the
 user may read (acknowledgements, the description, the link report, who drives …) and what the robot sends this
-user (replies, errors, the access report). One MCAP channel per MQTT topic, each with a ``jsonschema`` schema
-(protocol/schemas.py) so Foxglove shows fields, not text:
-
-* JSON payloads are written as they came (``json`` message encoding);
-* ``encoding: cbor`` state is converted to JSON (byte strings as base64): every MCAP reader decodes JSON, while a
-  CBOR channel would need a decoder Foxglove does not have;
-* ``encoding: raw`` state (compressed images) becomes ``foxglove.CompressedImage`` in JSON (``data`` base64), the
-  schema Foxglove's Image panel reads.
+user (replies, errors, the access report). One MCAP channel per MQTT topic, named by the topic, each with a
+``jsonschema`` schema; payloads as JSON (CBOR converted, raw images as ``foxglove.CompressedImage``):
+:mod:`.json_channels`, which the Foxglove gateway shares.
 
 Log time is the arrival on this machine; publish time is the message's own stamp where it has one (a ROS
 ``header.stamp``), else the arrival. The file is valid after Ctrl-C (the summary is written on the way out), and
@@ -19,7 +14,6 @@ between paho's thread and the writer: if the disk cannot keep up, the newest are
 
 from __future__ import annotations
 
-import base64
 import logging
 import queue
 import threading
@@ -33,10 +27,8 @@ from typing import IO, Any
 import orjson
 import paho.mqtt.client as mqtt
 
-from ..protocol.description import RobotDescription
-from ..protocol.errors import ProtocolError
-from ..protocol.schemas import schema_for
-from ..topics import Kind, TopicTree
+from ..topics import TopicTree
+from .json_channels import JsonChannels
 from .plain_login import PlainLogin
 
 log = logging.getLogger("roslink_mqtt.record")
@@ -54,17 +46,6 @@ class Progress:
     dropped: int = 0
     files: list[Path] = field(default_factory=list)
     per_topic: Counter[str] = field(default_factory=Counter)
-
-
-@dataclass(frozen=True, slots=True)
-class _Route:
-    """How one topic is recorded: its robot and state name, its channel's schema, its payload encoding."""
-
-    robot: str
-    name: str
-    schema: dict[str, Any]
-    encoding: str | None  # "cbor", "raw" or None (JSON)
-    description: bool  # the robot's description: read, then recorded like any state
 
 
 class _McapFile:
@@ -109,8 +90,7 @@ class Recorder(PlainLogin):
         self.username, self.robots, self.out = username, list(robots), Path(out)
         self.split_size, self.wanted = split_size, list(topics)
         self.progress = Progress()
-        self.descriptions: dict[str, RobotDescription] = {}
-        self._routes: dict[str, _Route | None] = {}  # topic → how it is recorded (from its robot's description)
+        self.channels = JsonChannels(self.tree, self.robots, topics)
         self._inbox: queue.Queue[tuple[str, bytes, int, bool]] = queue.Queue(QUEUE_LIMIT)
         self._retained_seen: set[tuple[str, int]] = set()  # a retained message is recorded once, whatever matched it
         self._file: _McapFile | None = None
@@ -147,41 +127,6 @@ class Recorder(PlainLogin):
             self.progress.files.append(self._file.path)
         return self._file
 
-    def _route(self, topic: str) -> _Route | None:
-        """How ``topic`` is recorded, worked out once per topic (None: not a topic of the tree, another robot's, or
-        one the filters leave out): the per-message path then parses nothing and searches no description."""
-        if topic in self._routes:
-            return self._routes[topic]
-        parsed = self.tree.parse(topic)
-        route = None
-        if parsed is not None and parsed.robot in self.robots and not (
-                self.wanted and parsed.kind is Kind.STATE and parsed.name not in self.wanted):
-            description = self.descriptions.get(parsed.robot or "")
-            entry = next((e for e in description.state if e.name == parsed.name), None) \
-                if description is not None and parsed.kind is Kind.STATE else None
-            route = _Route(parsed.robot or "", parsed.name or "", schema_for(parsed, topic, description),
-                           entry.encoding if entry is not None else None,
-                           parsed.kind is Kind.STATE and parsed.name == "description")
-        self._routes[topic] = route
-        return route
-
-    def _encoded(self, route: _Route, payload: bytes, arrived: int) -> tuple[bytes, int]:
-        """(JSON for the channel, publish time) of one payload."""
-        if route.encoding == "raw":
-            image = {"timestamp": {"sec": arrived // NS, "nsec": arrived % NS}, "frame_id": route.name,
-                     "data": base64.b64encode(payload).decode(), "format": _image_format(payload)}
-            return orjson.dumps(image), arrived
-        if route.encoding == "cbor":
-            import cbor2
-
-            value = _jsonable(cbor2.loads(payload))
-            return orjson.dumps(value), _stamp(value, arrived)
-        try:
-            value = orjson.loads(payload)
-        except orjson.JSONDecodeError:
-            return orjson.dumps({"text": payload.decode("utf-8", "replace")}), arrived
-        return payload, _stamp(value, arrived)
-
     def write(self, topic: str, payload: bytes, arrived: int, retained: bool = False) -> None:
         if not payload:
             return  # a retained message cleared
@@ -190,19 +135,13 @@ class Recorder(PlainLogin):
             if key in self._retained_seen:
                 return
             self._retained_seen.add(key)
-        route = self._route(topic)
+        route = self.channels.route(topic)
         if route is None:
             return
         if route.description:
-            try:
-                self.descriptions[route.robot] = RobotDescription.from_json(payload)
-                # routes not yet used follow the new description (a channel keeps the schema it started with)
-                self._routes = {t: r for t, r in self._routes.items()
-                                if r is None or r.robot != route.robot or r.description}
-            except ProtocolError as err:
-                log.warning("%s: %s (its topics are recorded with plain object schemas)", topic, err)
+            self.channels.learn(route, payload)
         try:
-            data, published = self._encoded(route, payload, arrived)
+            data, published = self.channels.encode(route, payload, arrived)
         except Exception as err:  # a malformed CBOR or image payload: kept out, counted, the recording goes on
             log.warning("%s: not recorded: %s", topic, err)
             self.progress.dropped += 1
@@ -248,37 +187,3 @@ class Recorder(PlainLogin):
             self.close()
         return self.progress
 
-
-def _jsonable(value: Any) -> Any:
-    """A decoded CBOR value as JSON can carry it: byte strings as base64 text, tags as their values."""
-    from cbor2 import CBORTag
-
-    if isinstance(value, CBORTag):
-        return _jsonable(value.value)
-    if isinstance(value, (bytes, bytearray)):
-        return base64.b64encode(value).decode()
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    return value
-
-
-def _image_format(data: bytes) -> str:
-    if data.startswith(b"\xff\xd8"):
-        return "jpeg"
-    if data.startswith(b"\x89PNG"):
-        return "png"
-    if data[8:12] == b"WEBP":
-        return "webp"
-    return "jpeg"
-
-
-def _stamp(value: Any, arrived: int) -> int:
-    """A ROS ``header.stamp`` in the message (generic rules carry it), in ns; else the arrival."""
-    header = value.get("header") if isinstance(value, dict) else None
-    stamp = header.get("stamp") if isinstance(header, dict) else None
-    if isinstance(stamp, dict) and isinstance(stamp.get("sec"), int):
-        nanos = stamp.get("nanosec", stamp.get("nsec", 0))
-        return stamp["sec"] * NS + (nanos if isinstance(nanos, int) else 0)
-    return arrived
