@@ -5,7 +5,8 @@ language):
 
 * ```` ```sh run ```` -- run as written (bash, ``-e``, from the repository root) against a live demo
   fleet: the embedded broker from config/robots.yaml on its default ports 1883/8083, the simulated
-  turtle1 and its bridge. It must exit 0 within its time and print no traceback.
+  turtle1 and its bridge. It must exit 0 within its time and print no traceback. ``serve=N``: as below,
+  its first N commands are servers (the Foxglove gateway), beside the fleet.
 * ```` ```sh run fails ```` -- the same, but the example shows an error: it must exit non-zero, still
   without a traceback.
 * ```` ```sh run alone ```` -- without the live fleet (the snippet starts what it needs itself).
@@ -283,6 +284,9 @@ def test_with_demo_fleet(snippet: Snippet, demo_fleet, tmp_path: Path) -> None:
         out = done.stdout + done.stderr
         assert done.returncode == 0, out[-3000:]
         assert "Traceback (most recent call last)" not in out, out[-3000:]
+        return
+    if snippet.serve:  # a program of the reader's (docs/foxglove.md's gateway) beside the live fleet
+        _run_servers(snippet, tmp_path)
         return
     _run_shell(_localize(snippet.code), expect_failure="fails" in snippet.words)
 

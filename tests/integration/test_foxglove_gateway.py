@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from roslink_mqtt.localproc import LocalProcess, free_port
+from tests.support.browser import CHROMIUM, browser, wait_until
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT
@@ -128,3 +129,31 @@ def test_killing_the_gateway_while_driving_stops_the_robot(tmp_path, broker_port
         gateway.stop()
     record_measurement("foxglove gateway killed while driving → robot still", stopped, STOPPED_WITHIN)
     assert stopped < STOPPED_WITHIN
+
+
+@CHROMIUM
+def test_a_page_shows_what_the_gateway_serves(tmp_path, broker_port: int) -> None:
+    """tools/foxglove-view.html in headless Chromium, against alice's gateway while she drives an arc through it:
+    every channel counted, global_motion at the robot's rate, the path drawn. ``FOXGLOVE_SCREENSHOT=path.png``
+    also saves the page there (docs/foxglove.png comes from such a run)."""
+    gateway = _gateway(tmp_path, broker_port, "alice")
+    try:
+        with browser(tmp_path, "foxglove-view") as driver:
+            driver.get(f"file://{ROOT / 'tools' / 'foxglove-view.html'}?url=ws://127.0.0.1:{gateway.port}")
+            wait_until("the server info", lambda: driver.execute_script("return window.gatewayView.server"))
+            _probe(gateway.port or 0, {"twist": {"topic": "roslink/turtle1/cmd/twist", "linear": 0.4,
+                                                 "angular": 0.8, "hz": 10, "seconds": 4}})
+            counts = wait_until("global_motion in the page", lambda: driver.execute_script(
+                "const out = {}; for (const c of window.gatewayView.channels.values()) out[c.topic] = c.count;"
+                "return out[arguments[0]] > 30 ? out : null;", MOTION))
+            assert counts.get("roslink/turtle1/heartbeat", 0) >= 3, counts
+            path = driver.execute_script("return window.gatewayView.paths.get('turtle1')")
+            xs, ys = [p[0] for p in path], [p[1] for p in path]
+            assert max(xs) - min(xs) > 0.3 and max(ys) - min(ys) > 0.3, "the arc is not in the page"
+            driver.set_window_size(1280, 600)
+            time.sleep(0.5)  # the next redraw
+            shot = Path(os.environ.get("FOXGLOVE_SCREENSHOT") or tmp_path / "foxglove-view.png")
+            driver.save_screenshot(str(shot))
+            print(f"screenshot: {shot}")
+    finally:
+        gateway.stop()

@@ -1,0 +1,72 @@
+"""Headless Chromium for the browser tests (Debian's chromium + chromedriver, driven by Selenium): a fresh profile
+per browser, a screenshot of the page when a test fails."""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+CHROMIUM = pytest.mark.skipif(
+    not (Path("/usr/bin/chromium").exists() and Path("/usr/bin/chromedriver").exists()),
+    reason="needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)")
+
+
+def _chrome(profile: Path, precise_memory: bool = False) -> Any:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--no-first-run", f"--user-data-dir={profile}", "--window-size=1280,1000"):
+        options.add_argument(arg)
+    if precise_memory:
+        options.add_argument("--enable-precise-memory-info")  # else performance.memory is coarse and delayed
+    return webdriver.Chrome(options=options, service=Service("/usr/bin/chromedriver"))
+
+
+@contextmanager
+def browser(tmp_path: Path, name: str, precise_memory: bool = False) -> Iterator[Any]:
+    """A fresh headless Chromium; on failure a screenshot lands in ``tmp_path`` (path printed); always quit."""
+    profile = Path(tempfile.mkdtemp(prefix="chromium-profile-"))
+    driver = _chrome(profile, precise_memory)
+    driver.set_page_load_timeout(20)
+    try:
+        yield driver
+    except BaseException:
+        shot = tmp_path / f"{name}-failure.png"
+        try:
+            driver.save_screenshot(str(shot))
+            print(f"\nscreenshot of the failing page: {shot}")
+            logs = driver.get_log("browser")
+            if logs:
+                print("browser console:", *[f"  {e.get('level')} {e.get('message')}" for e in logs[-20:]], sep="\n")
+        except Exception as err:  # the browser may be what failed; the original error matters more
+            print(f"\nno screenshot ({err})")
+        raise
+    finally:
+        try:
+            driver.quit()
+        except Exception:
+            pass  # a test may already have closed it (the page-close test does)
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def wait_until(what: str, check: Callable[[], Any], timeout: float = 10.0, period: float = 0.1) -> Any:
+    """Poll ``check`` until it returns something truthy (bounded in time); fail naming ``what``."""
+    deadline = time.monotonic() + timeout
+    last: Any = None
+    while time.monotonic() < deadline:
+        last = check()
+        if last:
+            return last
+        time.sleep(period)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what} (last: {last!r})")
