@@ -21,8 +21,8 @@ from .config import Role
 from .topics import Verb
 
 # what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true,
-# reading parameters, setting those of a node with viewers_may_set)
-VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM})
+# reading parameters, setting those of a node with viewers_may_set, snapshots with snapshot.who: viewers)
+VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM, Verb.SNAPSHOT})
 
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
@@ -60,6 +60,8 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"write the robot's /rosout (as node '{name}')"
     if verb is Verb.CONTROL:
         return f"{name.replace('_', ' ')} control of {robot}"
+    if verb is Verb.SNAPSHOT:
+        return f"ask {robot} for snapshots"
     return f"publish on '{name}'"
 
 

@@ -84,3 +84,23 @@ def action_status_topic(action: str) -> str:
     """The topic every server of ``action`` publishes its goals' status on: ``fibonacci`` →
     ``fibonacci/_action/status`` (a relative name stays relative: resolved in the node's namespace, as the action)."""
     return child(action, "_action/status")
+
+
+def msg_field_message(field_type: str, package: str) -> tuple[str, str] | None:
+    """A ``.msg`` field's type (its first token) → the (package, name) of the message it uses; None for a
+    primitive. ``geometry_msgs/Pose[]`` → (geometry_msgs, Pose); ``Pose`` in package ``geometry_msgs`` → the same;
+    ``pkg/msg/Type`` too. Bounds and arrays (``string<=5``, ``float64[36]``) are not part of the type."""
+    base = field_type.split("[", 1)[0].split("<=", 1)[0]
+    if base in MSG_PRIMITIVES:
+        return None
+    parts = base.split(SEPARATOR)
+    return (package, parts[0]) if len(parts) == 1 else (parts[0], parts[-1])
+
+
+def msg_reference(package: str, name: str) -> str:
+    """How a ``ros2msg`` schema names a message type it includes: ``geometry_msgs/Pose``."""
+    return SEPARATOR.join((package, name))
+
+
+MSG_PRIMITIVES = frozenset({"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
+                            "uint32", "int64", "uint64", "string", "wstring"})

@@ -128,6 +128,7 @@ class Verb(Enum):
     PROVIDE_ACTION = "provide_action"  # serve a ROS action (retained; empty withdraws): provide_action/<action>
     ACTION_UPDATE = "action_update"  # a provider's accepted/rejected/feedback/end of a goal: action_update/<action>
     CONTROL = "control"  # claim, release or take over control of the robot: control/<claim|release|take_over>
+    SNAPSHOT = "snapshot"  # ask for the last seconds of the robot's snapshot topics as MCAP: snapshot/<id>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -140,6 +141,7 @@ class Verb(Enum):
     PARAM_REPLY = "param_reply"  # the answer to a param request: param_reply/<node>
     PARAM_SET = "param_set"  # a ROS client sets parameters of an SDK node: param_set/<node>
     ACTION_REQUEST = "action_request"  # a ROS goal or cancel for a provider: action_request/<action>
+    SNAPSHOT_DATA = "snapshot_data"  # a chunk of the snapshot asked for: snapshot_data/<id>
 
     @property
     def meaning(self) -> str:
@@ -188,11 +190,13 @@ _MEANINGS = {
     Verb.ACTION_REQUEST: "a ROS client sent a goal to (or canceled one of) an action you serve",
     Verb.CONTROL: "claim, release or take over control of the robot (`control/claim`, `control/release`, "
                   "`control/take_over`); `state/control` says who holds it",
+    Verb.SNAPSHOT: "ask for the last seconds of the robot's snapshot topics (ROS messages as MCAP); your id names it",
+    Verb.SNAPSHOT_DATA: "a chunk of the snapshot you asked for (a JSON header line, then its bytes)",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
                         Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE,
-                        Verb.CONTROL})
+                        Verb.CONTROL, Verb.SNAPSHOT})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + (STATE,)

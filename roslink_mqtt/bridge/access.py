@@ -26,7 +26,9 @@ def access_reports(fleet: Fleet, robot: str, topics: TopicTree) -> dict[str, byt
         goals = tuple(a.name for a in actions if allowed(role, Verb.GOAL, read_only=a.viewers))
         estop = bool(fleet.robots[robot].estop_inputs) and (role is Role.OPERATOR or
                                                             fleet.robots[robot].estop == "viewers")
-        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_, goals, estop)
+        kept = fleet.robots[robot].snapshot
+        snapshot = kept is not None and allowed(role, Verb.SNAPSHOT, read_only=kept.who == "viewers")
+        report = AccessReport("operator" if role is Role.OPERATOR else "viewer", callable_, goals, estop, snapshot)
         out[topics.access(robot, user)] = report.to_json()
     return out
 

@@ -25,7 +25,7 @@ import itertools
 import logging
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -122,6 +122,7 @@ class CommandEndpoint:
         self.fenced: str | None = None  # why this bridge stood down for another one: it ignores every input
         self.lease = ControlLease(robot.name, robot.control, frozenset(robot.supervisors))  # who drives
         self.motion_blocked: str | None = None  # why motion is refused (e-stop, disarmed)
+        self.on_failsafe_stop: Callable[[str], None] | None = None  # after each failsafe stop (the snapshot's)
         self.sequences = SequenceTracker()
         self.operators = OperatorTracker(settings.operator_timeout)
         self.failsafe = Failsafe(settings.command_timeout)
@@ -431,6 +432,8 @@ class CommandEndpoint:
         log.log(level, "%s of %s: %s", "failsafe stop" if level >= logging.WARNING else "stop", self.robot.name,
                 reason)
         self.publish_ack(0, None, result, reason)
+        if result is AckResult.FAILSAFE and level >= logging.WARNING and self.on_failsafe_stop is not None:
+            self.on_failsafe_stop(reason)  # the snapshot worker keeps the seconds before it (never blocks)
 
     def operator_gone(self, user: str, why_suffix: str) -> None:
         """Stop if ``user`` owned the motion (their presence ended, their grant went)."""

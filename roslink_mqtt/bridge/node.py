@@ -46,6 +46,7 @@ from .capabilities import (
     ProvideService,
     RespondToCall,
     SendGoal,
+    Snapshots,
     UpdateProvidedGoal,
 )
 from .claim import ANNOUNCE, EXIT_LOGIN_REFUSED, Claim, ClaimWatch
@@ -65,6 +66,8 @@ from .safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from .sdk_params import SdkParameterNodes
 from .service_caller import RosServices
 from .service_provider import ProvidedServices
+from .snapshot_ros import STREAM as SNAPSHOT_STREAM
+from .snapshot_ros import FailsafeFiles, RosSnapshotBuffer, UplinkChunks, snapshot_dir
 from .spool import Spool, buffer_dir
 from .stops import StopDedup
 from .systemd import SystemdNotifier
@@ -232,6 +235,8 @@ class Bridge:
         bulk_rules = [o for o in outbound if o.rule.priority is Priority.BULK]
         self.state_link = lane("state") if scheduled and state_rules else None
         self.bulk_links = {o.topic: lane(f"bulk{i}") for i, o in enumerate(bulk_rules)} if scheduled else {}
+        if scheduled and robot.snapshot is not None:  # snapshot chunks: a paced bulk lane of their own
+            self.bulk_links[SNAPSHOT_STREAM] = lane(SNAPSHOT_STREAM)
         self.uplink = Uplink(self.link, self.state_link, self.bulk_links, fifo=not scheduled,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
@@ -246,6 +251,7 @@ class Bridge:
             log.info("disk buffer for %s in %s", robot.name, directory)
         for rule in outbound:
             self._subscribe_ros(rule)
+        self.snapshot_buffer = RosSnapshotBuffer(node, robot.snapshot) if robot.snapshot is not None else None
         # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
         # a viewer sends, it queues behind nothing of the operators', whose commands and stops keep their own
         # TCP stream and paho thread. Everything the bridge publishes goes out on the command link.
@@ -306,8 +312,14 @@ class Bridge:
             UpdateProvidedGoal(self.provided_actions, self._refuse),
             DeclareParameters(robot.name, self.sdk_params, self._refuse),
             ParameterSetResult(robot.name, self.sdk_params, self._refuse)]
+        failsafe_files = FailsafeFiles(snapshot_dir(robot.snapshot.dir), robot.name, robot.snapshot.keep) \
+            if robot.snapshot is not None else None
+        self.snapshots = Snapshots(robot, self.topics, self.snapshot_buffer, UplinkChunks(self.uplink), self._refuse,
+                                   save=failsafe_files)
+        capabilities.append(self.snapshots)
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
+        self.endpoint.on_failsafe_stop = self.snapshots.failsafe  # every failsafe stop leaves a record
         self._heartbeat_topic = self.topics.heartbeat(robot.name)
         self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
         self._grants_topic = self.topics.grants(robot.name)
@@ -484,6 +496,7 @@ class Bridge:
         self.systemd.stopping()
         with self.endpoint.lock:
             self.actuators.zero_velocity()
+        self.snapshots.close()
         self.uplink.stop()
         for lane in self.lanes:
             lane.stop()

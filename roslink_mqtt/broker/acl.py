@@ -168,6 +168,10 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
             # viewers read every exposed node's parameters (the bridge refuses a set unless viewers_may_set)
             entries += [AclEntry(t.param(robot, user, rule.name), Access.WRITE)
                         for rule in fleet.robots[robot].parameters]
+            # snapshots, where the robot file opens them to viewers (snapshot.who: viewers)
+            snapshot = fleet.robots[robot].snapshot
+            if snapshot is not None and snapshot.who == "viewers":
+                entries.append(AclEntry(t.verb_filter(robot, user, Verb.SNAPSHOT), Access.WRITE))
             # any granted user may stop the robot (unless robots.yaml says `estop: operators`)
             if fleet.robots[robot].estop == "viewers":
                 entries += [AclEntry(t.from_user(robot, user, leaf), Access.WRITE)

@@ -159,3 +159,11 @@ class CommandRefused(RoslinkError):
     def __init__(self, error: RobotError) -> None:
         super().__init__(f"{error.robot} refused {error.topic}: {error.error}")
         self.error = error
+
+
+class SnapshotError(RoslinkError):
+    """A snapshot was refused by the robot, or did not arrive whole (see ``reason``)."""
+
+    def __init__(self, robot: str, snapshot_id: str, reason: str) -> None:
+        super().__init__(f"{robot} snapshot '{snapshot_id}': {reason}")
+        self.robot, self.snapshot_id, self.reason = robot, snapshot_id, reason

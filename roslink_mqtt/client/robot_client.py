@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import dataclasses
 import logging
 import secrets
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future
+from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
@@ -66,11 +68,13 @@ from .errors import (
     RobotNotice,
     RoslinkError,
     ServiceError,
+    SnapshotError,
     WaitTimeout,
 )
 from .goals import ActionGoals, FeedbackCallback, GoalHandle
 from .params import ParameterRequests
 from .providers import Handler, ProvidedService, ServiceProviders
+from .snapshots import Snapshot, SnapshotTransfers
 from .subscriptions import StateItem, StateSubscription
 
 log = logging.getLogger("roslink_mqtt.client")
@@ -128,6 +132,7 @@ class RobotClient:
         self._params = ParameterRequests(self.connection, self._scheduler, self.topics, username,
                                          client_id=self.client_id)
         self._advertisements = Advertisements(self.connection, self.topics, username)
+        self._snapshots = SnapshotTransfers(self.connection, self.topics, username, client_id=self.client_id)
         # robot, node, payload of a ROS client's set of our SDK node's parameters (set by Node; network thread)
         self.on_param_set: Callable[[str, str, bytes], None] | None = None
         self._watched: set[str] = set()
@@ -622,6 +627,32 @@ class RobotClient:
         """``{name: {"type", "description", "read_only", ranges…}}``."""
         return self._param(robot, node, "describe", timeout, names=tuple(names))
 
+    def snapshot(self, robot: str, last: float = 30.0, *, path: str | Path | None = None, timeout: float = 300.0,
+                 stall: float = 10.0, on_progress: Callable[[int, int], None] | None = None) -> Snapshot:
+        """The last ``last`` seconds of ``robot``'s snapshot topics (its robot file's ``snapshot:``), as MCAP: the
+        ROS messages as recorded on the robot (CDR, ``ros2msg`` schemas), what ``ros2 bag`` and Foxglove read.
+
+        Sent in chunks at the robot's bulk priority; a transfer with no chunk for ``stall`` s is asked again from its
+        first missing chunk (a reconnect lost some). Returns the :class:`~.snapshots.Snapshot` once every chunk is in
+        and its SHA-256 matches (written to ``path`` too, when given); SnapshotError when the robot refuses (with its
+        reason) or the file arrived damaged, WaitTimeout after ``timeout`` s. ``on_progress(chunks, of)`` runs as
+        chunks arrive (in this thread)."""
+        if not 0 < last <= 3600:
+            raise InvalidArgument(f"last must be 0 < s <= 3600, not {last!r}")
+        self.connection.require(f"snapshot of {robot}")
+        self.watch(robot)
+        why = self._refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
+        if why is not None:
+            raise SnapshotError(robot, "-", why)
+        got = self._snapshots.fetch(robot, last, timeout=timeout, stall=stall, on_progress=on_progress)
+        if path is None:
+            return got
+        target = Path(path)
+        partial = target.with_name(target.name + ".part")
+        partial.write_bytes(got.data)
+        partial.replace(target)
+        return dataclasses.replace(got, path=target)
+
     def provide(self, robot: str, service: str, srv_type: str, handler: Handler, *, timeout: float = 5.0
                 ) -> ProvidedService:
         """Offer a ROS service on ``robot``: ``handler(request_fields) -> response_fields``.
@@ -696,6 +727,8 @@ class RobotClient:
             self.on_param_set(robot, name, payload)
         elif verb is Verb.ACTION_REQUEST:
             self._action_servers.on_request(robot, name, payload)
+        elif verb is Verb.SNAPSHOT_DATA:
+            self._snapshots.on_chunk(robot, name, payload)
 
     # -- what the broker lets us do ---------------------------------------------------------------
     def _on_access(self, robot: str, payload: bytes) -> None:
@@ -744,6 +777,12 @@ class RobotClient:
                 return None
             why = refusal(self.username, role, verb, name, robot=robot)
             return f"{why}; {robot} says `estop: operators`"
+        if verb is Verb.SNAPSHOT:
+            if report.snapshot:
+                return None
+            if report.operator:
+                return f"{robot} keeps no snapshots: its robot file has no `snapshot:` section"
+            return refusal(self.username, role, verb, name, robot=robot)
         read_only = (report.may_call(name) if verb is Verb.CALL else
                      report.may_send_goal(name) if verb is Verb.GOAL else False)
         why = refusal(self.username, role, verb, name, robot=robot, read_only=read_only)
@@ -786,7 +825,7 @@ class RobotClient:
                     event.set()
                     awaited = True
         self._providers.on_error(error)
-        if self._goals.on_error(error) or self._params.on_error(error):
+        if self._goals.on_error(error) or self._params.on_error(error) or self._snapshots.on_error(error):
             awaited = True  # the goal's handle (GoalError) or the request (ParameterError) raises it
         callback = self.on_error
         if callback is not None:

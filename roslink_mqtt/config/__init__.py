@@ -19,6 +19,8 @@ from .model import (
     RosQos,
     Rule,
     ServiceRule,
+    SnapshotSettings,
+    SnapshotTopic,
     TlsSettings,
     User,
     VelocityLimits,
@@ -29,6 +31,7 @@ from .yamlsource import ConfigError
 __all__ = [
     "ActionRule", "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
     "ParameterRule", "PasswordHashError", "Priority",
-    "Robot", "Role", "RosQos", "Rule", "ServiceRule", "TlsSettings", "User", "VelocityLimits",
+    "Robot", "Role", "RosQos", "Rule", "ServiceRule", "SnapshotSettings", "SnapshotTopic", "TlsSettings", "User",
+    "VelocityLimits",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",
 ]

@@ -113,8 +113,8 @@ class FleetEdit:
     def add_robot(self, name: str, *, key: str, password_hash: str, like: str | None = None,
                   broker_url: str | None = None) -> int:
         """A new robot with the next free system_id (returned), its own key and password hash; ``like``: the
-        rules, services, actions, parameters, type and bridge settings of that robot (shared, as YAML aliases,
-        so the two stay alike), else none. ``broker_url``: where its bridge dials (``bridge.broker``)."""
+        rules, services, actions, parameters, snapshot, type and bridge settings of that robot (shared as YAML
+        aliases where the author anchored them, so the two stay alike; copied otherwise), else none. ``broker_url``: where its bridge dials (``bridge.broker``)."""
         robots = self.data["robots"]
         if name in robots:
             raise FleetEditError(f"robot '{name}' is already in {self.path}")
@@ -126,8 +126,12 @@ class FleetEdit:
         if like is not None:
             template = self._robot(like)
             for field, value in template.items():
-                if field not in entry:
-                    entry[field] = value  # the same node: dumped as an alias of the template's
+                if field in entry:
+                    continue
+                anchored = getattr(getattr(value, "anchor", None), "value", None) is not None
+                # an anchored node is shared (dumped as an alias of the template's); another is copied: an alias
+                # would make ruamel invent an anchor (&id001) on the author's own line
+                entry[field] = value if anchored or not isinstance(value, (dict, list)) else copy.deepcopy(value)
         if broker_url is not None:
             # its own copy (the template's with a broker of its own), not an alias with a changed key
             bridge = copy.deepcopy(entry["bridge"]) if isinstance(entry.get("bridge"), dict) else CommentedMap()

@@ -42,6 +42,7 @@ from .model import (
     PRIORITY_NAMES,
     RAW_TYPES,
     ROBOT_FILE,
+    SNAPSHOT_WHO,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -56,6 +57,8 @@ from .model import (
     RosQos,
     Rule,
     ServiceRule,
+    SnapshotSettings,
+    SnapshotTopic,
     TlsSettings,
     User,
     VelocityLimits,
@@ -323,9 +326,10 @@ class _FleetReader:
 
     def robot(self, path: Path, name: str) -> Robot:
         self.mapping(path, ("system_id", "key", "password", "previous_password", "type", "bridge", "rules",
-                            "services", "actions", "parameters", "control", "supervisors", "estop"))
+                            "services", "actions", "parameters", "control", "supervisors", "estop", "snapshot"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
+        rules = self.rules(path + ("rules",)) if "rules" in self.get(path) else ()
         return Robot(
             name=name,
             system_id=self.value(path, "system_id", self.integer(0, 65535)),
@@ -333,7 +337,7 @@ class _FleetReader:
             password_hash=self.login_hash(path),
             type=RobotType[rtype.upper()],
             bridge=self.bridge(path + ("bridge",)) if self.get(path).get("bridge") is not None else BridgeSettings(),
-            rules=self.rules(path + ("rules",)) if "rules" in self.get(path) else (),
+            rules=rules,
             services=self.services(path + ("services",)) if "services" in self.get(path) else (),
             actions=self.actions(path + ("actions",)) if "actions" in self.get(path) else (),
             parameters=self.parameters(path + ("parameters",)) if "parameters" in self.get(path) else (),
@@ -341,6 +345,45 @@ class _FleetReader:
             supervisors=self.names(path + ("supervisors",), "supervisor") if "supervisors" in self.get(path) else (),
             estop=self.value(path, "estop", self.choice(ESTOP_MODES), "viewers"),
             previous_password_hash=self.previous_hash(path),
+            snapshot=self.snapshot(path + ("snapshot",), rules) if self.get(path).get("snapshot") is not None
+            else None,
+        )
+
+    def snapshot(self, path: Path, rules: tuple[Rule, ...]) -> SnapshotSettings:
+        """``snapshot:``: the ring buffer's topics (a ROS topic a ``ros_to_mqtt`` rule names, or
+        ``{ros_topic, ros_type}``), its length and size, who may ask, and the failsafe's own snapshots."""
+        self.mapping(path, ("topics", "seconds", "max_bytes", "who", "on_failsafe", "dir", "keep"))
+        d = SnapshotSettings(())
+        known = {r.ros_topic: r.ros_type for r in rules if r.direction is Direction.ROS_TO_MQTT}
+        topics: list[SnapshotTopic] = []
+        tp = path + ("topics",)
+        for i in range(len(self.sequence(tp))):
+            ep = tp + (i,)
+            entry = self.get(ep)
+            if isinstance(entry, str):
+                name = self.ros_name(ep, entry)
+                if name not in known:
+                    raise self.err(ep, f"'{name}' is not the ros_topic of a ros_to_mqtt rule of this robot: give its "
+                                       "type, {ros_topic: " + name + ", ros_type: pkg/msg/Type}")
+                topic = SnapshotTopic(name, known[name])
+            else:
+                self.mapping(ep, ("ros_topic", "ros_type"))
+                ros_type = self.value(ep, "ros_type", self.ros_type("msg"))
+                self.interface(ep + ("ros_type",), ros_type)
+                topic = SnapshotTopic(self.value(ep, "ros_topic", self.ros_name), ros_type)
+            if any(t.ros_topic == topic.ros_topic for t in topics):
+                raise self.err(ep, f"'{topic.ros_topic}' is listed twice")
+            topics.append(topic)
+        if not topics:
+            raise self.err(tp, "a snapshot needs at least one ROS topic (or leave `snapshot:` out)")
+        return SnapshotSettings(
+            topics=tuple(topics),
+            seconds=self.value(path, "seconds", self.number(0, 3600, open_low=True), d.seconds),
+            max_bytes=self.value(path, "max_bytes", self.integer(65536, 1 << 34), d.max_bytes),
+            who=self.value(path, "who", self.choice(SNAPSHOT_WHO), d.who),
+            on_failsafe=self.value(path, "on_failsafe", self.boolean, d.on_failsafe),
+            dir=self.value(path, "dir", self.string, d.dir),
+            keep=self.value(path, "keep", self.integer(1, 100000), d.keep),
         )
 
     def previous_hash(self, path: Path) -> str:

@@ -229,6 +229,32 @@ class FailsafeAction:
 
 
 @dataclass(frozen=True, slots=True)
+class SnapshotTopic:
+    """A ROS topic the bridge keeps in its snapshot ring buffer (as CDR, the way ``ros2 bag`` records it)."""
+
+    ros_topic: str
+    ros_type: str  # pkg/msg/Type
+
+
+SNAPSHOT_WHO = ("operators", "viewers")
+
+
+@dataclass(frozen=True, slots=True)
+class SnapshotSettings:
+    """On-robot snapshots (docs/recording.md, "Snapshots"): the last ``seconds`` of ``topics``, at most
+    ``max_bytes`` (the oldest go first), sent as MCAP to whom ``who`` names, and written to ``dir`` on every
+    failsafe stop (``on_failsafe``; the newest ``keep`` files stay)."""
+
+    topics: tuple[SnapshotTopic, ...]
+    seconds: float = 30.0
+    max_bytes: int = 32 * 1024 * 1024
+    who: str = "operators"
+    on_failsafe: bool = True
+    dir: str | None = None  # None: $STATE_DIRECTORY/snapshots (systemd), else ~/.local/state/roslink-mqtt/snapshots
+    keep: int = 20
+
+
+@dataclass(frozen=True, slots=True)
 class BridgeSettings:
     broker_url: str = "mqtt://127.0.0.1:1883"
     password: str | None = None  # plaintext: demo only; prefer env or password_file
@@ -295,6 +321,7 @@ class Robot:
     # A password being rotated (docs/operations.md, "Rotate a robot's password"): the previous one's hash, still
     # accepted until the robot's bridge has moved to the new one; "" when none.
     previous_password_hash: str = ""
+    snapshot: SnapshotSettings | None = None  # None: the bridge keeps no ring buffer and refuses snapshot requests
 
     @property
     def estop_inputs(self) -> tuple[str, ...]:

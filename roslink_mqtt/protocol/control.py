@@ -219,6 +219,7 @@ class AccessReport:
     services: tuple[str, ...] = ()  # services this user may call; the broker drops calls to any other
     actions: tuple[str, ...] = ()  # actions this user may send goals to (and cancel them)
     estop: bool = False  # this user may send emergency stops (operators; viewers unless `estop: operators`)
+    snapshot: bool = False  # this user may ask for snapshots (the robot keeps them, and `snapshot.who` allows)
 
     FIELDS = (
         BodyField("role", Choice(ROLES), True, "`operator` (commands, calls, provides, advertises, goals) or "
@@ -232,6 +233,9 @@ class AccessReport:
         BodyField("estop", Boolean(), False, "this user may press the robot's emergency stop: operators, and "
                                              "viewers unless robots.yaml says `estop: operators` (missing from "
                                              "older bridges: operators only)"),
+        BodyField("snapshot", Boolean(), False, "this user may ask for snapshots: the robot keeps them (its robot "
+                                                "file's `snapshot:`) and `snapshot.who` names the user's role "
+                                                "(missing from older bridges: false)", False),
     )
     QOS = 1
     RETAINED = True
@@ -250,7 +254,7 @@ class AccessReport:
 
     def to_json(self) -> bytes:
         return orjson.dumps({"role": self.role, "services": list(self.services), "actions": list(self.actions),
-                             "estop": self.estop})
+                             "estop": self.estop, "snapshot": self.snapshot})
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> AccessReport:

@@ -41,6 +41,7 @@ from .node_params import NODE_PARAM_BODIES, DeclaredParameter, ParamDeclaration,
 from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
 from .provided_actions import PROVIDED_ACTION_BODIES, ActionOffer, ActionRequest, ActionUpdate
 from .rosout import ROSOUT_BODIES, LogLine
+from .snapshot import SNAPSHOT_BODIES, SnapshotChunk, SnapshotRequest
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
 END = "<!-- END GENERATED: message reference -->"
@@ -51,7 +52,7 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
-                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES + GRANTS_BODIES)
+                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES + GRANTS_BODIES + SNAPSHOT_BODIES)
 
 
 
@@ -91,6 +92,9 @@ _CONTROL_EXAMPLES: dict[type, _DocumentedBody] = {
         "range_finder_data": StreamReport("state", True, 5.0, 3.5, 3, 0, 5.0, 196.1)}),
     RobotDescription: DESCRIPTION_EXAMPLE,
     ParamRequest: ParamRequest("p-1", "set", values={"max_speed": 0.3}, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    SnapshotRequest: SnapshotRequest(30.0, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    SnapshotChunk: SnapshotChunk(0, 12, 190_734, "9f2c" * 16, b"", 1_795_700_000_000_000_000,
+                                 1_795_700_030_000_000_000, 1_204, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ParamReply: ParamReply("p-1", True, {"max_speed": {"successful": True, "reason": ""}},
                            client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ParamEvent: ParamEvent("/sim_robot", changed={"max_speed": 0.3}),

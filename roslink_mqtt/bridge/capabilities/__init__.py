@@ -17,10 +17,12 @@ from .params import ParameterPort, Parameters
 from .provide import ProviderPort, ProvideService, RespondToCall
 from .provide_action import ActionProviderPort, ProvideAction, UpdateProvidedGoal
 from .sdk_params import DeclareParameters, ParameterSetResult, SdkParameterPort
+from .snapshot import ChunkLink, SnapshotPort, Snapshots
 
 __all__ = [
     "ActionPort", "ActionProviderPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability",
     "Control", "DeclareParameters", "Gates", "LeaseDesk", "LogLines", "ParameterPort", "ParameterSetResult",
     "Parameters", "ProvideAction", "ProvideService", "ProviderPort", "Refusal", "Report", "Request", "RespondToCall",
-    "RosoutPort", "SdkParameterPort", "SendGoal", "ServicePort", "UpdateProvidedGoal", "Withdrawal",
+    "RosoutPort", "SdkParameterPort", "SendGoal", "ServicePort", "UpdateProvidedGoal", "Withdrawal", "ChunkLink",
+    "SnapshotPort", "Snapshots",
 ]

@@ -42,6 +42,14 @@ const ROSLINK = {
         "spec": {
           "kind": "boolean"
         }
+      },
+      {
+        "default": false,
+        "name": "snapshot",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
       }
     ],
     "action_offer": [
@@ -1708,6 +1716,116 @@ const ROSLINK = {
           "kind": "nullable"
         }
       }
+    ],
+    "snapshot_chunk_(header_line,_then_the_bytes)": [
+      {
+        "name": "index",
+        "required": true,
+        "spec": {
+          "high": 1048576,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "name": "count",
+        "required": true,
+        "spec": {
+          "high": 1048576,
+          "kind": "integer",
+          "low": 1
+        }
+      },
+      {
+        "name": "size",
+        "required": true,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "name": "sha256",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 64
+        }
+      },
+      {
+        "default": 0,
+        "name": "start",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "default": 0,
+        "name": "end",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "default": 0,
+        "name": "messages",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "default": null,
+        "name": "client_id",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 0
+        }
+      }
+    ],
+    "snapshot_request": [
+      {
+        "name": "last",
+        "required": true,
+        "spec": {
+          "high": 3600.0,
+          "kind": "number",
+          "low": 0,
+          "low_open": true
+        }
+      },
+      {
+        "default": 0,
+        "name": "resume_from",
+        "required": false,
+        "spec": {
+          "high": 1048576,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "default": null,
+        "name": "client_id",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": 128,
+          "min": 1
+        }
+      }
     ]
   },
   "constants": {
@@ -2589,6 +2707,14 @@ const ROSLINK = {
         "sent_by_user": true
       },
       "result": {
+        "named": true,
+        "sent_by_user": false
+      },
+      "snapshot": {
+        "named": true,
+        "sent_by_user": true
+      },
+      "snapshot_data": {
         "named": true,
         "sent_by_user": false
       }

@@ -1,0 +1,116 @@
+"""On-robot snapshots: turtle1's bridge keeps the last 30 s of odom, scan and cmd_vel (the demo fleet's
+``snapshot:``); alice fetches the last seconds with the CLI while she drives, bob (a viewer) is refused.
+
+The file is read by the Python ``mcap`` reader, by ``mcap-ros2-support``'s decoder (which reads the ``ros2msg``
+schemas as Foxglove does) and by rclpy's own deserializer: every channel has its schema, counts match the sim's
+rates over the time asked for within 10 %, log times never go back, every CDR message decodes, and the twists
+alice sent are in it. A failsafe stop (alice's presence goes) leaves a file on the robot's disk.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from roslink_mqtt.client import RobotClient
+from tests.support.procs import ROOT
+from tests.support.robot_stack import turtle1_online
+
+pytestmark = pytest.mark.timeout(150)
+
+RATES = {"odom": 20.0, "scan": 5.0}  # the sim's (roslink_mqtt/sim/robot.py)
+LAST = 4.0
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory) -> Iterator[tuple[int, Path]]:
+    work = tmp_path_factory.mktemp("snapshot")
+    state = work / "robot-state"
+    os.environ["STATE_DIRECTORY"] = str(state)  # the bridge's failsafe snapshots go here (inherited)
+    try:
+        with turtle1_online(work) as port:
+            yield port, state / "snapshots"
+    finally:
+        os.environ.pop("STATE_DIRECTORY", None)
+
+
+def _cli(port: int, user: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "snapshot", "turtle1", *args, "--url",
+                           f"mqtt://127.0.0.1:{port}", "-u", user], capture_output=True, text=True, cwd=ROOT,
+                          timeout=60, env={**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"}, stdin=subprocess.DEVNULL)
+
+
+def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -> None:
+    from geometry_msgs.msg import Twist
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import LaserScan
+
+    port, _ = stack
+    out = tmp_path / "incident.mcap"
+    with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
+        alice.wait_for_robot("turtle1")
+        for _ in range(int(LAST * 10) + 5):  # drive for longer than the window: the buffer is full, twists in it
+            alice.twist("turtle1", lx=0.2)
+            time.sleep(0.1)
+        done = _cli(port, "alice", "--last", f"{LAST:g}s", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "checked" in done.stderr and str(out) in done.stderr, done.stderr
+
+    types = {"odom": Odometry, "scan": LaserScan, "cmd_vel": Twist}
+    times: dict[str, list[int]] = defaultdict(list)
+    with out.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            assert schema is not None and schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            native = deserialize_message(message.data, types[channel.topic])  # rclpy's own types decode it
+            if channel.topic == "odom":
+                assert decoded.pose.pose.position.x == pytest.approx(native.pose.pose.position.x)
+            if channel.topic == "cmd_vel":
+                assert native.linear.x == pytest.approx(0.2) and decoded.linear.x == pytest.approx(0.2)
+            times[channel.topic].append(message.log_time)
+    assert set(times) == {"odom", "scan", "cmd_vel"}, set(times)
+    for topic, stamps in times.items():
+        assert stamps == sorted(stamps), f"{topic}: log times go back"
+    for topic, rate in RATES.items():
+        stamps = times[topic]
+        span = (stamps[-1] - stamps[0]) / 1e9
+        assert span > LAST - 0.5, (topic, span)  # the whole window asked for
+        measured = (len(stamps) - 1) / span
+        assert abs(measured - rate) <= 0.1 * rate, f"{topic}: {measured:.2f}/s, expected {rate}/s"
+
+
+def test_a_viewer_is_refused_with_the_reason(tmp_path, stack) -> None:
+    port, _ = stack
+    done = _cli(port, "bob", "-o", str(tmp_path / "no.mcap"))
+    assert done.returncode == 1
+    assert "user 'bob' may not ask turtle1 for snapshots (operators only" in done.stderr, done.stderr
+    assert not (tmp_path / "no.mcap").exists()
+
+
+def test_a_failsafe_stop_leaves_a_snapshot_on_the_robot(stack) -> None:
+    port, snapshots = stack
+    before = set(snapshots.glob("*.mcap")) if snapshots.exists() else set()
+    with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
+        alice.wait_for_robot("turtle1")
+        alice.twist("turtle1", lx=0.1)  # then silence: the dead-man's failsafe stop (command_timeout, 1 s)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and not (snapshots.exists() and set(snapshots.glob("*.mcap")) - before):
+            time.sleep(0.1)
+    new = sorted(set(snapshots.glob("*.mcap")) - before)
+    assert new, f"no failsafe snapshot in {snapshots}"
+    from mcap.reader import make_reader
+
+    with new[-1].open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and {c.topic for c in summary.channels.values()} >= {"odom", "scan"}
