@@ -10,6 +10,8 @@ side by side with it in ``bench/weak_link.py`` (docs/performance.md, "Weak links
 
 from __future__ import annotations
 
+import re
+import secrets
 import sys
 import threading
 import time
@@ -441,3 +443,77 @@ def test_a_disk_backlog_drains_behind_live_poses_on_a_thin_uplink(tmp_path, mode
     # shown 1.7-2.1 s with the drain paced as it should be: the line sits between the two
     assert _quantile(during, 0.9) < 3.0, f"poses arrived stale while the backlog drained: {sorted(during)[-5:]}"
     assert first_pose - back < 10.0, f"the first live pose took {first_pose - back:.1f} s after the link returned"
+
+
+SNAPSHOT_KBIT = 256
+
+
+def test_a_snapshot_crosses_a_thin_uplink_intact_while_poses_stay_fresh(tmp_path) -> None:
+    """The bridge keeps 4 s of a 3 kB log line at 20 Hz and the poses (10 Hz); over a 256 kbit/s uplink alice asks for
+    them all (≈ 250 kB: eight seconds of the whole link) while bob watches the poses. The file arrives whole (its
+    SHA-256 checked), and the poses stay fresh meanwhile: the chunks go at bulk priority, one at a time."""
+    from mcap.reader import make_reader
+    from nav_msgs.msg import Odometry
+    from std_msgs.msg import String
+
+    snapshot = ("    snapshot:\n      topics: [/wl/odom, {ros_topic: /wl/log, ros_type: std_msgs/msg/String}]\n"
+                "      seconds: 4\n")
+    fleet = write_fleet(tmp_path, edit=lambda text: re.sub(r"    snapshot:\n(      .*\n|        .*\n)+", snapshot,
+                                                           text.replace("    rules: &rules\n", RULES, 1), count=1))
+    ages: list[float] = []
+    with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
+        link_port = free_port()
+        with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit",
+                  str(SNAPSHOT_KBIT), "--down-kbit", "1024"], tmp_path / "link.log"), \
+                run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
+                TestClient(broker.port, "bob", "bob-demo") as bob:
+            probe = RosProbe()
+            fetching = threading.Event()
+
+            def on_message(_c, _u, m) -> None:
+                if fetching.is_set() and m.topic.endswith("/state/pose"):
+                    ages.append(time.time() - orjson.loads(m.payload)["payload"]["time_boot_ms"] / 1000)
+
+            stop = threading.Event()
+            try:
+                assert bob.connect() == 0
+                bob.client.on_message = on_message
+                bob.subscribe("roslink/turtle1/state/pose", qos=0)
+                odom, lines = probe.publisher(Odometry, "/wl/odom"), probe.publisher(String, "/wl/log")
+
+                def flood() -> None:
+                    n = 0
+                    while not stop.wait(0.05):  # the log at 20 Hz (only in the ring buffer), poses at 10 Hz
+                        n += 1
+                        lines.publish(String(data=secrets.token_urlsafe(2250)))  # 3 kB zstd cannot shrink much
+                        if n % 2:
+                            continue
+                        msg = Odometry()
+                        now = time.time()
+                        msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                        odom.publish(msg)
+
+                threading.Thread(target=flood, daemon=True).start()
+                with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{broker.port}") as alice:
+                    alice.wait_for_robot("turtle1", timeout=30)
+                    time.sleep(4.5)  # the ring buffer fills
+                    fetching.set()
+                    started = time.monotonic()
+                    snap = alice.snapshot("turtle1", 4, path=tmp_path / "thin.mcap", timeout=120)
+                    took = time.monotonic() - started
+                    fetching.clear()
+            finally:
+                stop.set()
+                probe.close()
+    with (tmp_path / "thin.mcap").open("rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    assert stats.message_count == snap.messages >= 100, snap.messages  # 4 s of 20 + 10 Hz, less the window's cut
+    assert len(snap.data) > 150_000, f"{len(snap.data)} bytes"  # seconds of the link: long enough to show the poses
+    # held up (or not)
+    kbit = len(snap.data) * 8 / 1000 / took
+    record_measurement(f"snapshot over {SNAPSHOT_KBIT} kbit/s ({len(snap.data) // 1000} kB, {kbit:.0f} kbit/s)", took,
+                       60.0)
+    assert ages and _quantile(ages, 0.9) < 1.5, f"poses went stale during the snapshot: p90 {_quantile(ages, 0.9):.2f}"
+    assert len(ages) >= 5 * took, f"only {len(ages)} poses in {took:.1f} s"
