@@ -1,13 +1,17 @@
-"""Benchmark: what the bridge costs a robot's CPU at the demo robot's steady state, per rclpy executor.
+"""Benchmark: what the bridge costs a robot's CPU at the demo robot's steady state, per rclpy executor, and what
+the snapshot ring buffer adds.
 
-    .venv/bin/python bench/bridge_cpu.py [--seconds 20] [--executors events,single] [--quick] [--plot PATH]
+    .venv/bin/python bench/bridge_cpu.py [--seconds 20] [--variants events,events+snapshot,single] [--quick]
+                                         [--plot PATH]
 
 The simulated robot (``python -m roslink_mqtt.sim``: 20 Hz odometry, 5 Hz 360-beam scan, 1 Hz GPS and
 battery, and the motion it integrates) and turtle1's bridge run against the embedded broker, with no MQTT
 client connected, as a robot idles in the field. For each executor the bridge is started fresh, given a
 few seconds to settle, and then its CPU time (user + system, from /proc) and the simulator's are read over
 the same window. An rclpy subscriber here counts the ROS messages the bridge's rules subscribe to in that
-window, so the table also gives the bridge's CPU per 1,000 messages it forwards.
+window, so the table also gives the bridge's CPU per 1,000 messages it forwards. A variant without
+``+snapshot`` runs turtle1 without its ``snapshot:`` section; ``events+snapshot`` with it (30 s of odom, scan and
+cmd_vel in the ring buffer, as the demo fleet has it), side by side in one run.
 
 Nothing here asserts on timing: it prints one table and writes a bar chart (matplotlib) of the same rows.
 """
@@ -129,33 +133,35 @@ def wait_online(port: int, log: Path, timeout: float = 30.0) -> None:
         client.loop_stop()
 
 
-def measure(executor: str, seconds: float, env: dict[str, str], work: Path, counter: Counter) -> Row:
+def measure(variant: str, seconds: float, env: dict[str, str], work: Path, counter: Counter) -> Row:
     from roslink_mqtt.localproc import fleet_copy, free_port, start_child, start_embedded_broker
 
+    executor, _, extra = variant.partition("+")
     with ExitStack() as stack:
         port = free_port()
-        fleet = fleet_copy(work / f"robots-{executor}.yaml", CONFIG, port=port, ws_port=0)
+        fleet = fleet_copy(work / f"robots-{variant}.yaml", CONFIG, port=port, ws_port=0,
+                           edit=None if extra == "snapshot" else lambda data: data["robots"][ROBOT].pop("snapshot"))
         start_embedded_broker(stack, fleet, port, work / f"broker-{executor}.log", env)
         sim = start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / f"sim-{executor}.log", env)
         bridge = start_child(stack, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet),
                                      "--robot", ROBOT, "--url", f"mqtt://127.0.0.1:{port}", "--log-level",
                                      "WARNING", "--executor", executor],
-                             work / f"bridge-{executor}.log", {**env, "ROSLINK_PASSWORD": ROBOT_PASSWORD})
-        wait_online(port, work / f"bridge-{executor}.log")
+                             work / f"bridge-{variant}.log", {**env, "ROSLINK_PASSWORD": ROBOT_PASSWORD})
+        wait_online(port, work / f"bridge-{variant}.log")
         time.sleep(SETTLE)
         b0, s0, m0, t0 = cpu_seconds(bridge.pid), cpu_seconds(sim.pid), counter.read(), time.monotonic()
         time.sleep(seconds)
         b1, s1, m1, t1 = cpu_seconds(bridge.pid), cpu_seconds(sim.pid), counter.read(), time.monotonic()
         rss = rss_bytes(bridge.pid)
-    return Row(executor, t1 - t0, m1 - m0, b1 - b0, s1 - s0, rss)
+    return Row(variant, t1 - t0, m1 - m0, b1 - b0, s1 - s0, rss)
 
 
 def table(rows: list[Row]) -> str:
-    head = (f"{'executor':<10} {'window s':>8} {'ROS msg/s':>9} {'bridge % core':>13} {'ms CPU / 1000 msg':>17} "
+    head = (f"{'variant':<16} {'window s':>8} {'ROS msg/s':>9} {'bridge % core':>13} {'ms CPU / 1000 msg':>17} "
             f"{'sim % core':>10} {'bridge RSS MB':>13}")
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r.executor:<10} {r.seconds:>8.1f} {r.messages / r.seconds:>9.1f} {r.bridge_core:>13.1f} "
+        lines.append(f"{r.executor:<16} {r.seconds:>8.1f} {r.messages / r.seconds:>9.1f} {r.bridge_core:>13.1f} "
                      f"{r.per_1000:>17.0f} {r.sim_core:>10.1f} {r.bridge_rss / 1e6:>13.1f}")
     return "\n".join(lines)
 
@@ -185,15 +191,17 @@ def plot(rows: list[Row], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=20.0, help="measurement window per executor")
-    p.add_argument("--executors", default="events,single", help="comma-separated: events, single")
+    p.add_argument("--variants", "--executors", default="events,events+snapshot,single",
+                   help="comma-separated: events or single, each optionally +snapshot (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="a 6 s window (a smoke run, noisier numbers)")
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="where to write the chart (default: %(default)s)")
     args = p.parse_args(argv)
     seconds = 6.0 if args.quick else args.seconds
-    executors = [e.strip() for e in args.executors.split(",") if e.strip()]
-    bad = [e for e in executors if e not in ("events", "single")]
+    variants = [e.strip() for e in args.variants.split(",") if e.strip()]
+    bad = [v for v in variants if v.partition("+")[0] not in ("events", "single") or v.partition("+")[2] not in
+           ("", "snapshot")]
     if bad:
-        p.error(f"unknown executor(s): {', '.join(bad)} (choose from events, single)")
+        p.error(f"unknown variant(s): {', '.join(bad)} (events or single, each optionally +snapshot)")
 
     from roslink_mqtt.ros_env import apply_local_ros_env
 
@@ -204,9 +212,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     try:
         with tempfile.TemporaryDirectory(prefix="roslink-bench-cpu-") as tmp:
-            for executor in executors:
-                rows.append(measure(executor, seconds, env, Path(tmp), counter))
-                print(f"  {executor}: bridge {rows[-1].bridge_core:.1f} % of a core", flush=True)
+            for variant in variants:
+                rows.append(measure(variant, seconds, env, Path(tmp), counter))
+                print(f"  {variant}: bridge {rows[-1].bridge_core:.1f} % of a core", flush=True)
     finally:
         counter.close()
     print(f"\nbridge CPU, demo steady state, no MQTT client connected ({os.cpu_count()} cores, "
@@ -215,8 +223,14 @@ def main(argv: list[str] | None = None) -> int:
     if len(rows) > 1 and rows[0].bridge_cpu and rows[-1].bridge_cpu:
         base = next((r for r in rows if r.executor == "single"), rows[-1])
         for r in rows:
-            if r is not base:
+            if r is not base and "+" not in r.executor:
                 print(f"\n{r.executor}: {r.bridge_cpu / base.bridge_cpu:.2f} × the CPU of {base.executor}")
+    by_name = {r.executor: r for r in rows}
+    for r in rows:
+        plain = by_name.get(r.executor.partition("+")[0])
+        if "+snapshot" in r.executor and plain is not None:
+            print(f"\n{r.executor}: {r.bridge_core - plain.bridge_core:+.2f} % of a core, "
+                  f"{(r.bridge_rss - plain.bridge_rss) / 1e6:+.1f} MB RSS against {plain.executor} (the ring buffer)")
     plot(rows, args.plot)
     print(f"\nplot: {args.plot}")
     return 0

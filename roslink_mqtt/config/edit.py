@@ -114,7 +114,8 @@ class FleetEdit:
                   broker_url: str | None = None) -> int:
         """A new robot with the next free system_id (returned), its own key and password hash; ``like``: the
         rules, services, actions, parameters, snapshot, type and bridge settings of that robot (shared as YAML
-        aliases where the author anchored them, so the two stay alike; copied otherwise), else none. ``broker_url``: where its bridge dials (``bridge.broker``)."""
+        aliases where the author anchored them, so the two stay alike; copied otherwise), else none.
+        ``broker_url``: where its bridge dials (``bridge.broker``)."""
         robots = self.data["robots"]
         if name in robots:
             raise FleetEditError(f"robot '{name}' is already in {self.path}")
