@@ -179,3 +179,41 @@ def test_missing_and_unreadable_files(tmp_path: Path) -> None:
     empty.write_text("")
     with pytest.raises(ConfigError, match="missing required key 'robots'"):
         load_fleet(empty)
+
+
+SNAPSHOT_RULE = ("      - {direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, "
+                 "mqtt_topic: state/odom}\n")
+
+
+def _with_snapshot(section: str) -> str:
+    return BASE.replace(SNAPSHOT_RULE, SNAPSHOT_RULE + textwrap.indent(textwrap.dedent(section), "    "), 1)
+
+
+def test_a_snapshot_topic_named_by_a_rule_takes_its_type() -> None:
+    fleet = parse_fleet(_with_snapshot("""\
+        snapshot:
+          topics: [odom, {ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist}]
+          seconds: 12
+          who: viewers
+        """), "robots.yaml")
+    snapshot = fleet.robots["turtle1"].snapshot
+    assert snapshot is not None and [(t.ros_topic, t.ros_type) for t in snapshot.topics] == [
+        ("odom", "nav_msgs/msg/Odometry"), ("cmd_vel", "geometry_msgs/msg/Twist")]
+    assert (snapshot.seconds, snapshot.who, snapshot.on_failsafe, snapshot.keep) == (12.0, "viewers", True, 20)
+    assert fleet.robots["turtle2"].snapshot is None
+
+
+@pytest.mark.parametrize(("section", "expected"), [
+    ("snapshot:\n  topics: [scan]\n", "robots.turtle1.snapshot.topics[0]: 'scan' is not the ros_topic of a "
+                                      "ros_to_mqtt rule of this robot: give its type"),
+    ("snapshot:\n  topics: []\n", "robots.turtle1.snapshot.topics: a snapshot needs at least one ROS topic"),
+    ("snapshot:\n  topics: [odom, odom]\n", "robots.turtle1.snapshot.topics[1]: 'odom' is listed twice"),
+    ("snapshot:\n  topics: [odom]\n  seconds: 0\n", "robots.turtle1.snapshot.seconds: expected a finite number > 0"),
+    ("snapshot:\n  topics: [odom]\n  who: everyone\n", "robots.turtle1.snapshot.who: expected one of"),
+    ("snapshot:\n  topics: [{ros_topic: x, ros_type: nav_msgs/Odometry}]\n",
+     "robots.turtle1.snapshot.topics[0].ros_type"),
+    ("snapshot:\n  topics: [odom]\n  second: 5\n", "robots.turtle1.snapshot.second: unknown key 'second' (did you "
+                                                 "mean 'seconds'?)"),
+])
+def test_a_bad_snapshot_section_says_where(section: str, expected: str) -> None:
+    assert expected in _error(_with_snapshot(section))
