@@ -108,6 +108,6 @@ class SnapshotChunk:
 
 SNAPSHOT_BODIES: tuple[tuple[str, str, type], ...] = (
     ("snapshot request", f"`{_DOC.user_topic(_R, _U, Verb.SNAPSHOT, '<id>')}`", SnapshotRequest),
-    ("snapshot chunk (header line, then the bytes)", f"`{_DOC.user_topic(_R, _U, Verb.SNAPSHOT_DATA, '<id>')}`",
-     SnapshotChunk),
+    ("snapshot chunk", f"`{_DOC.user_topic(_R, _U, Verb.SNAPSHOT_DATA, '<id>')}`: this JSON header line, a newline, "
+                       "then the chunk's bytes", SnapshotChunk),
 )

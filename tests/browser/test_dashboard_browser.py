@@ -522,6 +522,40 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
                               " '', {retain: true, qos: 1})")
 
 
+def test_a_snapshot_from_the_page_is_the_robots_own_mcap_file(stack, tmp_path) -> None:
+    """alice's "Save the last 30 s" (her access report says she may): the chunks are joined, the SHA-256 checked,
+    the file offered as a download; it is the robot's MCAP (ros2 profile, odom and scan as CDR). bob gets no
+    button (a viewer, and turtle1's snapshot.who is operators)."""
+    import io
+
+    from mcap.reader import make_reader
+
+    with browser(tmp_path, "snapshot") as driver:
+        alice_ready(driver, stack)
+        wait_until("the snapshot button", lambda: visible(driver, "snapshot-box"))
+        driver.find_element("id", "snapshot").click()
+        state = wait_until("the snapshot saved", lambda: (s := driver.execute_script(
+            "return document.getElementById('snapshot-status').dataset.state")) in ("saved", "failed", "refused")
+            and s, timeout=30)
+        text = driver.find_element("id", "snapshot-status").text
+        assert state == "saved" and "SHA-256 checked" in text, text
+        data = base64.b64decode(driver.execute_script("""
+            const snap = [...window.dashboard.snapshots.values()].pop();
+            let s = ""; for (const b of snap.file) s += String.fromCharCode(b); return btoa(s);"""))
+        no_console_errors(driver)
+    reader = make_reader(io.BytesIO(data))
+    assert reader.get_header().profile == "ros2"
+    summary = reader.get_summary()
+    assert summary is not None and {c.topic for c in summary.channels.values()} >= {"odom", "scan"}
+    assert summary.statistics is not None and summary.statistics.message_count > 20
+    with browser(tmp_path, "snapshot-bob") as driver:
+        login(driver, stack["url"], "bob", "bob-demo")
+        logged_in(driver, "bob")
+        wait_until("turtle1 shown to bob as its viewer", lambda: visible(driver, "viewer-note") and "viewer of turtle1"
+                   in driver.find_element("id", "viewer-note").text)
+        assert not visible(driver, "snapshot-box")
+
+
 def test_carol_does_not_see_turtle1_but_her_turtle2_online_stale_offline(stack, tmp_path) -> None:
     with browser(tmp_path, "carol") as driver:
         login(driver, stack["url"], "carol", "carol-demo")

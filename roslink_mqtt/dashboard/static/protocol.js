@@ -1717,7 +1717,7 @@ const ROSLINK = {
         }
       }
     ],
-    "snapshot_chunk_(header_line,_then_the_bytes)": [
+    "snapshot_chunk": [
       {
         "name": "index",
         "required": true,
