@@ -27,6 +27,7 @@ pytestmark = pytest.mark.timeout(150)
 
 RATES = {"odom": 20.0, "scan": 5.0}  # the sim's (roslink_mqtt/sim/robot.py)
 LAST = 4.0
+STARTED: list[float] = []  # when turtle1 came online (its ring buffer has held since)
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,7 @@ def stack(tmp_path_factory) -> Iterator[tuple[int, Path]]:
     os.environ["STATE_DIRECTORY"] = str(state)  # the bridge's failsafe snapshots go here (inherited)
     try:
         with turtle1_online(work) as port:
+            STARTED.append(time.monotonic())
             yield port, state / "snapshots"
     finally:
         os.environ.pop("STATE_DIRECTORY", None)
@@ -114,3 +116,39 @@ def test_a_failsafe_stop_leaves_a_snapshot_on_the_robot(stack) -> None:
     with new[-1].open("rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None and {c.topic for c in summary.channels.values()} >= {"odom", "scan"}
+
+
+def test_a_ros2_bag_plays_as_a_robot_through_its_rules(tmp_path, stack) -> None:
+    """The snapshot is a ROS 2 bag (ros2 profile, CDR): played through turtle2's rules (the demo fleet's, as turtle2's
+    bridge would convert), carol (turtle2's operator) sees turtle2 online, global_motion at the rule's max_rate
+    (10 Hz from the bag's 20 Hz odometry) with the bag's positions, the scan at 5 Hz, and turtle2 offline at the end."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from tests.support.mqtt_client import TestClient
+
+    port, _ = stack
+    time.sleep(max(0.0, STARTED[0] + 3.5 - time.monotonic()))  # 3 s in the ring buffer (run alone, it is young)
+    bag = tmp_path / "bag.mcap"
+    assert _cli(port, "alice", "--last", "3s", "-o", str(bag)).returncode == 0
+    with bag.open("rb") as f:
+        xs = [round(d.pose.pose.position.x, 6) for _, c, _, d in make_reader(
+            f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=["odom"])]
+    with TestClient(port, "carol", "carol-demo") as carol:
+        assert carol.connect() == 0
+        carol.subscribe("roslink/turtle2/#", qos=0)
+        done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "play", str(bag), "--rules",
+                               str(ROOT / "config" / "robots.yaml"), "--url", f"mqtt://127.0.0.1:{port}", "-u",
+                               "turtle2"], capture_output=True, text=True, cwd=ROOT, timeout=60,
+                              env={**os.environ, "ROSLINK_PASSWORD": "turtle2-demo"}, stdin=subprocess.DEVNULL)
+        assert done.returncode == 0, done.stderr
+        seen = carol.drain(0.5)
+    motion = [m for m in seen if m.topic == "roslink/turtle2/state/global_motion"]
+    scans = [m for m in seen if m.topic == "roslink/turtle2/state/range_finder_data"]
+    beats = [m.json()["payload"]["system_status"] for m in seen if m.topic == "roslink/turtle2/heartbeat"]
+    span = (motion[-1].at - motion[0].at) if len(motion) > 1 else 0.0
+    assert span > 2.0 and abs((len(motion) - 1) / span - 10.0) <= 1.5, (len(motion), span)
+    assert 8 <= len(scans) <= 20, len(scans)
+    assert {round(m.json()["payload"]["x"], 6) for m in motion} <= set(xs)  # the bag's own positions
+    assert beats and beats[0] == 4 and beats[-1] == 8, beats  # active while playing, offline at the end
+    assert any(m.topic == "roslink/turtle2/state/description" for m in seen)
