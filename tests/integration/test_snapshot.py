@@ -9,6 +9,7 @@ alice sent are in it. A failsafe stop (alice's presence goes) leaves a file on t
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -69,6 +70,8 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
     assert "checked" in done.stderr and str(out) in done.stderr, done.stderr
 
     types = {"odom": Odometry, "scan": LaserScan, "cmd_vel": Twist}
+    types_names = {"odom": "nav_msgs/msg/Odometry", "scan": "sensor_msgs/msg/LaserScan",
+                   "cmd_vel": "geometry_msgs/msg/Twist"}
     times: dict[str, list[int]] = defaultdict(list)
     with out.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -90,6 +93,16 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
         assert span > LAST - 0.5, (topic, span)  # the whole window asked for
         measured = (len(stamps) - 1) / span
         assert abs(measured - rate) <= 0.1 * rate, f"{topic}: {measured:.2f}/s, expected {rate}/s"
+    # an independent reader: @mcap/core from npm (node), as for recordings
+    read = subprocess.run(["node", str(ROOT / "tests" / "js" / "read_mcap.js"), str(out)], capture_output=True,
+                          text=True, cwd=ROOT, timeout=60)
+    assert read.returncode == 0, read.stderr
+    found = json.loads(read.stdout)
+    assert found["profile"] == "ros2"
+    assert {c["topic"]: c["count"] for c in found["channels"]} == {t: len(s) for t, s in times.items()}
+    for channel in found["channels"]:
+        assert channel["monotonic"] and channel["encoding"] == "cdr", channel
+        assert channel["schema"]["encoding"] == "ros2msg" and channel["schema"]["name"] == types_names[channel["topic"]]
 
 
 def test_a_viewer_is_refused_with_the_reason(tmp_path, stack) -> None:
