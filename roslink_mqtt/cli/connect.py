@@ -81,12 +81,20 @@ def _exit_when_login_refused(client: RobotClient) -> None:
     client.connection.on_failure.append(on_failure)
 
 
-def json_object(text: str, what: str) -> dict:
-    """Parse a JSON object given on the command line, or exit saying what is wrong with it."""
+def parse_json_object(text: str | bytes, what: str) -> dict:
+    """A JSON object (a command line argument, a Foxglove request); ValueError saying what is wrong with it."""
     try:
         value = orjson.loads(text)
     except orjson.JSONDecodeError as err:
-        raise SystemExit(f"roslink-mqtt: {what} is not JSON: {err}") from None
+        raise ValueError(f"{what} is not JSON: {err}") from None
     if not isinstance(value, dict):
-        raise SystemExit(f"roslink-mqtt: {what} must be a JSON object")
+        raise ValueError(f"{what} must be a JSON object")
     return value
+
+
+def json_object(text: str, what: str) -> dict:
+    """Parse a JSON object given on the command line, or exit saying what is wrong with it."""
+    try:
+        return parse_json_object(text, what)
+    except ValueError as err:
+        raise SystemExit(f"roslink-mqtt: {err}") from None

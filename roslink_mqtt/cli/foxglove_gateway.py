@@ -40,6 +40,7 @@ from ..client.errors import CommandRefused, RobotError, RoslinkError
 from ..client.json_channels import JsonChannels, Route
 from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
+from .connect import parse_json_object
 from .control_cmd import claim_if_free
 
 if TYPE_CHECKING:
@@ -409,15 +410,7 @@ def _finite(value: Any, name: str) -> float:
 
 
 def _json_object(payload: bytes, what: str) -> dict[str, Any]:
-    if not payload:
-        return {}
-    try:
-        value = orjson.loads(payload)
-    except orjson.JSONDecodeError as err:
-        raise ValueError(f"{what} is not JSON: {err}") from None
-    if not isinstance(value, dict):
-        raise ValueError(f"{what} must be a JSON object")
-    return value
+    return parse_json_object(payload, what) if payload else {}
 
 
 __all__ = ["FoxgloveGateway", "Route", "twist_of"]
