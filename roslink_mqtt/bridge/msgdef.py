@@ -9,6 +9,7 @@ ROS wheels install there), exactly the source ``rosbag2`` reads.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from functools import cache
@@ -23,19 +24,25 @@ class DefinitionNotFound(LookupError):
     """No ``.msg`` file for a type (its interface package is not installed where the bridge looks)."""
 
 
-def _prefixes() -> list[Path]:
+def _prefixes(package: str) -> list[Path]:
+    """Where ``package``'s share directory may be: each ``AMENT_PREFIX_PATH`` entry, the prefix its Python module is
+    installed under (``<prefix>/lib/pythonX.Y/site-packages/<package>``: a sourced ROS, or wheels in a venv that
+    another venv or PYTHONPATH reaches), then this Python's prefix."""
     paths = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    spec = importlib.util.find_spec(package)
+    if spec is not None and spec.origin:
+        paths.append(Path(spec.origin).parents[4])
     return [*paths, Path(sys.prefix)]
 
 
 @cache
 def _msg_text(package: str, name: str) -> str:
-    for prefix in _prefixes():
+    for prefix in _prefixes(package):
         path = prefix / "share" / package / "msg" / f"{name}.msg"
         if path.is_file():
             return path.read_text(encoding="utf-8")
     raise DefinitionNotFound(f"no definition of {package}/msg/{name} (looked for share/{package}/msg/{name}.msg "
-                             f"under {', '.join(str(p) for p in _prefixes())})")
+                             f"under {', '.join(str(p) for p in _prefixes(package))})")
 
 
 def _field_types(text: str, package: str) -> list[tuple[str, str]]:

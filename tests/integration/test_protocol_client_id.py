@@ -79,8 +79,8 @@ def test_access_reports_follow_the_fleet(tmp_path) -> None:
     topics = TopicTree(fleet.prefix)
     reports = {topic: AccessReport.from_json(body) for topic, body in access_reports(fleet, "turtle1", topics).items()}
     assert reports == {
-        "roslink/turtle1/to/admin/access": AccessReport("operator", ("reset", "status"), ("fibonacci",), True),
-        "roslink/turtle1/to/alice/access": AccessReport("operator", ("reset", "status"), ("fibonacci",), True),
+        "roslink/turtle1/to/admin/access": AccessReport("operator", ("reset", "status"), ("fibonacci",), True, True),
+        "roslink/turtle1/to/alice/access": AccessReport("operator", ("reset", "status"), ("fibonacci",), True, True),
         "roslink/turtle1/to/bob/access": AccessReport("viewer", ("status",), (), True),
     }
     assert not reports["roslink/turtle1/to/bob/access"].may_send_goal("fibonacci")

@@ -260,6 +260,7 @@ def fake_venv(venv: Path) -> Path | None:
             (venv / "lib" / entry.name).symlink_to(entry)
     (venv / "lib" / "python3.11").mkdir()
     (venv / "lib" / "python3.11" / "site-packages").symlink_to(project / "lib" / "python3.11" / "site-packages")
+    (venv / "share").symlink_to(project / "share")  # the ROS wheels' share/ (.msg files: the snapshot's schemas)
     for name, module in (("roslink-mqtt-bridge", "roslink_mqtt.bridge.main"),
                          ("roslink-mqtt-broker", "roslink_mqtt.broker.main")):
         script = venv / "bin" / name  # what pip writes, shebang at the installed path

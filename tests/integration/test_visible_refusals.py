@@ -108,7 +108,8 @@ def test_sdk_operator_is_not_refused_and_a_stranger_is(stack) -> None:
             alice.call("turtle1", "reset", timeout=10)
         from roslink_mqtt.protocol import AccessReport
 
-        assert _access(alice, "turtle1") == AccessReport("operator", ("reset", "status"), ("fibonacci",), estop=True)
+        assert _access(alice, "turtle1") == AccessReport("operator", ("reset", "status"), ("fibonacci",), estop=True,
+                                                         snapshot=True)
     if stack.backend == "embedded":  # it refuses carol's subscription to turtle1/to/carol/# (SUBACK 0x80)
         with RobotClient("carol", "carol-demo", url=stack.url, robots=["turtle1"]) as carol:
             with pytest.raises(CommandRefused, match="no grant on turtle1"):
@@ -201,12 +202,12 @@ def test_access_reports_follow_a_reload(tmp_path) -> None:
         bob = "roslink/turtle1/to/bob/access"
         assert admin.wait_for(lambda m: m.topic == bob, timeout=30).json() == {"role": "viewer",
                                                                                "services": ["status"], "actions": [],
-                                                                               "estop": True}
+                                                                               "estop": True, "snapshot": False}
         fleet.write_text(fleet.read_text().replace(viewer, viewer.replace("viewer", "operator")))
         bridge.signal(signal.SIGHUP)
         promoted = admin.wait_for(lambda m: m.topic == bob, timeout=10).json()
         assert promoted == {"role": "operator", "services": ["reset", "status"], "actions": ["fibonacci"],
-                            "estop": True}
+                            "estop": True, "snapshot": True}  # an operator may ask for turtle1's snapshots
         fleet.write_text(fleet.read_text().replace(viewer.replace("viewer", "operator"), ""))
         bridge.signal(signal.SIGHUP)
         cleared = admin.wait_for(lambda m: m.topic == bob, timeout=10)
