@@ -3,7 +3,8 @@
 The gateway runs on the user's machine. It logs in to the broker as the user (an SDK :class:`RobotClient`, so the
 broker's ACL, the user's presence, the control lease and the robot's failsafe apply as to every other client) and
 serves the Foxglove WebSocket protocol (``foxglove.websocket.v1``) on localhost with the ``foxglove-sdk`` server:
-the protocol's reference implementation, kept by Foxglove, that Foxglove and Lichtblick are tested against.
+the protocol's reference implementation, kept by Foxglove, that Foxglove and Lichtblick are tested against; a
+front (:mod:`.foxglove_front`) lets clients name the protocol either ``foxglove.sdk.v1`` or ``foxglove.websocket.v1``.
 
 Everything is named as in the MQTT topic tree, so a layout made live opens ``roslink-mqtt record``'s files too:
 
@@ -42,6 +43,7 @@ from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
 from .connect import parse_json_object
 from .control_cmd import claim_if_free
+from .foxglove_front import ProtocolFront
 
 if TYPE_CHECKING:
     from ..client.robot_client import RobotClient
@@ -90,6 +92,7 @@ class FoxgloveGateway(ServerListener):
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.server: Any = None
+        self.front: ProtocolFront | None = None
         self.context: Any = None
         client.on_error = self._on_robot_error
 
@@ -97,22 +100,32 @@ class FoxgloveGateway(ServerListener):
     def start(self) -> int:
         """Listen; returns the port (``port=0`` picks a free one)."""
         self.context = foxglove.Context()
+        # Foxglove's server on a loopback port of its own, behind the front, which also takes clients that name
+        # the protocol foxglove.websocket.v1 (cli/foxglove_front.py)
         self.server = foxglove.start_server(
-            name=f"roslink-mqtt ({self.client.username})", host=self.host, port=self.port, context=self.context,
+            name=f"roslink-mqtt ({self.client.username})", host="127.0.0.1", port=0, context=self.context,
             capabilities=[Capability.ClientPublish, Capability.Services, Capability.Parameters],
             supported_encodings=["json"], server_listener=self)
+        self.front = ProtocolFront(self.host, self.port, int(self.server.port))
+        try:
+            self.port = self.front.start()
+        except OSError:
+            self.server.stop()
+            raise
         for target, name in ((self._discover, "discover"), (self._do_work, "subscribe"),
                              (self._send_twists, "twist")):
             thread = threading.Thread(target=target, name=f"foxglove-{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
-        return int(self.server.port)
+        return self.port
 
     def close(self) -> None:
         self._stop.set()
         with self._twist_ready:
             self._twist_ready.notify_all()
         self._work.put(("stop", None))
+        if self.front is not None:
+            self.front.stop()
         if self.server is not None:
             self.server.stop()
         for thread in self._threads:

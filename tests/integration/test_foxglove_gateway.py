@@ -50,9 +50,9 @@ def _gateway(work: Path, broker_port: int, user: str) -> LocalProcess:
     return proc
 
 
-def _probe(port: int, plan: dict, timeout: float = 60) -> dict:
+def _probe(port: int, plan: dict, timeout: float = 60, subprotocol: str = "foxglove.sdk.v1") -> dict:
     done = subprocess.run(["node", str(PROBE), f"ws://127.0.0.1:{port}", json.dumps(plan)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=timeout)
+                          text=True, cwd=ROOT, timeout=timeout, env={**os.environ, "FOXGLOVE_SUBPROTOCOL": subprotocol})
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -91,13 +91,14 @@ def test_an_operators_twist_moves_the_robot_and_a_viewers_is_refused(tmp_path, b
         assert watcher.connect() == 0
         watcher.subscribe(MOTION, qos=0)
         bobs = _gateway(tmp_path, broker_port, "bob")
-        try:
-            seen = _probe(bobs.port or 0, {"twist": twist, "seconds": 0.5})
+        try:  # bob's client names the protocol as older clients do (Lichtblick before 2025-12, ws-protocol's default)
+            seen = _probe(bobs.port or 0, {"twist": twist, "seconds": 0.5}, subprotocol="foxglove.websocket.v1")
         finally:
             bobs.stop()
         refusals = [s for s in seen["status"] if "user 'bob' may not send 'cmd/twist'" in s]
         assert len(refusals) == 1, seen["status"]  # 25 twists refused, said once
         assert "roslink/turtle1/call/reset" not in seen["services"]  # not bob's to call: not offered
+        assert "roslink/turtle1/cmd/emergency_stop" in seen["services"]  # every granted user may stop it
         assert all(abs(m.json()["payload"]["vx"]) < 0.05 for m in watcher.drain(0.1)), "bob's twists moved it"
         alices = _gateway(tmp_path, broker_port, "alice")
         try:

@@ -26,8 +26,8 @@ async function waitFor(check, ms) {
 }
 
 async function main() {
-  // foxglove-sdk servers (the gateway, foxglove_bridge 3.x) name the protocol foxglove.sdk.v1: the same messages as
-  // foxglove.websocket.v1 (FoxgloveClient.SUPPORTED_SUBPROTOCOL), which they refuse in the handshake.
+  // The protocol's current name is foxglove.sdk.v1; older clients offer foxglove.websocket.v1 (ws-protocol's
+  // FoxgloveClient.SUPPORTED_SUBPROTOCOL): the same messages. FOXGLOVE_SUBPROTOCOL says which this client offers.
   const client = new FoxgloveClient({ ws: new WebSocket(url, [SUBPROTOCOL]) });
   const byId = {};
   client.on("error", (err) => seen.errors.push(String(err && err.message ? err.message : err)));
