@@ -195,3 +195,30 @@ def test_a_robot_without_snapshots_says_so() -> None:
     errors = h.link.errors("alice")
     assert errors and errors[0].error == "turtle1 keeps no snapshots: its robot file has no `snapshot:` section"
     assert lane.sent == []
+
+
+def test_one_transfer_per_user_a_flood_of_ids_builds_nothing_more() -> None:
+    h, port, lane, snapshots = _harness()
+    try:
+        lane.full.set()  # the first transfer waits for room on the link
+        _ask(h, "alice", "first", {"last": 5})
+        deadline = time.monotonic() + 5
+        while not port.builds and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for i in range(20):
+            _ask(h, "alice", f"flood-{i}", {"last": 5})
+        errors = h.link.errors("alice")
+        assert len(errors) == 20 and all("one snapshot at a time: 'first' is still being sent" in e.error
+                                         for e in errors)
+        assert port.builds == [5.0]
+        lane.full.clear()
+        assert len(_chunks(lane, 6)) == 6
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:  # once it is sent, the next one is taken
+            _ask(h, "alice", "second", {"last": 5})
+            if len(port.builds) == 2:
+                break
+            time.sleep(0.05)
+        assert port.builds == [5.0, 5.0]
+    finally:
+        snapshots.close()

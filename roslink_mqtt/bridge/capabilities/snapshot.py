@@ -34,7 +34,7 @@ from .base import Gates, Refusal, Report, Request
 log = logging.getLogger("roslink_mqtt.bridge.snapshot")
 
 CHUNK = 16 * 1024  # bytes of the file per chunk: half a second of a 256 kbit/s uplink
-KEEP = 4  # finished snapshots kept for resumed transfers
+KEEP = 4  # finished snapshots kept for resumed transfers (and at most snapshot.max_bytes of them, the newest always)
 KEEP_FOR = 600.0  # s
 MAX_WAITING = 8  # requests queued behind the one being served
 STALL_LIMIT = 120.0  # s without room on the link before a transfer is given up (the user resumes it)
@@ -79,6 +79,7 @@ class Snapshots:
                  report: Report, *, save: Callable[[SnapshotFile, str], None] | None = None) -> None:
         self.robot, self.topics, self.port, self.link, self.report = robot, topics, port, link, report
         self.settings = robot.snapshot
+        self.settings_bytes = robot.snapshot.max_bytes if robot.snapshot is not None else 0
         self._save = save
         self._jobs: queue.Queue[_Job | tuple[str, float] | None] = queue.Queue()
         self._waiting = 0
@@ -106,16 +107,19 @@ class Snapshots:
         body = request.body
         assert body is not None
         with self._lock:
-            if self._waiting >= MAX_WAITING:
-                busy = True
+            other = next((sid for user, sid in self._latest if user == request.user and sid != request.name), None)
+            if other is not None:  # one transfer per user: a flood of ids never queues a build per id
+                why = (f"one snapshot at a time: '{other}' is still being sent to you (resume it with its id, or "
+                       "wait for it)")
+            elif self._waiting >= MAX_WAITING:
+                why = f"{self.robot.name} is busy with {MAX_WAITING} snapshot requests: ask again shortly"
             else:
-                busy = False
+                why = None
                 self._waiting += 1
                 job = _Job(request.user, request.name, body.last, body.resume_from, body.client_id, request.topic)
                 self._latest[(job.user, job.snapshot_id)] = job
-        if busy:
-            self.refuse(request, Refusal(f"{self.robot.name} is busy with {MAX_WAITING} snapshot requests: ask "
-                                         "again shortly"))
+        if why is not None:
+            self.refuse(request, Refusal(why))
             return
         self._jobs.put(job)
 
@@ -146,7 +150,12 @@ class Snapshots:
                 else:
                     with self._lock:
                         self._waiting -= 1
-                    self._serve(job)
+                    try:
+                        self._serve(job)
+                    finally:
+                        with self._lock:  # however it ended: the user may ask for another
+                            if self._latest.get((job.user, job.snapshot_id)) is job:
+                                del self._latest[(job.user, job.snapshot_id)]
             except Exception as err:  # noqa: BLE001 - one bad snapshot must not end the worker
                 log.exception("snapshot failed: %s", err)
                 if isinstance(job, _Job):
@@ -172,7 +181,8 @@ class Snapshots:
         built = self.port.build(job.last)
         with self._lock:
             self._kept[key] = (now, built)
-            while len(self._kept) > KEEP:
+            while len(self._kept) > KEEP or (len(self._kept) > 1 and sum(
+                    len(f.data) for _at, f in self._kept.values()) > self.settings_bytes):
                 self._kept.popitem(last=False)
         log.info("snapshot %s for %s: %d messages, %d bytes, %s", job.snapshot_id, job.user, built.messages,
                  len(built.data), ", ".join(built.topics) or "no topics")
@@ -203,6 +213,3 @@ class Snapshots:
             self.link.send(topic, SnapshotChunk(index, count, len(built.data), built.sha256, piece, built.start,
                                                 built.end, built.messages, client_id=job.client_id).to_bytes())
             self.sent_chunks += 1
-        with self._lock:
-            if self._latest.get(key) is job:
-                del self._latest[key]
