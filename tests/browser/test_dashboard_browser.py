@@ -207,7 +207,7 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
     with browser(tmp_path, "drive") as driver:
         alice_ready(driver, stack)
         row = robot_row(driver, "turtle1")
-        assert row["status"] == "active" and row["role"] == "operator" and row["session"].isdigit(), row
+        assert row["status"] == "active" and row["role"] == "operator" and row["session"].startswith("since "), row
         assert "%" in row["battery"] and row["mode"] == "MANUAL", row
         first = wait_until("a position on the plot", lambda: pose(driver))
         wait_until("live positions", lambda: (pose(driver) or (0, 0, 0))[2] >= first[2] + 5)
@@ -286,6 +286,10 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         scan_drawn = driver.execute_script("return window.dashboard.robots.get('turtle1').scan.ranges.length")
         assert scan_drawn == 360
         wait_until("the GPS panel", lambda: visible(driver, "gps-box"))
+        gps_text = driver.find_element(By.ID, "gps-text").text
+        assert "fix 3D" in gps_text and "sats –" in gps_text, gps_text  # NavSatFix reports no satellite count: not 0
+        session = (robot_row(driver, "turtle1") or {}).get("session", "")
+        assert session.startswith("since ") and ":" in session, session  # the bridge's start, as a time of day
 
         # click on the plot: a go-to-waypoint reaches ROS as a goal pose
         goals = stack["goals"]
@@ -339,11 +343,17 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
                        driver.find_element(By.ID, "robot-banner").text)
             assert (robot_row(driver, "turtle1") or {}).get("status") == "emergency"
 
-            # latched: a forward press now is refused by the robot, and the page says so
+            # latched: the pad's motion buttons are disabled (a press sends nothing), and a twist sent anyway (from
+            # the console) is refused by the robot, which the page says
+            wait_until("the pad disabled", lambda: driver.execute_script(
+                "return [...document.querySelectorAll('.pad button')].every(b => b.disabled === "
+                "(b.dataset.dir !== 'stop'))"))
             t_try = time.monotonic()
             button = hold(driver, "drive-fwd")
-            time.sleep(1.2)
+            time.sleep(0.5)
             release(driver, button)
+            assert driver.execute_script("return document.getElementById('driving').dataset.driving") == "no"
+            driver.execute_script("window.dashboard.sendTwist('turtle1', 0.3, 0)")
             time.sleep(0.3)
             assert not moving(cmd_vel, t_try), "motion after the emergency stop"
             refusal = wait_until("the refusal in the page", lambda: "emergency stop by alice" in errors_text(driver)
@@ -351,10 +361,12 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
             assert "send cmd/arm to resume" in refusal
             assert "emergency stop by alice" in driver.find_element(By.ID, "notice").text
 
-            # Resume (arm) clears it: the same press drives again
+            # Resume (arm) clears it: the red refusal line goes, the pad is enabled, the same press drives again
             driver.find_element(By.ID, "arm").click()
             wait_until("turtle1 active again", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "active")
             assert not visible(driver, "robot-banner")
+            wait_until("the refusal line cleared, the pad enabled", lambda: not visible(driver, "notice") and
+                       driver.execute_script("return !document.getElementById('drive-fwd').disabled"))
             t_again = time.monotonic()
             button = hold(driver, "drive-fwd")
             try:

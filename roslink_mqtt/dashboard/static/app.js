@@ -62,7 +62,8 @@
   function newRobot(name) {
     return { name, hb: null, hbAt: 0, status: null, access: undefined, rates: new Map(), pose: null, recent: [],
              trail: [], scan: null, gps: [], gpsFix: null, poses: 0, row: null, cells: null,
-             description: null, descRaw: "", actionPanels: new Map(), paramPanels: new Map(), lastGoals: new Map() };
+             description: null, descRaw: "", actionPanels: new Map(), paramPanels: new Map(), lastGoals: new Map(),
+             blocked: false };
   }
 
   // ---------------------------------------------------------------------------------------------- helpers
@@ -72,6 +73,10 @@
     show(ui.notice, Boolean(text));
   }
   function stamp() { return new Date().toLocaleTimeString(); }
+  // A bridge's session is the time it started (s since the epoch, 32 bits): shown as a time of day, not a number
+  function sessionText(session) {
+    return session > 1e9 ? `since ${new Date(session * 1000).toLocaleTimeString()}` : String(session);
+  }
   function addLog(list, text, attrs) {
     const li = document.createElement("li");
     li.textContent = `${stamp()}  ${text}`;
@@ -552,7 +557,7 @@
     robot.row.dataset.presence = presence;
     setText(c.presence, presence);
     setText(c.status, hb ? (STATUS[hb.system_status] || String(hb.system_status)) : "–");
-    setText(c.session, hb && hb.session !== undefined ? String(hb.session) : "–");
+    setText(c.session, hb && hb.session !== undefined ? sessionText(hb.session) : "–");
     setText(c.age, hb ? `${((now - robot.hbAt) / 1000).toFixed(1)} s` : "–");
     const st = robot.status;
     setText(c.battery, st ? (st.battery_remaining >= 0 ? `${Math.round(st.battery_remaining)} %` : "?") +
@@ -753,6 +758,11 @@
 
   function updateBanner(robot) {
     const hb = robot.hb;
+    const blocked = Boolean(hb && hb.system_status === 6);
+    if (dash.selected === robot.name) blockPad(blocked);
+    // the stop was lifted (Resume): the refusals it caused are resolved, their red line goes
+    if (robot.blocked && !blocked && ui.notice.textContent.startsWith(`${robot.name} refused`)) notice("");
+    robot.blocked = blocked;
     let text = "";
     if (hb && hb.system_status === 6) text = `Motion blocked on ${robot.name} (emergency stop or disarm)` +
       (isOperator(robot) ? ": press Resume (arm) to drive again." : ".");
@@ -868,7 +878,7 @@
     g.clearRect(0, 0, c.width, c.height);
     const fix = robot.gpsFix;
     ui.gpsText.textContent = `lat ${fix.lat.toFixed(6)}  lon ${fix.lon.toFixed(6)}  alt ${fmt(fix.alt, 1)} m  ` +
-      `fix ${fix.fix_type}D  sats ${fix.satellites_visible ?? "–"}`;
+      `fix ${fix.fix_type}D  sats ${fix.satellites_visible ? fix.satellites_visible : "–"}`;  // 0: not reported
     // local equirectangular metres around the first fix: no map tiles, nothing fetched
     const [lat0, lon0] = robot.gps[0];
     const k = Math.cos(lat0 * Math.PI / 180) * 111320;
@@ -1668,6 +1678,13 @@
     if (dir === "stop") { stopDriving(true); return; }
     startDriving(dir);
   }
+  // While the robot's motion is blocked (emergency stop, disarm) the pad's motion buttons and keys do nothing:
+  // the robot would refuse every twist; only Resume (arm) unblocks it.
+  function blockPad(blocked) {
+    ui.controls.dataset.blocked = blocked ? "yes" : "no";
+    for (const b of document.querySelectorAll(".pad button")) if (b.dataset.dir !== "stop") b.disabled = blocked;
+    if (blocked && dash.driveDir) stopDriving(false);
+  }
   function padUp() { if (dash.driveDir && dash.heldKeys.size === 0) stopDriving(true); }
   for (const b of document.querySelectorAll(".pad button")) {
     b.addEventListener("pointerdown", padDown);
@@ -1684,7 +1701,7 @@
     if (ui.controls.hidden) return;
     if (ev.key === " ") { ev.preventDefault(); dash.heldKeys.clear(); stopDriving(true); return; }
     const dir = KEYS[ev.key];
-    if (!dir) return;
+    if (!dir || ui.controls.dataset.blocked === "yes") return;
     ev.preventDefault();
     dash.heldKeys.add(ev.key);
     startDriving(dir);
