@@ -379,6 +379,53 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
         arm_if_blocked(stack)
 
 
+RECT = "const r = document.getElementById(arguments[0]).getBoundingClientRect(); " \
+       "return {top: r.top, bottom: r.bottom, left: r.left, right: r.right, height: r.height};"
+
+
+def _overlap(a: dict, b: dict) -> bool:
+    return a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"] and b["top"] < a["bottom"]
+
+
+@pytest.mark.parametrize("width", [400, 1280])
+def test_nothing_moves_under_the_pad_and_a_phone_fits(stack, tmp_path, width: int) -> None:
+    """At 400×800 (a phone) and 1280×800: the e-stop covers neither the connection state nor Log out and sits in
+    the window; the page never scrolls sideways; the pad's buttons are thumb-sized on a phone; and when the
+    blocked banner and a red refusal line appear (an e-stop, then a twist the robot refuses) the drive pad stays
+    exactly where it was: nothing jumps under a held finger."""
+    from selenium.webdriver.common.by import By
+
+    try:
+        with browser(tmp_path, f"layout-{width}") as driver:
+            driver.set_window_size(width, 800)
+            alice_ready(driver, stack)
+            inner = driver.execute_script("return [window.innerWidth, window.innerHeight]")
+            assert inner[0] <= width, inner
+            estop = driver.execute_script(RECT, "estop")
+            for other in ("conn", "logout"):
+                assert not _overlap(estop, driver.execute_script(RECT, other)), f"the e-stop covers #{other}"
+            assert 0 <= estop["top"] and estop["bottom"] <= inner[1], estop
+            assert driver.execute_script("return document.documentElement.scrollWidth") <= inner[0] + 1
+            if width <= 640:
+                assert driver.execute_script(RECT, "drive-fwd")["height"] >= 44  # a thumb's width (WCAG: 44 px)
+            before = driver.execute_script(RECT, "drive-fwd")["top"]
+            driver.find_element(By.ID, "estop").click()
+            wait_until("the blocked banner", lambda: visible(driver, "robot-banner"))
+            driver.execute_script("window.dashboard.sendTwist('turtle1', 0.3, 0)")
+            wait_until("the red refusal line", lambda: visible(driver, "notice"))
+            notice = driver.execute_script(RECT, "notice")
+            for other in ("conn", "logout", "estop"):
+                assert not _overlap(notice, driver.execute_script(RECT, other)), f"the red line covers #{other}"
+            after = driver.execute_script(RECT, "drive-fwd")["top"]
+            assert abs(after - before) < 1, f"the pad moved {after - before:.0f} px when the banners came"
+            assert driver.execute_script("return document.documentElement.scrollWidth") <= inner[0] + 1
+            no_console_errors(driver)
+            if os.environ.get("DASHBOARD_SCREENSHOT_DIR"):
+                driver.save_screenshot(str(Path(os.environ["DASHBOARD_SCREENSHOT_DIR"]) / f"dashboard-{width}.png"))
+    finally:
+        arm_if_blocked(stack)
+
+
 def _take_over_and_stop_all(driver: Any, stack: dict[str, Any]) -> None:
     """Another operator drives: the pad refuses with the holder's name; Take over (after the confirmation) moves
     control and tells the old driver; STOP ALL reports each robot's acknowledgement."""
