@@ -314,8 +314,8 @@ class Bridge:
             ParameterSetResult(robot.name, self.sdk_params, self._refuse)]
         failsafe_files = FailsafeFiles(snapshot_dir(robot.snapshot.dir), robot.name, robot.snapshot.keep) \
             if robot.snapshot is not None else None
-        self.snapshots = Snapshots(robot, self.topics, self.snapshot_buffer, UplinkChunks(self.uplink), self._refuse,
-                                   save=failsafe_files)
+        chunks = UplinkChunks(self.uplink) if robot.snapshot is not None else None  # no stream in state/link else
+        self.snapshots = Snapshots(robot, self.topics, self.snapshot_buffer, chunks, self._refuse, save=failsafe_files)
         capabilities.append(self.snapshots)
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)

@@ -75,8 +75,9 @@ class Snapshots:
 
     verb = Verb.SNAPSHOT
 
-    def __init__(self, robot: Robot, topics: TopicTree, port: SnapshotPort | None, link: ChunkLink,
+    def __init__(self, robot: Robot, topics: TopicTree, port: SnapshotPort | None, link: ChunkLink | None,
                  report: Report, *, save: Callable[[SnapshotFile, str], None] | None = None) -> None:
+        """``port`` and ``link`` are None on a robot without ``snapshot:`` (every request is refused)."""
         self.robot, self.topics, self.port, self.link, self.report = robot, topics, port, link, report
         self.settings = robot.snapshot
         self.settings_bytes = robot.snapshot.max_bytes if robot.snapshot is not None else 0
@@ -88,7 +89,7 @@ class Snapshots:
         self._latest: dict[tuple[str, str], _Job] = {}  # the newest request per transfer (a resume replaces)
         self._stopped = False
         self._thread = threading.Thread(target=self._work, name="snapshots", daemon=True)
-        if self.settings is not None and self.port is not None:
+        if self.settings is not None and self.port is not None and self.link is not None:
             self._thread.start()
         self.sent_chunks = 0
 
@@ -97,7 +98,7 @@ class Snapshots:
         return SnapshotRequest.from_json(payload)
 
     def gate(self, request: Request[SnapshotRequest], gates: Gates) -> Refusal | None:
-        if self.settings is None or self.port is None:
+        if self.settings is None or self.port is None or self.link is None:
             return Refusal(f"{self.robot.name} keeps no snapshots: its robot file has no `snapshot:` section")
         return Refusal(why) if (why := refusal(request.user, request.role, Verb.SNAPSHOT, request.name,
                                                robot=self.robot.name, read_only=self.settings.who == "viewers")) \
@@ -189,7 +190,8 @@ class Snapshots:
         return built
 
     def _serve(self, job: _Job) -> None:
-        key = (job.user, job.snapshot_id)
+        key, link = (job.user, job.snapshot_id), self.link
+        assert link is not None  # the worker runs only with one
         built = self._file(job)
         count = max(1, math.ceil(len(built.data) / CHUNK))
         if job.start >= count:
@@ -199,7 +201,7 @@ class Snapshots:
         topic = self.topics.user_topic(self.robot.name, job.user, Verb.SNAPSHOT_DATA, job.snapshot_id)
         for index in range(job.start, count):
             waited = time.monotonic()
-            while not self.link.room():
+            while not link.room():
                 if self._stopped or self._latest.get(key) is not job:
                     return  # the bridge stops, or the user resumed: that request carries on
                 if time.monotonic() - waited > STALL_LIMIT:
@@ -210,6 +212,6 @@ class Snapshots:
             if self._latest.get(key) is not job:
                 return
             piece = built.data[index * CHUNK:(index + 1) * CHUNK]
-            self.link.send(topic, SnapshotChunk(index, count, len(built.data), built.sha256, piece, built.start,
+            link.send(topic, SnapshotChunk(index, count, len(built.data), built.sha256, piece, built.start,
                                                 built.end, built.messages, client_id=job.client_id).to_bytes())
             self.sent_chunks += 1
