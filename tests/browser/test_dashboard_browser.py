@@ -615,6 +615,44 @@ def test_a_snapshot_from_the_page_is_the_robots_own_mcap_file(stack, tmp_path) -
         assert not visible(driver, "snapshot-box")
 
 
+def test_the_plot_zooms_pans_follows_and_labels_its_axes(stack, tmp_path) -> None:
+    """bob (a viewer: the plot is everyone's) zooms with the buttons and the wheel, pans by dragging (which is not
+    a click), follows the robot and resets the view; the grid lines carry their metres."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
+    from selenium.webdriver.common.by import By
+
+    with browser(tmp_path, "plot") as driver:
+        login(driver, stack["url"], "bob", "bob-demo")
+        logged_in(driver, "bob")
+        wait_until("a pose in the plot", lambda: driver.execute_script(
+            "const r = window.dashboard.robots.get('turtle1'); return Boolean(r && r.pose)"))
+        view = lambda: driver.execute_script("return {...window.dashboard.view}")  # noqa: E731
+        labels = wait_until("axis labels", lambda: driver.find_element(By.ID, "plot").get_attribute("data-labels"))
+        assert "x1" in labels.split() and "y1" in labels.split(), labels
+        start = view()
+        driver.find_element(By.ID, "plot-zoom-in").click()
+        zoomed = view()
+        assert zoomed["half"] == pytest.approx(start["half"] / 2) and zoomed["manual"]
+        plot = driver.find_element(By.ID, "plot")
+        ActionChains(driver).scroll_from_origin(ScrollOrigin.from_element(plot), 0, 120).perform()
+        wait_until("the wheel zoomed out", lambda: view()["half"] == pytest.approx(zoomed["half"] * 1.25))
+        before = view()
+        ActionChains(driver).click_and_hold(plot).move_by_offset(60, 0).move_by_offset(60, 0).release().perform()
+        panned = view()
+        assert panned["cx"] < before["cx"] - 0.1 and panned["cy"] == pytest.approx(before["cy"], abs=0.05), panned
+        driver.find_element(By.ID, "plot-follow").click()
+        pose = driver.execute_script("return window.dashboard.robots.get('turtle1').pose")
+        wait_until("the view on the robot", lambda: abs(view()["cx"] - pose["x"]) < 0.5 and
+                   abs(view()["cy"] - pose["y"]) < 0.5)
+        driver.find_element(By.ID, "plot-reset").click()
+        reset = view()
+        assert (reset["half"], reset["cx"], reset["cy"], reset["manual"], reset["follow"]) == (6, 0, 0, False, False) \
+            or (reset["half"] >= 6 and not reset["manual"] and not reset["follow"]), reset
+        assert not driver.find_element(By.ID, "plot-follow").is_selected()
+        no_console_errors(driver)
+
+
 def test_carol_does_not_see_turtle1_but_her_turtle2_online_stale_offline(stack, tmp_path) -> None:
     with browser(tmp_path, "carol") as driver:
         login(driver, stack["url"], "carol", "carol-demo")

@@ -40,6 +40,7 @@
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
                     "actions-box", "actions", "params-box", "params", "snapshot-box", "snapshot", "snapshot-status",
+                    "plot-zoom-in", "plot-zoom-out", "plot-follow", "plot-reset",
                     "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks"]) {
     ui[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = $(id);
   }
@@ -57,7 +58,10 @@
   };
   window.dashboard = dash;
   let dirty = false;                         // the plot needs redrawing (at most once per animation frame)
-  const view = { half: 6, cx: 0, cy: 0 };    // plot: half the shown width in metres, and its centre
+  // plot: half the shown width in metres, its centre; `manual` once the user zoomed or panned (the plot then stops
+  // growing by itself), `follow`: centred on the robot at every frame
+  const view = { half: 6, cx: 0, cy: 0, manual: false, follow: false };
+  dash.view = view;
 
   function newRobot(name) {
     return { name, hb: null, hbAt: 0, status: null, access: undefined, rates: new Map(), pose: null, recent: [],
@@ -798,7 +802,8 @@
     g.clearRect(0, 0, c.width, c.height);
     if (!robot) return;
     const p = robot.pose;
-    if (p) {
+    if (p && view.follow) { view.cx = p.x; view.cy = p.y; }
+    else if (p && !view.manual) {
       const need = Math.max(Math.abs(p.x - view.cx), Math.abs(p.y - view.cy)) + 1.5;
       if (need > view.half) view.half = Math.min(1000, Math.ceil(need));
     }
@@ -824,6 +829,19 @@
     g.fillStyle = "#7b8590";
     g.font = "11px sans-serif";
     g.fillText(`grid ${step} m`, 6, c.height - 6);
+    // axis labels: metres along the bottom (x) and the left edge (y), on the grid lines
+    const labels = [];
+    for (let v = Math.ceil((view.cx - view.half) / step) * step; v <= view.cx + view.half; v += step) {
+      const [x] = toPx(v, 0);
+      if (x > 40 && x < c.width - 20) { g.fillText(`${+v.toFixed(2)}`, x + 2, c.height - 20); labels.push(`x${+v.toFixed(2)}`); }
+    }
+    for (let v = Math.ceil((view.cy - view.half) / step) * step; v <= view.cy + view.half; v += step) {
+      const [, y] = toPx(0, v);
+      if (y > 12 && y < c.height - 30) { g.fillText(`${+v.toFixed(2)}`, 4, y - 2); labels.push(`y${+v.toFixed(2)}`); }
+    }
+    g.fillText("x (m) →", c.width - 52, c.height - 6);
+    g.fillText("↑ y (m)", 4, 12);
+    c.dataset.labels = labels.join(" ");
     // trail
     if (robot.trail.length > 1) {
       g.strokeStyle = "#4a90d9";
@@ -1658,7 +1676,55 @@
     }
   }
 
+  // zoom (wheel, +/−), pan (drag), follow, reset: the plot is the user's to move
+  function zoom(factor, px, py) {
+    const [ax, ay] = px === undefined ? [view.cx, view.cy] : fromPx(px, py);  // the point under the cursor stays
+    const half = Math.min(1000, Math.max(0.5, view.half * factor));
+    view.cx = ax - (ax - view.cx) * half / view.half;
+    view.cy = ay - (ay - view.cy) * half / view.half;
+    view.half = half;
+    view.manual = true;
+    dirty = true;
+  }
+  function canvasPoint(ev) {
+    const rect = ui.plot.getBoundingClientRect();
+    return [(ev.clientX - rect.left) * ui.plot.width / rect.width, (ev.clientY - rect.top) * ui.plot.height / rect.height];
+  }
+  let drag = null;  // {x, y, cx, cy, moved}: a pan in progress
+  ui.plot.addEventListener("wheel", (ev) => {
+    ev.preventDefault();
+    const [px, py] = canvasPoint(ev);
+    zoom(ev.deltaY > 0 ? 1.25 : 0.8, px, py);
+  }, { passive: false });
+  ui.plot.addEventListener("pointerdown", (ev) => {
+    const [px, py] = canvasPoint(ev);
+    drag = { x: px, y: py, cx: view.cx, cy: view.cy, moved: false };
+  });
+  ui.plot.addEventListener("pointermove", (ev) => {
+    if (!drag || !(ev.buttons & 1)) return;
+    const [px, py] = canvasPoint(ev);
+    const s = ui.plot.width / (2 * view.half);
+    if (!drag.moved && Math.hypot(px - drag.x, py - drag.y) < 4) return;  // a click, not a drag
+    drag.moved = true;
+    view.follow = false;
+    ui.plotFollow.checked = false;
+    view.cx = drag.cx - (px - drag.x) / s;
+    view.cy = drag.cy + (py - drag.y) / s;
+    view.manual = true;
+    dirty = true;
+  });
+  ui.plot.addEventListener("pointerup", () => { setTimeout(() => { drag = null; }, 0); });
+  ui.plotZoomIn.addEventListener("click", () => zoom(0.5));
+  ui.plotZoomOut.addEventListener("click", () => zoom(2));
+  ui.plotFollow.addEventListener("change", () => { view.follow = ui.plotFollow.checked; view.manual = true; dirty = true; });
+  ui.plotReset.addEventListener("click", () => {
+    Object.assign(view, { half: 6, cx: 0, cy: 0, manual: false, follow: false });
+    ui.plotFollow.checked = false;
+    dirty = true;
+  });
+
   function onPlotClick(ev) {
+    if (drag && drag.moved) return;  // the end of a pan, not a waypoint
     if (!ui.waypointMode.checked || !dash.selected) return;
     const rect = ui.plot.getBoundingClientRect();
     const px = (ev.clientX - rect.left) * ui.plot.width / rect.width;
