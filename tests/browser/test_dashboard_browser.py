@@ -14,6 +14,7 @@ Set ``DASHBOARD_SCREENSHOT=path.png`` to also save the page at the end of the me
 from __future__ import annotations
 
 import base64
+import json
 import math
 import os
 import shutil
@@ -615,9 +616,10 @@ def test_a_snapshot_from_the_page_is_the_robots_own_mcap_file(stack, tmp_path) -
         assert not visible(driver, "snapshot-box")
 
 
-def test_the_plot_zooms_pans_follows_and_labels_its_axes(stack, tmp_path) -> None:
+def test_the_plot_zooms_pans_follows_and_the_inspector_shows_a_topic(stack, tmp_path) -> None:
     """bob (a viewer: the plot is everyone's) zooms with the buttons and the wheel, pans by dragging (which is not
-    a click), follows the robot and resets the view; the grid lines carry their metres."""
+    a click), follows the robot and resets the view; the grid lines carry their metres; a click on a row of
+    "Message rates" shows that topic's latest message, decoded, with its size, rate and age."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
     from selenium.webdriver.common.by import By
@@ -650,6 +652,16 @@ def test_the_plot_zooms_pans_follows_and_labels_its_axes(stack, tmp_path) -> Non
         assert (reset["half"], reset["cx"], reset["cy"], reset["manual"], reset["follow"]) == (6, 0, 0, False, False) \
             or (reset["half"] >= 6 and not reset["manual"] and not reset["follow"]), reset
         assert not driver.find_element(By.ID, "plot-follow").is_selected()
+
+        # the state inspector: a click on a row of "Message rates" shows that topic's latest message, decoded
+        row = wait_until("the global_motion rate row", lambda: driver.find_elements(
+            By.CSS_SELECTOR, '#rates tbody tr[data-topic="global_motion"]'))
+        row[0].click()
+        head = wait_until("the inspector", lambda: visible(driver, "inspector") and
+                          driver.find_element(By.ID, "inspector-head").text)
+        assert head.startswith("state/global_motion · json · ") and " Hz · " in head, head
+        shown = json.loads(driver.find_element(By.ID, "inspector-body").text)
+        assert shown["message_id"] == 2 and isinstance(shown["payload"]["x"], (int, float)), shown
         no_console_errors(driver)
 
 

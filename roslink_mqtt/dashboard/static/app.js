@@ -40,7 +40,8 @@
                     "robot-banner", "plot", "pose", "waypoint-label", "waypoint-mode", "controls", "speed",
                     "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
                     "actions-box", "actions", "params-box", "params", "snapshot-box", "snapshot", "snapshot-status",
-                    "plot-zoom-in", "plot-zoom-out", "plot-follow", "plot-reset",
+                    "plot-zoom-in", "plot-zoom-out", "plot-follow", "plot-reset", "inspector", "inspector-head",
+                    "inspector-body",
                     "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks"]) {
     ui[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = $(id);
   }
@@ -337,7 +338,7 @@
     }
     robot.hb = hb;
     robot.hbAt = performance.now();
-    count(robot, "heartbeat");
+    count(robot, "heartbeat", payload);
     updateRow(robot, robot.hbAt);
     if (!dash.selected) selectRobot(name);
     else if (dash.selected === name) updateBanner(robot);
@@ -352,15 +353,40 @@
     return d;
   }
 
-  function count(robot, key) {
+  function count(robot, key, payload) {
     let r = robot.rates.get(key);
-    if (!r) { r = { n: 0, prevN: 0, hz: 0, last: 0, row: null }; robot.rates.set(key, r); }
+    if (!r) { r = { n: 0, prevN: 0, hz: 0, last: 0, row: null, payload: null }; robot.rates.set(key, r); }
     r.n += 1;
     r.last = performance.now();
+    r.payload = payload || null;  // the latest, for the state inspector (one per topic)
+  }
+
+  // The state inspector: the latest message of the row clicked in "Message rates", raw and decoded, with its age.
+  const INSPECT_MAX = 4000;  // characters shown
+  function inspect(robot) {
+    const name = dash.inspect;
+    const rate = robot && name ? robot.rates.get(name) : null;
+    show(ui.inspector, Boolean(rate));
+    if (!rate) return;
+    const payload = rate.payload;
+    const encoding = name === "heartbeat" ? "json" : (entryOf(robot, "state", name) || {}).encoding || "json";
+    const age = `${((performance.now() - rate.last) / 1000).toFixed(1)} s ago`;
+    let body = "";
+    if (!payload) body = "(no payload kept)";
+    else if (encoding === "json") {
+      const text = new TextDecoder().decode(payload);
+      const value = parse(payload);
+      body = value === undefined ? text : JSON.stringify(value, null, 2);
+    } else body = `${encoding}: ${payload.length} bytes, not shown as text`;
+    const head = `${name === "heartbeat" ? name : `state/${name}`} · ${encoding} · ` +
+      `${payload ? payload.length : 0} bytes · ${rate.hz.toFixed(1)} Hz · ${age}`;
+    setText(ui.inspectorHead, head);
+    setText(ui.inspectorBody, body.length > INSPECT_MAX ? `${body.slice(0, INSPECT_MAX)}…` : body);
+    ui.inspector.dataset.topic = name;
   }
 
   function onState(robot, name, payload) {
-    count(robot, name);
+    count(robot, name, payload);
     if (name === "description") {
       const raw = new TextDecoder().decode(payload);
       if (raw === robot.descRaw) return;  // the same retained description again (a reconnect)
@@ -955,12 +981,15 @@
         rate.row.dataset.topic = name;
         rate.row.append(document.createElement("td"), document.createElement("td"), document.createElement("td"));
         rate.row.cells[0].textContent = name;
+        rate.row.title = "show its latest message";
+        rate.row.addEventListener("click", () => { dash.inspect = name; inspect(robot); });
         body.append(rate.row);
       }
       setText(rate.row.cells[1], rate.hz.toFixed(1));
       setText(rate.row.cells[2], `${((now - rate.last) / 1000).toFixed(1)} s ago`);
       rate.row.dataset.hz = rate.hz.toFixed(1);
     }
+    inspect(robot);
   }
 
   // ---------------------------------------------------------------------------------------------- commands
