@@ -38,7 +38,7 @@ import orjson
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener, ServiceRequest
 
 from ..client.errors import CommandRefused, RobotError, RoslinkError
-from ..client.json_channels import JsonChannels, Route
+from ..client.json_channels import JsonChannels
 from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
 from .connect import parse_json_object
@@ -426,4 +426,4 @@ def _json_object(payload: bytes, what: str) -> dict[str, Any]:
     return parse_json_object(payload, what) if payload else {}
 
 
-__all__ = ["FoxgloveGateway", "Route", "twist_of"]
+__all__ = ["FoxgloveGateway", "twist_of"]
