@@ -81,6 +81,15 @@ def _exit_when_login_refused(client: RobotClient) -> None:
     client.connection.on_failure.append(on_failure)
 
 
+def stop_on_signals() -> threading.Event:
+    """An event set by Ctrl-C (SIGINT) or SIGTERM: what a command that runs until stopped (record, play, foxglove)
+    waits on, so it can finish its work (a complete file, a robot left offline) instead of dying mid-way."""
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    return stop
+
+
 def parse_json_object(text: str | bytes, what: str) -> dict:
     """A JSON object (a command line argument, a Foxglove request); ValueError saying what is wrong with it."""
     try:

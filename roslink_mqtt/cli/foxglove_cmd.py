@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 from ..topics import check_name, state_name
-from .connect import PROG, add_connection_options, open_client
+from .connect import PROG, add_connection_options, open_client, stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,9 +38,7 @@ def run(args: argparse.Namespace) -> int:
     client = open_client(args, robots=args.robots)
     gateway = FoxgloveGateway(client, args.robots, host=args.host, port=args.port,
                               topics=[state_name(t) for t in args.topic])
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         port = gateway.start()
     except Exception as err:  # noqa: BLE001 - the port is taken, the address is not ours: say so, no traceback

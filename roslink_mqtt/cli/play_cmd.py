@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import argparse
 import functools
-import signal
 import sys
-import threading
 from collections.abc import Callable, Iterator
 
 from ..connection_options import ENV_PASSWORD, resolve_ca_file, resolve_password, resolve_url, resolve_username
 from ..topics import TopicTree, check_name
-from .connect import PROG, add_connection_options
+from .connect import PROG, add_connection_options, stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -81,9 +79,7 @@ def run(args: argparse.Namespace) -> int:
     except (ConnectError, OSError) as err:
         print(f"{PROG} play: {err}", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     played = 0
     try:
         while not stop.is_set():

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 from ..connection_options import ENV_PASSWORD, resolve_ca_file, resolve_password, resolve_url, resolve_username
 from ..topics import check_name, last_level, state_name
-from .connect import PROG, add_connection_options
+from .connect import PROG, add_connection_options, stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,9 +52,7 @@ def run(args: argparse.Namespace) -> int:
     except (ConnectError, OSError) as err:
         print(f"{PROG} record: {err}", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
 
     def show(progress: Progress, elapsed: float) -> None:
         top = ", ".join(f"{last_level(topic)} {n / elapsed:.1f}/s"
