@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"broker.ws_port, else {DEFAULT_WS_PORT})")
     p.add_argument("--mqtt-js", type=Path, default=DEFAULT_MQTT_JS,
                    help="MQTT.js browser bundle (default: node_modules/mqtt/dist/mqtt.min.js of the repository)")
+    p.add_argument("--tiles", default="",
+                   help="map tile URL template for the fleet map's GPS view, e.g. "
+                        "'https://tile.openstreetmap.org/{z}/{x}/{y}.png' (default: none; the map works without)")
+    p.add_argument("--tiles-attribution", default="", help="attribution the tile server asks to be shown under the map")
     p.add_argument("--verbose", action="store_true", help="log every HTTP request")
     p.set_defaults(run=run)
 
@@ -57,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         server = DashboardServer(args.host, args.port, ws_port=ws_port, ws_url=args.ws_url, prefix=prefix,
-                                 mqtt_js=args.mqtt_js, quiet=not args.verbose)
-    except MqttJsMissing as err:
+                                 mqtt_js=args.mqtt_js, tiles=args.tiles, tiles_attribution=args.tiles_attribution,
+                                 quiet=not args.verbose)
+    except (MqttJsMissing, ValueError) as err:
         print(f"roslink-mqtt: {err}", file=sys.stderr)
         return 2
     except OSError as err:

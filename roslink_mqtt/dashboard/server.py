@@ -16,11 +16,15 @@ import threading
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import urlsplit
 
 STATIC = Path(__file__).resolve().parent / "static"
 REPO_ROOT = Path(__file__).resolve().parents[2]
-# `make install` runs `npm install` at the repository root (package.json lists mqtt@^5).
+# `make install` runs `npm install` at the repository root (package.json lists mqtt@^5 and uplot).
 DEFAULT_MQTT_JS = REPO_ROOT / "node_modules" / "mqtt" / "dist" / "mqtt.min.js"
+UPLOT_DIST = REPO_ROOT / "node_modules" / "uplot" / "dist"
+CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".mjs": "text/javascript; charset=utf-8",
+                 ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8"}
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8090
 DEFAULT_WS_PORT = 8083
@@ -29,12 +33,32 @@ DEFAULT_PREFIX = "roslink"
 # The page talks to nothing but this server (its files) and a broker's WebSocket (ws: or wss:, any host: the user
 # may type another broker's URL). No inline script, no framing (an e-stop button must not be clickjacked). MQTT.js
 # runs its keep-alive timer in a worker made from a blob: URL (timers in workers are not throttled in background tabs).
-CSP = ("default-src 'none'; script-src 'self'; worker-src blob:; style-src 'self'; img-src 'self' data: blob:; "
-       "connect-src 'self' ws: wss:; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+# Map tiles, when configured (`--tiles`), come from that one origin too.
+def csp(tile_origin: str = "") -> str:
+    images = f"img-src 'self' data: blob:{' ' + tile_origin if tile_origin else ''}"
+    return ("default-src 'none'; script-src 'self'; worker-src blob:; style-src 'self'; " + images + "; "
+            "connect-src 'self' ws: wss:; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+
+
+CSP = csp()
+
+
+def tile_origin(template: str) -> str:
+    """The origin of a map tile URL template (``https://tile.example.org/{z}/{x}/{y}.png``); ValueError says what is
+    wrong with it (the page fills in {z}, {x} and {y}; nothing else of the URL is the page's to choose)."""
+    parts = urlsplit(template)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValueError(f"map tiles URL {template!r}: expected http(s)://host/…/{{z}}/{{x}}/{{y}}…")
+    missing = [k for k in ("{z}", "{x}", "{y}") if k not in template]
+    if missing:
+        raise ValueError(f"map tiles URL {template!r}: {', '.join(missing)} missing (the page fills them in)")
+    if any(c in template for c in " '\";\n"):
+        raise ValueError(f"map tiles URL {template!r}: spaces, quotes and semicolons are not allowed")
+    return f"{parts.scheme}://{parts.netloc}"
 
 
 class MqttJsMissing(FileNotFoundError):
-    """MQTT.js's browser bundle is not where the server was told to look (``make install`` not run)."""
+    """An npm bundle the page loads (MQTT.js, uPlot) is not where the server looks (``make install`` not run)."""
 
 
 @dataclass(frozen=True)
@@ -48,28 +72,32 @@ class PageConfig:
     ws_port: int = DEFAULT_WS_PORT
     ws_url: str = ""
     prefix: str = DEFAULT_PREFIX
+    tiles: str = ""  # a map tile URL template ({z}/{x}/{y}) for the fleet map's GPS view; empty: no tiles
+    tiles_attribution: str = ""  # shown under the map, as tile servers ask
 
     def to_json(self) -> bytes:
-        return json.dumps({"ws_port": self.ws_port, "ws_url": self.ws_url, "prefix": self.prefix}).encode()
+        return json.dumps({"ws_port": self.ws_port, "ws_url": self.ws_url, "prefix": self.prefix,
+                           "tiles": self.tiles, "tiles_attribution": self.tiles_attribution}).encode()
 
 
-def _routes(mqtt_js: Path, config: PageConfig) -> dict[str, tuple[str, Path | bytes]]:
-    """URL path → (content type, file or bytes). The whole surface of the server."""
-    return {
-        "/": ("text/html; charset=utf-8", STATIC / "index.html"),
-        "/index.html": ("text/html; charset=utf-8", STATIC / "index.html"),
-        "/app.js": ("text/javascript; charset=utf-8", STATIC / "app.js"),
-        "/protocol.js": ("text/javascript; charset=utf-8", STATIC / "protocol.js"),
-        "/body.js": ("text/javascript; charset=utf-8", STATIC / "body.js"),
-        "/message.js": ("text/javascript; charset=utf-8", STATIC / "message.js"),
-        "/topics.js": ("text/javascript; charset=utf-8", STATIC / "topics.js"),
-        "/style.css": ("text/css; charset=utf-8", STATIC / "style.css"),
-        "/vendor/mqtt.min.js": ("text/javascript; charset=utf-8", mqtt_js),
-        "/config.json": ("application/json", config.to_json()),
-    }
+def _routes(mqtt_js: Path, config: PageConfig, uplot: Path = UPLOT_DIST) -> dict[str, tuple[str, Path | bytes]]:
+    """URL path → (content type, file or bytes). The whole surface of the server: the page's own files (listed
+    once, at start), the two npm bundles it loads, and its settings."""
+    routes: dict[str, tuple[str, Path | bytes]] = {}
+    for path in sorted(STATIC.rglob("*")):
+        ctype = CONTENT_TYPES.get(path.suffix)
+        if ctype and path.is_file():
+            routes[f"/{path.relative_to(STATIC).as_posix()}"] = (ctype, path)
+    routes["/"] = routes["/index.html"]
+    routes["/vendor/mqtt.min.js"] = ("text/javascript; charset=utf-8", mqtt_js)
+    routes["/vendor/uPlot.esm.js"] = ("text/javascript; charset=utf-8", uplot / "uPlot.esm.js")
+    routes["/vendor/uPlot.min.css"] = ("text/css; charset=utf-8", uplot / "uPlot.min.css")
+    routes["/config.json"] = ("application/json", config.to_json())
+    return routes
 
 
-def _handler(routes: dict[str, tuple[str, Path | bytes]], quiet: bool) -> type[BaseHTTPRequestHandler]:
+def _handler(routes: dict[str, tuple[str, Path | bytes]], quiet: bool,
+             policy: str = CSP) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         def version_string(self) -> str:  # no Python version in the Server header
             return "roslink-mqtt-dashboard"
@@ -89,9 +117,9 @@ def _handler(routes: dict[str, tuple[str, Path | bytes]], quiet: bool) -> type[B
             self.send_response(200)
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
-            # Files change with the checkout; a stale cached app.js next to a new index.html would break the page.
+            # Files change with the checkout; a stale cached module next to a new index.html would break the page.
             self.send_header("Cache-Control", "no-store")
-            self.send_header("Content-Security-Policy", CSP)
+            self.send_header("Content-Security-Policy", policy)
             self.send_header("X-Content-Type-Options", "nosniff")
             self.send_header("X-Frame-Options", "DENY")
             self.send_header("Referrer-Policy", "no-referrer")
@@ -116,18 +144,24 @@ class DashboardServer:
     """The dashboard's HTTP server, in a background thread (``start``/``stop``) or in the foreground (``serve``).
 
     ``port=0`` picks a free port (see :attr:`url`). Raises :class:`MqttJsMissing` at construction when the
-    MQTT.js bundle is absent, so a missing ``make install`` is a clear error and not a blank page.
+    MQTT.js or uPlot bundle is absent, so a missing ``make install`` is a clear error and not a blank page, and
+    ValueError for a map tiles URL template that is not one.
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, ws_port: int = DEFAULT_WS_PORT,
                  ws_url: str = "", prefix: str = DEFAULT_PREFIX, mqtt_js: Path = DEFAULT_MQTT_JS,
-                 quiet: bool = True) -> None:
+                 tiles: str = "", tiles_attribution: str = "", quiet: bool = True) -> None:
         mqtt_js = Path(mqtt_js)
         if not mqtt_js.is_file():
             raise MqttJsMissing(f"MQTT.js browser bundle not found at {mqtt_js}: run `make install` "
                                 f"(npm install at the repository root) or pass its path")
-        self.config = PageConfig(ws_port=ws_port, ws_url=ws_url, prefix=prefix)
-        self.httpd = ThreadingHTTPServer((host, port), _handler(_routes(mqtt_js, self.config), quiet))
+        origin = tile_origin(tiles) if tiles else ""
+        if not (UPLOT_DIST / "uPlot.esm.js").is_file():
+            raise MqttJsMissing(f"uPlot not found in {UPLOT_DIST}: run `make install` (npm install at the "
+                                "repository root)")
+        self.config = PageConfig(ws_port=ws_port, ws_url=ws_url, prefix=prefix, tiles=tiles,
+                                 tiles_attribution=tiles_attribution)
+        self.httpd = ThreadingHTTPServer((host, port), _handler(_routes(mqtt_js, self.config), quiet, csp(origin)))
         self.httpd.daemon_threads = True  # a browser's keep-alive connection must not hold up stop()
         self._thread: threading.Thread | None = None
 

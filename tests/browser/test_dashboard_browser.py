@@ -847,7 +847,7 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         assert last[3] <= first[3] + 400, f"DOM nodes grew from {first[3]} to {last[3]}"
         trail = driver.execute_script("return window.dashboard.robots.get('turtle1').trail.length")
         print(f"trail points kept: {trail}")
-        assert 50 < trail <= 600
+        assert 50 < trail <= 3000  # model.mjs TRAIL_MAX: kept while the page is open
 
 
 # -- panels built from the robot description (services with arguments, actions, parameters) ------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 import http.client
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -42,7 +43,7 @@ def test_serves_exactly_the_page_files() -> None:
     with DashboardServer("127.0.0.1", 0, ws_port=18083, prefix="fleet7") as server:
         assert server.url == f"http://127.0.0.1:{server.port}/"
         status, headers, body = _get(server.port, "/")
-        assert status == 200 and headers["content-type"].startswith("text/html") and b"app.js" in body
+        assert status == 200 and headers["content-type"].startswith("text/html") and b"main.mjs" in body
         assert "script-src 'self'" in headers["content-security-policy"]
         assert "frame-ancestors 'none'" in headers["content-security-policy"]
         assert headers["x-frame-options"] == "DENY" and headers["cache-control"] == "no-store"
@@ -50,15 +51,33 @@ def test_serves_exactly_the_page_files() -> None:
         status, headers, body = _get(server.port, "/vendor/mqtt.min.js")
         assert status == 200 and body == DEFAULT_MQTT_JS.read_bytes()  # MQTT.js from node_modules, as installed
         status, _, body = _get(server.port, "/config.json?x=1")
-        assert status == 200 and json.loads(body) == {"ws_port": 18083, "ws_url": "", "prefix": "fleet7"}
-        for path in ("/app.js", "/style.css"):
-            assert _get(server.port, path)[0] == 200
-        status, headers, body = _get(server.port, "/app.js", "HEAD")
+        assert status == 200 and json.loads(body) == {"ws_port": 18083, "ws_url": "", "prefix": "fleet7", "tiles": "",
+                                                      "tiles_attribution": ""}
+        for path in ("/main.mjs", "/views/fleet.mjs", "/style.css", "/vendor/uPlot.esm.js", "/vendor/uPlot.min.css"):
+            status, headers, _ = _get(server.port, path)
+            assert status == 200 and headers["content-type"].startswith(("text/javascript", "text/css")), path
+        status, headers, body = _get(server.port, "/main.mjs", "HEAD")
         assert status == 200 and body == b"" and int(headers["content-length"]) > 1000
-        for path in ("/server.py", "/../server.py", "/static/app.js", "/%2e%2e/server.py", "/vendor/mqtt.js",
-                     "/vendor/../../pyproject.toml", "/config/robots.yaml", "//etc/passwd", "/index.html/"):
+        for path in ("/server.py", "/../server.py", "/static/main.mjs", "/%2e%2e/server.py", "/vendor/mqtt.js",
+                     "/vendor/../../pyproject.toml", "/config/robots.yaml", "//etc/passwd", "/index.html/",
+                     "/views/", "/views/../server.py", "/vendor/uPlot.d.ts", "/app.js"):
             assert _get(server.port, path)[0] == 404, path
         assert _get(server.port, "/", "POST")[0] == 501  # no method but GET and HEAD
+
+
+def test_map_tiles_are_checked_and_allowed_from_their_origin_only() -> None:
+    """--tiles: a URL template with {z}/{x}/{y}; the page's policy lets images come from that origin, nothing more."""
+    with DashboardServer("127.0.0.1", 0, tiles="https://tiles.example.org/osm/{z}/{x}/{y}.png",
+                         tiles_attribution="© OpenStreetMap contributors") as server:
+        _, headers, body = _get(server.port, "/config.json")
+        assert json.loads(body)["tiles"] == "https://tiles.example.org/osm/{z}/{x}/{y}.png"
+        policy = headers["content-security-policy"]
+        assert "img-src 'self' data: blob: https://tiles.example.org;" in policy
+        assert "connect-src 'self' ws: wss:;" in policy  # tiles are images: no new place to send data to
+    for bad, why in (("ftp://x/{z}/{x}/{y}", "expected http"), ("https://x/{z}/{x}.png", "{y} missing"),
+                     ("https://x/{z}/{x}/{y}.png; script-src *", "not allowed"), ("/{z}/{x}/{y}", "expected http")):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            DashboardServer("127.0.0.1", 0, tiles=bad)
 
 
 def test_missing_mqtt_js_is_a_clear_error(tmp_path: Path) -> None:

@@ -1,13 +1,10 @@
-// The page's topic tree (roslink_mqtt/dashboard/static/topics.js) builds and parses every case as
+// The page's topic tree (roslink_mqtt/dashboard/static/topics.mjs) builds and parses every case as
 // roslink_mqtt/topics.py does. The cases come from tests/unit/test_dashboard_js.py (ROSLINK_TOPIC_CASES).
-"use strict";
-const test = require("node:test");
-const assert = require("node:assert");
-const fs = require("node:fs");
-const path = require("node:path");
+import test from "node:test";
+import assert from "node:assert";
+import fs from "node:fs";
 
-const { TopicTree, leafOf, paramEventsNode } = require(path.join(__dirname, "..", "..", "roslink_mqtt", "dashboard", "static",
-                                                "topics.js"));
+import { TopicTree, leafOf, paramEventsNode } from "../../roslink_mqtt/dashboard/static/topics.mjs";
 const casesFile = process.env.ROSLINK_TOPIC_CASES;
 
 test("each topic is built and read as Python does", { skip: !casesFile && "run through tests/unit/test_dashboard_js.py" },

@@ -1,14 +1,11 @@
-// The dashboard's message reader (roslink_mqtt/dashboard/static/message.js) reads every case as Python's
+// The dashboard's message reader (roslink_mqtt/dashboard/static/message.mjs) reads every case as Python's
 // decode_object does. The cases come from tests/unit/test_dashboard_js.py (ROSLINK_MESSAGE_CASES names the file).
-"use strict";
-const test = require("node:test");
-const assert = require("node:assert");
-const fs = require("node:fs");
-const path = require("node:path");
+import test from "node:test";
+import assert from "node:assert";
+import fs from "node:fs";
 
-const STATIC = path.join(__dirname, "..", "..", "roslink_mqtt", "dashboard", "static");
-const ROSLINK = require(path.join(STATIC, "protocol.js"));
-const { readMessage } = require(path.join(STATIC, "message.js"));
+import { ROSLINK } from "../../roslink_mqtt/dashboard/static/protocol.mjs";
+import { readMessage } from "../../roslink_mqtt/dashboard/static/message.mjs";
 
 const casesFile = process.env.ROSLINK_MESSAGE_CASES;
 

@@ -1,14 +1,11 @@
-// The dashboard's body reader (roslink_mqtt/dashboard/static/body.js) reads every case as Python's lenient reader
+// The dashboard's body reader (roslink_mqtt/dashboard/static/body.mjs) reads every case as Python's lenient reader
 // does. The cases come from tests/unit/test_dashboard_js.py (ROSLINK_BODY_CASES names the file it wrote).
-"use strict";
-const test = require("node:test");
-const assert = require("node:assert");
-const fs = require("node:fs");
-const path = require("node:path");
+import test from "node:test";
+import assert from "node:assert";
+import fs from "node:fs";
 
-const STATIC = path.join(__dirname, "..", "..", "roslink_mqtt", "dashboard", "static");
-const ROSLINK = require(path.join(STATIC, "protocol.js"));
-const { readBody } = require(path.join(STATIC, "body.js"));
+import { ROSLINK } from "../../roslink_mqtt/dashboard/static/protocol.mjs";
+import { readBody } from "../../roslink_mqtt/dashboard/static/body.mjs";
 
 const casesFile = process.env.ROSLINK_BODY_CASES;
 
