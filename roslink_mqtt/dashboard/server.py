@@ -15,7 +15,7 @@ import json
 import threading
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from urllib.parse import urlsplit
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -87,7 +87,7 @@ def _routes(mqtt_js: Path, config: PageConfig, uplot: Path = UPLOT_DIST) -> dict
     for path in sorted(STATIC.rglob("*")):
         ctype = CONTENT_TYPES.get(path.suffix)
         if ctype and path.is_file():
-            routes[f"/{path.relative_to(STATIC).as_posix()}"] = (ctype, path)
+            routes[str(PurePosixPath("/", path.relative_to(STATIC).as_posix()))] = (ctype, path)
     routes["/"] = routes["/index.html"]
     routes["/vendor/mqtt.min.js"] = ("text/javascript; charset=utf-8", mqtt_js)
     routes["/vendor/uPlot.esm.js"] = ("text/javascript; charset=utf-8", uplot / "uPlot.esm.js")
