@@ -27,7 +27,17 @@ import pytest
 
 from roslink_mqtt.dashboard import DashboardServer
 from roslink_mqtt.mqtt import WRONG_LOGIN
-from tests.support.browser import CHROMIUM, browser, wait_until
+from tests.support.browser import (
+    CHROMIUM,
+    browser,
+    click,
+    logged_in,
+    login,
+    no_console_errors,
+    robot_row,
+    visible,
+    wait_until,
+)
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
@@ -100,29 +110,10 @@ def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
 # -- the browser: tests/support/browser.py ---------------------------------------------------------------------
 
 
-def login(driver: Any, url: str, user: str, password: str) -> None:
-    from selenium.webdriver.common.by import By
-
-    driver.get(url)
-    wait_until("the derived WebSocket URL", lambda: driver.find_element(By.ID, "ws-url").get_attribute("value"))
-    driver.find_element(By.ID, "username").send_keys(user)
-    driver.find_element(By.ID, "password").send_keys(password)
-    driver.find_element(By.ID, "connect").click()
 
 
-def logged_in(driver: Any, user: str) -> None:
-    wait_until(f"{user} connected", lambda: driver.execute_script(
-        "return document.getElementById('conn').dataset.state") == "connected")
 
 
-def robot_row(driver: Any, robot: str) -> dict[str, str] | None:
-    """The fleet row of ``robot`` as {column: text}, or None when the page shows no such row."""
-    return driver.execute_script("""
-        const tr = document.querySelector(`#fleet tbody tr[data-robot="${arguments[0]}"]`);
-        if (!tr) return null;
-        const out = {};
-        for (const td of tr.cells) out[td.className] = td.textContent;
-        return out;""", robot)
 
 
 def pose(driver: Any) -> tuple[float, float, int] | None:
@@ -131,10 +122,6 @@ def pose(driver: Any) -> tuple[float, float, int] | None:
     return None if d[0] is None else (float(d[0]), float(d[1]), int(d[2]))
 
 
-def visible(driver: Any, element_id: str) -> bool:
-    from selenium.webdriver.common.by import By
-
-    return driver.find_element(By.ID, element_id).is_displayed()
 
 
 def errors_text(driver: Any) -> str:
@@ -177,10 +164,6 @@ def release(driver: Any, button: Any) -> None:
     ActionChains(driver).release(button).perform()
 
 
-def no_console_errors(driver: Any) -> None:
-    """The page logged no error (an uncaught exception, a refused script or socket) to the browser console."""
-    severe = [e["message"] for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
-    assert not severe, "browser console errors:\n" + "\n".join(severe)
 
 
 def alice_ready(driver: Any, stack: dict[str, Any]) -> None:
@@ -852,10 +835,6 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
 
 # -- panels built from the robot description (services with arguments, actions, parameters) ------------------
 
-def click(driver: Any, element: Any) -> None:
-    """Scroll ``element`` to the middle first: the sticky header would take a click at the top edge."""
-    driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", element)
-    element.click()
 
 
 def goal_panel(driver: Any, action: str = "fibonacci") -> dict[str, Any] | None:

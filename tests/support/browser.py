@@ -70,3 +70,49 @@ def wait_until(what: str, check: Callable[[], Any], timeout: float = 10.0, perio
             return last
         time.sleep(period)
     raise AssertionError(f"timed out after {timeout} s waiting for {what} (last: {last!r})")
+
+
+# -- the dashboard page, as the browser tests drive it -------------------------------------------------------
+
+def login(driver: Any, url: str, user: str, password: str) -> None:
+    from selenium.webdriver.common.by import By
+
+    driver.get(url)
+    wait_until("the derived WebSocket URL", lambda: driver.find_element(By.ID, "ws-url").get_attribute("value"))
+    driver.find_element(By.ID, "username").send_keys(user)
+    driver.find_element(By.ID, "password").send_keys(password)
+    driver.find_element(By.ID, "connect").click()
+
+
+def logged_in(driver: Any, user: str) -> None:
+    wait_until(f"{user} connected", lambda: driver.execute_script(
+        "return document.getElementById('conn').dataset.state") == "connected")
+
+
+def robot_row(driver: Any, robot: str) -> dict[str, str] | None:
+    """The fleet row of ``robot`` as {column: text}, or None when the page shows no such row."""
+    return driver.execute_script("""
+        const tr = document.querySelector(`#fleet tbody tr[data-robot="${arguments[0]}"]`);
+        if (!tr) return null;
+        const out = {};
+        for (const td of tr.cells) out[td.className] = td.textContent;
+        return out;""", robot)
+
+
+def visible(driver: Any, element_id: str) -> bool:
+    from selenium.webdriver.common.by import By
+
+    return driver.find_element(By.ID, element_id).is_displayed()
+
+
+def no_console_errors(driver: Any) -> None:
+    """The page logged no error (an uncaught exception, a refused script or socket) to the browser console."""
+    severe = [e["message"] for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+    assert not severe, "browser console errors:\n" + "\n".join(severe)
+
+
+def click(driver: Any, element: Any) -> None:
+    """Scroll ``element`` to the middle first: the sticky header (and a phone's stop bar at the bottom) would take
+    a click at the edge."""
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", element)
+    element.click()
