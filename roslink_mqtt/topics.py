@@ -43,7 +43,7 @@ DYNSEC_CONTROL = "$CONTROL/dynamic-security/v1"
 DYNSEC_RESPONSE = DYNSEC_CONTROL + "/response"
 DYNSEC_FILTER = "$CONTROL/dynamic-security/#"
 PARAM_EVENTS = "parameter_events"  # state/parameter_events/<node>
-# The levels after a robot's name (and the dashboard's topics.js, generated from these)
+# The levels after a robot's name (and the dashboard's topics.mjs, generated from these)
 HEARTBEAT, STATE, FROM, TO = "heartbeat", "state", "from", "to"
 GRANTS = "grants"  # P/<robot>/grants: the robot's users and roles, from the fleet's administrators
 
@@ -272,8 +272,8 @@ def state_name(name: str) -> str:
 
 
 def grammar_words() -> dict[str, Any]:
-    """The words of this grammar as data, for its second implementation: the dashboard's topics.js (generated
-    into its protocol.js by :mod:`roslink_mqtt.dashboard.protocol_js`, checked case by case against this module)."""
+    """The words of this grammar as data, for its second implementation: the dashboard's topics.mjs (generated
+    into its protocol.mjs by :mod:`roslink_mqtt.dashboard.protocol_js`, checked case by case against this module)."""
     return {"separator": SEPARATOR, "any": ANY, "rest": REST, "operators": OPERATORS, "heartbeat": HEARTBEAT,
             "state": STATE, "from": FROM, "to": TO, "param_events": PARAM_EVENTS, "grants": GRANTS,
             "kinds": {k.name.lower(): k.value for k in Kind},

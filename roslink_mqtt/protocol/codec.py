@@ -33,7 +33,7 @@ _ENVELOPE_KEYS = frozenset(_HEADER_BOUNDS) | {"payload", CLIENT_ID_KEY}
 
 
 def envelope_rules() -> dict[str, Any]:
-    """What :func:`decode_object` accepts around a payload, as JSON data (the dashboard's static/message.js)."""
+    """What :func:`decode_object` accepts around a payload, as JSON data (the dashboard's static/message.mjs)."""
     return {"header": {key: list(bounds) for key, bounds in _HEADER_BOUNDS.items()}, "client_id": CLIENT_ID_KEY,
             "client_id_max": MAX_CLIENT_ID}
 

@@ -68,7 +68,7 @@ class Field:
         return self.default is _REQUIRED
 
     def as_data(self) -> dict[str, Any]:
-        """The field as JSON data: the dashboard reads messages from the same declarations (static/message.js)."""
+        """The field as JSON data: the dashboard reads messages from the same declarations (static/message.mjs)."""
         out: dict[str, Any] = {"name": self.name, "kind": self.kind.name.lower(), "required": self.required}
         if not self.required:
             out["default"] = self.default

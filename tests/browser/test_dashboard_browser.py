@@ -39,6 +39,7 @@ from tests.support.browser import (
     wait_until,
 )
 from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe, Watch
@@ -46,6 +47,7 @@ from tests.support.ros import RosProbe, Watch
 pytestmark = [pytest.mark.timeout(150), CHROMIUM]
 
 FAILSAFE_BOUND = 2.0  # s: docs/safety.md, the worst case of an operator going away (operator_timeout 1.5 + 0.5)
+ESTOP_DEADLINE = 0.2  # s: the page's e-stop click → a zero twist on /cmd_vel (issue 32), at both widths
 
 
 # -- the stack -------------------------------------------------------------------------------------------------
@@ -373,7 +375,8 @@ def _overlap(a: dict, b: dict) -> bool:
 
 @pytest.mark.parametrize("width", [400, 1280])
 def test_nothing_moves_under_the_pad_and_a_phone_fits(stack, tmp_path, width: int) -> None:
-    """At 400×800 (a phone) and 1280×800: the e-stop covers neither the connection state nor Log out and sits in
+    """At 400×800 (a phone) and 1280×800: the e-stop stops the robot (a zero twist within ESTOP_DEADLINE of the
+    click) and covers neither the connection state nor Log out and sits in
     the window; the page never scrolls sideways; the pad's buttons are thumb-sized on a phone; and when the
     blocked banner and a red refusal line appear (an e-stop, then a twist the robot refuses) the drive pad stays
     exactly where it was: nothing jumps under a held finger."""
@@ -392,8 +395,21 @@ def test_nothing_moves_under_the_pad_and_a_phone_fits(stack, tmp_path, width: in
             assert driver.execute_script("return document.documentElement.scrollWidth") <= inner[0] + 1
             if width <= 640:
                 assert driver.execute_script(RECT, "drive-fwd")["height"] >= 44  # a thumb's width (WCAG: 44 px)
+            driver.execute_script("document.getElementById('drive-fwd').scrollIntoView({block: 'center'})")
             before = driver.execute_script(RECT, "drive-fwd")["top"]
-            driver.find_element(By.ID, "estop").click()
+            # the e-stop, pressed while driving at this width: a zero twist on /cmd_vel within 200 ms of the click
+            cmd_vel = stack["cmd_vel"]
+            wait_still(cmd_vel)
+            button = hold(driver, "drive-fwd")
+            try:
+                cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=time.monotonic())
+                t_click = time.monotonic()
+                driver.find_element(By.ID, "estop").click()
+            finally:
+                release(driver, button)
+            at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=2, after=t_click)
+            record_measurement(f"dashboard: e-stop click → zero twist ({width} px)", at - t_click, ESTOP_DEADLINE)
+            assert at - t_click < ESTOP_DEADLINE, f"zero twist {(at - t_click) * 1000:.0f} ms after the click"
             wait_until("the blocked banner", lambda: visible(driver, "robot-banner"))
             driver.execute_script("window.dashboard.sendTwist('turtle1', 0.3, 0)")
             wait_until("the red refusal line", lambda: visible(driver, "notice"))
@@ -645,6 +661,8 @@ def test_the_plot_zooms_pans_follows_and_the_inspector_shows_a_topic(stack, tmp_
         assert head.startswith("state/global_motion · json · ") and " Hz · " in head, head
         shown = json.loads(driver.find_element(By.ID, "inspector-body").text)
         assert shown["message_id"] == 2 and isinstance(shown["payload"]["x"], (int, float)), shown
+        raw = driver.execute_script("return document.getElementById('inspector-raw').textContent")
+        assert json.loads(raw)["message_id"] == 2 and "\n" not in raw, raw  # as it came: one line of JSON
         no_console_errors(driver)
 
 

@@ -84,6 +84,7 @@ class SimulatedFleet:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.sent = 0
+        self.motion = True  # False: only the 1 Hz messages (heartbeat, battery, link, GPS), no positions
 
     # -- what one robot sends -------------------------------------------------------------------------------
     def _message(self, robot: SimRobot, name: str, payload: dict[str, Any]) -> bytes:
@@ -106,9 +107,11 @@ class SimulatedFleet:
                           retain=True, qos=1)
 
     def _pose(self, robot: SimRobot, t: float) -> dict[str, Any]:
-        a = robot.phase + 0.3 * t  # a circle of 2 m radius at 0.6 m/s
-        return {"time_boot_ms": int(t * 1000) % 2**32, "x": 2 * math.cos(a), "y": 2 * math.sin(a), "z": 0.0,
-                "vx": 0.6, "vy": 0.0, "vz": 0.0, "wx": 0.0, "wy": 0.0, "wz": 0.3, "roll": 0.0, "pitch": 0.0,
+        radius = 1.0 + 0.5 * (robot.system_id - 1)  # each its own circle, at 0.5 m/s
+        w = 0.5 / radius
+        a = robot.phase + w * t
+        return {"time_boot_ms": int(t * 1000) % 2**32, "x": radius * math.cos(a), "y": radius * math.sin(a),
+                "z": 0.0, "vx": 0.5, "vy": 0.0, "vz": 0.0, "wx": 0.0, "wy": 0.0, "wz": w, "roll": 0.0, "pitch": 0.0,
                 "yaw": a + math.pi / 2}
 
     def _slow(self, robot: SimRobot, t: float) -> None:
@@ -140,7 +143,7 @@ class SimulatedFleet:
             for robot in self.robots.values():
                 if tick % 10 == 0:
                     self._slow(robot, t)
-                if not robot.silent:
+                if self.motion and not robot.silent:
                     self._publish(TREE.state(robot.name, "global_motion"),
                                   self._message(robot, "global_motion", self._pose(robot, t)))
             tick += 1

@@ -1,5 +1,5 @@
-"""The dashboard speaks the protocol from its own declarations: the generated protocol.js is current, static/body.js
-reads every body as protocol/body.py's lenient reader does, and static/topics.js builds and parses every topic as
+"""The dashboard speaks the protocol from its own declarations: the generated protocol.mjs is current, static/body.mjs
+reads every body as protocol/body.py's lenient reader does, and static/topics.mjs builds and parses every topic as
 roslink_mqtt/topics.py does (run by node, case by case)."""
 
 from __future__ import annotations

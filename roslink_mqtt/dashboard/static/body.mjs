@@ -1,5 +1,5 @@
 // Reading the robot's JSON bodies as a client does: the lenient reader of roslink_mqtt/protocol/body.py (read with
-// strict=False), over the declarations generated into protocol.js. Unknown fields are ignored, a malformed field
+// strict=False), over the declarations generated into protocol.mjs. Unknown fields are ignored, a malformed field
 // with a default takes it, a malformed field without one makes the body unreadable (null). tests/js/body.test.mjs
 // checks it against what Python reads, case by case.
 

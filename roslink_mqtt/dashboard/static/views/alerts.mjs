@@ -37,9 +37,10 @@ export function onFailsafeAlert(robot, text, now) {
   renderAlerts();
 }
 
+/** A refusal or error report: one alert per distinct text and minute (a refused stream of twists is one alert). */
 export function onErrorAlert(robotName, text, now) {
   if (!dash.rules || !dash.rules.errors) return;
-  notify([dash.alerts.event(robotName, "error", text, now, Math.round(now))].filter(Boolean));
+  notify([dash.alerts.event(robotName, "error", text, now, `${Math.floor(now / 60000)}:${text}`)].filter(Boolean));
   renderAlerts();
 }
 

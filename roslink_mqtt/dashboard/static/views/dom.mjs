@@ -8,7 +8,7 @@ const IDS = [
   "robot-view", "robot-title", "robot-banner", "tabs", "tab-fleet", "tab-robot", "fleet-badge", "fleet-view", "plot", "pose", "waypoint-label", "waypoint-mode",
   "controls", "speed", "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
   "actions-box", "actions", "params-box", "params", "snapshot-box", "snapshot", "snapshot-status", "plot-zoom-in",
-  "plot-zoom-out", "plot-follow", "plot-reset", "inspector", "inspector-head", "inspector-body", "charts",
+  "plot-zoom-out", "plot-follow", "plot-reset", "inspector", "inspector-head", "inspector-body", "inspector-raw", "charts",
   "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks",
 ];
 

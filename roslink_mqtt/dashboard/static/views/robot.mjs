@@ -18,6 +18,7 @@ import { renderTabs } from "./pages.mjs";
 
 const decoder = new TextDecoder();
 const INSPECT_MAX = 4000;  // characters of a message shown by the state inspector
+const RAW_BYTES = 256;     // bytes of a binary payload shown in hex
 
 export function selectRobot(name) {
   if (dash.driveRobot && dash.driveRobot !== name) stopDriving(true);
@@ -47,6 +48,7 @@ export function selectRobot(name) {
   updatePose(robot);
   updateBanner(robot);
   showCharts(robot);
+  renderRates(performance.now());
   for (const r of dash.robots.values()) updateRow(r, performance.now());
   markDirty();
 }
@@ -198,7 +200,19 @@ function inspect(robot) {
     `${payload ? payload.length : 0} bytes · ${rate.hz.toFixed(1)} Hz · ${age}`;
   setText(ui.inspectorHead, head);
   setText(ui.inspectorBody, body.length > INSPECT_MAX ? `${body.slice(0, INSPECT_MAX)}…` : body);
+  setText(ui.inspectorRaw, rawText(payload, encoding));
   ui.inspector.dataset.topic = name;
+}
+
+/** The payload as it came: its text when JSON, else the first bytes in hex. */
+function rawText(payload, encoding) {
+  if (!payload) return "";
+  if (encoding === "json") {
+    const text = decoder.decode(payload);
+    return text.length > INSPECT_MAX ? `${text.slice(0, INSPECT_MAX)}…` : text;
+  }
+  const head = Array.from(payload.subarray(0, RAW_BYTES), (b) => b.toString(16).padStart(2, "0")).join(" ");
+  return payload.length > RAW_BYTES ? `${head} … (${payload.length} bytes)` : head;
 }
 
 export function drawGps(robot) {
