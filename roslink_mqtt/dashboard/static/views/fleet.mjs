@@ -8,6 +8,7 @@ import { TILE, fitPoints, mercator, tileUrl, tilesFor, zoomToFit } from "../geom
 import { dash } from "../store.mjs";
 import { el, setText, show, ui } from "./dom.mjs";
 import { selectRobot } from "./robot.mjs";
+import { axes, caption, polyline } from "./canvas.mjs";
 import { showPage } from "./pages.mjs";
 
 const COLUMNS = ["name", "presence", "status", "session", "age", "battery", "link", "mode", "owner", "role"];
@@ -151,23 +152,10 @@ function drawLocalMap(c, g, now) {
   const { cx, cy, half } = fitPoints(robots.map((r) => [r.pose.x, r.pose.y]));
   const s = Math.min(c.width, c.height) / (2 * half);
   const px = (x, y) => [c.width / 2 + (x - cx) * s, c.height / 2 - (y - cy) * s];
-  g.strokeStyle = "#dde1e6";
-  g.beginPath();
-  const [ox, oy] = px(0, 0);
-  g.moveTo(ox, 0); g.lineTo(ox, c.height); g.moveTo(0, oy); g.lineTo(c.width, oy);
-  g.stroke();
-  g.fillStyle = "#7b8590";
-  g.font = "11px sans-serif";
-  g.fillText(`±${half.toFixed(0)} m`, 6, c.height - 6);
+  axes(g, c, px(0, 0), "#dde1e6");
+  caption(g, `±${half.toFixed(0)} m`, 6, c.height - 6);
   for (const r of robots) {
-    const trail = r.trail.length > MAP_TRAIL ? r.trail.slice(-MAP_TRAIL) : r.trail;
-    if (trail.length > 1) {
-      g.strokeStyle = "#a8c3e6";
-      g.lineWidth = 1.5;
-      g.beginPath();
-      trail.forEach(([x, y], i) => { const [a, b] = px(x, y); if (i) g.lineTo(a, b); else g.moveTo(a, b); });
-      g.stroke();
-    }
+    polyline(g, r.trail.length > MAP_TRAIL ? r.trail.slice(-MAP_TRAIL) : r.trail, px, "#a8c3e6", 1.5);
     const [a, b] = px(r.pose.x, r.pose.y);
     robotMark(g, r.name, a, b, r.pose.yaw, attentionOf(r, now).level);
   }
@@ -206,14 +194,8 @@ function drawGpsMap(c, g, now) {
   }
   setText(ui.mapNote, `GPS, zoom ${z}` + (template ? ` — ${dash.config.tiles_attribution || "map tiles"}` : " (no map tiles configured)"));
   robots.forEach((r, i) => {
-    const trail = r.gps.slice(-MAP_TRAIL).map(([la, lo]) => mercator(la, lo, z));
-    if (trail.length > 1) {
-      g.strokeStyle = "#8a6d3b";
-      g.lineWidth = 1.5;
-      g.beginPath();
-      trail.forEach(([x, y], k) => { if (k) g.lineTo(x - left, y - top); else g.moveTo(x - left, y - top); });
-      g.stroke();
-    }
+    const onMap = (la, lo) => { const [x, y] = mercator(la, lo, z); return [x - left, y - top]; };
+    polyline(g, r.gps.slice(-MAP_TRAIL), onMap, "#8a6d3b", 1.5);
     robotMark(g, r.name, px[i][0] - left, px[i][1] - top, null, attentionOf(r, now).level);
   });
 }

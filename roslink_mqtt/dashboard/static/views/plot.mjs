@@ -6,6 +6,7 @@ import { gridStep, gridValues } from "../geometry.mjs";
 import { isBlocked, poseAt } from "../model.mjs";
 import { dash, selectedRobot } from "../store.mjs";
 import { addLog, ui } from "./dom.mjs";
+import { axes, caption, polyline } from "./canvas.mjs";
 import { command } from "./commands.mjs";
 import { drawFleetMap } from "./fleet.mjs";
 
@@ -33,14 +34,8 @@ function draw() {
   for (const v of xs) { const [x] = toPx(v, 0); g.moveTo(x, 0); g.lineTo(x, c.height); }
   for (const v of ys) { const [, y] = toPx(0, v); g.moveTo(0, y); g.lineTo(c.width, y); }
   g.stroke();
-  g.strokeStyle = "#c9ced4";
-  g.beginPath();
-  const [ox, oy] = toPx(0, 0);
-  g.moveTo(ox, 0); g.lineTo(ox, c.height); g.moveTo(0, oy); g.lineTo(c.width, oy);
-  g.stroke();
-  g.fillStyle = "#7b8590";
-  g.font = "11px sans-serif";
-  g.fillText(`grid ${step} m`, 6, c.height - 6);
+  axes(g, c, toPx(0, 0), "#c9ced4");
+  caption(g, `grid ${step} m`, 6, c.height - 6);
   // axis labels: metres along the bottom (x) and the left edge (y), on the grid lines
   const labels = [];
   for (const v of xs) {
@@ -54,13 +49,7 @@ function draw() {
   g.fillText("x (m) →", c.width - 52, c.height - 6);
   g.fillText("↑ y (m)", 4, 12);
   c.dataset.labels = labels.join(" ");
-  if (robot.trail.length > 1) {  // the trail since the page saw this robot first
-    g.strokeStyle = "#4a90d9";
-    g.lineWidth = 2;
-    g.beginPath();
-    robot.trail.forEach(([x, y], i) => { const [px, py] = toPx(x, y); if (i) g.lineTo(px, py); else g.moveTo(px, py); });
-    g.stroke();
-  }
+  polyline(g, robot.trail, toPx, "#4a90d9", 2);  // the trail since the page saw this robot first
   if (p && robot.scan) {  // laser scan, around the robot in its heading (the scanner is taken to sit on base_link)
     const s = robot.scan, at = poseAt(robot, typeof s.time_usec === "number" ? s.time_usec / 1000 : 0) || p;
     g.fillStyle = "#d9534f";

@@ -15,6 +15,7 @@ import { markDirty } from "./plot.mjs";
 import { showCharts } from "./charts.mjs";
 import { clearFleet, updateRow } from "./fleet.mjs";
 import { renderTabs } from "./pages.mjs";
+import { caption, polyline } from "./canvas.mjs";
 
 const decoder = new TextDecoder();
 const INSPECT_MAX = 4000;  // characters of a message shown by the state inspector
@@ -232,19 +233,13 @@ export function drawGps(robot) {
   const px = ([x, y]) => [c.width / 2 + x * s, c.height / 2 - y * s];
   g.strokeStyle = "#e6e2cf";
   g.strokeRect(0.5, 0.5, c.width - 1, c.height - 1);
-  g.strokeStyle = "#8a6d3b";
-  g.lineWidth = 2;
-  g.beginPath();
-  pts.forEach((p, i) => { const [x, y] = px(p); if (i) g.lineTo(x, y); else g.moveTo(x, y); });
-  g.stroke();
+  polyline(g, pts, (x, y) => px([x, y]), "#8a6d3b", 2);
   const [lx, ly] = px(pts[pts.length - 1]);
   g.fillStyle = "#8a6d3b";
   g.beginPath();
   g.arc(lx, ly, 4, 0, 2 * Math.PI);
   g.fill();
-  g.fillStyle = "#7b8590";
-  g.font = "11px sans-serif";
-  g.fillText(`N ↑   ±${half.toFixed(0)} m`, 6, 14);
+  caption(g, `N ↑   ±${half.toFixed(0)} m`, 6, 14);
 }
 
 /** A ROSLink image message (base64 in JSON) in the camera box. */
