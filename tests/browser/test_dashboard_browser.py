@@ -389,8 +389,10 @@ def test_nothing_moves_under_the_pad_and_a_phone_fits(stack, tmp_path, width: in
             inner = driver.execute_script("return [window.innerWidth, window.innerHeight]")
             assert inner[0] <= width, inner
             estop = driver.execute_script(RECT, "estop")
-            for other in ("conn", "logout"):
-                assert not _overlap(estop, driver.execute_script(RECT, other)), f"the e-stop covers #{other}"
+            stops = driver.execute_script(RECT, "stop-all")
+            for other in ("conn", "logout", "whoami", "tab-fleet", "tab-robot"):
+                for button, rect in (("e-stop", estop), ("STOP ALL", stops)):
+                    assert not _overlap(rect, driver.execute_script(RECT, other)), f"the {button} covers #{other}"
             assert 0 <= estop["top"] and estop["bottom"] <= inner[1], estop
             assert driver.execute_script("return document.documentElement.scrollWidth") <= inner[0] + 1
             if width <= 640:
