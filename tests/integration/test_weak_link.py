@@ -321,8 +321,17 @@ def test_an_emergency_stop_overtakes_a_flooded_downlink(tmp_path) -> None:
                 alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=30)
                 stops.wait_matched(20)
                 modes.wait_matched(20)
-                alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "GUIDED"}, qos=1)
-                modes.wait_for(lambda m: m.data == "GUIDED", timeout=10)  # the path works when the link is idle
+                # the path works when the link is idle; sent again while the bridge's /mode publisher has not yet
+                # matched the probe (DDS matches each side on its own: a first message can miss a new subscriber)
+                for _attempt in range(10):
+                    alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "GUIDED"}, qos=1)
+                    try:
+                        modes.wait_for(lambda m: m.data == "GUIDED", timeout=1.0)
+                        break
+                    except TimeoutError:
+                        continue
+                else:
+                    raise AssertionError("set_mode never reached /mode over the idle link")
                 flooding = threading.Event()
                 flooding.set()
 
