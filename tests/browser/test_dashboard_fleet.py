@@ -205,7 +205,36 @@ def test_the_fleet_at_a_glance_with_alerts_map_and_charts(fleet, tmp_path, width
         assert driver.find_element(By.CSS_SELECTOR, '.chart[data-series="battery"] .latest').text == "6 %"
         assert len(driver.find_elements(By.CSS_SELECTOR, "#charts canvas")) == 3  # drawn by uPlot
         shot(driver, f"dashboard-robot-{width}")
+        keyboard_and_names(driver)
         no_console_errors(driver)
+
+
+def keyboard_and_names(driver: Any) -> None:
+    """Screen-reader and keyboard basics: every visible control has a name (its text, label, aria-label or title),
+    and Tab goes from Log out through the view tabs to STOP ALL and the e-stop, then into the view."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    unnamed = driver.execute_script("""
+        const out = [];
+        for (const e of document.querySelectorAll('button, input, select, textarea, [tabindex], canvas')) {
+          if (!e.getClientRects().length) continue;  // not shown
+          const label = e.labels && e.labels.length ? e.labels[0].textContent : '';
+          const name = (e.getAttribute('aria-label') || label || e.textContent || e.title || '').trim();
+          if (!name && !(e.closest('.uplot'))) out.push(e.outerHTML.slice(0, 100));
+        }
+        return out;""")
+    assert unnamed == [], unnamed
+    assert driver.execute_script("return document.querySelectorAll('[tabindex]:not([tabindex=\"0\"]):not("
+                                 "[tabindex=\"-1\"])').length") == 0  # no order of its own: reading order
+    driver.execute_script("window.scrollTo(0, 0); document.getElementById('logout').focus()")
+    order = ["logout"]
+    for _ in range(4):
+        ActionChains(driver).send_keys(Keys.TAB).perform()
+        order.append(driver.execute_script("return document.activeElement.id"))
+    assert order == ["logout", "tab-fleet", "tab-robot", "stop-all", "estop"], order
+    ActionChains(driver).send_keys(Keys.TAB).perform()  # then into the robot view
+    assert driver.execute_script("return document.getElementById('robot-view').contains(document.activeElement)")
 
 
 def test_ten_robots_streaming_keep_the_page_level(fleet, tmp_path) -> None:
