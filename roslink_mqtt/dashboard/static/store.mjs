@@ -17,6 +17,7 @@ export const dash = {
   cameraUrl: null, undecoded: new Set(),  // the shown raw image's blob URL; states said to be undecodable
   view: new PlotView(),  // the robot view's plot
   alerts: new AlertBook(), rules: null, inspect: null, stopRound: null,
+  rateRows: new Map(),  // topic → its row in the shown robot's rates table
   page: "robot",  // the view shown: "fleet" or "robot" (the first robot seen opens its view)
 };
 if (typeof window !== "undefined") window.dashboard = dash;

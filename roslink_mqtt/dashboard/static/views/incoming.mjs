@@ -6,7 +6,7 @@ import { addGps, addLink, addPose, addStatus, count, newRobot } from "../model.m
 import { dash } from "../store.mjs";
 import { addLog, notice, ui } from "./dom.mjs";
 import { noteStopAck, onCallReply } from "./commands.mjs";
-import { addFleetRow, removeFleetRow, updateRow } from "./fleet.mjs";
+import { addFleetRow, drawFleetMap, removeFleetRow, updateRow } from "./fleet.mjs";
 import { buildControls, drawGps, entryOf, notDecoded, presenceIfNeeded, selectRobot, showControl, showImage,
          showImageBytes, showUplink, updateBanner, updatePose } from "./robot.mjs";
 import { markDirty } from "./plot.mjs";
@@ -96,8 +96,11 @@ function onState(robot, name, payload) {
     const m = message("global_motion", payload);
     if (!m) return;
     addPose(robot, m, now);
-    if (dash.selected === robot.name) updatePose(robot);
-    markDirty();
+    if (dash.selected === robot.name) {  // another robot's move does not redraw this one's plot
+      updatePose(robot);
+      markDirty();
+    }
+    drawFleetMap();  // at most five times a second, and only while shown
     return;
   }
   if (name === "gps_raw_info") {

@@ -3,12 +3,14 @@
 import { dash, selectedRobot } from "../store.mjs";
 import { setText, show, ui } from "./dom.mjs";
 import { markDirty } from "./plot.mjs";
+import { drawFleetMap } from "./fleet.mjs";
 
 /** "fleet" or "robot" (the robot view needs a selected robot; without one the fleet view shows). */
 export function showPage(page) {
   dash.page = page;
   renderTabs();
   markDirty();
+  drawFleetMap();
 }
 
 export function renderTabs() {

@@ -1,14 +1,13 @@
 // The robot view's plot: world metres (x right, y up) with grid and axis labels, the trail kept while the page is
 // open, the laser scan placed where it was taken, the waypoint and the robot. Wheel or +/− zooms, a drag pans,
 // "follow" keeps the robot centred; a click sends go-to-waypoint when that box is ticked. Redrawn at most once
-// per animation frame, only when something changed.
+// per animation frame, only when something of the shown robot or the view changed.
 import { gridStep, gridValues } from "../geometry.mjs";
 import { isBlocked, poseAt } from "../model.mjs";
 import { dash, selectedRobot } from "../store.mjs";
 import { addLog, ui } from "./dom.mjs";
 import { axes, caption, polyline } from "./canvas.mjs";
 import { command } from "./commands.mjs";
-import { drawFleetMap } from "./fleet.mjs";
 
 let dirty = false;
 let drag = null;  // {x, y, cx, cy, moved}: a pan in progress
@@ -86,8 +85,7 @@ function draw() {
 function frame() {
   if (dirty) {
     dirty = false;
-    draw();
-    drawFleetMap();
+    if (!ui.robotView.hidden) draw();  // the tab's switch marks it dirty again
   }
   requestAnimationFrame(frame);
 }

@@ -159,7 +159,6 @@ export function renderRates(now) {
   const robot = selectedRobot();
   if (!robot) return;
   const body = ui.rates.tBodies[0];
-  if (!dash.rateRows) dash.rateRows = new Map();
   for (const [name, rate] of [...robot.rates.entries()].sort()) {
     let row = dash.rateRows.get(name);
     if (!row) {
