@@ -258,4 +258,6 @@ def test_ten_robots_streaming_keep_the_page_level(fleet, tmp_path) -> None:
         assert last.listeners <= warm.listeners + 100, f"listeners grew from {warm.listeners} to {last.listeners}"
         received = driver.execute_script("return [...window.dashboard.robots.values()].map(r => r.poses)")
         assert len(received) == ROBOTS and min(received) >= 8 * SOAK_SECONDS, received  # all ten kept coming
+        trails = driver.execute_script("return [...window.dashboard.robots.values()].map(r => r.trail.length)")
+        assert min(trails) >= 5 * SOAK_SECONDS, trails  # every robot's trail is kept, not only the shown one's
         no_console_errors(driver)
