@@ -22,7 +22,7 @@ from roslink_mqtt.dashboard import DashboardServer
 from tests.support.browser import (
     CHROMIUM,
     browser,
-    click,
+    click_css,
     logged_in,
     login,
     no_console_errors,
@@ -158,7 +158,7 @@ def test_the_fleet_at_a_glance_with_alerts_map_and_charts(fleet, tmp_path, width
             assert alert["severity"] == "critical" and alert["state"] == "active" and "no heartbeat" in alert["text"]
             assert driver.find_element(By.ID, "fleet-badge").text == "3"
             shot(driver, f"dashboard-fleet-{width}")
-            click(driver, driver.find_element(By.CSS_SELECTOR, f'#alerts li[data-key="{alert["key"]}"] button.ack'))
+            click_css(driver, f'#alerts li[data-key="{alert["key"]}"] button.ack')
             wait_until("acknowledged", lambda: driver.find_element(By.ID, "fleet-badge").text == "2")
 
             # acknowledged stays acknowledged for the session: a reload (and a new login) keeps it so
@@ -195,7 +195,8 @@ def test_the_fleet_at_a_glance_with_alerts_map_and_charts(fleet, tmp_path, width
             assert 0 <= estop[0] and estop[1] <= inner[1] and estop[2] >= 44, estop
 
         # a click in the attention list opens that robot; its charts fill as its series grow
-        click(driver, driver.find_element(By.CSS_SELECTOR, '#attention li[data-robot="sim08"] button'))
+        # the list is rebuilt while sim02's failsafe and sim06's return reach it: found afresh at the click
+        click_css(driver, '#attention li[data-robot="sim08"] button')
         assert visible(driver, "robot-view") and not visible(driver, "fleet-view")
         assert driver.find_element(By.ID, "robot-title").text == "Robot sim08"
         points = wait_until("the charts filled", lambda: (p := driver.execute_script(

@@ -26,6 +26,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
@@ -238,17 +239,20 @@ def test_page_drives_with_hold_and_stops_on_release_and_close(stack, tmp_path) -
         # Hold forward for 1.5 s: a 10 Hz stream of 0.3 m/s twists reaches ROS and the page sees the robot move.
         t0 = time.monotonic()
         ActionChains(driver).click_and_hold(forward).perform()
-        time.sleep(1.5)
+        # a 10 Hz stream while held: ten twists waited for (not slept on), then held to ~1.5 s in all
+        _until("ten forward twists", lambda: len([m for _, m in cmd_vel.since(t0)
+                                                  if m.linear.x == pytest.approx(0.3)]) >= 10)
+        time.sleep(max(0.0, t0 + 1.5 - time.monotonic()))
         released = time.monotonic()
         ActionChains(driver).release().perform()
-        held = [t for t, m in cmd_vel.since(t0) if t <= released and m.linear.x == pytest.approx(0.3)]
-        assert len(held) >= 10, f"{len(held)} forward twists in 1.5 s"
         at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=released, timeout=2)
         print(f"page: released forward -> zero twist on /cmd_vel after {(at - released) * 1000:.0f} ms")
-        assert at - released < 0.5
+        record_measurement("MQTT.js starter: release → zero twist", at - released, 0.5)
+        assert at - released < 1.0  # the goal (0.5 s) is reported; this includes WebDriver's round trip (issue 47)
         assert _until("a new position", lambda: text("position") != first and text("position"))
         time.sleep(0.3)
-        assert not [m for t, m in cmd_vel.since(released + 0.3) if m.linear.x != 0], "moved after release"
+        # a twist sent just before the release may land after it, never after its zero
+        assert not [m for t, m in cmd_vel.since(at) if t > at and m.linear.x != 0], "moved after release"
 
         # Hold forward again and close the browser while holding: the last-will stops the robot.
         t1 = time.monotonic()

@@ -392,7 +392,10 @@ def test_mqtt_3_3_5_1_overlapping_subscriptions_deliver_at_the_maximum_qos(wires
     sub.disconnect()
 
 
-MQTT5_REFUSED_WITHIN = 0.1  # s
+MQTT5_REFUSED_WITHIN = 0.1  # s: the goal (measured ~1 ms), reported in the run's summary
+# What the test fails on: far below the 5 s a reader that took the CONNECT for 3.1.1 would wait for the rest of
+# it, far above what a busy machine adds (issue 47).
+MQTT5_REFUSED_DEADLINE = 1.0  # s
 
 
 def test_mqtt_3_1_2_2_mqtt5_connect_gets_connack_1_at_once(acl_embedded: EmbeddedBrokerProcess) -> None:
@@ -410,7 +413,7 @@ def test_mqtt_3_1_2_2_mqtt5_connect_gets_connack_1_at_once(acl_embedded: Embedde
     assert (ack.kind, ack.body) == (CONNACK, bytes([0, 1]))
     assert w.closed_within(2.0)
     record_measurement("[embedded] MQTT 5 CONNECT -> CONNACK 0x01", took, MQTT5_REFUSED_WITHIN)
-    assert took < MQTT5_REFUSED_WITHIN  # the issue's goal: nothing in the gate's answer waits (measured ~1 ms)
+    assert took < MQTT5_REFUSED_DEADLINE  # nothing in the gate's answer waits for more bytes
 
 
 def test_a_subscriber_that_never_acknowledges_holds_at_most_its_outbox(acl_embedded: EmbeddedBrokerProcess) -> None:

@@ -130,13 +130,15 @@ def test_failed_logins_are_slowed_per_address_without_locking_anyone_out(tmp_pat
             start = time.monotonic()
             assert probes(broker.port, "admin", "guess", bind_address="127.0.0.2").connect() == REFUSED
             durations.append(time.monotonic() - start)
-        assert max(durations[:2]) < 0.4, durations  # the first failures are free
-        assert min(durations[2:]) >= 0.4, durations  # then every attempt waits for its slot
+        # the first failures are free, then every attempt waits for its slot (0.5 s and up): compared with each
+        # other, not with a wall-clock figure, since a password check on a busy machine may take 0.3 s by itself
+        assert max(durations[:2]) < min(durations[2:]), durations
+        assert min(durations[2:]) >= 0.4, durations
         assert sum(durations) >= 2.0, durations
 
         start = time.monotonic()  # somebody else, same broker, another address: not affected
         assert probes(broker.port, "alice", bind_address="127.0.0.3").connect() == 0
-        assert time.monotonic() - start < 0.4
+        assert time.monotonic() - start < min(durations[2:]), durations
 
         start = time.monotonic()  # the right password from the guessing address: slowed, not blocked
         assert probes(broker.port, "admin", bind_address="127.0.0.2").connect() == 0

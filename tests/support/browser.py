@@ -111,6 +111,24 @@ def no_console_errors(driver: Any) -> None:
     assert not severe, "browser console errors:\n" + "\n".join(severe)
 
 
+def click_css(driver: Any, selector: str, timeout: float = 10.0) -> None:
+    """A real click on the element ``selector`` names, found afresh for every try: a list the page rebuilds (the
+    attention list, every half second while texts change) replaces its elements between a find and a click, and a
+    held reference goes stale. Retries only on a stale or not-yet-present element; anything else fails at once."""
+    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
+    from selenium.webdriver.common.by import By
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            click(driver, driver.find_element(By.CSS_SELECTOR, selector))
+            return
+        except (StaleElementReferenceException, NoSuchElementException):
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
 def click(driver: Any, element: Any) -> None:
     """Scroll ``element`` to the middle first: the sticky header (and a phone's stop bar at the bottom) would take
     a click at the edge."""
