@@ -4,7 +4,9 @@ The gateway runs on the user's machine. It logs in to the broker as the user (an
 broker's ACL, the user's presence, the control lease and the robot's failsafe apply as to every other client) and
 serves the Foxglove WebSocket protocol (``foxglove.websocket.v1``) on localhost with the ``foxglove-sdk`` server:
 the protocol's reference implementation, kept by Foxglove, that Foxglove and Lichtblick are tested against; a
-front (:mod:`.foxglove_front`) lets clients name the protocol either ``foxglove.sdk.v1`` or ``foxglove.websocket.v1``.
+front (:mod:`.foxglove_front`) lets clients name the protocol either ``foxglove.sdk.v1`` or ``foxglove.websocket.v1``
+and decides who may connect: since whoever connects acts as the user, a web page from another origin is refused and
+the URL must carry a secret made for this run (``ws://127.0.0.1:8765/?token=…``).
 
 Everything is named as in the MQTT topic tree, so a layout made live opens ``roslink-mqtt record``'s files too:
 
@@ -26,6 +28,7 @@ import functools
 import logging
 import math
 import queue
+import secrets
 import threading
 import time
 from collections import Counter
@@ -43,7 +46,7 @@ from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
 from .connect import parse_json_object
 from .control_cmd import claim_if_free
-from .foxglove_front import ProtocolFront
+from .foxglove_front import Admission, ProtocolFront, check_token, loopback_tls, normalize_origin
 
 if TYPE_CHECKING:
     from ..client.robot_client import RobotClient
@@ -74,8 +77,14 @@ class FoxgloveGateway(ServerListener):
     MQTT round trip they would wait for is done on the gateway's own worker threads instead."""
 
     def __init__(self, client: RobotClient, robots: Sequence[str] = (), *, host: str = "127.0.0.1",
-                 port: int = 8765, topics: Sequence[str] = ()) -> None:
+                 port: int = 8765, topics: Sequence[str] = (), require_token: bool = True, token: str | None = None,
+                 allow_origins: Sequence[str] = ()) -> None:
+        """``require_token``: clients must give :attr:`token` in the URL (:attr:`url`); ``token``: the user's own
+        (default: a new one, :func:`secrets.token_urlsafe`). ``allow_origins``: web origins allowed besides the
+        hosted apps (:mod:`.foxglove_front`). ValueError for a token or an origin that is not one."""
         self.client, self.host, self.port = client, host, port
+        self.token = (check_token(token) if token else secrets.token_urlsafe(32)) if require_token else None
+        self.admission = Admission(self.token, frozenset(normalize_origin(o) for o in allow_origins))
         self.named = list(robots)
         self.prefix = client.topics.prefix
         self.routes = JsonChannels(client.topics, _Robots(self), topics)
@@ -100,13 +109,16 @@ class FoxgloveGateway(ServerListener):
     def start(self) -> int:
         """Listen; returns the port (``port=0`` picks a free one)."""
         self.context = foxglove.Context()
-        # Foxglove's server on a loopback port of its own, behind the front, which also takes clients that name
-        # the protocol foxglove.websocket.v1 (cli/foxglove_front.py)
+        # Foxglove's server on a loopback port of its own, behind the front, which checks who connects and also
+        # takes clients that name the protocol foxglove.websocket.v1 (cli/foxglove_front.py). It speaks only TLS
+        # with a certificate of this run that only the front trusts: no browser page can talk to it directly.
+        cert, key, trust = loopback_tls()
         self.server = foxglove.start_server(
             name=f"roslink-mqtt ({self.client.username})", host="127.0.0.1", port=0, context=self.context,
             capabilities=[Capability.ClientPublish, Capability.Services, Capability.Parameters],
-            supported_encodings=["json"], server_listener=self)
-        self.front = ProtocolFront(self.host, self.port, int(self.server.port))
+            supported_encodings=["json"], server_listener=self, tls_cert=cert, tls_key=key)
+        self.front = ProtocolFront(self.host, self.port, int(self.server.port), admission=self.admission,
+                                   upstream_tls=trust)
         try:
             self.port = self.front.start()
         except OSError:
@@ -118,6 +130,12 @@ class FoxgloveGateway(ServerListener):
             thread.start()
             self._threads.append(thread)
         return self.port
+
+    @property
+    def url(self) -> str:
+        """The URL clients open: ``ws://host:port/``, with ``?token=…`` when one is required."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}/" + (f"?token={self.token}" if self.token else "")
 
     def close(self) -> None:
         self._stop.set()

@@ -65,6 +65,32 @@ def test_serves_exactly_the_page_files() -> None:
         assert _get(server.port, "/", "POST")[0] == 501  # no method but GET and HEAD
 
 
+def test_a_page_of_another_origin_reaches_only_the_public_files() -> None:
+    """What a foreign web page can get (issue 49's review): its requests reach the server (a page in another tab,
+    or one whose DNS name rebinds to 127.0.0.1 and so sends a Host of its own), but no response lets another
+    origin read it (no CORS header) and, read anyway through rebinding, every one is a file of the public page or
+    config.json's four settings: no credentials, no fleet data, nothing that acts as anyone."""
+    with DashboardServer("127.0.0.1", 0, ws_port=18083) as server:
+        conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
+        try:
+            for path in ("/", "/config.json", "/main.mjs"):
+                conn.request("GET", path, headers={"Origin": "http://evil.example", "Host": "evil.example:8090"})
+                resp = conn.getresponse()
+                body = resp.read()
+                assert resp.status == 200, path
+                assert not [h for h, _ in resp.getheaders() if h.lower().startswith("access-control-")], path
+                if path == "/config.json":
+                    assert set(json.loads(body)) == {"ws_port", "ws_url", "prefix", "tiles", "tiles_attribution"}
+                assert b"-demo" not in body and b"password_hash" not in body, path
+            conn.request("OPTIONS", "/config.json", headers={"Origin": "http://evil.example",
+                                                             "Access-Control-Request-Method": "GET"})
+            resp = conn.getresponse()
+            resp.read()
+            assert resp.status == 501 and resp.getheader("Access-Control-Allow-Origin") is None  # no preflight
+        finally:
+            conn.close()
+
+
 def test_map_tiles_are_checked_and_allowed_from_their_origin_only() -> None:
     """--tiles: a URL template with {z}/{x}/{y}; the page's policy lets images come from that origin, nothing more."""
     with DashboardServer("127.0.0.1", 0, tiles="https://tiles.example.org/osm/{z}/{x}/{y}.png",

@@ -58,6 +58,10 @@ async function main() {
 
   const wanted = plan.subscribe || [];
   await waitFor(() => seen.serverInfo && wanted.every((t) => t in seen.channels), 15000);
+  if (!seen.serverInfo) {  // refused (no or a wrong token, say) or nothing there: a failure, not an empty result
+    console.error(`no serverInfo from ${url.replace(/token=[^&]*/, "token=…")}: ${seen.errors.join("; ")}`);
+    process.exit(2);
+  }
   for (const [id, topic] of Object.entries(byId)) {
     if (wanted.includes(topic)) subscriptions[client.subscribe(Number(id))] = topic;
   }
