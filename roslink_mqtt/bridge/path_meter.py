@@ -1,0 +1,213 @@
+"""The uplink's rate from what crosses the whole path to the broker, measured end to end. ROS-free, I/O-free.
+
+Why: :class:`.uplink.LinkMeter` steers by the robot's own socket (the bytes the kernel holds unacknowledged, and the
+kernel's delivered-bytes counter). That is the truth on a link whose queue backs up into the robot (a modem, a
+cellular router), and a lie behind a hop that acknowledges the robot's bytes at once: a split-TCP proxy of a
+cellular or satellite carrier, a VPN concentrator, a TLS or WebSocket load balancer in front of a cloud broker, a
+site's HTTP proxy. There the socket looks empty while seconds of data wait behind the real bottleneck, and a
+budget taken from the socket lets the queue grow without bound (issue 42 measured pose 5–9 s old and growing).
+
+What this meter sees instead: **probes that cross the path and come back through the broker** (the bridge sends a
+PINGREQ on its main connection; the broker's PINGRESP can only come once the PINGREQ has passed every queue before
+it, hidden or not). One probe is out at a time, so
+
+* each answer is a round-trip sample, and the age of the probe still out is a lower bound of the current one
+  (a growing queue shows before its probe returns; a dead spot shows as an age that keeps growing);
+* the **base delay** is the least round trip over the last :data:`BASE_HISTORY` seconds (the path with empty
+  queues); **queueing delay** = current − base. That is the signal of LEDBAT, BBR and WebRTC's congestion control
+  (Google Congestion Control), the reason video calls stay live on bad links;
+* the bytes the bridge had handed over (all its connections) when a probe left have **crossed the path** when its
+  answer comes: so the delivered rate between two answers is what the path carried end to end, and
+  :meth:`PathMeter.in_flight` (handed over minus known to have crossed) is what waits in the path now, whatever the
+  socket says.
+
+The controller, one update per answer (and per look while a probe is overdue):
+
+* queueing delay over the target (``uplink_target_delay``): the path is **over-used**; the rate becomes
+  :data:`DECREASE` × what the path delivered recently (at most once per round trip, so one queue is not punished
+  twice). A probe overdue by more than the target counts as over-use at once, before its answer;
+* under half the target: **probe upward** by :data:`INCREASE` per second (multiplicative: from 128 kbit/s to
+  1 Mbit/s in a few seconds), never beyond :data:`HEADROOM` × the most the path delivered lately, so a robot that
+  sends little does not talk its estimate up to a flood (GCC's 1.5× bound);
+* in between: hold.
+
+A dead spot (no answer for a while) looks like a queue until its probe returns: the rate is cut a few times, each
+cut waiting as long as the probe has been out (0.85× at ~0.2, 0.4, 0.8, 1.6 s …), and grows back by its answers
+once the path returns; in-flight bytes stay capped all along, so nothing piles up behind the dead spot.
+
+Limits: a probe measures the queue its own connection waits in; on a link that serves connections in turns rather
+than first come first served, the other connections' queues show only partly (the socket signal still covers those
+where they are visible). The downlink's queue adds to the round trip too (small for a robot, whose downlink carries
+commands).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+PROBE_PERIOD = 0.1  # s between probes while the path answers promptly (one is out at a time)
+BASE_HISTORY = 30.0  # s: the base delay is the least round trip of this long (a queue is drained well within it)
+BASE_BUCKET = 5.0  # s per bucket of that history (the least of each kept; the oldest bucket leaves whole)
+CURRENT_SAMPLES = 3  # the current delay is the least of the last few answers (one jittered sample is no queue)
+RATE_WINDOW = 1.0  # s of answers the delivered rate is taken over
+PEAK_WINDOW = 5.0  # s: the most delivered lately (what probing upward may reach past)
+DECREASE = 0.85  # over-use: the rate becomes this much of what the path delivered (GCC's beta)
+INCREASE = 0.5  # under-use: the rate grows by this fraction per second (1.5× per second)
+HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
+MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
+
+
+@dataclass(slots=True)
+class _Answer:
+    at: float  # when the answer came
+    rtt: float
+    crossed: int  # bytes handed over before the probe left: they have crossed the path now
+
+
+@dataclass
+class PathMeter:
+    """End-to-end round trips and delivered bytes of the uplink, and the rate they allow (all times in seconds,
+    from the caller's monotonic clock; byte counts are the bridge's own running total of bytes handed over)."""
+
+    target_delay: float = 0.1  # s of queueing the path may hold (robots.yaml bridge.uplink_target_delay)
+    rate: float = 125_000.0  # bytes/s: what the uplink may send (starts at the caller's guess)
+    answers: int = 0
+    overused: int = 0  # decreases so far (state/link and tests read it)
+    _sent_at: float | None = None  # the probe out, if any: when it left
+    _sent_handed: int = 0  # and the bytes handed over before it
+    _last_sent: float = float("-inf")
+    _crossed: int = 0  # bytes known to have crossed the path
+    _recent: deque[_Answer] = field(default_factory=deque)  # answers of the last PEAK_WINDOW
+    _buckets: deque[tuple[float, float]] = field(default_factory=deque)  # (bucket start, least rtt in it)
+    _holds: dict[str, float] = field(default_factory=dict)  # kind of cut → no cut of that kind before this
+    _grown_at: float | None = None  # when the rate last grew (or was cut): growth is per second since
+    _rates: deque[tuple[float, float]] = field(default_factory=deque)  # (answer time, delivered rate) lately
+
+    # -- probes ----------------------------------------------------------------------------------------------
+    def probe_due(self, now: float) -> bool:
+        """True when a probe should leave now: none is out and the last left PROBE_PERIOD ago."""
+        return self._sent_at is None and now - self._last_sent >= PROBE_PERIOD
+
+    def probe_sent(self, now: float, handed: int) -> None:
+        """A probe left at ``now``; ``handed``: the bytes handed over before it (all connections)."""
+        self._sent_at, self._sent_handed, self._last_sent = now, handed, now
+
+    def probe_answered(self, now: float) -> float | None:
+        """The probe out was answered at ``now``: its round trip (None if no probe was out)."""
+        if self._sent_at is None:
+            return None
+        rtt = max(0.0, now - self._sent_at)
+        self._sent_at = None
+        self._crossed = max(self._crossed, self._sent_handed)
+        self.answers += 1
+        self._recent.append(_Answer(now, rtt, self._sent_handed))
+        while self._recent and now - self._recent[0].at > PEAK_WINDOW:
+            self._recent.popleft()
+        bucket = now - now % BASE_BUCKET
+        if self._buckets and self._buckets[-1][0] == bucket:
+            self._buckets[-1] = (bucket, min(self._buckets[-1][1], rtt))
+        else:
+            self._buckets.append((bucket, rtt))
+        while self._buckets and now - self._buckets[0][0] > BASE_HISTORY:
+            self._buckets.popleft()
+        delivered = self.delivered_rate()
+        if delivered is not None:
+            self._rates.append((now, delivered))
+        while self._rates and now - self._rates[0][0] > PEAK_WINDOW:
+            self._rates.popleft()
+        self.update(now, answered=True)
+        return rtt
+
+    def reset(self, handed: int) -> None:
+        """A new connection: the probe out is lost with the old one; what was handed over so far counts as
+        crossed (the old connection's bytes are gone either way). The base delay and the rate are kept."""
+        self._sent_at, self._last_sent = None, float("-inf")  # probe the new connection at once
+        self._crossed = handed
+        self._recent.clear()
+        self._rates.clear()
+        self._grown_at = None
+
+    # -- signals ---------------------------------------------------------------------------------------------
+    @property
+    def measured(self) -> bool:
+        """At least one answer: the delay signals mean something."""
+        return bool(self._buckets)
+
+    @property
+    def base_rtt(self) -> float:
+        """The least round trip of the last BASE_HISTORY seconds (0 before the first answer)."""
+        return min((rtt for _, rtt in self._buckets), default=0.0)
+
+    def current_rtt(self, now: float) -> float:
+        """The round trip a message meets now: the least of the last few answers, or the age of the probe out
+        when that is longer (a queue, or a dead spot, that grows before the probe's answer shows it)."""
+        last = [a.rtt for a in list(self._recent)[-CURRENT_SAMPLES:]]
+        answered = min(last) if last else self.base_rtt
+        overdue = now - self._sent_at if self._sent_at is not None else 0.0
+        return max(answered, overdue)
+
+    def queue_delay(self, now: float) -> float:
+        """Seconds of queue in the path now: current − base (0 before the first answer)."""
+        return max(0.0, self.current_rtt(now) - self.base_rtt) if self.measured else 0.0
+
+    def in_flight(self, handed: int) -> int:
+        """Bytes handed over and not yet known to have crossed the path (``handed``: the running total now)."""
+        return max(0, handed - self._crossed)
+
+    def _rate_over(self, until: float) -> float | None:
+        """Bytes/s that crossed between the answers of the RATE_WINDOW before ``until``, or between the last two
+        answers when they are further apart (a long queue answers seldom; None: fewer than two answers)."""
+        answers = [a for a in self._recent if a.at <= until]
+        if len(answers) < 2:
+            return None
+        last = answers[-1]
+        first = next((a for a in answers if last.at - a.at <= RATE_WINDOW and a is not last), answers[-2])
+        if last.at <= first.at:
+            return None
+        return (last.crossed - first.crossed) / (last.at - first.at)
+
+    def delivered_rate(self) -> float | None:
+        """Bytes/s that crossed the path over the last RATE_WINDOW of answers (None: not enough answers)."""
+        return self._rate_over(self._recent[-1].at) if self._recent else None
+
+    # -- the controller --------------------------------------------------------------------------------------
+    @property
+    def peak_rate(self) -> float:
+        """The most the path delivered over RATE_WINDOW in the last PEAK_WINDOW, bytes/s (0: not measured)."""
+        return max((rate for _, rate in self._rates), default=0.0)
+
+    def update(self, now: float, answered: bool = False) -> float:
+        """Move the rate by what the path shows now; returns it. Called on every answer (``answered``) and on
+        every look of the sender: a probe overdue by more than the target is over-use before its answer comes."""
+        if not self.measured:
+            return self.rate
+        queued = self.queue_delay(now)
+        if queued > self.target_delay:
+            # An answer measures what the path delivered: the rate goes below it. A probe overdue only says the
+            # path is slower than the rate: a cut by DECREASE. Each kind waits a round trip (or the probe's age)
+            # before cutting again, since a cut shows only after one: one queue is not punished twice.
+            hold = "answer" if answered else "overdue"
+            if now >= self._holds.get(hold, float("-inf")):
+                delivered = self.delivered_rate() if answered else None
+                basis = min(self.rate, delivered) if delivered is not None else self.rate
+                self.rate = max(MIN_RATE, DECREASE * basis)
+                self._holds[hold] = now + self.current_rtt(now)
+                self.overused += 1
+            self._grown_at = now
+        elif not answered:
+            return self.rate
+        elif queued < self.target_delay / 2:
+            since = now - self._grown_at if self._grown_at is not None else 0.0
+            grown = self.rate * (1.0 + INCREASE * min(since, 1.0))
+            peak = self.peak_rate
+            ceiling = HEADROOM * peak if peak > 0 else grown
+            self.rate = max(MIN_RATE, min(grown, max(self.rate, ceiling)))
+            self._grown_at = now
+        else:
+            self._grown_at = now  # hold: no growth is owed for the time spent near the target
+        return self.rate
+
+    def budget(self, now: float) -> int:
+        """Bytes the path may hold at the rate: one base round trip plus the target's worth of queue."""
+        return int(self.rate * (self.base_rtt + self.target_delay))
