@@ -54,6 +54,7 @@ RATE_WINDOW = 1.0  # s of answers the delivered rate is taken over
 PEAK_WINDOW = 5.0  # s: the most delivered lately (what probing upward may reach past)
 DECREASE = 0.85  # over-use: the rate becomes this much of what the path delivered (GCC's beta)
 INCREASE = 0.5  # under-use: the rate grows by this fraction per second (1.5× per second)
+FAST_INCREASE = 1.25  # per answer while the path shows no queue at all (under a quarter of the target)
 HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
 MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
 
@@ -197,9 +198,13 @@ class PathMeter:
             self._grown_at = now
         elif not answered:
             return self.rate
+        elif (latest := self._recent[-1].rtt - self.base_rtt if self._recent else queued) > queued:
+            self._grown_at = now  # the last answer alone shows a queue: no growth on it (nor a cut: it may be jitter)
         elif queued < self.target_delay / 2:
             since = now - self._grown_at if self._grown_at is not None else 0.0
-            grown = self.rate * (1.0 + INCREASE * min(since, 1.0))
+            # no queue at all: grow per answer, as a path that has room shows within a round trip (a burst on a
+            # fast link must not wait seconds for its rate); some queue: grow per second, gently
+            grown = self.rate * (FAST_INCREASE if latest < self.target_delay / 4 else 1.0 + INCREASE * min(since, 1.0))
             peak = self.peak_rate
             ceiling = HEADROOM * peak if peak > 0 else grown
             self.rate = max(MIN_RATE, min(grown, max(self.rate, ceiling)))

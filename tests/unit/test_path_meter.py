@@ -185,3 +185,13 @@ def test_a_dead_spot_neither_floods_nor_starves_the_path_after_it() -> None:
     assert min(during) >= MIN_RATE
     carried = sum(1 for at, _ in path.delivered if 15.0 <= at < 20.0) * 700 / 5.0
     assert carried > 0.6 * 32_000.0, "the rate did not come back after the dead spot"
+
+
+def test_a_fast_link_is_not_held_to_the_first_guess() -> None:
+    """A path with room (40 Mbit/s) and a burst of 11 Mbit/s: the rate grows per answer while no queue shows, so
+    the burst goes at its own speed within about two seconds (the first guess is 1 Mbit/s)."""
+    meter, path, rates = run_loop(lambda t: 5_000_000.0, 4.0, demand=2_000_000.0)
+    carried = sum(1 for at, _ in path.delivered if 2.0 <= at < 4.0) * 700 / 2.0
+    print(f"40 Mbit/s path, 11 Mbit/s offered: carried {carried * 8 / 1e6:.1f} Mbit/s from 2 s on, "
+          f"rate {meter.rate * 8 / 1e6:.1f} Mbit/s, cuts {meter.overused}")
+    assert carried > 0.9 * 1_400_000.0 and meter.overused == 0
