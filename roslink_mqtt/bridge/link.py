@@ -98,6 +98,18 @@ class MqttLink:
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
         # s a message handed over now waits in the network; the uplink (bridge/uplink_sender.py) replaces it
         self.queue_delay: Callable[[], float] = lambda: 0.0
+        # the uplink's end-to-end probe (bridge/path_meter.py): called with time.monotonic() on paho's thread when a
+        # PINGRESP arrives (paho 2.2 has no callback for it: its handler is wrapped; paho is pinned)
+        self.on_pong: Callable[[float], None] | None = None
+        handle_pingresp = self.client._handle_pingresp
+
+        def pingresp() -> mqtt.MQTTErrorCode:
+            rc = handle_pingresp()
+            if self.on_pong is not None and rc == mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS:
+                self.on_pong(time.monotonic())
+            return rc
+
+        self.client._handle_pingresp = pingresp  # type: ignore[method-assign]
 
     @property
     def url(self) -> BrokerUrl:
@@ -155,6 +167,15 @@ class MqttLink:
                 trace.TRACE.mark("mqtt_out", topic)
             return self.client.publish(topic, payload, qos=qos, retain=retain)
         return None
+
+    def ping(self) -> bool:
+        """Send a PINGREQ now: the uplink's probe of the whole path, since the broker's PINGRESP can only come once
+        the PINGREQ has passed every queue before it, including those of hops that acknowledge at once. False when
+        not connected. Paho's keep-alive still holds: its PINGRESP deadline runs from the last PINGREQ sent, and
+        the uplink sends one only once the last was answered, so a dead path is still found within keep-alive."""
+        if not self.connected.is_set():
+            return False
+        return self.client._send_pingreq() == mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS
 
     def subscribe(self, topic: str, qos: int = 1) -> None:
         """Add a subscription now; after a reconnect ``subscriptions()`` must list it too."""

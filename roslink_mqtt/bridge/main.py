@@ -212,6 +212,17 @@ def main(argv: list[str] | None = None) -> int:
                                 Path(args.config).resolve().parent)
     from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, EXIT_LOGIN_REFUSED, Verdict
 
+    # Ctrl-C or SIGTERM while the bridge starts (loading ROS takes seconds on a busy machine) ends the start
+    # cleanly, once nothing half-made is left: no traceback from inside rclpy. From the main loop on, the same
+    # flag makes the clean shutdown (zero velocity, offline heartbeat).
+    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
+
+    def on_signal(flag: threading.Event) -> None:
+        flag.set()
+        wake.set()
+
+    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
+    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
     check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
                        fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
     check.start()  # meanwhile, rclpy loads and ROS starts
@@ -229,12 +240,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
         return 2
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
-
-    def on_signal(flag: threading.Event) -> None:
-        flag.set()
-        wake.set()
-
     try:
         node = rclpy.create_node("roslink_mqtt_bridge")
         # Under the EventsExecutor, actions provided by MQTT clients get a node and a single-threaded executor
@@ -252,13 +257,16 @@ def main(argv: list[str] | None = None) -> int:
     # broker or ROS's actuators yet.
     check.join()
     log = logging.getLogger("roslink_mqtt.bridge")
-    if check.result.verdict is Verdict.REFUSE:
-        print(f"roslink-mqtt-bridge: {check.result.refusal(robot.name)}", file=sys.stderr)
+    if check.result.verdict is Verdict.REFUSE or stopping.is_set():
+        if stopping.is_set():
+            log.info("stopped while starting: nothing was connected yet")
+        else:
+            print(f"roslink-mqtt-bridge: {check.result.refusal(robot.name)}", file=sys.stderr)
         for created in (node, action_node):
             if created is not None:
                 created.destroy_node()
         rclpy.shutdown()
-        return EXIT_DUPLICATE
+        return 0 if stopping.is_set() else EXIT_DUPLICATE
     if check.result.verdict is Verdict.REPLACE:
         log.warning("%s", check.result.note)
         bridge.take_over_claim()
@@ -270,8 +278,6 @@ def main(argv: list[str] | None = None) -> int:
     for executor, spun_node, handoff in spun:
         executor.add_node(spun_node)
         handoff.executor = executor
-    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
-    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
     signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
 
     def spin(executor: Any) -> None:

@@ -62,7 +62,7 @@ MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the 
 @dataclass(slots=True)
 class _Answer:
     at: float  # when the answer came
-    rtt: float
+    rtt: float  # the round trip less the wait the robot could see (its own sockets' queue)
     crossed: int  # bytes handed over before the probe left: they have crossed the path now
 
 
@@ -77,6 +77,7 @@ class PathMeter:
     overused: int = 0  # decreases so far (state/link and tests read it)
     _sent_at: float | None = None  # the probe out, if any: when it left
     _sent_handed: int = 0  # and the bytes handed over before it
+    _sent_visible: float = 0.0  # and the wait ahead of it that the robot's own sockets showed, s
     _last_sent: float = float("-inf")
     _crossed: int = 0  # bytes known to have crossed the path
     _recent: deque[_Answer] = field(default_factory=deque)  # answers of the last PEAK_WINDOW
@@ -90,15 +91,19 @@ class PathMeter:
         """True when a probe should leave now: none is out and the last left PROBE_PERIOD ago."""
         return self._sent_at is None and now - self._last_sent >= PROBE_PERIOD
 
-    def probe_sent(self, now: float, handed: int) -> None:
-        """A probe left at ``now``; ``handed``: the bytes handed over before it (all connections)."""
+    def probe_sent(self, now: float, handed: int, visible: float = 0.0) -> None:
+        """A probe left at ``now``; ``handed``: the bytes handed over before it (all connections); ``visible``:
+        the seconds it will wait behind what the robot's own sockets hold (the socket's controller keeps that
+        queue at its target already: this meter steers only by what is hidden beyond it)."""
         self._sent_at, self._sent_handed, self._last_sent = now, handed, now
+        self._sent_visible = max(0.0, visible)
 
     def probe_answered(self, now: float) -> float | None:
         """The probe out was answered at ``now``: its round trip (None if no probe was out)."""
         if self._sent_at is None:
             return None
-        rtt = max(0.0, now - self._sent_at)
+        raw = max(0.0, now - self._sent_at)
+        rtt = max(0.0, raw - self._sent_visible)
         self._sent_at = None
         self._crossed = max(self._crossed, self._sent_handed)
         self.answers += 1
@@ -118,7 +123,7 @@ class PathMeter:
         while self._rates and now - self._rates[0][0] > PEAK_WINDOW:
             self._rates.popleft()
         self.update(now, answered=True)
-        return rtt
+        return raw
 
     def reset(self, handed: int) -> None:
         """A new connection: the probe out is lost with the old one; what was handed over so far counts as
@@ -145,16 +150,24 @@ class PathMeter:
         when that is longer (a queue, or a dead spot, that grows before the probe's answer shows it)."""
         last = [a.rtt for a in list(self._recent)[-CURRENT_SAMPLES:]]
         answered = min(last) if last else self.base_rtt
-        overdue = now - self._sent_at if self._sent_at is not None else 0.0
+        overdue = now - self._sent_at - self._sent_visible if self._sent_at is not None else 0.0
         return max(answered, overdue)
 
     def queue_delay(self, now: float) -> float:
         """Seconds of queue in the path now: current − base (0 before the first answer)."""
         return max(0.0, self.current_rtt(now) - self.base_rtt) if self.measured else 0.0
 
-    def in_flight(self, handed: int) -> int:
-        """Bytes handed over and not yet known to have crossed the path (``handed``: the running total now)."""
-        return max(0, handed - self._crossed)
+    def in_flight(self, handed: int, now: float | None = None) -> int:
+        """Bytes handed over and not yet known to have crossed the path (``handed``: the running total now).
+
+        With ``now``: less what crossed at the rate since the last answer, for at most one probe period and base
+        round trip (the answers come that far apart: without it the path would idle between them); a probe
+        overdue beyond that earns nothing more, so a dead spot is not filled behind."""
+        unconfirmed = max(0, handed - self._crossed)
+        if now is None or not self._recent:
+            return unconfirmed
+        since = min(max(0.0, now - self._recent[-1].at), PROBE_PERIOD + self.base_rtt)
+        return max(0, unconfirmed - int(self.rate * since))
 
     def _rate_over(self, until: float) -> float | None:
         """Bytes/s that crossed between the answers of the RATE_WINDOW before ``until``, or between the last two
@@ -190,7 +203,7 @@ class PathMeter:
             # before cutting again, since a cut shows only after one: one queue is not punished twice.
             hold = "answer" if answered else "overdue"
             if now >= self._holds.get(hold, float("-inf")):
-                delivered = self.delivered_rate() if answered else None
+                delivered = self.delivered_rate() if answered else self._overdue_bound(now)
                 basis = min(self.rate, delivered) if delivered is not None else self.rate
                 self.rate = max(MIN_RATE, DECREASE * basis)
                 self._holds[hold] = now + self.current_rtt(now)
@@ -212,6 +225,16 @@ class PathMeter:
         else:
             self._grown_at = now  # hold: no growth is owed for the time spent near the target
         return self.rate
+
+    def _overdue_bound(self, now: float) -> float | None:
+        """The most the path can be delivering while a probe is out: the bytes handed over before it and not yet
+        known to have crossed, over the time it has waited beyond the base round trip (they have not all crossed,
+        or it would be answered). None while that says nothing."""
+        if self._sent_at is None:
+            return None
+        waited = now - self._sent_at - self._sent_visible - self.base_rtt
+        ahead = self._sent_handed - self._crossed
+        return ahead / waited if waited > 0 and ahead > 0 else None
 
     def budget(self, now: float) -> int:
         """Bytes the path may hold at the rate: one base round trip plus the target's worth of queue."""

@@ -27,14 +27,26 @@ from typing import Any
 
 from .. import netstat
 from ..config import Priority
-from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, StreamReport
+from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, PathReport, StreamReport
 from .link import MqttLink
+from .path_meter import PROBE_PERIOD, PathMeter
 from .spool import Spool
-from .uplink import TARGET_DELAY, LinkMeter, Outgoing, Stream, UplinkScheduler
+from .uplink import (
+    INITIAL_RATE,
+    MAX_BUDGET,
+    MIN_BUDGET,
+    TARGET_DELAY,
+    LinkMeter,
+    Outgoing,
+    Stream,
+    UplinkScheduler,
+    wire_size,
+)
 
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
+SOCKET_SEEN = 5.0  # s: the socket steers while it showed the link full this recently (socket_steers)
 
 
 def raw_socket(client: Any) -> socket.socket | None:
@@ -99,6 +111,12 @@ class Uplink:
         main.queue_delay = self.queue_delay
         self.scheduler = UplinkScheduler()
         self.meter = LinkMeter(target_delay=target_delay)
+        # the path end to end (a hop may acknowledge at once and hide the queue from the socket): probes on the
+        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock
+        self.path = PathMeter(target_delay=target_delay, rate=INITIAL_RATE)
+        self.handed = 0  # bytes handed to any of the bridge's connections so far
+        self._socket_steers = True  # see socket_steers(): updated by the sender thread
+        main.on_pong = self._pong
         self.lock = threading.Condition()
         self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
         self._stopped = False
@@ -113,10 +131,62 @@ class Uplink:
 
     def queue_delay(self) -> float:
         """Seconds a message handed to the main connection now waits before the broker has it: everything the
-        bridge's connections hold in the network, at the measured rate (a modem's queue is first in, first out)."""
-        held = paho_unsent(self.main.link.client) + sum(kernel_unsent(raw_socket(lane.link.client))
+        bridge's connections hold in the network, at the measured rate (a modem's queue is first in, first out),
+        and the queue the path's probes find beyond it (hidden behind a hop)."""
+        with self.lock:
+            return self._visible_delay(self._held()) + self.path.queue_delay(time.monotonic())
+
+    def _held(self) -> int:
+        """Bytes the robot's own sockets and paho hold: the queue the robot can see."""
+        return paho_unsent(self.main.link.client) + sum(kernel_unsent(raw_socket(lane.link.client))
                                                         for lane in self.lanes)
-        return held / self.meter.rate if held else 0.0
+
+    def _visible_delay(self, held: int) -> float:
+        return held / self.rate() if held else 0.0
+
+    # -- the rate: the socket's and the path's view ----------------------------------------------------------
+    def socket_steers(self, now: float) -> bool:
+        """True while the robot's own socket shows the link's queue (a window found bytes waiting at every look
+        within SOCKET_SEEN s: a modem or router whose queue backs up into the robot), or no probe has been
+        answered yet: then the socket's measurement steers, as it always did. Else the queue, if any, is hidden
+        beyond the socket and the path's probes steer."""
+        return not self.path.measured or now - self.meter.full_at < SOCKET_SEEN
+
+    def rate(self) -> float:
+        """Bytes/s the uplink may send (the lock is held): the socket's measurement while it sees the queue, the
+        path's otherwise (:meth:`socket_steers`)."""
+        return self.meter.rate if self._socket_steers else self.path.rate
+
+    def budget(self) -> int:
+        """Bytes the bridge lets wait in its sockets: rate × (the kernel's round trip + target delay)."""
+        return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate() * (self.meter.min_rtt + self.meter.target_delay))))
+
+    def path_budget(self) -> int:
+        """Bytes the bridge lets be on the way beyond its sockets: rate × (the path's base round trip + target
+        delay): what keeps the path busy, and at most the target's worth of queue behind a hop that hides it."""
+        rtt = self.path.base_rtt
+        return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate() * (rtt + self.meter.target_delay))))
+
+    def _steer(self, now: float) -> None:
+        """Which view steers now; while the socket does, the path's rate follows the socket's, so that the path
+        takes over from a rate that is true when the queue moves out of sight (the lock is held)."""
+        self._socket_steers = self.socket_steers(now)
+        if self._socket_steers:
+            self.path.rate = self.meter.rate
+
+    def _pong(self, now: float) -> None:
+        """A probe's answer (paho's thread)."""
+        with self.lock:
+            self.path.probe_answered(now)
+            self.lock.notify()  # room may have opened: what waits goes now
+
+    def _probe(self, now: float) -> None:
+        """Send the next probe when one is due (the lock is held)."""
+        if self.fifo or not self.path.probe_due(now):
+            return
+        visible = self._visible_delay(self._held())  # read before the probe is queued behind it
+        if self.main.link.ping():
+            self.path.probe_sent(now, self.handed, visible)
 
     def _add_lane(self, link: MqttLink, tier: int) -> Lane:
         lane = Lane(link, len(self.lanes), tier, paced=True)
@@ -177,6 +247,7 @@ class Uplink:
                     return
                 stream.sent += 1
                 stream.bytes_sent += len(payload) + len(topic) + 4
+                self.handed += wire_size(topic, payload, qos)
             if self.main.link.publish(topic, payload, qos, retain) is None and not self.main.link.connected.is_set():
                 with self.lock:
                     self._keep(stream, topic, payload, qos)  # the connection went just now (buffered streams)
@@ -200,6 +271,7 @@ class Uplink:
                 stream.offered += 1
                 stream.sent += 1
                 stream.bytes_sent += message.size
+                self.handed += message.size
                 if lane.paced:
                     lane.credit -= message.size
                 if lane.link.publish(topic, payload, qos, retain) is None and not lane.link.connected.is_set():
@@ -239,16 +311,20 @@ class Uplink:
     def _blocked(self, lane: Lane, handed: int) -> str | None:
         """Why ``lane`` may not take another message now (None: it may); ``handed``: bytes given to it in this
         round already. "network": its bytes wait in the network; "allowance": a paced lane used its share."""
+        budget = self.budget()
+        if not self._socket_steers and \
+                self.path.in_flight(self.handed, time.monotonic()) - self._held() >= self.path_budget():
+            return "network"  # beyond the robot's sockets the path holds the budget already (a hidden queue)
         if not lane.paced:
-            return "network" if self.unsent(lane) + handed >= self.meter.budget else None
-        if handed or paho_unsent(lane.link.client) or kernel_unsent(raw_socket(lane.link.client)) >= self.meter.budget:
+            return "network" if self.unsent(lane) + handed >= budget else None
+        if handed or paho_unsent(lane.link.client) or kernel_unsent(raw_socket(lane.link.client)) >= budget:
             return "network"
         return "allowance" if lane.credit < 0 else None
 
     def _refill(self, lane: Lane, now: float) -> None:
         if lane.paced:
-            allowance = self.meter.allowance(lane.index, self._tiers)
-            lane.credit = min(float(self.meter.budget), lane.credit + allowance * max(0.0, now - lane.refilled))
+            allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate())
+            lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
 
     # -- the sender thread ----------------------------------------------------------------------------------
@@ -257,9 +333,13 @@ class Uplink:
             with self.lock:
                 if self._stopped:
                     return
-                self.lock.wait(POLL if self.scheduler or self._draining else 0.25)
+                self.lock.wait(POLL if self.scheduler or self._draining else PROBE_PERIOD / 2)
                 now = time.monotonic()
                 try:
+                    if self.main.link.connected.is_set():
+                        self._probe(now)
+                        self.path.update(now)
+                        self._steer(now)
                     self._pump(now)
                     report = self.report(now) if now - self._reported >= LINK_REPORT_PERIOD else None
                 except Exception:  # a bug here must not silence the robot's state for good
@@ -282,9 +362,13 @@ class Uplink:
             streams[label] = StreamReport(stream.priority.name.lower(), stream.latest_only,
                                           round(offered / period, 2), round(sent / period, 2), superseded, dropped,
                                           max_rate, round(sent_bytes * 8 / 1000 / period, 1))
-        meter = self.meter
-        return LinkReport("fifo" if self.fifo else "scheduled", round(meter.rate * 8 / 1000, 1), meter.measured,
-                          meter.budget, round(meter.min_rtt * 1000, 2), round(period, 2), streams)
+        meter, path = self.meter, self.path
+        measured = meter.measured or path.measured
+        return LinkReport("fifo" if self.fifo else "scheduled", round(self.rate() * 8 / 1000, 1), measured,
+                          self.budget(), round(meter.min_rtt * 1000, 2), round(period, 2), streams,
+                          path=PathReport(round(path.base_rtt * 1000, 1), round(path.current_rtt(now) * 1000, 1),
+                                          round(path.queue_delay(now) * 1000, 1), round(path.rate * 8 / 1000, 1),
+                                          path.overused) if path.measured else None)
 
     def _pump(self, now: float) -> None:
         """Hand over what waits, the highest class first, then the stream waiting longest. A full main connection
@@ -319,6 +403,7 @@ class Uplink:
                         not lane.link.connected.is_set():
                     self._keep(stream, message.topic, message.payload, message.qos)  # went just now (buffered)
                 handed[lane.index] = handed.get(lane.index, 0) + message.size
+                self.handed += message.size
                 if lane.paced:
                     lane.credit -= message.size
                 progress = True
@@ -343,6 +428,7 @@ class Uplink:
                     self.spool.unread()  # the connection went just now: it stays on disk for the next one
                     break
                 handed[lane.index] = handed.get(lane.index, 0) + len(record.payload)
+                self.handed += wire_size(record.topic, record.payload, record.qos)
                 if lane.paced:
                     lane.credit -= len(record.payload)
                 sent += 1
@@ -356,6 +442,7 @@ class Uplink:
         """Feed the meter every lane's delivered bytes; resize the paced lanes' buffers when a window closes."""
         if not self.main.link.connected.is_set():
             self.meter.reset()
+            self.path.reset(self.handed)
             return
         acked: list[int] = []
         min_rtt, queued = None, 0
@@ -375,10 +462,15 @@ class Uplink:
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)
+        # the paced lanes' buffers follow the budget as the path's rate moves too
+        elif self.path.measured:
+            for lane in self.lanes:
+                if lane.paced:
+                    self._size_buffer(lane)
 
     def _size_buffer(self, lane: Lane, sock: socket.socket | None = None) -> None:
         """A paced lane's send buffer ≈ the budget (the kernel doubles what it is given)."""
-        size = max(2048, self.meter.budget // 2)
+        size = max(2048, self.budget() // 2)
         if sock is None:
             if size == lane.sndbuf:
                 return

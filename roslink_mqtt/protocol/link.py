@@ -62,6 +62,33 @@ class StreamReport:
 
 
 @dataclass(frozen=True, slots=True)
+class PathReport:
+    """The uplink end to end (bridge/path_meter.py): round trips of probes answered through the broker."""
+
+    base_ms: float  # the least round trip lately: the path with empty queues
+    rtt_ms: float  # the round trip a message meets now
+    queue_ms: float  # rtt − base: what waits in the path, seen or hidden from the robot's socket
+    rate_kbit_s: float  # what the path's answers allow
+    cuts: int = 0  # times the rate was cut since the bridge started (a queue past the target)
+
+    FIELDS = (  # documented in LinkReport's `path`
+        BodyField("base_ms", Number(), True, "the least round trip lately"),
+        BodyField("rtt_ms", Number(), True, "the round trip now"),
+        BodyField("queue_ms", Number(), True, "rtt − base"),
+        BodyField("rate_kbit_s", Number(), True, "the path's rate"),
+        BodyField("cuts", Integer(0), False, "rate cuts so far", 0),
+    )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"base_ms": self.base_ms, "rtt_ms": self.rtt_ms, "queue_ms": self.queue_ms,
+                "rate_kbit_s": self.rate_kbit_s, "cuts": self.cuts}
+
+    @classmethod
+    def from_dict(cls, body: Any) -> PathReport:
+        return cls(**read(cls.FIELDS, body, shape="path: expected an object", strict=False, what="path"))
+
+
+@dataclass(frozen=True, slots=True)
 class LinkReport:
     """Retained on ``state/link`` by the bridge: its uplink over the last period (read by every granted user)."""
 
@@ -72,6 +99,7 @@ class LinkReport:
     rtt_ms: float
     period: float  # s the rates and counts cover
     streams: dict[str, StreamReport] = field(default_factory=dict)
+    path: PathReport | None = None  # None until the path's probes are answered (and with `uplink: fifo`)
 
     FIELDS = (
         BodyField("mode", Choice(UPLINK_MODES), True, "the bridge's `uplink` setting"),
@@ -87,20 +115,31 @@ class LinkReport:
                                           "rule produced, after `max_rate`), `sent_hz`, `superseded` and "
                                           "`dropped` (counts in the period), `kbit_s` sent, and `max_rate` "
                                           "when the rule has one", {}),
+        BodyField("path", Nullable(Obj()), False, "the uplink end to end, from probes the broker answers (PINGREQ → "
+                                                  "PINGRESP): `base_ms` (the least round trip lately), `rtt_ms` (now), "
+                                                  "`queue_ms` (rtt − base: what waits in the path, also behind hops "
+                                                  "that hide it from the robot), `rate_kbit_s` (what the path "
+                                                  "allows) and `cuts` (rate cuts so far); absent before the first "
+                                                  "answer", None),
     )
     QOS = 0  # a snapshot, replaced every period
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return orjson.dumps({"mode": self.mode, "rate_kbit_s": self.rate_kbit_s, "measured": self.measured,
-                             "budget_bytes": self.budget_bytes, "rtt_ms": self.rtt_ms, "period": self.period,
-                             "streams": {n: s.to_dict() for n, s in self.streams.items()}})
+        out: dict[str, Any] = {"mode": self.mode, "rate_kbit_s": self.rate_kbit_s, "measured": self.measured,
+                               "budget_bytes": self.budget_bytes, "rtt_ms": self.rtt_ms, "period": self.period,
+                               "streams": {n: s.to_dict() for n, s in self.streams.items()}}
+        if self.path is not None:
+            out["path"] = self.path.to_dict()
+        return orjson.dumps(out)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LinkReport:
         got = read(cls.FIELDS, data, shape='expected a JSON object {"mode": "scheduled", "rate_kbit_s": 240, …}',
                    strict=False, what="link report")
         got["streams"] = {str(n): StreamReport.from_dict(str(n), s) for n, s in got["streams"].items()}
+        if got.get("path") is not None:
+            got["path"] = PathReport.from_dict(got["path"])
         return cls(**got)
 
     def summary(self) -> str:

@@ -146,7 +146,10 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
                                drove_at - applied.planned, 3.0)
             record_measurement(f"fleet apply ({kind}): a new user drives, from the command's start (Python "
                                "included)", drove_at - applied.started, 3.0)
-            assert drove_at - applied.started < 3.0
+            # the product's share (after the plan was printed) at the target; the whole including the CLI's Python
+            # start-up only at a generous deadline: on a busy machine imports alone take seconds (issue 47)
+            assert drove_at - applied.planned < 3.0
+            assert drove_at - applied.started < 10.0
 
             # 2. alice loses turtle1 while she drives: the broker drops her connection and her publishes, the bridge
             #    stops the robot at once (not the dead-man's timeout later)

@@ -73,6 +73,7 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
     types_names = {"odom": "nav_msgs/msg/Odometry", "scan": "sensor_msgs/msg/LaserScan",
                    "cmd_vel": "geometry_msgs/msg/Twist"}
     times: dict[str, list[int]] = defaultdict(list)
+    driven: list[float] = []
     with out.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         assert reader.get_header().profile == "ros2"
@@ -82,9 +83,14 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
             if channel.topic == "odom":
                 assert decoded.pose.pose.position.x == pytest.approx(native.pose.pose.position.x)
             if channel.topic == "cmd_vel":
-                assert native.linear.x == pytest.approx(0.2) and decoded.linear.x == pytest.approx(0.2)
+                # alice's twists; a zero only where the bridge stopped the robot (a busy machine may starve her
+                # 10 Hz loop past the dead-man's second: the stop is then in the bag too, as it happened)
+                assert native.linear.x == pytest.approx(decoded.linear.x)
+                assert native.linear.x == pytest.approx(0.2) or native.linear.x == 0.0, native
+                driven.append(native.linear.x)
             times[channel.topic].append(message.log_time)
     assert set(times) == {"odom", "scan", "cmd_vel"}, set(times)
+    assert sum(1 for x in driven if x) >= len(driven) / 2, driven  # mostly her 0.2 m/s
     for topic, stamps in times.items():
         assert stamps == sorted(stamps), f"{topic}: log times go back"
     for topic, rate in RATES.items():

@@ -44,8 +44,9 @@ MEASURE = 4.0  # s of flood measured, after the first pose arrived
 HEARTBEAT_GAP_LINE = DEFAULT_STALE_AFTER - 1.0  # s: a viewer still sees the robot online, with a second to spare
 
 
-def _scene(tmp_path, mode: str) -> dict:
-    """Flood the robot for MEASURE s; what bob and a service caller saw."""
+def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE) -> dict:
+    """Flood the robot for ``measure`` s; what bob and a service caller saw. ``link_args``: more options of the
+    shaped link (``--hidden-queue``)."""
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CompressedImage
     from std_msgs.msg import String
@@ -58,7 +59,7 @@ def _scene(tmp_path, mode: str) -> dict:
         link_port = free_port()
         with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
                   f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", str(UPLINK_KBIT),
-                  "--down-kbit", "1024"], tmp_path / "link.log"), \
+                  "--down-kbit", "1024", *link_args], tmp_path / "link.log"), \
                 run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
                      f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
                 TestClient(broker.port, "bob", "bob-demo") as bob:
@@ -115,7 +116,7 @@ def _scene(tmp_path, mode: str) -> dict:
                 recording.set()
                 began = len(seen["poses"])
                 with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{broker.port}") as caller:
-                    end = time.monotonic() + MEASURE
+                    end = time.monotonic() + measure
                     while time.monotonic() < end:
                         t0 = time.monotonic()
                         try:

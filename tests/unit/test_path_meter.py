@@ -116,7 +116,7 @@ def run_loop(capacity: Callable[[float], float], seconds: float, *, demand: floa
             meter.probe_sent(t, handed)
             path.send(t, 2, probe=True)
         credit = min(credit + demand * dt, 4 * message)
-        while credit >= message and meter.in_flight(handed) < meter.budget(t):
+        while credit >= message and meter.in_flight(handed, t) < meter.budget(t):
             path.send(t, message)
             handed += message
             credit -= message

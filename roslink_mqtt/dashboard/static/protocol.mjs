@@ -1116,6 +1116,18 @@ export const ROSLINK = {
           "kind": "object",
           "max": null
         }
+      },
+      {
+        "default": null,
+        "name": "path",
+        "required": false,
+        "spec": {
+          "inner": {
+            "kind": "object",
+            "max": null
+          },
+          "kind": "nullable"
+        }
       }
     ],
     "log_line": [
