@@ -46,7 +46,7 @@ from .uplink import (
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
-SOCKET_SEEN = 5.0  # s: the socket steers while it showed the link full this recently (socket_steers)
+HIDDEN_SEEN = 10.0  # s: the path steers while its probes found a hidden queue this recently (socket_steers)
 
 
 def raw_socket(client: Any) -> socket.socket | None:
@@ -116,6 +116,7 @@ class Uplink:
         self.path = PathMeter(target_delay=target_delay, rate=INITIAL_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
         self._socket_steers = True  # see socket_steers(): updated by the sender thread
+        self._hidden_at = float("-inf")  # when the path's probes last found a queue the socket did not show
         main.on_pong = self._pong
         self.lock = threading.Condition()
         self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
@@ -146,11 +147,12 @@ class Uplink:
 
     # -- the rate: the socket's and the path's view ----------------------------------------------------------
     def socket_steers(self, now: float) -> bool:
-        """True while the robot's own socket shows the link's queue (a window found bytes waiting at every look
-        within SOCKET_SEEN s: a modem or router whose queue backs up into the robot), or no probe has been
-        answered yet: then the socket's measurement steers, as it always did. Else the queue, if any, is hidden
-        beyond the socket and the path's probes steer."""
-        return not self.path.measured or now - self.meter.full_at < SOCKET_SEEN
+        """The socket's measurement steers, as it always did, unless the path's probes found a queue the socket
+        cannot see (queueing beyond the robot's sockets over the target, within HIDDEN_SEEN s). So a link whose
+        queue the robot sees (a modem or router whose queue backs up into the robot), or one with room, is steered
+        exactly as before; the path takes over where a hop hides the queue, also once that hop's buffer is full
+        and its backlog shows in the socket too (the socket would keep the hidden part full for good)."""
+        return now - self._hidden_at >= HIDDEN_SEEN
 
     def rate(self) -> float:
         """Bytes/s the uplink may send (the lock is held): the socket's measurement while it sees the queue, the
@@ -169,7 +171,9 @@ class Uplink:
 
     def _steer(self, now: float) -> None:
         """Which view steers now; while the socket does, the path's rate follows the socket's, so that the path
-        takes over from a rate that is true when the queue moves out of sight (the lock is held)."""
+        takes over from the rate the socket found (the lock is held)."""
+        if self.path.measured and self.path.queue_delay(now) > self.meter.target_delay:
+            self._hidden_at = now
         self._socket_steers = self.socket_steers(now)
         if self._socket_steers:
             self.path.rate = self.meter.rate

@@ -554,3 +554,4 @@ def test_a_snapshot_broken_by_a_link_outage_resumes_and_arrives_whole(tmp_path) 
     assert messages == snap.messages >= 100, snap.messages
     assert snap.resumes >= 1, "the outage cost no chunk? (the transfer was not broken)"
     record_measurement(f"snapshot over {SNAPSHOT_KBIT} kbit/s with a 1 s outage ({snap.resumes} resumes)", took, 120.0)
+
