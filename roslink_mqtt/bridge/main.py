@@ -179,6 +179,17 @@ def main(argv: list[str] | None = None) -> int:
 
     args = parse_args(without_ros_args(argv)[1:])
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # Ctrl-C or SIGTERM while the bridge starts (loading ROS takes seconds on a busy machine) ends the start
+    # cleanly, once nothing half-made is left: no traceback from inside rclpy. From the main loop on, the same
+    # flag makes the clean shutdown (zero velocity, offline heartbeat).
+    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
+
+    def on_signal(flag: threading.Event) -> None:
+        flag.set()
+        wake.set()
+
+    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
+    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
     import importlib.util
 
     if importlib.util.find_spec("rclpy") is None:
@@ -212,17 +223,8 @@ def main(argv: list[str] | None = None) -> int:
                                 Path(args.config).resolve().parent)
     from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, EXIT_LOGIN_REFUSED, Verdict
 
-    # Ctrl-C or SIGTERM while the bridge starts (loading ROS takes seconds on a busy machine) ends the start
-    # cleanly, once nothing half-made is left: no traceback from inside rclpy. From the main loop on, the same
-    # flag makes the clean shutdown (zero velocity, offline heartbeat).
-    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
-
-    def on_signal(flag: threading.Event) -> None:
-        flag.set()
-        wake.set()
-
-    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
-    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
+    if stopping.is_set():
+        return 0  # stopped before anything was made
     check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
                        fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
     check.start()  # meanwhile, rclpy loads and ROS starts
@@ -255,9 +257,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     # Only now, with ROS set up meanwhile, does the bridge need the start check's answer: nothing has reached the
     # broker or ROS's actuators yet.
-    check.join()
+    while check.is_alive() and not stopping.is_set():  # a Ctrl-C need not wait for the check (a daemon thread)
+        check.join(0.1)
     log = logging.getLogger("roslink_mqtt.bridge")
-    if check.result.verdict is Verdict.REFUSE or stopping.is_set():
+    if stopping.is_set() or check.result.verdict is Verdict.REFUSE:
         if stopping.is_set():
             log.info("stopped while starting: nothing was connected yet")
         else:
