@@ -217,7 +217,6 @@ class LinkMeter:
     target_delay: float = TARGET_DELAY  # s (robots.yaml bridge.uplink_target_delay)
     min_rtt: float = 0.0  # s, as the kernel measured it
     measured: bool = False  # a capacity measurement has been made
-    full_at: float = float("-inf")  # when a window last found bytes waiting in the socket at every look
     lane_rates: list[float] = field(default_factory=list)  # bytes/s each lane delivered in the last window
     lane_demand: list[float] = field(default_factory=list)  # bytes/s offered to each lane in the last window
     _since: float | None = None
@@ -229,17 +228,16 @@ class LinkMeter:
     def budget(self) -> int:
         return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate * (self.min_rtt + self.target_delay))))
 
-    def allowance(self, lane: int, tiers: Sequence[int] | None = None, rate: float | None = None) -> float:
+    def allowance(self, lane: int, tiers: Sequence[int] | None = None) -> float:
         """Bytes/s lane ``lane`` may hand over: what the lanes of earlier tiers (``tiers[i]`` is lane i's; by
-        default each lane its own tier) need, taken from PROBE × rate, shared by the busy lanes of its tier.
-        ``rate``: the uplink's rate where it is not this meter's own (the path's, bridge/path_meter.py)."""
+        default each lane its own tier) need, taken from PROBE × rate, shared by the busy lanes of its tier."""
         tiers = tiers if tiers is not None else range(len(self.lane_rates))
         rates = self.lane_rates + [0.0] * (len(tiers) - len(self.lane_rates))
         demand = self.lane_demand + [0.0] * (len(tiers) - len(self.lane_demand))
         mine = tiers[lane] if lane < len(tiers) else lane
         need = sum(max(rates[i], demand[i]) for i, tier in enumerate(tiers) if tier < mine)
         peers = sum(1 for i, tier in enumerate(tiers) if tier == mine and (demand[i] > 0 or i == lane))
-        return max(MIN_RATE, (PROBE * (self.rate if rate is None else rate) - need) / max(1, peers))
+        return max(MIN_RATE, (PROBE * self.rate - need) / max(1, peers))
 
     def sample(self, now: float, acked: tuple[int, ...], limited: bool, min_rtt: float | None = None,
                offered: tuple[int, ...] = ()) -> float | None:
@@ -261,7 +259,6 @@ class LinkMeter:
             self.lane_demand = [(a - b) / elapsed for a, b in zip(offered, self._offered, strict=True)]
         delivered = sum(self.lane_rates)
         if self._limited:
-            self.full_at = now
             self.rate = delivered if not self.measured else 0.5 * self.rate + 0.5 * delivered
             self.rate = max(self.rate, MIN_RATE)
             self.measured = True

@@ -46,7 +46,6 @@ from .uplink import (
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
-HIDDEN_SEEN = 10.0  # s: the path steers while its probes found a hidden queue this recently (socket_steers)
 
 
 def raw_socket(client: Any) -> socket.socket | None:
@@ -112,11 +111,10 @@ class Uplink:
         self.scheduler = UplinkScheduler()
         self.meter = LinkMeter(target_delay=target_delay)
         # the path end to end (a hop may acknowledge at once and hide the queue from the socket): probes on the
-        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock
+        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock. Measured
+        # and reported (state/link ``path``); the socket's meter steers
         self.path = PathMeter(target_delay=target_delay, rate=INITIAL_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
-        self._socket_steers = True  # see socket_steers(): updated by the sender thread
-        self._hidden_at = float("-inf")  # when the path's probes last found a queue the socket did not show
         main.on_pong = self._pong
         self.lock = threading.Condition()
         self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
@@ -145,44 +143,21 @@ class Uplink:
     def _visible_delay(self, held: int) -> float:
         return held / self.rate() if held else 0.0
 
-    # -- the rate: the socket's and the path's view ----------------------------------------------------------
-    def socket_steers(self, now: float) -> bool:
-        """The socket's measurement steers, as it always did, unless the path's probes found a queue the socket
-        cannot see (queueing beyond the robot's sockets over the target, within HIDDEN_SEEN s). So a link whose
-        queue the robot sees (a modem or router whose queue backs up into the robot), or one with room, is steered
-        exactly as before; the path takes over where a hop hides the queue, also once that hop's buffer is full
-        and its backlog shows in the socket too (the socket would keep the hidden part full for good)."""
-        return now - self._hidden_at >= HIDDEN_SEEN
-
+    # -- the rate -------------------------------------------------------------------------------------------
     def rate(self) -> float:
-        """Bytes/s the uplink may send (the lock is held): the socket's measurement while it sees the queue, the
-        path's otherwise (:meth:`socket_steers`)."""
-        return self.meter.rate if self._socket_steers else self.path.rate
+        """Bytes/s the uplink may send: the socket's measurement (:class:`.uplink.LinkMeter`). The path meter
+        measures the path end to end beside it and reports what it finds (``state/link``'s ``path``); steering by
+        it where a hop hides the queue (issue 42) is not yet reliable enough to switch on: docs/performance.md."""
+        return self.meter.rate
 
     def budget(self) -> int:
         """Bytes the bridge lets wait in its sockets: rate × (the kernel's round trip + target delay)."""
         return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate() * (self.meter.min_rtt + self.meter.target_delay))))
 
-    def path_budget(self) -> int:
-        """Bytes the bridge lets be on the way beyond its sockets: rate × (the path's base round trip + target
-        delay): what keeps the path busy, and at most the target's worth of queue behind a hop that hides it."""
-        rtt = self.path.base_rtt
-        return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate() * (rtt + self.meter.target_delay))))
-
-    def _steer(self, now: float) -> None:
-        """Which view steers now; while the socket does, the path's rate follows the socket's, so that the path
-        takes over from the rate the socket found (the lock is held)."""
-        if self.path.measured and self.path.queue_delay(now) > self.meter.target_delay:
-            self._hidden_at = now
-        self._socket_steers = self.socket_steers(now)
-        if self._socket_steers:
-            self.path.rate = self.meter.rate
-
     def _pong(self, now: float) -> None:
         """A probe's answer (paho's thread)."""
         with self.lock:
             self.path.probe_answered(now)
-            self.lock.notify()  # room may have opened: what waits goes now
 
     def _probe(self, now: float) -> None:
         """Send the next probe when one is due (the lock is held)."""
@@ -316,9 +291,6 @@ class Uplink:
         """Why ``lane`` may not take another message now (None: it may); ``handed``: bytes given to it in this
         round already. "network": its bytes wait in the network; "allowance": a paced lane used its share."""
         budget = self.budget()
-        if not self._socket_steers and \
-                self.path.in_flight(self.handed, time.monotonic()) - self._held() >= self.path_budget():
-            return "network"  # beyond the robot's sockets the path holds the budget already (a hidden queue)
         if not lane.paced:
             return "network" if self.unsent(lane) + handed >= budget else None
         if handed or paho_unsent(lane.link.client) or kernel_unsent(raw_socket(lane.link.client)) >= budget:
@@ -327,7 +299,7 @@ class Uplink:
 
     def _refill(self, lane: Lane, now: float) -> None:
         if lane.paced:
-            allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate())
+            allowance = self.meter.allowance(lane.index, self._tiers)
             lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
 
@@ -343,7 +315,6 @@ class Uplink:
                     if self.main.link.connected.is_set():
                         self._probe(now)
                         self.path.update(now)
-                        self._steer(now)
                     self._pump(now)
                     report = self.report(now) if now - self._reported >= LINK_REPORT_PERIOD else None
                 except Exception:  # a bug here must not silence the robot's state for good
@@ -367,8 +338,7 @@ class Uplink:
                                           round(offered / period, 2), round(sent / period, 2), superseded, dropped,
                                           max_rate, round(sent_bytes * 8 / 1000 / period, 1))
         meter, path = self.meter, self.path
-        measured = meter.measured or path.measured
-        return LinkReport("fifo" if self.fifo else "scheduled", round(self.rate() * 8 / 1000, 1), measured,
+        return LinkReport("fifo" if self.fifo else "scheduled", round(self.rate() * 8 / 1000, 1), meter.measured,
                           self.budget(), round(meter.min_rtt * 1000, 2), round(period, 2), streams,
                           path=PathReport(round(path.base_rtt * 1000, 1), round(path.current_rtt(now) * 1000, 1),
                                           round(path.queue_delay(now) * 1000, 1), round(path.rate * 8 / 1000, 1),
@@ -463,11 +433,6 @@ class Uplink:
             log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s", self.meter.rate,
                       "measured" if self.meter.measured else "assumed", self.meter.budget,
                       [round(r) for r in self.meter.lane_rates])
-            for lane in self.lanes:
-                if lane.paced:
-                    self._size_buffer(lane)
-        # the paced lanes' buffers follow the budget as the path's rate moves too
-        elif self.path.measured:
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)
