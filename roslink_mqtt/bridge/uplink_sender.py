@@ -33,8 +33,6 @@ from .path_meter import PROBE_PERIOD, PathMeter
 from .spool import Spool
 from .uplink import (
     INITIAL_RATE,
-    MAX_BUDGET,
-    MIN_BUDGET,
     TARGET_DELAY,
     LinkMeter,
     Outgoing,
@@ -152,7 +150,7 @@ class Uplink:
 
     def budget(self) -> int:
         """Bytes the bridge lets wait in its sockets: rate × (the kernel's round trip + target delay)."""
-        return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate() * (self.meter.min_rtt + self.meter.target_delay))))
+        return self.meter.budget
 
     def _pong(self, now: float) -> None:
         """A probe's answer (paho's thread)."""
