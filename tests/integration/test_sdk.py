@@ -179,11 +179,18 @@ def test_robots_and_typed_state(stack) -> None:
 
 
 def test_twist_reaches_ros_cmd_vel(stack) -> None:
+    """Streamed at 10 Hz as an operator drives, until one arrives: a bridge starved of the CPU may rightly drop a
+    command that waited too long inside it, but a live stream must get through."""
     t0 = time.monotonic()
-    for _ in range(10):
+    deadline = t0 + 15
+    msg = None
+    while msg is None and time.monotonic() < deadline:
         stack.alice.twist("turtle1", lx=0.3, az=0.2)
-        time.sleep(0.1)
-    _, msg = stack.cmd_vel.wait_for(lambda m: m.linear.x > 0, after=t0, timeout=5)
+        try:
+            _, msg = stack.cmd_vel.wait_for(lambda m: m.linear.x > 0, after=t0, timeout=0.1)
+        except TimeoutError:
+            pass
+    assert msg is not None, f"no twist reached /cmd_vel in 15 s; alice was told: {list(stack.alice.recent_errors)}"
     assert msg.linear.x == pytest.approx(0.3) and msg.angular.z == pytest.approx(0.2)
 
 
