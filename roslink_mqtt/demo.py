@@ -27,7 +27,7 @@ import orjson
 
 from .config import load_fleet
 from .fastdds_shm import remove_zombie_segments
-from .localproc import ChildExited, LocalProcess, free_port, listener_of, port_free, start_child, tail
+from .localproc import ChildExited, LocalProcess, can_listen, free_port, listener_of, start_child, tail
 from .mqtt import make_client
 from .presence import operator_heartbeat
 from .protocol import MessageId, ProtocolError, decode
@@ -202,10 +202,10 @@ class ChildWatch:
 
 def _pick_port(wanted: int, what: str) -> int:
     """``wanted`` when free; otherwise another port, saying plainly who holds ``wanted``."""
-    if port_free(wanted):
+    if can_listen(wanted):  # as the broker binds: a port in TIME_WAIT after the last demo is free
         return wanted
     port = free_port()
-    holder = listener_of(wanted) or "a process in TIME_WAIT or not visible here"
+    holder = listener_of(wanted) or "a process this user cannot see"
     print(f"demo: port {wanted} ({what}) is taken by {holder}\n"
           f"      an earlier demo still running? This demo uses port {port} instead: commands that name "
           f"127.0.0.1:{wanted} reach the other one.", flush=True)

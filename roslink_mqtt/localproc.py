@@ -73,8 +73,23 @@ def free_port(host: str = LOOPBACK) -> int:
         return s.getsockname()[1]
 
 
+def can_listen(port: int, host: str = LOOPBACK) -> bool:
+    """Whether a server could listen on ``host``:``port`` now, binding the way servers do: with ``SO_REUSEADDR``
+    (asyncio, amqtt, Mosquitto, Python's HTTP servers), so a port whose last connections are in TIME_WAIT counts
+    as free, as it is for them. The one check used before starting a server (the demo, the broker's error)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def port_free(port: int, host: str = LOOPBACK) -> bool:
-    """Whether ``port`` can be bound on ``host`` right now."""
+    """Whether ``port`` can be bound on ``host`` right now without ``SO_REUSEADDR`` (stricter than
+    :func:`can_listen`: free of TIME_WAIT too, so any server, whatever its options, can take it)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         try:
             s.bind((host, port))

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import errno
 import logging
-import socket
 import ssl
 import time
 from dataclasses import dataclass, field, replace
@@ -21,6 +20,7 @@ from amqtt.errors import BrokerError
 
 from ..config import ConfigError, Fleet, TlsSettings, load_fleet
 from ..config.grants import grants_of
+from ..localproc import can_listen
 from .acl import LiveFleet, TopicPolicy
 from .admin import FleetControl
 from .hardened import CONNECT_TIMEOUT, HardenedBroker
@@ -221,11 +221,4 @@ class EmbeddedBroker:
 
 
 def _bindable(host: str, port: int) -> bool:
-    family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # what asyncio does: TIME_WAIT is no conflict
-        try:
-            s.bind((host, port))
-        except OSError:
-            return False
-    return True
+    return can_listen(port, host)
