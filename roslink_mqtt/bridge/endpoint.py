@@ -380,7 +380,8 @@ class CommandEndpoint:
         with self.lock:
             gone = not self.operators.record(user, client_id, presence, time.monotonic())
             if gone:
-                self._lease_ends(user, "signed off" if presence is Presence.SIGNED_OFF else "last-will")
+                if not self.operators.is_live(user):  # the lease is the user's: it ends with their last client
+                    self._lease_ends(user, "signed off" if presence is Presence.SIGNED_OFF else "last-will")
                 why = self.failsafe.operator_gone(user)
                 if why and presence is Presence.SIGNED_OFF:
                     # a program that finished: the robot stops all the same, but nothing failed (result 0, INFO)
@@ -490,7 +491,8 @@ class CommandEndpoint:
             self._check_link(now)
             expired = self.operators.expire(now)
             for user in expired:
-                self._lease_ends(user, f"no heartbeat for {self.operators.timeout:g} s")
+                if not self.operators.is_live(user):
+                    self._lease_ends(user, f"no heartbeat for {self.operators.timeout:g} s")
                 why = self.failsafe.operator_gone(user)
                 if why:
                     self.trigger_stop(f"{why} (no heartbeat for {self.operators.timeout:g} s)")

@@ -8,7 +8,8 @@ interleaved. Now:
   operator with live presence claims a free lease too, so a single driver never notices the lease;
 * anyone else's command is refused with the holder's name; ``control/take_over`` moves the lease explicitly (the
   robot stops, and the old holder is told at once);
-* the lease ends with the holder's presence (last-will, sign-off, silence) or grant, and with ``control/release``;
+* the lease is the user's: it ends with the holder's last live client (last-will, sign-off, silence), their grant,
+  or ``control/release``; one of their programs ending stops the robot (failsafe) but leaves the lease;
 * ``supervisors`` (robots.yaml) take over by claiming, and nobody but another supervisor takes their lease;
 * emergency stops, read-only services, actions open to viewers, parameter reads and all viewing need no lease
   (the endpoint decides which inputs ask here).

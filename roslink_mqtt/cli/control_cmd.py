@@ -21,8 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "control at a time. `claim` takes it when nobody holds it, `take-over` takes it "
                                    "from its holder (the robot stops and the holder is told), `release` gives it "
                                    "back, `status` says who holds it. `claim` and `take-over` hold control until "
-                                   "Ctrl-C (the lease ends with this command's presence), and exit 1 if someone "
-                                   "takes it over meanwhile.")
+                                   "Ctrl-C, which releases it, and exit 1 if someone takes it over meanwhile. The "
+                                   "lease is the user's: your other programs (pub, teleop, the dashboard) drive "
+                                   "under it, and their ending does not end it.")
     p.add_argument("action", choices=ACTIONS)
     p.add_argument("robot")
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the robot (default %(default)s)")
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _hold(client: RobotClient, robot: str) -> int:
-    """Keep presence (and so the lease) until Ctrl-C; 1 when someone takes control over meanwhile."""
+    """Keep presence until Ctrl-C, then release; 1 when someone takes control over meanwhile."""
     lost: queue.Queue[ControlState] = queue.Queue()
 
     def on_state(_topic: str, payload: bytes, _retained: bool) -> None:
@@ -77,6 +78,12 @@ def _hold(client: RobotClient, robot: str) -> int:
     try:
         state = lost.get()
     except KeyboardInterrupt:
+        # the lease is the user's and outlives this client while another of theirs is live: give it back here
+        try:
+            client.release_control(robot, timeout=2.0)
+            print(f"{robot}: released", flush=True)
+        except (CommandRefused, TimeoutError, RoslinkError) as err:
+            print(f"{robot}: not released ({err})", file=sys.stderr)
         return 0
     print(f"{robot}: control lost — {state.event or state.summary()}", file=sys.stderr)
     return 1

@@ -4,8 +4,9 @@ One stack per broker (broker, simulated turtle1 and its bridge, turtle2's bridge
 what the issue measured and what must hold now: a second bridge refused (and, at the end, ``--take-over`` fencing
 the live one), two operators racing (only the holder's twists reach ``/cmd_vel``;
 the other learns who drives within 1 s), a take-over that stops the robot and tells the old holder, a supervisor's
-claim, a viewer's emergency stop that nobody but the holder can resume, the holder SIGKILLed (lease ended, robot
-stopped), and ``roslink-mqtt estop --all`` across two robots. The decisions themselves are unit-tested in
+claim, a viewer's emergency stop that nobody but the holder can resume, the holder SIGKILLed (robot stopped, lease
+kept by its user until their last client goes), claim then drive as one user (a ``pub`` beside ``control claim``),
+and ``roslink-mqtt estop --all`` across two robots. The decisions themselves are unit-tested in
 tests/unit/test_control_lease.py.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -213,8 +215,8 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         alice.close()
         _released(watcher)
 
-        # -- the holder (admin, a supervisor, driving from a process of his own) SIGKILLed: its last-will ends the
-        #    lease and the robot stops
+        # -- the holder (admin, a supervisor, driving from a process of his own) SIGKILLed: its last-will stops the
+        #    robot; the lease is admin's, not the process's, so it ends only with admin's last client
         with run(["-m", "tests.support.operator_proc", str(port), "admin", "admin-demo", "turtle1", "--lx", "0.15",
                   "--first-seq", str(Driver.seq + 1000)], tmp_path / "operator.log") as proc:
             _control_state(watcher, lambda s: s.holder == "admin", timeout=10)
@@ -224,9 +226,34 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
             _what_people_see(port)
             killed = time.monotonic()
             proc.kill()
+            probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
+            status = _cli(port, "bob", "control", "status", "turtle1")  # admin's other client (`admin`) is live
+            assert "turtle1: driven by admin (supervisor) since" in status.stdout, status
+            admin.close()
             state = _control_state(watcher, lambda s: s.holder is None, timeout=10)
             assert "admin's lease ended" in state.event
-            probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=killed)
+
+        # -- claim, then drive: alice holds control with the CLI's claim, and her `pub` in another terminal drives
+        #    and ends; the robot stops (the program that drove it signed off) and the claim holds on (issue 43)
+        claim_cmd = ["-m", "roslink_mqtt.cli.main", "control", "claim", "turtle1", "--url",
+                     f"mqtt://127.0.0.1:{port}", "-u", "alice"]
+        with run(claim_cmd, tmp_path / "claim0.log", {**os.environ, "ROSLINK_PASSWORD": "alice-demo"}) as holding:
+            _control_state(watcher, lambda s: s.holder == "alice", timeout=10)
+            since = time.monotonic()
+            pub = _cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.12}', "--rate", "10", "--duration", "1")
+            assert pub.returncode == 0, pub.stdout + pub.stderr
+            moved = probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.12, timeout=5, after=since)[0]
+            probe.cmd_vel.wait_for(lambda m: m.linear.x == 0, timeout=5, after=moved)
+            status = _cli(port, "bob", "control", "status", "turtle1")
+            assert "turtle1: driven by alice since" in status.stdout, status
+            assert holding.poll() is None and "control lost" not in holding.output(), holding.output()
+            changes = [ControlState.from_json(m.payload).event for m in watcher.drain(0.01)
+                       if m.topic.endswith("/state/control") and m.payload]
+            assert not changes, changes  # not one change of the lease while alice's pub came and went
+            holding.popen.send_signal(signal.SIGINT)  # Ctrl-C gives it back
+            assert holding.popen.wait(timeout=10) == 0, holding.output()
+            assert "turtle1: released" in holding.output()
+        _control_state(watcher, lambda s: s.holder is None and s.event == "released by alice", timeout=10)
 
         # -- claiming and releasing explicitly: the CLI's claim holds control until Ctrl-C, another of alice's
         #    programs releases it (CLI), and the SDK claims, is refused while someone else holds, and releases
