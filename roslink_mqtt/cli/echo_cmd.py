@@ -24,7 +24,7 @@ from typing import Any, cast
 
 import orjson
 
-from ..client import RobotClient, RoslinkError, RoslinkMessage
+from ..client import NotGranted, RobotClient, RoslinkError, RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
 from ..protocol.description import RobotDescription
@@ -182,13 +182,12 @@ def _what(robot: str, name: str) -> str:
     return f"{robot} {HEARTBEAT}" if name == HEARTBEAT else f"{robot} state/{name}"
 
 
-def _nothing_reason(client: RobotClient, robot: str, name: str) -> tuple[int, str]:
-    """Why nothing came on ``name``: the robot is not online, or it publishes other states only."""
+def _nothing_reason(client: RobotClient, robot: str, name: str, waited: float) -> tuple[int, str]:
+    """Why nothing came on ``name`` in ``waited`` s: the robot is not online (the SDK's one wording of why, as
+    ``pub`` and ``call`` say it), or it publishes other states only."""
     info = client.robot(robot)
     if info is None or not info.online:
-        state = "never seen" if info is None else "offline"
-        return EXIT_OFFLINE, (f"robot {robot} is {state}: no heartbeat from it (is its bridge running, and is it "
-                              f"granted to you?)")
+        return EXIT_OFFLINE, str(client.not_online(robot, waited))
     names = census(client, robot)
     spec = SPECS_BY_NAME.get(name)
     described = _description(client, robot)
@@ -252,6 +251,9 @@ def run(args: argparse.Namespace) -> int:
     hinted = False
     try:
         if not client.connection.subscribe(topic, stream.handle):
+            why = client.not_online(args.robot, time.monotonic() - start)
+            if isinstance(why, NotGranted):  # the robot's name, or the user's grant (with "did you mean")
+                return _fail(EXIT_OFFLINE, str(why))
             return _fail(EXIT_OFFLINE, f"the broker refused a subscription to {topic} (is {args.robot} granted to "
                                       f"{client.username}?)")
         while not args.count or seen < args.count:
@@ -260,7 +262,7 @@ def run(args: argparse.Namespace) -> int:
                 break
             if not hinted and deadline is None and not seen and now - start >= HINT_AFTER:
                 hinted = True  # say once why nothing shows, then keep waiting as asked
-                print(f"roslink-mqtt echo: nothing yet: {_nothing_reason(client, args.robot, name)[1]}; "
+                print(f"roslink-mqtt echo: nothing yet: {_nothing_reason(client, args.robot, name, now - start)[1]}; "
                       f"still waiting (Ctrl-C to stop)", file=sys.stderr)
                 continue
             if args.hz and len(times) >= 2 and now - last_report >= 1.0:
@@ -295,7 +297,7 @@ def run(args: argparse.Namespace) -> int:
         if seen:
             return _fail(EXIT_TIMEOUT, f"timeout: {seen} of {args.count} messages on {_what(args.robot, name)} "
                                        f"within {args.timeout:g} s")
-        code, reason = _nothing_reason(client, args.robot, name)
+        code, reason = _nothing_reason(client, args.robot, name, time.monotonic() - start)
         return _fail(code, f"nothing on {_what(args.robot, name)} within {args.timeout:g} s: {reason}")
     except KeyboardInterrupt:
         if args.hz and len(times) >= 2:

@@ -6,12 +6,14 @@ import argparse
 import sys
 import time
 
-from ..client import CommandRefused, RobotNotice, RoslinkError
+from ..client import CommandRefused, NotConnectedError, RobotNotice, RoslinkError
 from ..client.commands import command_leaf, roslink_command
 from ..client.node import ros_shaped_to_roslink
 from ..protocol import ProtocolError
 from .connect import add_connection_options, json_object, open_client
 from .control_cmd import claim_if_free
+
+RECONNECT_WAIT = 3.0  # s: after losing the connection mid-stream, how long we wait to learn why (a revoked grant)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -67,7 +69,15 @@ def run(args: argparse.Namespace) -> int:
     except (CommandRefused, ProtocolError) as err:
         print(f"roslink-mqtt pub: refused: {err}")
         return 1
-    except (TimeoutError, RoslinkError) as err:  # robot offline, connection lost, stop not acknowledged
+    except NotConnectedError as err:  # lost mid-stream: say why if the broker tells us on reconnecting
+        print(f"roslink-mqtt pub: {err}", file=sys.stderr)
+        if client.connection.connected.wait(RECONNECT_WAIT):
+            try:
+                client.wait_for_robot(args.robot, timeout=RECONNECT_WAIT)
+            except RoslinkError as why:  # NotGranted: "your grant to turtle1 was removed by the fleet: ..."
+                print(f"roslink-mqtt pub: {why}", file=sys.stderr)
+        return 1
+    except (TimeoutError, RoslinkError) as err:  # robot offline, no grant, stop not acknowledged
         print(f"roslink-mqtt pub: {err}", file=sys.stderr)
         return 1
     finally:

@@ -96,6 +96,7 @@ class Connection:
         self.failure: LoginRefused | None = None  # a reconnect was refused for good; nothing will be sent again
         self.on_connected: list[Callable[[], None]] = []  # run on the network thread after every CONNACK
         self.on_failure: list[Callable[[LoginRefused], None]] = []  # run once, on the network thread
+        self.on_suback: list[Callable[[str, bool], None]] = []  # (filter, granted) per SUBACK; network thread
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
@@ -279,6 +280,11 @@ class Connection:
                 self._subs.pop(topic, None)  # refused: do not ask again on every reconnect
             box.append(granted)
         event.set()
+        for hook in list(self.on_suback):  # after a reconnect too: a refusal then is a grant removed meanwhile
+            try:
+                hook(topic, granted)
+            except Exception:
+                log.exception("on_suback hook failed")
 
     def _on_message(self, _client: mqtt.Client, _userdata: Any, msg: mqtt.MQTTMessage) -> None:
         topic = msg.topic

@@ -86,6 +86,11 @@ class RobotDirectory:
             self.changed.notify_all()
         return info
 
+    def touch(self) -> None:
+        """Wake the waiters: something a predicate reads besides the heartbeats changed."""
+        with self.changed:
+            self.changed.notify_all()
+
     def get(self, robot: str) -> RobotInfo | None:
         with self.changed:
             return self._robots.get(robot)

@@ -31,6 +31,10 @@ class WaitTimeout(RoslinkError, TimeoutError):
     """Nothing came within the caller's timeout (a state message, a robot coming online)."""
 
 
+class NotGranted(RoslinkError, PermissionError):
+    """The broker does not let this login use the robot: no grant, or one the fleet removed (the message says)."""
+
+
 class NodeDestroyed(RoslinkError, RuntimeError):
     """An entity was created on a node after ``destroy_node()``; its connection is closed."""
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import dataclasses
+import difflib
 import logging
 import secrets
 import threading
@@ -45,7 +46,7 @@ from ..connection_options import (
     env_username,
 )
 from ..mqtt import LOGIN_WAIT, BrokerUrl
-from ..protocol import ProtocolError
+from ..protocol import ProtocolError, SystemStatus
 from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
@@ -64,6 +65,7 @@ from .errors import (
     InvalidArgument,
     LoginRefused,
     NotConnectedError,
+    NotGranted,
     RobotError,
     RobotNotice,
     RoslinkError,
@@ -81,6 +83,7 @@ log = logging.getLogger("roslink_mqtt.client")
 
 DEFAULT_CALL_TIMEOUT = 10.0  # s; longer than the robot's own per-service timeout (5 s in the demo), so its reason wins
 DEFAULT_STOP_CONFIRM = 2.0  # s an emergency stop waits for the broker's PUBACK before raising CommandNotConfirmed
+TYPO_WAIT = 1.0  # s a robot never seen is waited for when one we see online has a close name: then "did you mean"
 ACCESS_WAIT = 0.5  # s after subscribing to a robot's to/<user>/# that a first command waits for the access report
 
 
@@ -147,9 +150,16 @@ class RobotClient:
         self._access: dict[str, AccessReport] = {}
         self._access_asked: dict[str, float] = {}
         self._no_grant: set[str] = set()  # robots whose to/<user>/# the broker refused to let us read
+        self._granted: set[str] = set()  # robots it let us read at some point (a later refusal: grant removed)
+        self._user_filters: dict[str, str] = {}  # our to/<user>/# filter → its robot
+        self._settling: set[str] = set()  # robots whose to/<user>/# awaits its SUBACK after a reconnect
+        self._unheard: set[str] = set()  # robots whose (retained) heartbeat has not come since that reconnect
+        self._reconnected_at: float | None = None
         self._access_changed = threading.Condition()
         self._subscriptions: list[StateSubscription] = []
         self.connection.on_failure.append(self._on_login_refused)
+        self.connection.on_suback.append(self._on_suback)
+        self.connection.on_connected.append(self._on_reconnected)
 
     # -- lifecycle ----------------------------------------------------------------------
     def connect(self, timeout: float = LOGIN_WAIT) -> RobotClient:
@@ -326,9 +336,12 @@ class RobotClient:
         self.connection.subscribe(self.topics.heartbeat(robot), self._on_heartbeat, timeout=timeout)
         # one filter for replies, requests, error and access reports (TopicTree builds concrete topics only)
         mine = self.topics.to_user_filter(robot, self.username)
+        with self._access_changed:
+            self._user_filters[mine] = robot
         granted = self.connection.subscribe(mine, self._on_to_user, timeout=timeout)
         with self._access_changed:
             if granted:
+                self._granted.add(robot)
                 self._access_asked[robot] = time.monotonic()  # its retained access report follows the SUBACK
             elif self.connection.connected.is_set() and mine not in self.connection.subscribed():
                 self._no_grant.add(robot)  # refused (0x80): the embedded broker says we have no grant
@@ -341,16 +354,99 @@ class RobotClient:
         return self.directory.get(robot)
 
     def wait_for_robot(self, robot: str, timeout: float = 10.0) -> RobotInfo:
-        """Block until ``robot`` is online; TimeoutError otherwise (NotConnectedError if we cannot be told)."""
+        """Block until ``robot`` is online. NotGranted at once when the broker says we may not use it; TimeoutError
+        otherwise, saying why as far as we can tell (a likely typo of a robot we see: within TYPO_WAIT s, with
+        "did you mean"); NotConnectedError if we cannot be told."""
         self.connection.require(f"waiting for {robot}", now=False)
         self.watch(robot)
-        if not self.directory.wait(lambda robots: robot in robots and robots[robot].online, timeout):
-            info = self.directory.get(robot)
-            state = "never seen" if info is None else f"status {info.system_status!r}"
-            raise WaitTimeout(f"robot {robot} not online after {timeout:g} s ({state})")
+        started = time.monotonic()
+
+        def decided(robots: dict[str, RobotInfo]) -> bool:
+            if robot in self._no_grant:
+                return True
+            if robot in self._settling or robot in self._unheard:  # reconnected: is it still ours? (its SUBACK
+                return False  # and its retained heartbeat say, within a round trip)
+            if robot in robots and robots[robot].online:
+                return True
+            return robot not in robots and time.monotonic() - started >= TYPO_WAIT and bool(self._near(robot))
+
+        self.directory.wait(decided, timeout)
         info = self.directory.get(robot)
-        assert info is not None
-        return info
+        if robot not in self._no_grant and robot not in self._unheard and info is not None and info.online:
+            return info
+        raise self.not_online(robot, time.monotonic() - started)
+
+    def _near(self, robot: str) -> list[str]:
+        """Robots we have seen online whose names are close to ``robot`` (a typo's likely meaning)."""
+        online = [name for name, info in self.directory.snapshot().items() if info.online and name != robot]
+        return difflib.get_close_matches(robot, online, n=3, cutoff=0.6)
+
+    def not_online(self, robot: str, waited: float) -> RoslinkError:
+        """Why ``robot`` is not online for us, as one exception: the broker's refusal (NotGranted), or what we
+        saw of it in ``waited`` s (WaitTimeout), with the robots whose names are close when we never saw it."""
+        with self._access_changed:
+            no_grant, removed = robot in self._no_grant, robot in self._granted
+        info = self.directory.get(robot)
+        near = self._near(robot) if info is None else []
+        if no_grant and near and not removed:  # the embedded broker refuses a robot that does not exist too
+            return NotGranted(f"no robot {robot} that {self.username} may use (the broker refused to let us read "
+                              f"{self.topics.to_user_filter(robot, self.username)}); did you mean "
+                              f"{' or '.join(near)}?")
+        if no_grant:
+            return NotGranted(self._grant_refusal(robot, removed))
+        if robot in self._unheard and self._reconnected_at is not None:
+            # a broker that only filters what it delivers (Mosquitto) says nothing of a removed grant: but a robot
+            # that ran has a retained heartbeat, sent at once to whoever may read it
+            return WaitTimeout(f"nothing from {robot} since reconnecting {time.monotonic() - self._reconnected_at:.1f}"
+                               f" s ago, though it was online before: the broker no longer delivers it to "
+                               f"{self.username}; was your grant to {robot} removed by the fleet? (ask its admin)")
+        if info is not None:
+            state = "offline" if info.system_status == SystemStatus.OFFLINE else "silent (its heartbeat is stale)"
+            return WaitTimeout(f"robot {robot} is {state}: its bridge is not connected to the broker")
+        if near:
+            return WaitTimeout(f"no robot {robot} (never seen in {waited:.1f} s); did you mean "
+                               f"{' or '.join(near)}?")
+        return WaitTimeout(f"robot {robot} never seen in {waited:.1f} s: no heartbeat from it (is the name right, "
+                           f"is its bridge running, and is it granted to {self.username}?)")
+
+    def _grant_refusal(self, robot: str, removed: bool) -> str:
+        mine = self.topics.to_user_filter(robot, self.username)
+        if removed:
+            return (f"your grant to {robot} was removed by the fleet: the broker no longer lets {self.username} "
+                    f"read {mine} (ask the fleet's admin)")
+        return f"user '{self.username}' has no grant on {robot}: the broker refused to let us read {mine}"
+
+    def _on_reconnected(self) -> None:
+        """A new connection (network thread): what the broker lets us read is asked again with every filter;
+        until each robot's SUBACK answers, whether it is still ours is open (a grant may have gone meanwhile)."""
+        if not self.connection.ever_connected:
+            return
+        with self._access_changed:
+            self._settling = set(self._user_filters.values()) - self._no_grant
+            # a robot seen before has a retained heartbeat (its last-will at least): it comes with the SUBACK
+            self._unheard = {robot for robot in self._settling if self.directory.get(robot) is not None}
+            self._reconnected_at = time.monotonic()
+
+    def _on_suback(self, topic: str, granted: bool) -> None:
+        """The broker answered one of our filters (network thread). A refused to/<user>/# of a robot means no
+        grant — after a reconnect, one the fleet removed (its admin's `fleet apply` drops the connections it
+        affects)."""
+        with self._access_changed:
+            robot = self._user_filters.get(topic)
+            if robot is None:
+                return
+            self._settling.discard(robot)
+            removed = False
+            if not granted:
+                self._no_grant.add(robot)
+                self._access.pop(robot, None)
+                removed = robot in self._granted
+            self._access_changed.notify_all()
+        self.directory.touch()  # wake wait_for_robot
+        if removed:
+            reason = self._grant_refusal(robot, removed=True)
+            log.warning("%s: %s", self.client_id, reason)
+            self._on_error(robot, RobotError(robot, topic, reason, client_id=self.client_id))
 
     # -- state --------------------------------------------------------------------------
     def subscribe(self, robot: str, name: str, callback: Callable[[StateItem], None] | None = None, *,
@@ -694,6 +790,7 @@ class RobotClient:
     def _on_heartbeat(self, topic: str, payload: bytes, _retained: bool) -> None:
         parsed = self.topics.parse(topic)
         if parsed is not None and parsed.kind is Kind.HEARTBEAT and parsed.robot:
+            self._unheard.discard(parsed.robot)
             self.directory.update(parsed.robot, payload)
 
     def _on_to_user(self, topic: str, payload: bytes, _retained: bool) -> None:

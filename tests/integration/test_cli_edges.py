@@ -86,10 +86,24 @@ def test_echo_unknown_state_names_what_the_robot_publishes(stack) -> None:
 def test_echo_offline_or_unseen_robot(stack) -> None:
     out = cli(stack[0], "carol", "echo", "turtle2", "global_motion", "-n", "1", "--timeout", "1.5")
     assert out.returncode == echo_cmd.EXIT_OFFLINE == 4, out.stderr
-    assert "turtle2 is never seen" in out.stderr or "turtle2 is offline" in out.stderr
+    assert "robot turtle2 never seen in" in out.stderr or "robot turtle2 is offline" in out.stderr, out.stderr
     refused = cli(stack[0], "carol", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "1.5")
     assert refused.returncode == echo_cmd.EXIT_OFFLINE, refused.stderr  # not hers to see
-    assert "roslink-mqtt echo:" in refused.stderr
+    assert "user 'carol' has no grant on turtle1: the broker refused" in refused.stderr, refused.stderr
+
+
+def test_a_robot_name_typo_is_answered_within_seconds_with_the_name_meant(stack) -> None:
+    """Issue 43, 3: `pub turtel1` waited 5.6 s for "never seen" with no hint; echo worded it differently."""
+    started = time.monotonic()
+    pub = cli(stack[0], "alice", "pub", "turtel1", "twist", '{"lx": 0.1}')
+    took = time.monotonic() - started
+    assert pub.returncode == 1 and "no robot turtel1" in pub.stderr + pub.stdout, pub  # on this broker: no grant
+    assert "did you mean turtle1?" in pub.stderr + pub.stdout, pub
+    assert took < 5.0, took  # about a second of waiting, plus Python's start (a generous bound: a busy machine)
+    echo = cli(stack[0], "bob", "echo", "turtel1", "global_motion", "-n", "1", "--timeout", "3")
+    assert echo.returncode == echo_cmd.EXIT_OFFLINE and "did you mean turtle1?" in echo.stderr, echo.stderr
+    denied = cli(stack[0], "carol", "pub", "turtle1", "twist", '{"lx": 0.1}')
+    assert denied.returncode == 1 and "user 'carol' has no grant on turtle1" in denied.stderr + denied.stdout, denied
 
 
 def test_echo_bad_name_is_a_usage_error(stack) -> None:

@@ -152,7 +152,11 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
             assert drove_at - applied.started < 10.0
 
             # 2. alice loses turtle1 while she drives: the broker drops her connection and her publishes, the bridge
-            #    stops the robot at once (not the dead-man's timeout later)
+            #    stops the robot at once (not the dead-man's timeout later); her programs say why (issue 43)
+            from roslink_mqtt.client import NotGranted, RobotClient
+            alice_sdk = RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}", robots=["turtle1"])
+            alice_sdk.connect()
+            alice_sdk.wait_for_robot("turtle1", timeout=10)
             stop = threading.Event()
             t0 = time.monotonic()
             streamer = _stream(alice, "alice", 0.33, stop)
@@ -178,7 +182,27 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
             assert "alice" in ack.json()["payload"]["text"]
             assert "broker lost" not in bridge.output()  # no grant change disconnected the robot
             if kind == "embedded":
-                assert "fewer grants ['alice']" in broker_log() and "1 connection(s) dropped" in broker_log()
+                assert "fewer grants ['alice']" in broker_log() and "connection(s) dropped" in broker_log()
+            # what alice's programs are told. The embedded broker refuses her turtle1 filter when her SDK client
+            # reconnects: the client reports it at once, and a `pub` afterwards says the same instead of "never
+            # seen". Mosquitto grants the filter and delivers nothing: the client says the retained heartbeat
+            # that any reader gets at once did not come
+            if kind == "embedded":
+                removed = "your grant to turtle1 was removed by the fleet"
+                deadline = time.monotonic() + 15
+                while not any(removed in e.error for e in list(alice_sdk.recent_errors)):
+                    assert time.monotonic() < deadline, list(alice_sdk.recent_errors)
+                    time.sleep(0.05)
+                with pytest.raises(NotGranted, match=removed):
+                    alice_sdk.wait_for_robot("turtle1", timeout=5)
+            else:
+                with pytest.raises(TimeoutError, match="was your grant to turtle1 removed by the fleet"):
+                    alice_sdk.wait_for_robot("turtle1", timeout=3)
+            alice_sdk.close()
+            pub = cli("pub", "turtle1", "twist", '{"lx": 0.1}', "--url", f"mqtt://127.0.0.1:{port}", "-u", "alice",
+                      env_password="alice-demo")
+            told = "user 'alice' has no grant on turtle1" if kind == "embedded" else "granted to alice?"
+            assert pub.returncode == 1 and told in pub.stderr, pub
     finally:
         probe.close()
 
