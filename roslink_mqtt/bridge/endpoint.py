@@ -265,7 +265,7 @@ class CommandEndpoint:
         return why
 
     def control_state(self) -> ControlState:
-        return self.lease.state(self.robot.estop)
+        return self.lease.state(self.robot.estop, self.motion_blocked or "")
 
     def publish_control(self) -> None:
         """Retained ``state/control``: who holds control, since when (on every change, and on connecting)."""
@@ -348,7 +348,7 @@ class CommandEndpoint:
             if behaviour.blocks_motion:
                 self.block_motion(f"{behaviour.blocks_motion} by {user}")
             elif behaviour.resumes_motion and not route.is_service:
-                self.motion_blocked = None  # a service-backed arm resumes only when its service succeeds
+                self._set_blocked(None)  # a service-backed arm resumes only when its service succeeds
             if route.is_service:
                 why = self.actuators.call_service(route, msg, message_id, sequence)
                 if why:
@@ -407,12 +407,19 @@ class CommandEndpoint:
     def resume_motion(self) -> None:
         """A service-backed arm succeeded: motion may be commanded again."""
         with self.lock:
-            self.motion_blocked = None
+            self._set_blocked(None)
+
+    def _set_blocked(self, reason: str | None) -> None:
+        """Under the lock: why motion is refused now (None: it is not); ``state/control`` says so on a change, so
+        ``control status``, ``info``, ``monitor`` and the dashboard show an emergency stop where people look."""
+        if reason != self.motion_blocked:
+            self.motion_blocked = reason
+            self.publish_control()
 
     def block_motion(self, reason: str) -> None:
         """Zero every velocity output and refuse motion until an operator arms again."""
         with self.lock:
-            self.motion_blocked = reason
+            self._set_blocked(reason)
             self.failsafe.stopped()
             self.actuators.zero_velocity()
         log.warning("motion blocked on %s: %s", self.robot.name, reason)

@@ -59,9 +59,9 @@ class ControlLease:
         self.version = 0  # grows with every change: state/control is published when it moves
 
     # -- what the endpoint shows --------------------------------------------------------------
-    def state(self, estop: str) -> ControlState:
+    def state(self, estop: str, blocked: str = "") -> ControlState:
         return ControlState(self.holder, self.since, self.holder in self.supervisors if self.holder else False,
-                            self.mode, tuple(sorted(self.supervisors)), estop, self.event)
+                            self.mode, tuple(sorted(self.supervisors)), estop, self.event, blocked)
 
     def driven_by(self) -> str:
         """``driven by alice since 12:03:05`` (or ``free``)."""

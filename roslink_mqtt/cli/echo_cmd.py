@@ -251,9 +251,9 @@ def run(args: argparse.Namespace) -> int:
     hinted = False
     try:
         if not client.connection.subscribe(topic, stream.handle):
-            why = client.not_online(args.robot, time.monotonic() - start)
-            if isinstance(why, NotGranted):  # the robot's name, or the user's grant (with "did you mean")
-                return _fail(EXIT_OFFLINE, str(why))
+            absent = client.not_online(args.robot, time.monotonic() - start)
+            if isinstance(absent, NotGranted):  # the robot's name, or the user's grant (with "did you mean")
+                return _fail(EXIT_OFFLINE, str(absent))
             return _fail(EXIT_OFFLINE, f"the broker refused a subscription to {topic} (is {args.robot} granted to "
                                       f"{client.username}?)")
         while not args.count or seen < args.count:

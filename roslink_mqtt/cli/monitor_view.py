@@ -330,9 +330,11 @@ def link_text(report: LinkReport | None) -> str:
 
 
 def _driver_text(control: ControlState | None, info: RobotInfo | None) -> str:
-    """``alice since 12:03:05`` (state/control), else the heartbeat's holder, else ``-``."""
+    """``alice since 12:03:05`` (state/control; ``E-STOP · …`` while motion is blocked), else the heartbeat's
+    holder, else ``-``."""
     if control is not None and (info is None or info.online):
-        return MISSING if control.holder is None else control.summary().removeprefix("driven by ")
+        who = MISSING if control.holder is None else control.driver().removeprefix("driven by ")
+        return f"E-STOP · {who}" if control.blocked else who
     return (info.owner or MISSING) if info else MISSING
 
 

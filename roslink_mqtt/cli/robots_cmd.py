@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
         for name, info in robots.items():
             state = client.control(name, timeout=CONTROL_WAIT) if info.online and info.owner else None
             if state is not None and state.holder:
-                drivers[name] = state.summary().removeprefix("driven by ")
+                drivers[name] = state.driver().removeprefix("driven by ")  # the status column shows a stop
     finally:
         client.close()
     if not robots:

@@ -55,6 +55,7 @@ class ControlState:
     supervisors: tuple[str, ...] = ()
     estop: str = ESTOP_VIEWERS  # who may send emergency stops besides operators: "viewers" (every granted user)
     event: str = ""  # the last change, for people: "taken over by admin from alice"
+    blocked: str = ""  # why motion is refused until an operator arms: "emergency stop by bob" ('' : it is not)
 
     FIELDS = (
         BodyField("holder", Nullable(Text(1)), True, "the user who holds control (drives the robot); null: nobody",
@@ -70,6 +71,8 @@ class ControlState:
                                                       "(`viewers`, the default) or operators only", ESTOP_VIEWERS),
         BodyField("event", Text(), True, "the last change, for people (`claimed by alice`, `taken over by admin "
                                          "from alice`, `alice's lease ended: last-will`)", ""),
+        BodyField("blocked", Text(), False, "why motion is refused until an operator sends `cmd/arm` "
+                                            "(`emergency stop by bob`); empty or absent: it is not", ""),
     )
     QOS = 1
     RETAINED = True
@@ -77,7 +80,7 @@ class ControlState:
     def to_json(self) -> bytes:
         return orjson.dumps({"holder": self.holder, "since": self.since, "supervisor": self.supervisor,
                              "mode": self.mode, "supervisors": list(self.supervisors), "estop": self.estop,
-                             "event": self.event})
+                             "event": self.event, "blocked": self.blocked})
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ControlState:
@@ -85,7 +88,13 @@ class ControlState:
                                                   '…}', strict=False, what="control state"))
 
     def summary(self) -> str:
-        """``driven by alice since 12:03:05`` or ``free``, as ``robots``, ``info`` and ``monitor`` print it."""
+        """``driven by alice since 12:03:05`` or ``free`` (and an emergency stop, when motion is blocked), as
+        ``robots``, ``info``, ``monitor`` and ``control status`` print it."""
+        stopped = f"; EMERGENCY STOP — {self.blocked} (an operator's arm resumes)" if self.blocked else ""
+        return self.driver() + stopped
+
+    def driver(self) -> str:
+        """``driven by alice since 12:03:05`` or ``free``: who holds control, nothing else."""
         if self.holder is None:
             return "free"
         when = datetime.fromtimestamp(self.since).strftime("%H:%M:%S") if self.since else "?"

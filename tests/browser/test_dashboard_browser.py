@@ -335,6 +335,8 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
             wait_until("the blocked banner", lambda: visible(driver, "robot-banner") and "blocked" in
                        driver.find_element(By.ID, "robot-banner").text)
             assert (robot_row(driver, "turtle1") or {}).get("status") == "emergency"
+            wait_until("the stop on the control line", lambda: "EMERGENCY STOP (emergency stop by alice)" in
+                       driver.find_element(By.ID, "driver").text)  # where people look for who drives
 
             # latched: the pad's motion buttons are disabled (a press sends nothing), and a twist sent anyway (from
             # the console) is refused by the robot, which the page says

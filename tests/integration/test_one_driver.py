@@ -200,6 +200,15 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         stopped_at = time.monotonic()
         watcher.publish("roslink/turtle1/from/bob/cmd/emergency_stop", encode_message(108, {"reason": "viewer"}))
         probe.estop.wait_for(lambda m: m.data is True, timeout=10, after=stopped_at)
+        # where people look for who drives, the stop shows (issue 43, 4): control status, info; a pub says it once
+        _control_state(watcher, lambda s: s.blocked == "emergency stop by bob", timeout=10)
+        status = _cli(port, "alice", "control", "status", "turtle1")
+        assert "EMERGENCY STOP — emergency stop by bob" in status.stdout, status
+        info = _cli(port, "alice", "info", "turtle1")
+        assert "EMERGENCY STOP — emergency stop by bob" in info.stdout, info
+        pub = _cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.1}')
+        said = pub.stdout + pub.stderr
+        assert pub.returncode == 1 and said.count("emergency stop by bob") == 1, said
         ack = watcher.wait_for(lambda m: m.topic.endswith("/state/ack") and m.json()["payload"]["command"] == 108,
                                timeout=10)
         assert "emergency stop by bob" in ack.json()["payload"]["text"]

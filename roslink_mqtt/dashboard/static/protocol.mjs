@@ -391,6 +391,16 @@ export const ROSLINK = {
           "max": null,
           "min": 0
         }
+      },
+      {
+        "default": "",
+        "name": "blocked",
+        "required": false,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 0
+        }
       }
     ],
     "description_actions_entry": [

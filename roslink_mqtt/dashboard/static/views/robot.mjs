@@ -88,7 +88,12 @@ export function presenceIfNeeded(robot) {
 
 export function showControl(robot) {
   const who = driverText(robot);
-  setText(ui.driver, who ? `driven by ${who}` : "nobody drives it: the first command claims control");
+  const line = who ? `driven by ${who}` : "nobody drives it: the first command claims control";
+  // an emergency stop shows where people look for who drives (state/control's `blocked`; the heartbeat's status
+  // from a bridge that does not send it)
+  const blocked = robot.control && robot.control.blocked ? robot.control.blocked : (isBlocked(robot) ? "emergency stop" : "");
+  setText(ui.driver, blocked ? `${line} · EMERGENCY STOP (${blocked}): an operator's Arm resumes` : line);
+  ui.driver.classList.toggle("blocked", Boolean(blocked));
   ui.driver.dataset.holder = robot.control && robot.control.holder ? robot.control.holder : "";
   const other = heldByOther(robot, dash.user);
   const sup = robot.control && Array.isArray(robot.control.supervisors) && robot.control.supervisors.includes(dash.user);
