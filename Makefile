@@ -12,7 +12,7 @@ DEMO_ARGS ?=
 # `alone` (floods, rate-limited links) then run by themselves.
 TEST_WORKERS ?= 2
 
-.PHONY: install demo dashboard test lint bench clean
+.PHONY: install demo dashboard test lint bench wheel clean
 
 install: $(STAMP) $(NODE_STAMP)
 
@@ -25,9 +25,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[broker,bridge,dev,cli,bench]'
 	touch $(STAMP)
 
-$(NODE_STAMP): package.json package-lock.json
+$(NODE_STAMP): package.json package-lock.json | $(STAMP)
 	@$(SHELL) tools/prereqs.sh node
 	npm ci --no-audit --no-fund --loglevel=error
+	$(BIN)/python -c "from roslink_mqtt.dashboard.vendor import main; raise SystemExit(main(['node_modules']))"
 	touch $(NODE_STAMP)
 
 # The demo itself needs no Node.js: without npm it says so and runs (the dashboard and the tests need it).
@@ -53,6 +54,10 @@ lint: install
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/mypy --python-version 3.10
+
+# The product as one wheel (dist/), the dashboard's JavaScript inside it: docs/deploy.md, "Install".
+wheel: install
+	$(BIN)/python -m build --wheel --outdir dist
 
 bench: install
 	$(BIN)/python bench/run_all.py

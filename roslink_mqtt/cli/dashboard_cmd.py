@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the broker's WebSocket port when --ws-url is not given (default: the fleet file's "
                         f"broker.ws_port, else {DEFAULT_WS_PORT})")
     p.add_argument("--mqtt-js", type=Path, default=DEFAULT_MQTT_JS,
-                   help="MQTT.js browser bundle (default: node_modules/mqtt/dist/mqtt.min.js of the repository)")
+                   help="MQTT.js browser bundle (default: the copy inside the package, roslink_mqtt/dashboard/vendor/)")
     p.add_argument("--tiles", default="",
                    help="map tile URL template for the fleet map's GPS view, e.g. "
                         "'https://tile.openstreetmap.org/{z}/{x}/{y}.png' (default: none; the map works without)")

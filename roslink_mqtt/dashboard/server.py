@@ -18,11 +18,13 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path, PurePosixPath
 from urllib.parse import urlsplit
 
+from .vendor import VENDOR_DIR
+
 STATIC = Path(__file__).resolve().parent / "static"
-REPO_ROOT = Path(__file__).resolve().parents[2]
-# `make install` runs `npm install` at the repository root (package.json lists mqtt@^5 and uplot).
-DEFAULT_MQTT_JS = REPO_ROOT / "node_modules" / "mqtt" / "dist" / "mqtt.min.js"
-UPLOT_DIST = REPO_ROOT / "node_modules" / "uplot" / "dist"
+# The npm bundles travel inside the package (dashboard/vendor.py: `make install` copies them from what
+# package-lock.json pins), so a wheel installed without the repository or npm serves the whole page.
+DEFAULT_MQTT_JS = VENDOR_DIR / "mqtt.min.js"
+UPLOT_DIST = VENDOR_DIR
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".mjs": "text/javascript; charset=utf-8",
                  ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8"}
 DEFAULT_HOST = "127.0.0.1"
@@ -153,12 +155,13 @@ class DashboardServer:
                  tiles: str = "", tiles_attribution: str = "", quiet: bool = True) -> None:
         mqtt_js = Path(mqtt_js)
         if not mqtt_js.is_file():
-            raise MqttJsMissing(f"MQTT.js browser bundle not found at {mqtt_js}: run `make install` "
-                                f"(npm install at the repository root) or pass its path")
+            raise MqttJsMissing(f"MQTT.js browser bundle not found at {mqtt_js}: in a repository, run `make "
+                                f"install` (npm ci, then the copy into the package); or install roslink-mqtt from "
+                                f"a wheel, which carries it; or pass its path")
         origin = tile_origin(tiles) if tiles else ""
         if not (UPLOT_DIST / "uPlot.esm.js").is_file():
-            raise MqttJsMissing(f"uPlot not found in {UPLOT_DIST}: run `make install` (npm install at the "
-                                "repository root)")
+            raise MqttJsMissing(f"uPlot not found in {UPLOT_DIST}: in a repository, run `make install` (npm ci, "
+                                "then the copy into the package); or install roslink-mqtt from a wheel")
         self.config = PageConfig(ws_port=ws_port, ws_url=ws_url, prefix=prefix, tiles=tiles,
                                  tiles_attribution=tiles_attribution)
         self.httpd = ThreadingHTTPServer((host, port), _handler(_routes(mqtt_js, self.config), quiet, csp(origin)))
