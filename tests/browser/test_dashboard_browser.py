@@ -406,6 +406,15 @@ def test_nothing_moves_under_the_pad_and_a_phone_fits(stack, tmp_path, width: in
             assert driver.execute_script("return document.documentElement.scrollWidth") <= inner[0] + 1
             if width <= 640:
                 assert driver.execute_script(RECT, "drive-fwd")["height"] >= 44  # a thumb's width (WCAG: 44 px)
+            # every parameter's box and Set button within the window (at 400 px the table was 492 px wide, and
+            # the page does not scroll sideways: they could not be reached)
+            wait_until("the parameter rows", lambda: driver.execute_script(
+                "return document.querySelectorAll('.param-table tr input').length") > 0)
+            outside = driver.execute_script(
+                "return [...document.querySelectorAll('.param-table input, .param-table button')]"
+                ".map(e => e.getBoundingClientRect()).filter(r => r.left < -1 || r.right > window.innerWidth + 1)"
+                ".length")
+            assert outside == 0, f"{outside} parameter controls outside the {inner[0]} px window"
             driver.execute_script("document.getElementById('drive-fwd').scrollIntoView({block: 'center'})")
             before = driver.execute_script(RECT, "drive-fwd")["top"]
             # the e-stop, pressed while driving at this width: a zero twist on /cmd_vel within ESTOP_DEADLINE
