@@ -243,7 +243,8 @@ def _domain_id(text: str) -> int:
 def _run(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
     parser.add_argument("--config", default="config/robots.yaml")
-    parser.add_argument("--logs", default="run/demo", help="where the processes' logs go")
+    parser.add_argument("--logs", default="run/demo",
+                        help="where the processes' logs go (and the robot's failsafe snapshots, in snapshots/)")
     parser.add_argument("--dashboard", action="store_true",
                         help="serve the web dashboard too and keep everything running until Ctrl-C")
     parser.add_argument("--dashboard-port", type=int, default=8090, help="0: any free port (default %(default)s)")
@@ -286,7 +287,9 @@ def _run(argv: list[str] | None) -> int:
         watch.add("sim", start("sim", ["-m", "roslink_mqtt.sim"]))
         watch.add("bridge", start("bridge", ["-m", "roslink_mqtt.bridge.main", "--config", args.config, "--robot",
                                              "turtle1", "--url", f"mqtt://127.0.0.1:{port}"],
-                                  {"ROSLINK_PASSWORD": "turtle1-demo"}))
+                                  # the demo's files stay in its folder: failsafe snapshots in <logs>/snapshots,
+                                  # the disk buffer in <logs> (as systemd's StateDirectory= gives a service)
+                                  {"ROSLINK_PASSWORD": "turtle1-demo", "STATE_DIRECTORY": str(logs.resolve())}))
         stack.callback(watch.stop)  # before the children are stopped (the stack unwinds in reverse)
         watch.start()
         print("2. simulated robot and bridge for turtle1 started")

@@ -85,6 +85,13 @@ class FailsafeFiles:
 
     def __init__(self, directory: Path, robot: str, keep: int) -> None:
         self.directory, self.robot, self.keep = directory, robot, keep
+        # a write cut short (power lost, the process killed mid-write) leaves a .part: never a snapshot, only disk
+        for stale in directory.glob(f"{robot}-failsafe-*.part") if directory.is_dir() else ():
+            try:
+                stale.unlink()
+                log.info("removed an unfinished failsafe snapshot: %s", stale)
+            except OSError as err:
+                log.warning("cannot remove the unfinished failsafe snapshot %s: %s", stale, err)
 
     def __call__(self, built: SnapshotFile, reason: str) -> None:
         try:

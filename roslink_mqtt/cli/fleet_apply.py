@@ -170,7 +170,8 @@ def publish_grants(channel: AdminChannel, fleet: Fleet, there: dict[str, bytes],
                    dry_run: bool = False) -> int:
     """Each robot's grants, retained, where its bridge reads them; only those that differ from ``there`` (what the
     broker holds) and a removed robot's are cleared. How many were written (``dry_run``: would be)."""
-    verb = "would publish" if dry_run else "published"
+    # "bridge": the retained message its bridge reads, apart from the broker's own "grants" step above it
+    verb = "grants would be published" if dry_run else "grants published"
     topics = fleet.topics
     written = 0
     issued = time.time()
@@ -181,15 +182,15 @@ def publish_grants(channel: AdminChannel, fleet: Fleet, there: dict[str, bytes],
             continue
         if not dry_run:
             channel.publish(topic, want.to_json(), retain=True)
-        print(f"  grants   {robot}: {verb} ({', '.join(f'{u}:{r}' for u, r in want.users.items()) or 'nobody'})")
+        print(f"  bridge   {robot}: {verb} ({', '.join(f'{u}:{r}' for u, r in want.users.items()) or 'nobody'})")
         written += 1
     for topic, payload in there.items():
         parsed = topics.parse(topic)
         if payload and parsed is not None and parsed.robot not in fleet.robots:
             if not dry_run:
                 channel.publish(topic, b"", retain=True)
-            print(f"  grants   {parsed.robot}: {'would clear' if dry_run else 'cleared'} (no such robot in the "
-                  "fleet)")
+            done = "would be cleared" if dry_run else "cleared"
+            print(f"  bridge   {parsed.robot}: grants {done} (no such robot in the fleet)")
             written += 1
     return written
 

@@ -57,12 +57,14 @@ def run(args: argparse.Namespace) -> int:
     def show(progress: Progress, elapsed: float) -> None:
         top = ", ".join(f"{last_level(topic)} {n / elapsed:.1f}/s"
                         for topic, n in progress.per_topic.most_common(4))
-        print(f"\r{elapsed:6.1f} s  {progress.messages} messages  {progress.bytes / 1000:.0f} kB"
+        print(f"\r{elapsed:6.1f} s  {progress.messages} messages  {progress.bytes / 1000:.0f} kB of messages"
               + (f"  {progress.dropped} dropped" if progress.dropped else "") + f"  ({top})", end="",
               file=sys.stderr, flush=True)
 
     progress = recorder.run(duration=args.duration, stop=stop, on_progress=show if sys.stderr.isatty() else None)
-    print(f"\rrecorded {progress.messages} messages ({progress.bytes / 1000:.0f} kB, {len(progress.per_topic)} "
-          f"topics) into {', '.join(str(p) for p in progress.files)}"
+    on_disk = sum(p.stat().st_size for p in progress.files if p.exists())  # compressed: less than what came
+    print(f"\rrecorded {progress.messages} messages ({progress.bytes / 1000:.0f} kB of messages, "
+          f"{len(progress.per_topic)} topics; {on_disk / 1000:.0f} kB on disk) into "
+          f"{', '.join(str(p) for p in progress.files)}"
           + (f"; {progress.dropped} dropped" if progress.dropped else ""), file=sys.stderr)
     return 0

@@ -169,5 +169,7 @@ class SnapshotError(RoslinkError):
     """A snapshot was refused by the robot, or did not arrive whole (see ``reason``)."""
 
     def __init__(self, robot: str, snapshot_id: str, reason: str) -> None:
-        super().__init__(f"{robot} snapshot '{snapshot_id}': {reason}")
+        # refused before the robot gave it an id (a viewer asking, no snapshot section): no id to show
+        super().__init__(f"{robot} snapshot '{snapshot_id}': {reason}" if snapshot_id else
+                         f"{robot}: snapshot refused: {reason}")
         self.robot, self.snapshot_id, self.reason = robot, snapshot_id, reason

@@ -739,7 +739,7 @@ class RobotClient:
         self.watch(robot)
         why = self._refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
         if why is not None:
-            raise SnapshotError(robot, "-", why)
+            raise SnapshotError(robot, "", why)
         got = self._snapshots.fetch(robot, last, timeout=timeout, stall=stall, on_progress=on_progress)
         if path is None:
             return got

@@ -37,7 +37,7 @@ class FleetEdit:
         self._yaml = YAML()
         self._yaml.preserve_quotes = True
         self._yaml.indent(mapping=2, sequence=4, offset=2)  # `key:` then `  - item`, as the demo fleet writes
-        self._yaml.width = 120
+        self._yaml.width = 4096  # never fold: a password hash (~170 characters) stays on its `password:` line
         try:
             self._original = self.path.read_text(encoding="utf-8")
         except OSError as err:

@@ -150,7 +150,9 @@ class LinkReport:
                 text = f"{name} {s.sent_hz:.1f} Hz of {s.offered_hz:.1f}"
                 losses = [f"{n} {what}" for n, what in ((s.superseded, "superseded"), (s.dropped, "dropped")) if n]
                 parts.append(text + (f" ({', '.join(losses)})" if losses else ""))
-        head = f"link {'' if self.measured else '≥ '}{self.rate_kbit_s:.0f} kbit/s"
+        # unmeasured: the link never filled, so the rate is only what was sent (on loopback: not a capacity)
+        head = (f"link {self.rate_kbit_s:.0f} kbit/s" if self.measured else
+                f"link never full ({self.rate_kbit_s:.0f} kbit/s sent; capacity not measured)")
         return head + (" — " + ", ".join(parts) if parts else " — every stream at its rate")
 
 

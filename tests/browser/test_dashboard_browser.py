@@ -275,7 +275,7 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             return out;""")
         assert 6 <= rates.get("global_motion", 0) <= 14 and 2 <= rates.get("range_finder_data", 0) <= 8, rates
         uplink = wait_until("the uplink line (state/link)", lambda: driver.find_element(By.ID, "uplink").text)
-        assert uplink.startswith("uplink ") and "kbit/s — " in uplink, uplink
+        assert uplink.startswith("uplink ") and "kbit/s" in uplink and " — " in uplink, uplink
         scan_drawn = driver.execute_script("return window.dashboard.robots.get('turtle1').scan.ranges.length")
         assert scan_drawn == 360
         wait_until("the GPS panel", lambda: visible(driver, "gps-box"))

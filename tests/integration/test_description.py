@@ -139,7 +139,7 @@ def test_info_prints_the_description_and_marks_what_you_may_not_use(port) -> Non
     assert bob.returncode == 0, bob.stderr
     out = bob.stdout
     assert "turtle1: ground robot, system_id 1" in out and "you (bob): viewer" in out
-    assert "  uplink: link " in out and "kbit/s — " in out  # state/link, one line
+    assert "  uplink: link " in out and "kbit/s" in out and " — " in out  # state/link, one line
     assert "global_motion" in out and "ROSLink twist (geometry_msgs/msg/Twist)" in out
     reset = next(line for line in out.splitlines() if line.strip().startswith("reset "))
     assert "operators" in reset and "(not you)" in reset

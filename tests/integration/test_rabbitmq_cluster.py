@@ -309,7 +309,7 @@ def test_fleet_apply_changes_users_and_grants_across_the_cluster(cluster, probe,
             except TimeoutError:
                 assert time.monotonic() < deadline, bridge.output()
         first = Apply(fleet, _urls(cluster, 0), *options, env=node1.env)
-        assert first.output.count("grants   turtle1: published") == 3, first.output  # one per node
+        assert first.output.count("bridge   turtle1: grants published") == 3, first.output  # one per node
         assert "nothing to change" in first.output
 
         edit("user", "add", "dave", "--password-file", str(tmp_path / "dave.password"), "--iterations", "1000")

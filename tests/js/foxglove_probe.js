@@ -4,7 +4,8 @@
 //   node foxglove_probe.js ws://127.0.0.1:PORT PLAN_JSON
 //
 // PLAN_JSON: {"subscribe": [topic…], "seconds": S, "call": {"service": name, "request": {…}},
-//             "parameters": true, "twist": {"topic": name, "linear": x, "angular": z, "hz": H, "seconds": S}}
+//             "parameters": true, "twist": {"topic": name, "linear": x, "angular": z, "hz": H, "seconds": S},
+//             "summary": true (lines for people instead of the JSON)}
 "use strict";
 
 const { FoxgloveClient } = require("@foxglove/ws-protocol");
@@ -23,6 +24,20 @@ async function waitFor(check, ms) {
   const end = Date.now() + ms;
   while (!check() && Date.now() < end) await sleep(20);
   return check();
+}
+
+// "summary": true — for people (docs/foxglove.md): one line per channel, with its message count and the last message
+// cut to a line, instead of one JSON line with every schema in it (~15 kB).
+function printSummary() {
+  const server = seen.serverInfo ? seen.serverInfo.name : "no server info";
+  console.log(`${server}: ${Object.keys(seen.channels).length} channels, ${Object.keys(seen.services).length} services`);
+  for (const [topic, channel] of Object.entries(seen.channels).sort()) {
+    const count = seen.messages[topic] || 0;
+    const first = seen.firstMessage[topic];
+    const sample = first === undefined ? "" : `  ${JSON.stringify(first).slice(0, 80)}`;
+    console.log(`  ${topic}  ${channel.encoding}/${channel.schemaEncoding}  ${count} msg${sample}`);
+  }
+  for (const error of seen.errors) console.log(`  error: ${error}`);
 }
 
 async function main() {
@@ -95,7 +110,7 @@ async function main() {
     }
   }
   await sleep((plan.seconds || 0) * 1000);
-  console.log(JSON.stringify(seen));
+  if (plan.summary) printSummary(); else console.log(JSON.stringify(seen));
   client.close();
   setTimeout(() => process.exit(0), 200);
 }

@@ -58,7 +58,8 @@ test("link quality: the share of offered messages the uplink carries; streams of
   assert.strictEqual(linkQuality({ streams: { a: { offered_hz: 0, sent_hz: 0 }, b: { offered_hz: 4, sent_hz: 8 } } }), 1);
   assert.strictEqual(linkQuality({ streams: { a: { offered_hz: 10, sent_hz: 2.5 } } }), 0.25);
   const text = uplinkText({ rate_kbit_s: 243.6, measured: false, streams: { scan: { offered_hz: 5, sent_hz: 3.9, superseded: 2 } } });
-  assert.strictEqual(text, "uplink ≥ 244 kbit/s — scan 3.9 of 5.0 Hz (2 superseded)");
+  assert.strictEqual(text, "uplink never full (244 kbit/s sent; capacity not measured) — scan 3.9 of 5.0 Hz (2 superseded)");
+  assert.strictEqual(uplinkText({ rate_kbit_s: 243.6, measured: true, streams: {} }), "uplink 244 kbit/s — every stream at its rate");
 });
 
 test("who drives: state/control's holder and since; the heartbeat's owner only without it", () => {

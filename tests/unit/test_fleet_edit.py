@@ -76,6 +76,9 @@ def test_the_cli_makes_a_password_grants_and_says_to_apply(fleet_file: Path, tmp
     password = password_file.read_text().strip()
     assert len(password) >= 20 and oct(password_file.stat().st_mode & 0o777) == "0o600"
     assert verify_password(password, load_fleet(fleet_file).users["dave"].password_hash)
+    line = next(n for n in fleet_file.read_text().splitlines() if "$7$" in n and "dave" not in n and
+                load_fleet(fleet_file).users["dave"].password_hash in n)
+    assert line.strip().startswith("password: $7$")  # on one line with its key, never folded onto the next
     assert main(["fleet", "grant", "dave", "turtle2", "--role", "viewer", "--config", str(fleet_file)]) == 0
     assert "dave is now viewer of turtle2; apply it with `roslink-mqtt fleet apply`" in capsys.readouterr().out
     assert load_fleet(fleet_file).users_of("turtle2")["dave"] is Role.VIEWER

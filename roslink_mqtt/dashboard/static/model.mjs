@@ -62,8 +62,11 @@ export const isBlocked = (robot) => Boolean(robot && robot.hb && robot.hb.system
 export function fmt(v, digits) { return typeof v === "number" && Number.isFinite(v) ? v.toFixed(digits) : "–"; }
 
 /** A bridge's session is the time it started (s since the epoch): shown as a time of day, not a number. */
+/** "07:31:12": every time of day the page shows, one way (24 h, the browser's locale otherwise). */
+export function clock(ms) { return new Date(ms).toLocaleTimeString([], { hour12: false }); }
+
 export function sessionText(session) {
-  return session > 1e9 ? `since ${new Date(session * 1000).toLocaleTimeString()}` : String(session);
+  return session > 1e9 ? `since ${clock(session * 1000)}` : String(session);
 }
 
 export function isOperator(robot) { return Boolean(robot && robot.access && robot.access.role === "operator"); }
@@ -74,7 +77,7 @@ export function mayUse(robot, who) { return who === "viewers" ? Boolean(robot.ac
 export function driverText(robot) {
   const c = robot.control;
   if (c && typeof c.holder === "string") {
-    const since = typeof c.since === "number" ? new Date(c.since * 1000).toLocaleTimeString([], { hour12: false }) : "?";
+    const since = typeof c.since === "number" ? clock(c.since * 1000) : "?";
     return `${c.holder}${c.supervisor ? " (supervisor)" : ""} since ${since}`;
   }
   if (c && c.holder === null) return "";
@@ -111,8 +114,10 @@ export function uplinkText(link) {
     .filter(([, s]) => s && s.offered_hz > 0 && s.sent_hz + 0.05 < s.offered_hz)
     .map(([n, s]) => `${n} ${Number(s.sent_hz).toFixed(1)} of ${Number(s.offered_hz).toFixed(1)} Hz` +
          (s.superseded ? ` (${s.superseded} superseded)` : ""));
-  return `uplink ${link.measured ? "" : "≥ "}${Math.round(link.rate_kbit_s)} kbit/s — ` +
-         (behind.length ? behind.join(", ") : "every stream at its rate");
+  // unmeasured: the link never filled, so the rate is only what was sent (on loopback, not a capacity)
+  const rate = Math.round(link.rate_kbit_s);
+  const head = link.measured ? `uplink ${rate} kbit/s` : `uplink never full (${rate} kbit/s sent; capacity not measured)`;
+  return `${head} — ` + (behind.length ? behind.join(", ") : "every stream at its rate");
 }
 
 /** A new position (global_motion): the latest pose, the recent ones (for scans), the trail, the speed series. */

@@ -2,6 +2,7 @@
 // until acknowledged (acknowledgements kept for the session in sessionStorage), and, where the browser allows and
 // the operator asked, a notification for each new alert.
 import { AlertBook, DEFAULT_RULES, readRules } from "../alerts.mjs";
+import { clock } from "../model.mjs";
 import { dash } from "../store.mjs";
 import { el, setText, ui } from "./dom.mjs";
 import { openRobot } from "./fleet.mjs";
@@ -64,7 +65,7 @@ function renderAlerts() {
     const acked = dash.alerts.isAcked(a);
     const li = el("li", { "data-key": a.key, "data-robot": a.robot, "data-kind": a.kind, "data-severity": a.severity,
                           "data-state": acked ? "acknowledged" : a.active ? "active" : "resolved" });
-    const time = new Date(performance.timeOrigin + a.since).toLocaleTimeString();
+    const time = clock(performance.timeOrigin + a.since);
     const text = el("button", { type: "button", class: "robot-link", title: `open ${a.robot}` }, `${time} ${a.text}` +
                     (a.active ? "" : " (resolved)"));
     text.addEventListener("click", () => openRobot(a.robot));

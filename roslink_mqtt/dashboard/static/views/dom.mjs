@@ -1,5 +1,7 @@
 // The page's elements by id, and the few helpers every view uses. Elements are built with createElement and
 // textContent only: names and texts come from robots and the broker, never as HTML.
+import { clock } from "../model.mjs";
+
 const IDS = [
   "conn", "whoami", "logout", "estop", "stop-all", "driver", "take-over", "claim", "release", "notice", "login",
   "login-form", "ws-url", "username", "password", "connect", "login-error", "main", "fleet", "fleet-empty",
@@ -17,7 +19,7 @@ for (const id of IDS) ui[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = docu
 
 export function show(element, on) { element.hidden = !on; }
 export function setText(element, text) { if (element.textContent !== text) element.textContent = text; }
-export function stamp() { return new Date().toLocaleTimeString(); }
+export function stamp() { return clock(Date.now()); }
 
 /** The red line under the header (fixed: it never moves what is under a held pointer). */
 export function notice(text) {
