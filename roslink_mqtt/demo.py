@@ -22,8 +22,10 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import orjson
+import paho.mqtt.client as mqtt
 
 from .config import load_fleet
 from .fastdds_shm import remove_zombie_segments
@@ -37,6 +39,9 @@ from .protocol.params import ParamRequest
 from .ros_env import domains_in_use, local_ros_env
 from .topics import Kind, TopicTree, Verb
 
+if TYPE_CHECKING:
+    from .dashboard import DashboardServer
+
 DEMO_PASSWORDS = {"turtle1": "turtle1-demo", "alice": "alice-demo", "bob": "bob-demo"}
 
 
@@ -47,7 +52,7 @@ class Scene:
         self.topics = topics
         self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.viewer = self._client("bob", "demo-viewer", port)
-        self.viewer.on_message = lambda c, u, m: self.inbox.put((m.topic, m.payload))
+        self.viewer.on_message = lambda c, u, m: self.inbox.put((m.topic, bytes(m.payload)))
         self.viewer.connect("127.0.0.1", port)
         self.viewer.loop_start()
         self.viewer.subscribe([(topics.heartbeat("turtle1"), 1), (topics.all_state("turtle1"), 0)])
@@ -64,7 +69,7 @@ class Scene:
                                                 Verb.PARAM_REPLY))])
 
     @staticmethod
-    def _client(user: str, client_id: str, port: int):
+    def _client(user: str, client_id: str, port: int) -> mqtt.Client:
         return make_client(client_id, username=user, password=DEMO_PASSWORDS[user], url=f"mqtt://127.0.0.1:{port}")
 
     def beat(self) -> None:
@@ -381,7 +386,7 @@ def _run(argv: list[str] | None) -> int:
     return 0
 
 
-def _start_dashboard(stack: ExitStack, port: int, ws_port: int, prefix: str):  # -> DashboardServer
+def _start_dashboard(stack: ExitStack, port: int, ws_port: int, prefix: str) -> DashboardServer:
     from .dashboard import DashboardServer, MqttJsMissing
 
     try:

@@ -13,6 +13,7 @@ import secrets
 import threading
 import time
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import paho.mqtt.client as mqtt
 
@@ -205,7 +206,7 @@ class MqttLink:
         log.log(level, "broker %s %s, retrying (attempt %d, next in %.1f s%s)", failed, what, self.failures, delay,
                 f" with {nxt}" if nxt else "")
 
-    def _handle_connect(self, client: mqtt.Client, _userdata, _flags, reason, _props) -> None:
+    def _handle_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         self._answered = True
         if reason.is_failure:
             if not login_refused(reason):
@@ -239,7 +240,7 @@ class MqttLink:
         log.info("connected to %s", self.url)
         self._on_up()
 
-    def _handle_disconnect(self, _client, _userdata, _flags, reason, _props) -> None:
+    def _handle_disconnect(self, _client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         was_up = self.connected.is_set()
         self.connected.clear()
         self.subscribed.clear()
@@ -256,7 +257,8 @@ class MqttLink:
             log.warning("lost the broker %s (%s); reconnecting%s", lost, reason, f" to {nxt}" if nxt else "")
         self._on_down(str(reason))
 
-    def _handle_subscribe(self, _client, _userdata, mid, _reason_codes, _props) -> None:
+    def _handle_subscribe(self, _client: mqtt.Client, _userdata: Any, mid: int, _reason_codes: Any,
+                          _props: Any) -> None:
         if mid == self._subscribe_mid:
             self.subscribed.set()
 
@@ -270,14 +272,14 @@ class MqttLink:
             self._closed_reason = closed_before_connack(self.url) if self.report else "it hung up"
         self._attempt_failed(f"closed the connection without answering: {self._closed_reason}")
 
-    def _handle_connect_fail(self, _client, _userdata) -> None:
+    def _handle_connect_fail(self, _client: mqtt.Client, _userdata: Any) -> None:
         self._attempt_failed("unreachable")
 
     def _move_on(self) -> BrokerUrl | None:
         """Failover: the next connection attempt goes to the next broker of the list (None: only one)."""
         return None if self.closing else self.brokers.advance()
 
-    def _handle_message(self, _client, _userdata, message: mqtt.MQTTMessage) -> None:
+    def _handle_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
         # Taken first thing: the command path compares it with the time of publication to ROS, so a command
         # that waited too long inside the bridge (lock, backlog) is never executed late.
         arrived = time.monotonic()

@@ -65,7 +65,7 @@ def run_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export_with_passwords(args: argparse.Namespace, fleet) -> int:
+def _export_with_passwords(args: argparse.Namespace, fleet: Fleet) -> int:
     from ..broker.export_emqx import export_emqx
     from ..broker.export_rabbitmq import RABBITMQ_USER, export_rabbitmq, read_passwords
 

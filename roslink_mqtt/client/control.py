@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -98,7 +99,7 @@ def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float
     errors: dict[str, str] = {}
     changed = threading.Condition()
 
-    def on_ack(robot: str):
+    def on_ack(robot: str) -> Callable[[str, bytes, bool], None]:
         def handle(_topic: str, payload: bytes, _retained: bool) -> None:
             try:
                 body = decode(payload, MessageId.ACK).payload
