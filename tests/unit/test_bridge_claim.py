@@ -4,8 +4,6 @@ tests/integration/test_one_bridge.py."""
 
 from __future__ import annotations
 
-import threading
-
 import pytest
 
 from roslink_mqtt.bridge.claim import (
@@ -52,7 +50,9 @@ def test_a_heartbeat_carries_its_claim_and_old_ones_read_as_oldest() -> None:
 
 
 class FakeBroker:
-    """The start check's connection: delivers scripted heartbeats; ``answer`` plays a live bridge."""
+    """The start check's connection: delivers scripted heartbeats; ``live`` plays a live bridge, which answers each
+    announcement at once (in the publishing thread: no timer to fall behind on a busy machine, which made the
+    stubborn case read as "stood down" once in CI) or, with ``stands_down``, says offline to a take-over."""
 
     def __init__(self, retained: bytes | None = None, live: Claim | None = None, stands_down: bool = True) -> None:
         self.retained, self.live, self.stands_down = retained, live, stands_down
@@ -69,9 +69,9 @@ class FakeBroker:
             claim = read_announcement(payload)
             if claim.take_over and self.stands_down:
                 gone, self.live = self.live, None
-                threading.Timer(0.05, on_heartbeat, (beat(gone, SystemStatus.OFFLINE), False)).start()
+                on_heartbeat(beat(gone, SystemStatus.OFFLINE), False)
             else:
-                threading.Timer(0.02, on_heartbeat, (beat(self.live), False)).start()
+                on_heartbeat(beat(self.live), False)
         return publish, 0.001
 
 
@@ -90,7 +90,8 @@ def test_start_check_verdicts() -> None:
     assert silent.verdict is Verdict.REPLACE and silent.other == OLD and "without a last-will" in silent.note
     took = check(FakeBroker(beat(OLD), live=OLD), NEW_TAKE_OVER)
     assert took.verdict is Verdict.REPLACE and took.other == OLD and took.note.startswith("took over")
-    stubborn = check(FakeBroker(beat(OLD), live=OLD, stands_down=False), NEW_TAKE_OVER, period=0.02)
+    # heard at the announcement, then silent past the hand-over timeout (0.2 s) but well within 1.5 periods
+    stubborn = check(FakeBroker(beat(OLD), live=OLD, stands_down=False), NEW_TAKE_OVER, period=0.5)
     assert stubborn.verdict is Verdict.REPLACE and "did not stand down" in stubborn.note
     assert check_claim(lambda _cb: None, "turtle1", NEW, 1.0, announce=b"").verdict is Verdict.START  # no broker
 
