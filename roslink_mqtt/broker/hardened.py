@@ -194,6 +194,7 @@ TAKEOVER_WAIT = 2.0  # s to wait for the previous connection of a client id to w
 ATTR_KEEPALIVE = "roslink.keep_alive"  # the keep-alive the client asked for (session.keep_alive holds x1.5)
 ATTR_AUTH_OK = "roslink.auth_ok"  # verdict computed before the session table was touched
 ATTR_DENY_REASON = "roslink.deny_reason"  # set by auth plugins for the refusal log line
+ATTR_DENY_CODE = "roslink.deny_code"  # and, when it is not "not authorized", the CONNACK's return code
 ATTR_LISTENER = "roslink.listener"
 ATTR_CLIENT_ID = "roslink.client_id"  # the client id the client sent (session.client_id is login-scoped)
 ATTR_OUTBOX = "roslink.outbox"  # Outbox: deliveries under way to this client
@@ -646,7 +647,7 @@ class HardenedBroker(Broker):
         reason = await self._admit(session)
         if reason is not None:
             log.warning("refused %s: %s", describe_session(session), reason)
-            connack = ConnackPacket.build(0, NOT_AUTHORIZED)
+            connack = ConnackPacket.build(0, session.attributes.pop(ATTR_DENY_CODE, NOT_AUTHORIZED))
             try:
                 await connack.to_stream(writer)
                 await self.plugins_manager.fire_event(MQTTEvents.PACKET_SENT, packet=connack)

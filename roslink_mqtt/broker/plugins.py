@@ -20,6 +20,7 @@ from typing import Any
 
 from amqtt.broker import BrokerContext
 from amqtt.contexts import Action
+from amqtt.mqtt.connack import SERVER_UNAVAILABLE
 from amqtt.plugins.base import BaseAuthPlugin, BasePlugin, BaseTopicPlugin
 from amqtt.session import Session
 
@@ -28,7 +29,8 @@ from ..config import verify_password
 from ..config.passwords import DEFAULT_ITERATIONS, VerifiedLogins
 from ..topics import sys_topic
 from .acl import DecisionCache, LiveFleet
-from .hardened import AMQTT_VERSION, ATTR_DENY_REASON, describe_session
+from .hardened import AMQTT_VERSION, ATTR_DENY_CODE, ATTR_DENY_REASON, describe_session
+from .hashing import HashPool
 from .ratelimit import REFUSE, LoginThrottle
 
 log = logging.getLogger("roslink_mqtt.broker")
@@ -48,8 +50,9 @@ def plugin_path(cls: type) -> str:
 class FleetAuthPlugin(BaseAuthPlugin):
     """Every connection presents a robot or user login from robots.yaml; anonymous is refused.
 
-    Passwords are checked against the Mosquitto ``$7$`` PBKDF2 hashes in a worker thread
-    (a large iteration count must not stall every other client), once per login: a verified one is remembered
+    Passwords are checked against the Mosquitto ``$7$`` PBKDF2 hashes on one worker thread with a bounded queue
+    (:class:`~roslink_mqtt.broker.hashing.HashPool`: a flood of guesses takes at most one core, and a check that
+    would wait too long is refused as "server unavailable"), once per login: a verified one is remembered
     (:class:`~roslink_mqtt.config.passwords.VerifiedLogins`), so reconnects cost a keyed SHA-256. Failed attempts
     feed the :class:`~roslink_mqtt.broker.ratelimit.LoginThrottle` (per login, per address, per pair).
     """
@@ -62,6 +65,7 @@ class FleetAuthPlugin(BaseAuthPlugin):
     def __init__(self, context: BrokerContext) -> None:
         super().__init__(context)
         self.verified = VerifiedLogins()  # a login's PBKDF2 once, not on every reconnect
+        self.hashing = HashPool()  # the slow checks: one thread, a bounded wait (broker/hashing.py)
 
     async def authenticate(self, *, session: Session) -> bool | None:
         live: LiveFleet = self.config.fleet
@@ -100,7 +104,23 @@ class FleetAuthPlugin(BaseAuthPlugin):
             reason = "no password"
         else:
             accepted = live.fleet.accepted_hashes(username)
-            ok = await asyncio.get_running_loop().run_in_executor(None, self._verify, password, accepted)
+            # a login verified before costs a keyed SHA-256, here; any other waits for the one hashing thread, or,
+            # when that queue is already longer than HashPool.max_wait, is refused as "server unavailable" at once
+            ok = any(self.verified.remembered(password, stored) for stored in accepted)
+            if not ok:
+                # under load, checks that may succeed go first: a login that exists, from an address and for a
+                # login with no recent failures (a guesser's made-up names and failing addresses wait for an idle
+                # thread); a login that does not exist still costs a full hash when checked (no timing oracle)
+                failing = throttle is not None and not throttle.is_known_good(address, username) and \
+                    (throttle.failures(address) > 0 or throttle.login_failures(username) > 0)
+                suspect = not accepted or failing
+                if self.hashing.busy(suspect):
+                    session.attributes[ATTR_DENY_REASON] = (
+                        f"the broker is checking many other passwords ({self.hashing.waiting} waiting, about "
+                        f"{self.hashing.expected_wait():.1f} s): try again")
+                    session.attributes[ATTR_DENY_CODE] = SERVER_UNAVAILABLE
+                    return False  # not the user's failure: the throttle does not count it
+                ok = await self.hashing.run(lambda: self._verify(password, accepted))
             if not accepted:
                 reason = "unknown login"
             elif not ok:

@@ -203,6 +203,10 @@ class LoginThrottle:
         while len(self._good) > self.max_good:
             del self._good[next(iter(self._good))]
 
+    def login_failures(self, login: str) -> int:
+        """Recent failures of ``login``, from any address."""
+        return self.by_login.failures(login)
+
     def failures(self, address: str, login: str | None = None) -> int:
         """Recent failures of ``address`` (or of the pair, when ``login`` is given)."""
         if login is None:
