@@ -410,10 +410,13 @@ class CommandEndpoint:
             self._set_blocked(None)
 
     def _set_blocked(self, reason: str | None) -> None:
-        """Under the lock: why motion is refused now (None: it is not); ``state/control`` says so on a change, so
-        ``control status``, ``info``, ``monitor`` and the dashboard show an emergency stop where people look."""
-        if reason != self.motion_blocked:
-            self.motion_blocked = reason
+        """Under the lock: why motion is refused now (None: it is not). ``state/control`` says so when motion becomes
+        blocked or free again, so ``control status``, ``info``, ``monitor`` and the dashboard show an emergency stop
+        where people look; not on every further stop while blocked (any granted user may send stops: two viewers
+        taking turns must not turn them into a stream of retained messages on the robot's uplink)."""
+        changed = (reason is None) != (self.motion_blocked is None)
+        self.motion_blocked = reason
+        if changed:
             self.publish_control()
 
     def block_motion(self, reason: str) -> None:

@@ -30,6 +30,7 @@ from roslink_mqtt.config import load_fleet
 from roslink_mqtt.presence import operator_heartbeat, operator_signoff
 from roslink_mqtt.protocol import SPECS_BY_NAME, AckResult, decode, encode_message
 from roslink_mqtt.protocol.control import CallRequest, ErrorReport, Notice
+from roslink_mqtt.protocol.lease import ControlState
 from roslink_mqtt.topics import Verb
 from tests.support.no_ros import no_ros_env
 from tests.support.procs import CONFIG, ROOT
@@ -401,6 +402,22 @@ def test_an_emergency_stop_needs_no_presence_latches_and_blocks_motion_until_arm
     h.command("arm")
     h.command("twist", {"lx": 0.1})
     assert h.endpoint.motion_blocked is None and h.twists() == [(0.1, 0.0)]
+
+
+def test_state_control_says_blocked_once_per_stop_and_free_again_on_arm(h: Harness) -> None:
+    """The e-stop where people look (state/control's ``blocked``), published when motion becomes blocked and when
+    it is free again: two viewers taking turns at stops cannot make a stream of retained messages of it."""
+    def controls() -> list[ControlState]:
+        return [ControlState.from_json(p.payload) for p in h.link.sent if p.topic == T.state("turtle1", "control")]
+
+    before = len(controls())
+    for i in range(20):
+        h.command("emergency_stop", {"reason": "flood"}, user="bob" if i % 2 else "alice", sequence=i + 1)
+    blocked = controls()[before:]
+    assert [c.blocked for c in blocked] == ["emergency stop by alice"]
+    h.present()
+    h.command("arm")  # alice's first command claims the free lease (a change of its own), then frees motion
+    assert controls()[-1].blocked == "" and controls()[-1].holder == "alice"
 
 
 def test_disarm_blocks_motion(h: Harness) -> None:
