@@ -56,6 +56,19 @@ def _ephemeral_low() -> int:
 _PORTS = random.Random()  # seeded from the OS per process: parallel test workers draw different ports
 
 
+def _share(start: int, stop: int) -> tuple[int, int]:
+    """The part of ``range(start, stop)`` this process draws from: all of it, except in a test worker of
+    pytest-xdist (``PYTEST_XDIST_WORKER=gwN`` of ``PYTEST_XDIST_WORKER_COUNT``, inherited by what it starts), which
+    gets a slice of its own. Two workers that drew the same free port before either bound it made a broker fail with
+    "address already in use" (CI saw it: a session's Mosquitto, and every test that needed it, lost)."""
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER", ""), os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
+    if not (worker.startswith("gw") and worker[2:].isdigit() and count.isdigit() and int(count) > 1):
+        return start, stop
+    index, parts = int(worker[2:]), int(count)
+    size = (stop - start) // parts
+    return start + (index % parts) * size, start + (index % parts + 1) * size
+
+
 def free_port(host: str = LOOPBACK) -> int:
     """A TCP port on ``host`` (loopback) that is free right now, for a server started next.
 
@@ -64,8 +77,9 @@ def free_port(host: str = LOOPBACK) -> int:
     test worker's, a bridge reconnecting) could take it, and the server would fail with "address already in use"."""
     low = min(_ephemeral_low(), 32768)
     if low > 11000:
+        start, stop = _share(10000, low - 1000)
         for _ in range(200):
-            port = _PORTS.randrange(10000, low - 1000)
+            port = _PORTS.randrange(start, stop)
             if port_free(port, host):
                 return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

@@ -105,9 +105,15 @@ def test_sdk_reads_the_description(port, request) -> None:
         again = alice.description("turtle1", timeout=10)  # a second call subscribes afresh
     assert d == again and d.entry("fibonacci").ros_type == "test_msgs/action/Fibonacci"
     with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as bob:
-        link = bob.link("turtle1", timeout=10)  # the bridge's uplink report, retained on state/link
+        deadline = time.monotonic() + 20
+        while True:  # the bridge's uplink report, retained on state/link: the first may predate the sim's odometry
+            link = bob.link("turtle1", timeout=10)
+            motion = link.streams.get("global_motion") if link is not None else None
+            if (motion is not None and motion.offered_hz > 0) or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)  # a new report comes every LINK_REPORT_PERIOD
     assert link is not None and link.mode == "scheduled" and link.rate_kbit_s > 0
-    motion = link.streams["global_motion"]
+    assert motion is not None
     assert motion.priority == "motion" and motion.max_rate == 10 and 0 < motion.offered_hz <= 11
     assert link.streams["robot_status"].latest_only is False  # retained, QoS 1: ordered
     with RobotClient("carol", "carol-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as carol:

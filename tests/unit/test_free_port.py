@@ -12,3 +12,19 @@ def test_ports_are_free_and_below_the_ephemeral_range() -> None:
     assert all(10000 <= p < low for p in ports), ports
     assert all(port_free(p) for p in ports)
     assert len(set(ports)) > 40  # drawn at random, not the same few
+
+
+def test_each_test_worker_draws_from_a_slice_of_its_own(monkeypatch) -> None:
+    """Two xdist workers that drew the same free port before either bound it lost a session's broker in CI."""
+    from roslink_mqtt.localproc import _share
+
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    assert _share(10000, 31768) == (10000, 31768)  # not a test worker: the whole range
+    slices = []
+    for n in range(3):
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", f"gw{n}")
+        monkeypatch.setenv("PYTEST_XDIST_WORKER_COUNT", "3")
+        slices.append(_share(10000, 31768))
+        ports = [free_port() for _ in range(20)]
+        assert all(slices[-1][0] <= p < slices[-1][1] for p in ports), (slices[-1], ports)
+    assert all(a[1] <= b[0] for a, b in zip(slices, slices[1:], strict=False))  # disjoint, in order
