@@ -54,13 +54,16 @@ def _ephemeral_low() -> int:
 
 
 _PORTS = random.Random()  # seeded from the OS per process: parallel test workers draw different ports
+# Ports this process has handed out: never handed out again. A port chosen for a server that starts later (a fleet
+# file written at once, its broker started by a session fixture minutes after) is free until then, and another
+# draw in between took it once in CI ("address already in use", and every test on that broker lost).
+_HANDED: set[int] = set()
 
 
 def _share(start: int, stop: int) -> tuple[int, int]:
     """The part of ``range(start, stop)`` this process draws from: all of it, except in a test worker of
     pytest-xdist (``PYTEST_XDIST_WORKER=gwN`` of ``PYTEST_XDIST_WORKER_COUNT``, inherited by what it starts), which
-    gets a slice of its own. Two workers that drew the same free port before either bound it made a broker fail with
-    "address already in use" (CI saw it: a session's Mosquitto, and every test that needed it, lost)."""
+    gets a slice of its own: two workers never draw the same port between a pick and the server's bind."""
     worker, count = os.environ.get("PYTEST_XDIST_WORKER", ""), os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
     if not (worker.startswith("gw") and worker[2:].isdigit() and count.isdigit() and int(count) > 1):
         return start, stop
@@ -78,9 +81,12 @@ def free_port(host: str = LOOPBACK) -> int:
     low = min(_ephemeral_low(), 32768)
     if low > 11000:
         start, stop = _share(10000, low - 1000)
+        if len(_HANDED) > (stop - start) // 2:
+            _HANDED.clear()
         for _ in range(200):
             port = _PORTS.randrange(start, stop)
-            if port_free(port, host):
+            if port not in _HANDED and port_free(port, host):
+                _HANDED.add(port)
                 return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))

@@ -28,3 +28,9 @@ def test_each_test_worker_draws_from_a_slice_of_its_own(monkeypatch) -> None:
         ports = [free_port() for _ in range(20)]
         assert all(slices[-1][0] <= p < slices[-1][1] for p in ports), (slices[-1], ports)
     assert all(a[1] <= b[0] for a, b in zip(slices, slices[1:], strict=False))  # disjoint, in order
+
+
+def test_a_port_handed_out_is_not_handed_out_again() -> None:
+    """A fleet file's port is chosen long before its broker binds it: no later draw of this process may take it."""
+    ports = [free_port() for _ in range(500)]
+    assert len(set(ports)) == len(ports)
