@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from roslink_mqtt.localproc import Mosquitto
+from roslink_mqtt.config import load_fleet
+from roslink_mqtt.localproc import Mosquitto, fleet_copy, free_port
 from tests.support.broker_setup import ExportedMosquitto, write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 
@@ -39,6 +40,12 @@ def acl_mosquitto(acl_fleet: Path, tmp_path_factory) -> Iterator[ExportedMosquit
 
 @pytest.fixture(scope="session")
 def acl_mosquitto_dynsec(acl_fleet: Path, tmp_path_factory) -> Iterator[Mosquitto]:
-    """Mosquitto with its dynamic-security plugin (``acl export --format mosquitto-dynsec``), same fleet."""
-    with Mosquitto.exported_dynsec(tmp_path_factory.mktemp("acl-dynsec"), acl_fleet, "sys_interval 1") as broker:
+    """Mosquitto with its dynamic-security plugin (``acl export --format mosquitto-dynsec``), same fleet on a port of
+    its own: on the fleet file's port it met ``acl_mosquitto``'s listener, and either died ("address already in use",
+    every test on it lost) or, when that listener answered the readiness check first, the dynsec rows were run
+    against the other Mosquitto."""
+    work = tmp_path_factory.mktemp("acl-dynsec")
+    fleet = fleet_copy(work / "robots.yaml", acl_fleet, port=free_port())
+    with Mosquitto.exported_dynsec(work, fleet, "sys_interval 1") as broker:
+        assert broker.port != load_fleet(acl_fleet).broker.port
         yield broker

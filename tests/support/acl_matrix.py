@@ -113,6 +113,14 @@ def _read(topic: str) -> dict[str, str] | None:
     return None
 
 
+def dynsec_presence(login: str, topic: str) -> bool:
+    """The one documented difference of the dynamic-security export (roslink_mqtt/broker/export_dynsec.py): a
+    robot's role reads every user's presence, not only its granted users' (a grant change would otherwise drop the
+    robot's bridge)."""
+    t = _read(topic)
+    return login in ROBOTS and t is not None and t["kind"] == "operators"
+
+
 def may_read(login: str, topic: str) -> bool:
     if login == "admin":
         return True
