@@ -483,7 +483,12 @@ class CommandEndpoint:
         if pending is None:
             return
         deadline, sent_at, info = pending
-        if info.is_published():
+        try:
+            published = info.is_published()
+        except RuntimeError:  # paho: the publish itself failed (the connection was gone): never acknowledged, and
+            self._pending_heartbeat = None  # the lost connection has its own path (link_down): nothing to wait for
+            return
+        if published:
             self._pending_heartbeat = None
             if not self.failsafe.link_up and self.link.connected.is_set():
                 self.failsafe.link_up = True

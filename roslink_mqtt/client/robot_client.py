@@ -554,9 +554,10 @@ class RobotClient:
             return  # the network thread cannot wait for itself
         try:
             info.wait_for_publish(max(0.0, deadline - time.monotonic()))
-        except (RuntimeError, ValueError):
-            pass
-        if not info.is_published():
+            published = info.is_published()
+        except (RuntimeError, ValueError):  # paho: the publish itself failed (no connection)
+            published = False
+        if not published:
             raise CommandNotConfirmed(f"{what}: the broker did not acknowledge it within {confirm:g} s; it may not "
                                       "have reached the robot (paho sends it again if the connection comes back)")
 

@@ -79,7 +79,12 @@ def _pose(port: int) -> tuple[float, float, float]:
 
 
 def _reset(port: int) -> None:
-    reset = cli(port, "alice", "call", "turtle1", "reset")
+    deadline = time.monotonic() + 20
+    while True:  # a bridge just started finds the sim's reset server a moment later (longer on a busy machine)
+        reset = cli(port, "alice", "call", "turtle1", "reset")
+        if "has no server" not in reset.stdout + reset.stderr or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
     assert reset.returncode == 0 and '"success": true' in reset.stdout, reset.stdout + reset.stderr
 
 
