@@ -212,13 +212,10 @@ class EmbeddedBroker:
         while cause is not None and not isinstance(cause, OSError):
             cause = cause.__cause__ or cause.__context__
         if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
-            busy = next((lst for lst in self.options.listeners() if not _bindable(lst.host, lst.port)), None)
+            busy = next((lst for lst in self.options.listeners() if not can_listen(lst.port, lst.host)), None)
             where = f"{busy.kind} listener {busy.host}:{busy.port}" if busy else "a listener"
             return f"cannot start: {where}: address already in use (another broker running?)"
         if isinstance(cause, OSError):
             return f"cannot start: {cause.strerror or cause}"
         return f"cannot start: {err}"
 
-
-def _bindable(host: str, port: int) -> bool:
-    return can_listen(port, host)
