@@ -90,8 +90,12 @@ class AdminChannel:
 
     def publish(self, topic: str, payload: bytes, *, retain: bool = False) -> None:
         info = self._client.publish(topic, payload, qos=1, retain=retain)
-        info.wait_for_publish(self.timeout)
-        if not info.is_published():
+        try:  # paho raises from both when the publish failed (the connection gone): the same answer, said
+            info.wait_for_publish(self.timeout)
+            published = info.is_published()
+        except (RuntimeError, ValueError):
+            published = False
+        if not published:
             raise AdminError(f"{self.login.url} did not acknowledge the message on {topic}")
 
     def request(self, topic: str, response_topic: str, commands: list[dict[str, Any]]) -> list[dict[str, Any]]:

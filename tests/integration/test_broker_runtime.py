@@ -372,7 +372,11 @@ def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes)
     broker.spawn()
     try:
         wait_for_port(tls_port, 15, host="127.0.0.2")
-        assert f"listening on mqtts://127.0.0.2:{tls_port}; fleet" in broker.output(), broker.output()
+        said = f"listening on mqtts://127.0.0.2:{tls_port}; fleet"
+        deadline = time.monotonic() + 15  # the port answers a moment before the line is written
+        while said not in broker.output() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert said in broker.output(), broker.output()
         p = probes(tls_port, "alice", host="127.0.0.2")
         p.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
         assert p.connect() == 0
