@@ -67,16 +67,23 @@ STOP_PERIOD = 3.0  # s between alice's emergency stops
 class Case:
     kbit: int
     extras: bool  # camera + map
+    hidden: bool = False  # the link's queue hidden behind a hop that acknowledges at once (shaped_link --hidden-queue)
 
     @property
     def label(self) -> str:
-        return f"{self.kbit:g} kbit/s" + (" + camera + map" if self.extras else "")
+        return f"{self.kbit:g} kbit/s" + (" + camera + map" if self.extras else "") + (" hidden" if self.hidden else "")
 
 
-def cases(rates: list[int]) -> list[Case]:
-    out = [Case(rate, False) for rate in rates]
-    if 1000 in rates:
-        out.insert(1, Case(1000, True))
+def cases(rates: list[int], models: list[str] | None = None) -> list[Case]:
+    """Every rate on every link model (``visible``: a modem whose queue backs up into the robot's socket;
+    ``hidden``: a split-TCP proxy, VPN or load balancer that acknowledges at once); 1000 adds camera + map."""
+    out = []
+    for model in models or ["visible"]:
+        hidden = model == "hidden"
+        rows = [Case(rate, False, hidden) for rate in rates]
+        if 1000 in rates:
+            rows.insert(1, Case(1000, True, hidden))
+        out += rows
     return out
 
 
@@ -325,7 +332,7 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen",
                                 f"127.0.0.1:{link_port}", "--to", f"127.0.0.1:{port}", "--delay-ms", str(DELAY_MS),
                                 "--jitter-ms", "0", "--up-kbit", str(case.kbit), "--down-kbit",
-                                str(case.kbit * DOWN_FACTOR)],
+                                str(case.kbit * DOWN_FACTOR), *(["--hidden-queue"] if case.hidden else [])],
                         work / f"link-{link_port}.log", env, port=link_port, what="shaped link")
         if case.extras:
             lat.start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--load"],
@@ -388,7 +395,7 @@ def heartbeat_gap(run: Run) -> float:
 
 def report(runs: list[Run]) -> None:
     extras = any(r.case.extras for r in runs)
-    head = (f"{'uplink':<26} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
+    head = (f"{'uplink':<33} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
             f" {'hb gap':>7} {'silent':>6} {'reply p50/p99':>15} {'e-stop max':>10} {'ack max':>10}")
     if extras:
         head += f"  {'image rate, age p50/p99':<30} {'map rate, age p50/p99':<30}"
@@ -397,12 +404,12 @@ def report(runs: list[Run]) -> None:
     print("-" * len(head))
     for run in runs:
         if run.note:
-            print(f"{run.case.label:<26} {run.mode:<10} failed: {run.note}")
+            print(f"{run.case.label:<33} {run.mode:<10} failed: {run.note}")
             continue
         replies = f"{pct(run.replies, 0.5) * 1000:5.0f}/{pct(run.replies, 0.99) * 1000:5.0f} ms"
         if run.failed_calls:
             replies += f" ({run.failed_calls} failed)"
-        line = (f"{run.case.label:<26} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
+        line = (f"{run.case.label:<33} {run.mode:<10} {stream_cell(run, 'global_motion'):<34} "
                 f"{stream_cell(run, 'range_finder_data'):<30} {heartbeat_gap(run):6.2f}s {run.silent:>6} {replies:>15}"
                 f" {stop_cell(run.stops):>10} {stop_cell(run.stop_acks):>10}")
         if extras:
@@ -448,6 +455,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--rates", default="1000,256,64", help="uplinks in kbit/s (default: %(default)s; 1000 adds the "
                                                           "camera + map row)")
     p.add_argument("--modes", default="fifo,scheduled", help="bridge.uplink modes (default: %(default)s)")
+    p.add_argument("--models", default="visible,hidden", help="link models: visible (a modem: the queue backs up "
+                   "into the robot's socket), hidden (a hop that acknowledges at once hides it) (default: %(default)s)")
     p.add_argument("--plot-dir", type=Path, default=PLOT_DIR, help="where weak_link.png goes (default: %(default)s)")
     p.add_argument("--keep-logs", type=Path, help="copy the broker's, bridges' and links' logs here")
     p.add_argument("--load", action="store_true", help=argparse.SUPPRESS)
@@ -459,6 +468,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.mode_list = [m.strip() for m in args.modes.split(",") if m.strip()]
     if not set(args.mode_list) <= {"fifo", "scheduled"}:
         p.error("--modes: fifo and/or scheduled")
+    args.model_list = [m.strip() for m in args.models.split(",") if m.strip()]
+    if not args.model_list or not set(args.model_list) <= {"visible", "hidden"}:
+        p.error("--models: visible and/or hidden")
     return args
 
 
@@ -495,11 +507,11 @@ def main(argv: list[str] | None = None) -> int:
         stops.start()
         stack.callback(stop.set)
         try:
-            for case in cases(args.rate_list):
+            for case in cases(args.rate_list, args.model_list):
                 for mode in args.mode_list:
                     run = one_run(case, mode, args.seconds, work, env, port, viewer, current, watch)
                     runs.append(run)
-                    print(f"  {case.label:<26} {mode:<10} motion {stream_cell(run, 'global_motion')}, "
+                    print(f"  {case.label:<33} {mode:<10} motion {stream_cell(run, 'global_motion')}, "
                           f"hb gap {heartbeat_gap(run):.2f} s, {run.silent} silent, {len(run.replies)} replies"
                           + (f" [{run.note}]" if run.note else "")
                           + (f"\n      bridge: {run.link.summary()}" if run.link is not None else "")

@@ -31,6 +31,18 @@ The controller, one update per answer (and per look while a probe is overdue):
   sends little does not talk its estimate up to a flood (GCC's 1.5× bound);
 * in between: hold.
 
+When it steers (:meth:`PathMeter.steering`, :meth:`PathMeter.room`):
+
+* **before the first answer**, only control leaves: the base round trip must be learnt on an empty path (a queue
+  built before it would be taken for the path itself, and kept: the failure of the first attempt);
+* **for STEER_FOR after a queue the sockets did not show was found** (a cut), the bytes beyond the robot's
+  sockets and not yet known to have crossed stay under the path's budget, and the uplink's rate is at most the
+  path's. Otherwise the socket's meter steers alone: on a link whose queue backs up into the robot it sees the
+  queue itself, and a fast link's burst is never held to the path's estimate;
+* a probe that waited behind the robot's own sockets (more than VISIBLE_SHARE of the target) **cuts nothing**: on
+  a link that serves connections in turns it also waits for the other connections' turns, which look like a
+  queue and are not one (the second failure of the first attempt: 19 kbit/s on a 128 kbit/s modem).
+
 A dead spot (no answer for a while) looks like a queue until its probe returns: the rate is cut a few times, each
 cut waiting as long as the probe has been out (0.85× at ~0.2, 0.4, 0.8, 1.6 s …), and grows back by its answers
 once the path returns; in-flight bytes stay capped all along, so nothing piles up behind the dead spot.
@@ -57,6 +69,8 @@ INCREASE = 0.5  # under-use: the rate grows by this fraction per second (1.5× p
 FAST_INCREASE = 1.25  # per answer while the path shows no queue at all (under a quarter of the target)
 HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
 MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
+STEER_FOR = 30.0  # s: once a queue hidden from the sockets was found, the path steers for this long after the last
+VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
 
 
 @dataclass(slots=True)
@@ -85,6 +99,8 @@ class PathMeter:
     _holds: dict[str, float] = field(default_factory=dict)  # kind of cut → no cut of that kind before this
     _grown_at: float | None = None  # when the rate last grew (or was cut): growth is per second since
     _rates: deque[tuple[float, float]] = field(default_factory=deque)  # (answer time, delivered rate) lately
+    _answered_visible: float = 0.0  # the visible wait of the probe answered last, s
+    _hidden_at: float | None = None  # when a queue the sockets did not show was last found (a cut)
 
     # -- probes ----------------------------------------------------------------------------------------------
     def probe_due(self, now: float) -> bool:
@@ -104,6 +120,7 @@ class PathMeter:
             return None
         raw = max(0.0, now - self._sent_at)
         rtt = max(0.0, raw - self._sent_visible)
+        self._answered_visible = self._sent_visible
         self._sent_at = None
         self._crossed = max(self._crossed, self._sent_handed)
         self.answers += 1
@@ -201,8 +218,15 @@ class PathMeter:
             # An answer measures what the path delivered: the rate goes below it. A probe overdue only says the
             # path is slower than the rate: a cut by DECREASE. Each kind waits a round trip (or the probe's age)
             # before cutting again, since a cut shows only after one: one queue is not punished twice.
+            # A probe that waited behind the robot's own sockets is the socket's to steer: on a link that serves
+            # connections in turns it also waits for the others' turns, which look like a queue and are not one.
             hold = "answer" if answered else "overdue"
+            visible = self._answered_visible if answered else self._sent_visible
+            if visible > VISIBLE_SHARE * self.target_delay:
+                self._grown_at = now
+                return self.rate
             if now >= self._holds.get(hold, float("-inf")):
+                self._hidden_at = now
                 delivered = self.delivered_rate() if answered else self._overdue_bound(now)
                 basis = min(self.rate, delivered) if delivered is not None else self.rate
                 self.rate = max(MIN_RATE, DECREASE * basis)
@@ -239,3 +263,24 @@ class PathMeter:
     def budget(self, now: float) -> int:
         """Bytes the path may hold at the rate: one base round trip plus the target's worth of queue."""
         return int(self.rate * (self.base_rtt + self.target_delay))
+
+    # -- steering --------------------------------------------------------------------------------------------
+    def steering(self, now: float) -> bool:
+        """True while the path, not only the socket, limits what is handed over: before the first answer (the
+        base round trip must be learnt on an empty path: a queue built before it would be taken for the path
+        itself, and kept), and for STEER_FOR after a queue the sockets did not show was found. Otherwise the
+        socket's meter alone steers, as on a link whose queue backs up into the robot (and a fast link, whose
+        bursts are never held to the path's estimate)."""
+        if not self.measured:
+            return True
+        return self._hidden_at is not None and now - self._hidden_at < STEER_FOR
+
+    def room(self, handed: int, held: int, now: float) -> int | None:
+        """Bytes that may still be handed over beyond what the robot's sockets hold (``held``) while the path
+        steers (None: it does not): its budget less what is on the way beyond the sockets and not yet known to
+        have crossed. 0 before the first answer: only control leaves until the path is measured."""
+        if not self.steering(now):
+            return None
+        if not self.measured:
+            return 0
+        return self.budget(now) - max(0, self.in_flight(handed, now) - held)

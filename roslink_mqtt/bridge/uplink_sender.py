@@ -33,6 +33,8 @@ from .path_meter import PROBE_PERIOD, PathMeter
 from .spool import Spool
 from .uplink import (
     INITIAL_RATE,
+    MAX_BUDGET,
+    MIN_BUDGET,
     TARGET_DELAY,
     LinkMeter,
     Outgoing,
@@ -109,8 +111,8 @@ class Uplink:
         self.scheduler = UplinkScheduler()
         self.meter = LinkMeter(target_delay=target_delay)
         # the path end to end (a hop may acknowledge at once and hide the queue from the socket): probes on the
-        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock. Measured
-        # and reported (state/link ``path``); the socket's meter steers
+        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock. It steers
+        # beside the socket's meter once it finds a queue the sockets do not show (and until its first answer)
         self.path = PathMeter(target_delay=target_delay, rate=INITIAL_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
         main.on_pong = self._pong
@@ -142,20 +144,33 @@ class Uplink:
         return held / self.rate() if held else 0.0
 
     # -- the rate -------------------------------------------------------------------------------------------
-    def rate(self) -> float:
-        """Bytes/s the uplink may send: the socket's measurement (:class:`.uplink.LinkMeter`). The path meter
-        measures the path end to end beside it and reports what it finds (``state/link``'s ``path``); steering by
-        it where a hop hides the queue (issue 42) is not yet reliable enough to switch on: docs/performance.md."""
+    def rate(self, now: float | None = None) -> float:
+        """Bytes/s the uplink may send: the socket's measurement (:class:`.uplink.LinkMeter`), and no more than
+        the path's while the path steers (a queue hidden behind a hop was found: the socket's rate there is the
+        hop's, not the link's)."""
+        path = self.path
+        if not self.fifo and path.measured and path.steering(time.monotonic() if now is None else now):
+            return min(self.meter.rate, path.rate)
         return self.meter.rate
 
     def budget(self) -> int:
         """Bytes the bridge lets wait in its sockets: rate × (the kernel's round trip + target delay)."""
-        return self.meter.budget
+        rate = self.rate()
+        if rate == self.meter.rate:
+            return self.meter.budget
+        return int(min(MAX_BUDGET, max(MIN_BUDGET, rate * (self.meter.min_rtt + self.meter.target_delay))))
+
+    def _path_room(self, now: float) -> int | None:
+        """Bytes the path still takes beyond the sockets while it steers (None: it does not; the lock is held)."""
+        if self.fifo:
+            return None
+        return self.path.room(self.handed, self._held(), now)
 
     def _pong(self, now: float) -> None:
-        """A probe's answer (paho's thread)."""
+        """A probe's answer (paho's thread): it may open room for what waits."""
         with self.lock:
             self.path.probe_answered(now)
+            self.lock.notify()
 
     def _probe(self, now: float) -> None:
         """Send the next probe when one is due (the lock is held)."""
@@ -287,7 +302,11 @@ class Uplink:
 
     def _blocked(self, lane: Lane, handed: int) -> str | None:
         """Why ``lane`` may not take another message now (None: it may); ``handed``: bytes given to it in this
-        round already. "network": its bytes wait in the network; "allowance": a paced lane used its share."""
+        round already. "network": its bytes wait in the network; "path": the path beyond the sockets holds its
+        budget (every lane waits); "allowance": a paced lane used its share."""
+        room = self._path_room(time.monotonic())
+        if room is not None and room <= 0:
+            return "path"
         budget = self.budget()
         if not lane.paced:
             return "network" if self.unsent(lane) + handed >= budget else None
@@ -297,7 +316,7 @@ class Uplink:
 
     def _refill(self, lane: Lane, now: float) -> None:
         if lane.paced:
-            allowance = self.meter.allowance(lane.index, self._tiers)
+            allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate(now))
             lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
 
@@ -340,7 +359,7 @@ class Uplink:
                           self.budget(), round(meter.min_rtt * 1000, 2), round(period, 2), streams,
                           path=PathReport(round(path.base_rtt * 1000, 1), round(path.current_rtt(now) * 1000, 1),
                                           round(path.queue_delay(now) * 1000, 1), round(path.rate * 8 / 1000, 1),
-                                          path.overused) if path.measured else None)
+                                          path.overused, path.steering(now)) if path.measured else None)
 
     def _pump(self, now: float) -> None:
         """Hand over what waits, the highest class first, then the stream waiting longest. A full main connection
@@ -365,8 +384,9 @@ class Uplink:
                 if not lane.link.connected.is_set():
                     self._set_aside(stream)  # its own connection went first: the same as the broker going
                     continue
-                if self._blocked(lane, handed.get(lane.index, 0)) is not None:
-                    if not lane.paced:
+                why = self._blocked(lane, handed.get(lane.index, 0))
+                if why is not None:
+                    if not lane.paced or why == "path":
                         return  # strict priority: nothing of a lower class overtakes a congested link
                     blocked.add(lane.index)
                     continue

@@ -317,10 +317,13 @@ def fit_columns(rows: list[Row], width: int) -> list[str]:
 
 
 def link_text(report: LinkReport | None) -> str:
-    """``244k`` (the uplink's estimated rate), and the stream furthest behind its rate: ``244k scan 3.9/5``."""
+    """``244k`` (the uplink's estimated rate), ``hidden 85ms`` while the path steers (the queue beyond the robot),
+    and the stream furthest behind its rate: ``244k scan 3.9/5``."""
     if report is None:
         return MISSING
-    text = f"{'≥' if not report.measured else ''}{report.rate_kbit_s:.0f}k"
+    text = f"{'≥' if not (report.measured or report.hidden) else ''}{report.rate_kbit_s:.0f}k"
+    if report.hidden and report.path is not None:  # a queue beyond the robot, behind a hop that acknowledges
+        text += f" hidden {report.path.queue_ms:.0f}ms"
     behind = [(s.sent_hz / s.offered_hz, name, s) for name, s in report.streams.items()
               if s.offered_hz > 0 and s.sent_hz + 0.05 < s.offered_hz]
     if behind:

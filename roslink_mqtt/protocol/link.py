@@ -70,6 +70,7 @@ class PathReport:
     queue_ms: float  # rtt − base: what waits in the path, seen or hidden from the robot's socket
     rate_kbit_s: float  # what the path's answers allow
     cuts: int = 0  # times the rate was cut since the bridge started (a queue past the target)
+    steering: bool = False  # the path limits the uplink now: a queue the robot's socket does not show was found
 
     FIELDS = (  # documented in LinkReport's `path`
         BodyField("base_ms", Number(), True, "the least round trip lately"),
@@ -77,11 +78,13 @@ class PathReport:
         BodyField("queue_ms", Number(), True, "rtt − base"),
         BodyField("rate_kbit_s", Number(), True, "the path's rate"),
         BodyField("cuts", Integer(0), False, "rate cuts so far", 0),
+        BodyField("steering", Boolean(), False, "true: a queue hidden from the robot's socket was found lately, and "
+                  "the path's rate limits the uplink", False),
     )
 
     def to_dict(self) -> dict[str, Any]:
         return {"base_ms": self.base_ms, "rtt_ms": self.rtt_ms, "queue_ms": self.queue_ms,
-                "rate_kbit_s": self.rate_kbit_s, "cuts": self.cuts}
+                "rate_kbit_s": self.rate_kbit_s, "cuts": self.cuts, "steering": self.steering}
 
     @classmethod
     def from_dict(cls, body: Any) -> PathReport:
@@ -119,8 +122,9 @@ class LinkReport:
                                                   "PINGRESP): `base_ms` (the least round trip lately), `rtt_ms` (now), "
                                                   "`queue_ms` (rtt − base: what waits in the path, also behind hops "
                                                   "that hide it from the robot), `rate_kbit_s` (what the path "
-                                                  "allows) and `cuts` (rate cuts so far); absent before the first "
-                                                  "answer", None),
+                                                  "allows), `cuts` (rate cuts so far) and `steering` (true: a queue "
+                                                  "the robot's socket does not show was found lately, and the path's "
+                                                  "rate limits the uplink); absent before the first answer", None),
     )
     QOS = 0  # a snapshot, replaced every period
     RETAINED = True
@@ -151,9 +155,18 @@ class LinkReport:
                 losses = [f"{n} {what}" for n, what in ((s.superseded, "superseded"), (s.dropped, "dropped")) if n]
                 parts.append(text + (f" ({', '.join(losses)})" if losses else ""))
         # unmeasured: the link never filled, so the rate is only what was sent (on loopback: not a capacity)
-        head = (f"link {self.rate_kbit_s:.0f} kbit/s" if self.measured else
+        head = (f"link {self.rate_kbit_s:.0f} kbit/s" if self.measured or self.hidden else
                 f"link never full ({self.rate_kbit_s:.0f} kbit/s sent; capacity not measured)")
+        if self.hidden and self.path is not None:
+            head += (f" (its queue hidden beyond the robot: {self.path.queue_ms:.0f} ms; round trip "
+                     f"{self.path.rtt_ms:.0f} ms, base {self.path.base_ms:.0f} ms)")
         return head + (" — " + ", ".join(parts) if parts else " — every stream at its rate")
+
+    @property
+    def hidden(self) -> bool:
+        """A queue the robot's socket does not show was found lately (a hop that acknowledges at once): the
+        path's rate steers the uplink."""
+        return self.path is not None and self.path.steering
 
 
 LINK_BODIES: tuple[tuple[str, str, type], ...] = (

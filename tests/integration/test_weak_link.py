@@ -167,6 +167,31 @@ def test_a_thin_uplink_keeps_poses_fresh_heartbeats_on_time_and_bulk_last(tmp_pa
     assert link.streams["camera"].priority == "bulk" and link.streams["pose"].priority == "motion"
 
 
+def test_behind_a_hop_that_hides_the_queue_the_path_steers_and_poses_stay_fresh(tmp_path) -> None:
+    """The same flood through a hop that acknowledges every byte at once (a carrier's split-TCP proxy, a VPN, a load
+    balancer that terminates TCP: ``shaped_link --hidden-queue``), so the robot's socket never shows the queue.
+    The socket alone let it grow: poses 5-9 s old and getting older (issue 42). The path's probes find it: the
+    poses stay fresh, heartbeats on time, and ``state/link`` says the path steers, at about the link's rate."""
+    seen = _scene(tmp_path, "scheduled", "--hidden-queue", measure=2 * MEASURE)
+    poses = seen["poses"]
+    ages = [age for _, _, age in poses]
+    assert len(poses) >= 5 * 2 * MEASURE, f"only {len(poses)} poses in {2 * MEASURE} s"
+    record_measurement("hidden-queue uplink: pose age p90", _quantile(ages, 0.9), 1.5)
+    assert _quantile(ages, 0.9) < 1.5, f"poses arrive stale behind the hidden queue: {sorted(ages)[-5:]}"
+    assert max(ages) < 3.0, f"the hidden queue grew: poses up to {max(ages):.1f} s old"
+    beats = seen["heartbeats"]
+    gaps = [b - a for a, b in zip(beats, beats[1:], strict=False)]
+    record_measurement("hidden-queue uplink: largest heartbeat gap", max(gaps, default=float("inf")),
+                       HEARTBEAT_GAP_LINE)
+    assert len(beats) >= 2 * MEASURE - 3 and max(gaps) < HEARTBEAT_GAP_LINE, f"heartbeat gaps {gaps}"
+    assert seen["replies"] and max(seen["replies"]) < 3.0, f"service replies waited: {seen['replies']}"
+    link = seen["link"]
+    assert link is not None and link.path is not None, link
+    assert link.path.steering and link.path.cuts > 0, link.path  # the queue was found beyond the socket
+    assert 0.3 * UPLINK_KBIT < link.path.rate_kbit_s < 1.5 * UPLINK_KBIT, link.path
+    assert seen["camera"] < 10 * 2 * MEASURE / 2, "the camera was not held back"
+
+
 @pytest.mark.parametrize("conflate", [True, False], ids=["conflated", "fifo-control"])
 def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp_path, conflate: bool) -> None:
     """A phone on a 256 kbit/s downlink subscribes to a robot's camera (1.6 Mbit/s) and pose: the embedded broker

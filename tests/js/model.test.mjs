@@ -60,6 +60,10 @@ test("link quality: the share of offered messages the uplink carries; streams of
   const text = uplinkText({ rate_kbit_s: 243.6, measured: false, streams: { scan: { offered_hz: 5, sent_hz: 3.9, superseded: 2 } } });
   assert.strictEqual(text, "uplink never full (244 kbit/s sent; capacity not measured) — scan 3.9 of 5.0 Hz (2 superseded)");
   assert.strictEqual(uplinkText({ rate_kbit_s: 243.6, measured: true, streams: {} }), "uplink 244 kbit/s — every stream at its rate");
+  const hidden = { rate_kbit_s: 120.4, measured: false, streams: {},
+                   path: { base_ms: 60, rtt_ms: 145.2, queue_ms: 85.2, rate_kbit_s: 120.4, cuts: 3, steering: true } };
+  assert.strictEqual(uplinkText(hidden), "uplink 120 kbit/s (its queue hidden beyond the robot: 85 ms; round trip " +
+                     "145 ms, base 60 ms) — every stream at its rate");
 });
 
 test("who drives: state/control's holder and since; the heartbeat's owner only without it", () => {

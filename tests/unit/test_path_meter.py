@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from roslink_mqtt.bridge.path_meter import MIN_RATE, PROBE_PERIOD, PathMeter
+from roslink_mqtt.bridge.path_meter import MIN_RATE, PROBE_PERIOD, STEER_FOR, PathMeter
 
 
 def test_round_trips_give_base_current_and_queue_delay() -> None:
@@ -61,6 +61,44 @@ def test_base_delay_forgets_after_its_history() -> None:
     assert m.base_rtt == pytest.approx(0.2)
 
 
+def test_only_control_leaves_until_the_first_answer_then_the_path_steers_only_behind_a_hidden_queue() -> None:
+    """Before the first answer the base round trip is unknown, and a queue built then would be taken for the path
+    itself: no room. After it the socket steers alone (no room limit) until a queue the sockets did not show is
+    found; from then on the room is the path's budget less what is on the way beyond the sockets."""
+    m = PathMeter(target_delay=0.1, rate=10_000.0)
+    assert m.steering(0.0) and m.room(handed=0, held=0, now=0.0) == 0
+    m.probe_sent(0.0, handed=0)
+    m.probe_answered(0.05)
+    assert not m.steering(0.05) and m.room(handed=50_000, held=0, now=0.05) is None
+    t = 0.2
+    m.probe_sent(t, handed=50_000)  # a hidden queue: the probe waits behind 50 kB the socket never saw
+    before = m.rate
+    assert m.update(t + 0.4) < before and m.overused == 1  # overdue past the target: cut before the answer
+    assert m.steering(t + 0.4)
+    room = m.room(handed=50_000, held=0, now=t + 0.4)
+    assert room is not None and room <= 0  # 50 kB on the way, far more than the budget
+    assert m.room(handed=50_000, held=50_000, now=t + 0.4) == m.budget(t + 0.4)  # what the sockets hold: theirs
+    assert m.steering(t + 0.4 + STEER_FOR - 1) and not m.steering(t + 0.4 + STEER_FOR + 1)
+
+
+def test_a_probe_that_waited_behind_the_robots_own_sockets_cuts_nothing() -> None:
+    """On a link that serves connections in turns (a modem) the probe waits behind what the robot's own sockets
+    hold and for the other connections' turns, which look like a queue: the socket's meter steers there, so the
+    path neither cuts nor takes over. The same wait with nothing in the sockets is a hidden queue, and cuts."""
+    for visible, cuts in ((0.3, 0), (0.0, 1)):
+        m = PathMeter(target_delay=0.1, rate=16_000.0)
+        m.probe_sent(0.0, handed=0)
+        m.probe_answered(0.06)
+        t = 0.2
+        for _ in range(5):
+            m.probe_sent(t, handed=0, visible=visible)
+            t += 0.06 + visible + 0.25  # base + the sockets' wait + others' turns (or a hidden queue)
+            m.probe_answered(t)
+            t += PROBE_PERIOD
+        assert (m.overused > 0) == bool(cuts), (visible, m.overused)
+        assert m.steering(t) == bool(cuts)
+
+
 # -- a closed loop with a simulated path --------------------------------------------------------------------------
 
 @dataclass
@@ -102,7 +140,9 @@ def run_loop(capacity: Callable[[float], float], seconds: float, *, demand: floa
              message: int = 700, dt: float = 0.002) -> tuple[PathMeter, HiddenPath, list[tuple[float, float]]]:
     """A sender that always has more to send than any capacity here (``demand`` bytes/s of ``message``-byte
     messages, latest-wins: what cannot leave is superseded, never queued) and hands a message over only while the
-    meter's in-flight bytes are under its budget. Returns the meter, the path and (time, rate) samples."""
+    meter leaves room (as the uplink does: nothing before the first answer; then anything until a hidden queue is
+    found; then the in-flight bytes under its budget; the robot's sockets hold nothing on this path). Returns the
+    meter, the path and (time, rate) samples."""
     meter = PathMeter(target_delay=0.1, rate=125_000.0)
     path = HiddenPath(capacity)
     handed, credit, t = 0, 0.0, 0.0
@@ -116,7 +156,7 @@ def run_loop(capacity: Callable[[float], float], seconds: float, *, demand: floa
             meter.probe_sent(t, handed)
             path.send(t, 2, probe=True)
         credit = min(credit + demand * dt, 4 * message)
-        while credit >= message and meter.in_flight(handed, t) < meter.budget(t):
+        while credit >= message and ((room := meter.room(handed, 0, t)) is None or room > 0):
             path.send(t, message)
             handed += message
             credit -= message

@@ -116,7 +116,12 @@ export function uplinkText(link) {
          (s.superseded ? ` (${s.superseded} superseded)` : ""));
   // unmeasured: the link never filled, so the rate is only what was sent (on loopback, not a capacity)
   const rate = Math.round(link.rate_kbit_s);
-  const head = link.measured ? `uplink ${rate} kbit/s` : `uplink never full (${rate} kbit/s sent; capacity not measured)`;
+  const path = link.path && link.path.steering ? link.path : null;  // a queue hidden beyond the robot, found
+  let head = link.measured || path ? `uplink ${rate} kbit/s` : `uplink never full (${rate} kbit/s sent; capacity not measured)`;
+  if (path) {
+    head += ` (its queue hidden beyond the robot: ${Math.round(path.queue_ms)} ms; round trip ` +
+      `${Math.round(path.rtt_ms)} ms, base ${Math.round(path.base_ms)} ms)`;
+  }
   return `${head} — ` + (behind.length ? behind.join(", ") : "every stream at its rate");
 }
 
