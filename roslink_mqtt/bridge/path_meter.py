@@ -35,10 +35,12 @@ When it steers (:meth:`PathMeter.steering`, :meth:`PathMeter.room`):
 
 * **before the first answer**, only control leaves: the base round trip must be learnt on an empty path (a queue
   built before it would be taken for the path itself, and kept: the failure of the first attempt);
-* **for STEER_FOR after a queue the sockets did not show was found** (a cut), the bytes beyond the robot's
-  sockets and not yet known to have crossed stay under the path's budget, and the uplink's rate is at most the
-  path's. Otherwise the socket's meter steers alone: on a link whose queue backs up into the robot it sees the
-  queue itself, and a fast link's burst is never held to the path's estimate;
+* **for STEER_FOR after a queue the sockets did not show was found** (a cut: a probe overdue or answered late
+  by more than the target), the bytes beyond the robot's sockets and not yet known to have crossed stay under
+  the path's budget, and the uplink's rate is at most the path's. Otherwise the socket's meter steers alone: on a
+  link whose queue backs up into the robot it sees the queue itself, and a fast link's burst is never held to
+  the path's estimate. A cut on a probe still out takes at most half the rate (a thread stalled on a busy
+  machine looks the same as a queue until the answer comes), so a false one costs a fast link little;
 * a probe that waited behind the robot's own sockets (more than VISIBLE_SHARE of the target) **cuts nothing**: on
   a link that serves connections in turns it also waits for the other connections' turns, which look like a
   queue and are not one (the second failure of the first attempt: 19 kbit/s on a 128 kbit/s modem).
@@ -69,7 +71,9 @@ INCREASE = 0.5  # under-use: the rate grows by this fraction per second (1.5× p
 FAST_INCREASE = 1.25  # per answer while the path shows no queue at all (under a quarter of the target)
 HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
 MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
+OVERDUE_FLOOR = 0.5  # a cut on a probe overdue (before its answer) leaves at least this × DECREASE of the rate
 STEER_FOR = 30.0  # s: once a queue hidden from the sockets was found, the path steers for this long after the last
+FIRST_WAIT = 1.0  # s: only control leaves until the first probe is answered, or this long after it left
 VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
 
 
@@ -101,6 +105,7 @@ class PathMeter:
     _rates: deque[tuple[float, float]] = field(default_factory=deque)  # (answer time, delivered rate) lately
     _answered_visible: float = 0.0  # the visible wait of the probe answered last, s
     _hidden_at: float | None = None  # when a queue the sockets did not show was last found (a cut)
+    _first_sent: float | None = None  # when the first probe left
 
     # -- probes ----------------------------------------------------------------------------------------------
     def probe_due(self, now: float) -> bool:
@@ -113,6 +118,8 @@ class PathMeter:
         queue at its target already: this meter steers only by what is hidden beyond it)."""
         self._sent_at, self._sent_handed, self._last_sent = now, handed, now
         self._sent_visible = max(0.0, visible)
+        if self._first_sent is None:
+            self._first_sent = now
 
     def probe_answered(self, now: float) -> float | None:
         """The probe out was answered at ``now``: its round trip (None if no probe was out)."""
@@ -228,6 +235,10 @@ class PathMeter:
             if now >= self._holds.get(hold, float("-inf")):
                 self._hidden_at = now
                 delivered = self.delivered_rate() if answered else self._overdue_bound(now)
+                if delivered is not None and not answered:
+                    # a probe overdue says little about how fast the path is (a stalled thread on a busy machine
+                    # looks the same): at most a halving on it; its answer measures
+                    delivered = max(delivered, OVERDUE_FLOOR * self.rate)
                 basis = min(self.rate, delivered) if delivered is not None else self.rate
                 self.rate = max(MIN_RATE, DECREASE * basis)
                 self._holds[hold] = now + self.current_rtt(now)
@@ -268,11 +279,12 @@ class PathMeter:
     def steering(self, now: float) -> bool:
         """True while the path, not only the socket, limits what is handed over: before the first answer (the
         base round trip must be learnt on an empty path: a queue built before it would be taken for the path
-        itself, and kept), and for STEER_FOR after a queue the sockets did not show was found. Otherwise the
+        itself, and kept; FIRST_WAIT at most), and for STEER_FOR after a queue the sockets did not show was found.
+        Otherwise the
         socket's meter alone steers, as on a link whose queue backs up into the robot (and a fast link, whose
         bursts are never held to the path's estimate)."""
-        if not self.measured:
-            return True
+        if not self.measured:  # (a broker that never answers must not silence the robot: FIRST_WAIT)
+            return self._first_sent is None or now - self._first_sent < FIRST_WAIT
         return self._hidden_at is not None and now - self._hidden_at < STEER_FOR
 
     def room(self, handed: int, held: int, now: float) -> int | None:

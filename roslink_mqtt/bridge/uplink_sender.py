@@ -162,8 +162,8 @@ class Uplink:
 
     def _path_room(self, now: float) -> int | None:
         """Bytes the path still takes beyond the sockets while it steers (None: it does not; the lock is held)."""
-        if self.fifo:
-            return None
+        if self.fifo or not self.path.steering(now):
+            return None  # (the sockets are read only when the answer depends on them: this is on every offer)
         return self.path.room(self.handed, self._held(), now)
 
     def _pong(self, now: float) -> None:

@@ -63,6 +63,8 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE) -> di
                 run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
                      f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
                 TestClient(broker.port, "bob", "bob-demo") as bob:
+            wait_for_port(link_port, 10)
+            seen["link_up"] = time.time()  # its phases (--phases) count from here
             probe = RosProbe()
             probe.node.create_service(Trigger, "/status", lambda _req, resp: setattr(resp, "success", True) or resp)
             recording = threading.Event()
@@ -190,6 +192,24 @@ def test_behind_a_hop_that_hides_the_queue_the_path_steers_and_poses_stay_fresh(
     assert link.path.steering and link.path.cuts > 0, link.path  # the queue was found beyond the socket
     assert 0.3 * UPLINK_KBIT < link.path.rate_kbit_s < 1.5 * UPLINK_KBIT, link.path
     assert seen["camera"] < 10 * 2 * MEASURE / 2, "the camera was not held back"
+
+
+def test_behind_a_hiding_hop_a_fall_to_an_eighth_is_followed(tmp_path) -> None:
+    """The hidden-queue hop's capacity falls from 1 Mbit/s to 128 kbit/s in an instant (a vehicle moving to a worse
+    cell): what was on its way at the old rate takes eight times as long, and the path's rate must follow within
+    seconds, or the queue it keeps filling grows without bound. Poses from two seconds after the fall are fresh."""
+    fall = 8.0
+    seen = _scene(tmp_path, "scheduled", "--hidden-queue", "--phases", f"{fall:g}:1024,600:{UPLINK_KBIT}",
+                  "--phases-once", measure=fall + 6.0)
+    fell_at = seen["link_up"] + fall
+    after = [age for at, _, age in seen["poses"] if at > fell_at + 2.0]
+    assert seen["poses"][0][0] < fell_at, "the flood began after the fall: nothing measured before it"
+    assert len(after) >= 5 * 3, f"only {len(after)} poses from 2 s after the fall"
+    record_measurement("hidden-queue uplink, 1 Mbit/s → 128 kbit/s: pose age p90 from 2 s after the fall",
+                       _quantile(after, 0.9), 1.5)
+    assert _quantile(after, 0.9) < 1.5, f"stale after the fall: {sorted(after)[-5:]}"
+    link = seen["link"]
+    assert link is not None and link.path is not None and link.path.rate_kbit_s < 2 * UPLINK_KBIT, link
 
 
 @pytest.mark.parametrize("conflate", [True, False], ids=["conflated", "fifo-control"])

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from roslink_mqtt.bridge.path_meter import MIN_RATE, PROBE_PERIOD, STEER_FOR, PathMeter
+from roslink_mqtt.bridge.path_meter import FIRST_WAIT, MIN_RATE, PROBE_PERIOD, STEER_FOR, PathMeter
 
 
 def test_round_trips_give_base_current_and_queue_delay() -> None:
@@ -61,16 +61,20 @@ def test_base_delay_forgets_after_its_history() -> None:
     assert m.base_rtt == pytest.approx(0.2)
 
 
-def test_only_control_leaves_until_the_first_answer_then_the_path_steers_only_behind_a_hidden_queue() -> None:
+def test_only_control_leaves_until_the_first_answer_then_the_path_steers_behind_a_hidden_queue() -> None:
     """Before the first answer the base round trip is unknown, and a queue built then would be taken for the path
-    itself: no room. After it the socket steers alone (no room limit) until a queue the sockets did not show is
-    found; from then on the room is the path's budget less what is on the way beyond the sockets."""
+    itself: no room (for FIRST_WAIT at most: a broker that never answers must not silence the robot). After it
+    the socket steers alone (no room limit) until a queue the sockets did not show is found; from then on the room
+    is the path's budget less what is on the way beyond the sockets."""
+    silent = PathMeter()
+    silent.probe_sent(0.0, handed=0)
+    assert silent.room(0, 0, FIRST_WAIT - 0.1) == 0 and silent.room(0, 0, FIRST_WAIT + 0.1) is None
     m = PathMeter(target_delay=0.1, rate=10_000.0)
     assert m.steering(0.0) and m.room(handed=0, held=0, now=0.0) == 0
     m.probe_sent(0.0, handed=0)
     m.probe_answered(0.05)
-    assert not m.steering(0.05) and m.room(handed=50_000, held=0, now=0.05) is None
-    t = 0.2
+    t = 0.1
+    assert not m.steering(t) and m.room(handed=50_000, held=0, now=t) is None
     m.probe_sent(t, handed=50_000)  # a hidden queue: the probe waits behind 50 kB the socket never saw
     before = m.rate
     assert m.update(t + 0.4) < before and m.overused == 1  # overdue past the target: cut before the answer
@@ -137,15 +141,19 @@ class HiddenPath:
 
 
 def run_loop(capacity: Callable[[float], float], seconds: float, *, demand: float = 200_000.0,
-             message: int = 700, dt: float = 0.002) -> tuple[PathMeter, HiddenPath, list[tuple[float, float]]]:
-    """A sender that always has more to send than any capacity here (``demand`` bytes/s of ``message``-byte
+             message: int = 700, dt: float = 0.002,
+             start_burst: int = 0) -> tuple[PathMeter, HiddenPath, list[tuple[float, float]]]:
+    """A sender that always has more to send than any capacity here (``demand`` bytes/s of ``message``-byte state
     messages, latest-wins: what cannot leave is superseded, never queued) and hands a message over only while the
-    meter leaves room (as the uplink does: nothing before the first answer; then anything until a hidden queue is
-    found; then the in-flight bytes under its budget; the robot's sockets hold nothing on this path). Returns the
-    meter, the path and (time, rate) samples."""
+    meter leaves room, as the uplink does (nothing before the first answer; the in-flight bytes under the budget
+    while the path steers; the robot's sockets hold nothing on this path). Returns the
+    meter, the path and (time, rate) samples. ``start_burst``: control bytes sent at once before the first probe
+    (the bridge's description and retained state when it connects)."""
     meter = PathMeter(target_delay=0.1, rate=125_000.0)
     path = HiddenPath(capacity)
-    handed, credit, t = 0, 0.0, 0.0
+    handed, credit, t = start_burst, 0.0, 0.0
+    if start_burst:
+        path.send(0.0, start_burst)
     rates: list[tuple[float, float]] = []
     while t < seconds:
         while path.answers and path.answers[0] <= t:
@@ -235,3 +243,15 @@ def test_a_fast_link_is_not_held_to_the_first_guess() -> None:
     print(f"40 Mbit/s path, 11 Mbit/s offered: carried {carried * 8 / 1e6:.1f} Mbit/s from 2 s on, "
           f"rate {meter.rate * 8 / 1e6:.1f} Mbit/s, cuts {meter.overused}")
     assert carried > 0.9 * 1_400_000.0 and meter.overused == 0
+
+
+def test_a_first_answer_behind_the_bridges_own_start_is_not_kept_as_the_base() -> None:
+    """The bridge's description and retained state (20 kB, most of a second at 256 kbit/s) leave before the first
+    probe, which waits behind them: taken as the base round trip, that wait would let a queue as long stand for
+    good. Nothing but control left before that answer, so the burst drains by itself and the next answers find
+    the path's own round trip."""
+    meter, path, _ = run_loop(lambda t: 32_000.0, 12.0, start_burst=20_000)
+    settled = ages(path, 4.0, 12.0)
+    print(f"after a 20 kB start: base {meter.base_rtt * 1000:.0f} ms, age p99 {p99(settled) * 1000:.0f} ms")
+    assert meter.base_rtt < 0.1
+    assert p99(settled) < 0.4
