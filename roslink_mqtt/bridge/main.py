@@ -28,7 +28,7 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from ..config.model import EXECUTORS
 from ..connection_options import (
@@ -254,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
-        return 2
+        _leave_before_start(2)
     # Only now, with ROS set up meanwhile, does the bridge need the start check's answer: nothing has reached the
     # broker or ROS's actuators yet.
     while check.is_alive() and not stopping.is_set():  # a Ctrl-C need not wait for the check (a daemon thread)
@@ -269,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
             if created is not None:
                 created.destroy_node()
         rclpy.shutdown()
-        return 0 if stopping.is_set() else EXIT_DUPLICATE
+        _leave_before_start(0 if stopping.is_set() else EXIT_DUPLICATE)
     if check.result.verdict is Verdict.REPLACE:
         log.warning("%s", check.result.note)
         bridge.take_over_claim()
@@ -321,6 +321,18 @@ def main(argv: list[str] | None = None) -> int:
     if bridge.login_refused is not None:
         return EXIT_LOGIN_REFUSED
     return EXIT_FENCED if bridge.fenced_by is not None else 0
+
+
+def _leave_before_start(code: int) -> NoReturn:
+    """End a bridge that was made but never started (refused: another live bridge has the robot; a rule ROS
+    cannot serve) with ``code``, skipping the interpreter's teardown. What the bridge made meanwhile (rclpy's
+    node, publishers and subscriptions, paho clients) is then torn down by garbage collection after rclpy has shut
+    down, which crashed the process now and then (SIGSEGV instead of exit status 3, which the systemd unit and
+    the tests rely on). Nothing of it reached the broker or ROS's actuators: there is nothing to finish."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
