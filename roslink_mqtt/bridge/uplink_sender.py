@@ -257,7 +257,8 @@ class Uplink:
                     stream.dropped += 1  # an ordered stream lost one: counted (a pose is simply stale)
                 return
             self._refill(lane, message.queued_at)
-            if not self.scheduler.has_waiting(below=stream.priority + 1) and self._blocked(lane, 0) is None:
+            if not self.scheduler.has_waiting(below=stream.priority + 1) and \
+                    self._blocked(lane, 0, message.size) is None:
                 # nothing of this class or above waits: straight to paho (a lower class waiting behind a busy
                 # lane of its own goes through the sender thread, which knows why that lane waits)
                 stream.offered += 1
@@ -300,12 +301,15 @@ class Uplink:
         client = lane.link.client
         return paho_unsent(client) + kernel_unsent(raw_socket(client))
 
-    def _blocked(self, lane: Lane, handed: int) -> str | None:
+    def _blocked(self, lane: Lane, handed: int, size: int = 0) -> str | None:
         """Why ``lane`` may not take another message now (None: it may); ``handed``: bytes given to it in this
-        round already. "network": its bytes wait in the network; "path": the path beyond the sockets holds its
-        budget (every lane waits); "allowance": a paced lane used its share."""
+        round already; ``size``: the next message's. "network": its bytes wait in the network; "path": the path
+        beyond the sockets holds its budget (every lane waits); "allowance": a paced lane used its share."""
         room = self._path_room(time.monotonic())
-        if room is not None and room <= 0:
+        if room is not None and (room <= 0 or (lane.paced and size > room and room < self.path.budget(0.0))):
+            # behind a hop, one queue holds every connection's bytes in turn: a scan or a camera frame goes in
+            # only when it fits the room, or when nothing is on the way (then a pose waits behind one of them,
+            # never behind several)
             return "path"
         budget = self.budget()
         if not lane.paced:
@@ -384,7 +388,7 @@ class Uplink:
                 if not lane.link.connected.is_set():
                     self._set_aside(stream)  # its own connection went first: the same as the broker going
                     continue
-                why = self._blocked(lane, handed.get(lane.index, 0))
+                why = self._blocked(lane, handed.get(lane.index, 0), stream.waiting[0].size)
                 if why is not None:
                     if not lane.paced or why == "path":
                         return  # strict priority: nothing of a lower class overtakes a congested link
