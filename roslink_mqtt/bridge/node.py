@@ -78,6 +78,7 @@ log = logging.getLogger("roslink_mqtt.bridge")
 
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
 VIEWER_LINK_HEAD_START = 3.0  # s the command link waits at start for the viewer link's subscriptions
+STOP_DELIVERY_WAIT = 0.5  # s a stopping bridge waits for its last zero velocity's acknowledgement (per output)
 
 
 def _static_part(robot: Robot) -> tuple:
@@ -152,6 +153,17 @@ class RosActuators:
     def zero_velocity(self) -> None:
         for route, pub in self.velocity:
             pub.publish(route.ros_cls())
+
+    def delivered_zero(self, timeout: float) -> bool:
+        """Wait (at most ``timeout`` s per output) until every reliable subscriber of the velocity outputs has
+        acknowledged what was published. A reliable writer repairs a lost sample only while it lives: a bridge
+        that exits right after its last zero would take a dropped one along, and the robot would keep its last
+        command (a take-over's fenced bridge, once in CI, its zero's datagram dropped on a loaded machine). How
+        soon the acknowledgement comes is the DDS configuration's heartbeat period (the bundled loopback profile:
+        100 ms; Fast DDS's default: 3 s, so the wait ends at ``timeout``). True when all acknowledged."""
+        from rclpy.duration import Duration
+
+        return all(pub.wait_for_all_acked(Duration(seconds=timeout)) for _, pub in self.velocity)
 
     def failsafe_actions(self) -> None:
         for pub, msg in self.on_failsafe:
@@ -496,6 +508,8 @@ class Bridge:
         self.systemd.stopping()
         with self.endpoint.lock:
             self.actuators.zero_velocity()
+        if not self.actuators.delivered_zero(STOP_DELIVERY_WAIT):
+            log.debug("the last zero velocity was not acknowledged within %g s", STOP_DELIVERY_WAIT)
         self.snapshots.close()
         self.uplink.stop()
         for lane in self.lanes:

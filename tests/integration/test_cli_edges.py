@@ -344,7 +344,10 @@ def test_killed_commanding_client_still_stops_the_robot_with_a_warning(stack) ->
                             "--rate", "10", "--duration", "20", "--url", f"mqtt://127.0.0.1:{port}", "-u", "alice"],
                            cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
     try:
-        time.sleep(2.5)
+        with TestClient(port, "bob", "bob-demo") as bob:  # until the robot moves: a busy machine starts pub late
+            assert bob.connect() == 0
+            bob.subscribe("roslink/turtle1/state/global_motion", qos=0)
+            bob.wait_for(lambda m: m.json()["payload"]["vx"] > 0.15, timeout=20)
     finally:
         pub.kill()
         pub.wait()
