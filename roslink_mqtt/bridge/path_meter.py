@@ -186,10 +186,11 @@ class PathMeter:
 
         With ``now``: less what crossed at the rate since the last answer, for at most one probe period and base
         round trip (the answers come that far apart: without it the path would idle between them); a probe
-        overdue beyond that earns nothing more, so a dead spot is not filled behind."""
+        overdue beyond that earns nothing more, so a dead spot is not filled behind; nor does a path whose queue
+        is over the target earn any."""
         unconfirmed = max(0, handed - self._crossed)
-        if now is None or not self._recent:
-            return unconfirmed
+        if now is None or not self._recent or self.queue_delay(now) > self.target_delay:
+            return unconfirmed  # a path over its target carries less than the rate says: no credit on trust
         since = min(max(0.0, now - self._recent[-1].at), PROBE_PERIOD + self.base_rtt)
         return max(0, unconfirmed - int(self.rate * since))
 

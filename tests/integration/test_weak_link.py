@@ -57,8 +57,9 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE) -> di
     seen: dict = {"poses": [], "blobs": [], "camera": 0, "heartbeats": [], "replies": [], "link": None}
     with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
         link_port = free_port()
+        uplink = [] if "--phases" in link_args else ["--up-kbit", str(UPLINK_KBIT)]  # phases: the uplink's rates
         with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
-                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", str(UPLINK_KBIT),
+                  f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", *uplink,
                   "--down-kbit", "1024", *link_args], tmp_path / "link.log"), \
                 run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
                      f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")), \
