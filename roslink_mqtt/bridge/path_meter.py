@@ -150,10 +150,13 @@ class PathMeter:
         return raw
 
     def reset(self, handed: int) -> None:
-        """A new connection: the probe out is lost with the old one; what was handed over so far counts as
-        crossed (the old connection's bytes are gone either way). The base delay and the rate are kept."""
-        self._sent_at, self._last_sent = None, float("-inf")  # probe the new connection at once
-        self._crossed = handed
+        """A new connection: the probe out is lost with the old one, and the new one is probed at once. What was
+        handed over is not taken as crossed: the other connections' bytes may still wait behind a hop (the first
+        attempt counted them crossed, and a thin hidden link that had just cost the main connection its
+        keep-alive was flooded again at once); the new connection's first answer says what crossed. The base
+        delay and the rate are kept."""
+        self._sent_at, self._last_sent = None, float("-inf")
+        self._crossed = min(self._crossed, handed)
         self._recent.clear()
         self._rates.clear()
         self._grown_at = None
