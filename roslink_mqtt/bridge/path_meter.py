@@ -74,6 +74,7 @@ MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the 
 OVERDUE_FLOOR = 0.5  # a cut on a probe overdue (before its answer) leaves at least this × DECREASE of the rate
 STEER_FOR = 30.0  # s: once a queue hidden from the sockets was found, the path steers for this long after the last
 FIRST_WAIT = 1.0  # s: only control leaves until the first probe is answered, or this long after it left
+HOP_GAP = 0.015  # s: a path round trip this much longer than the TCP connection's own says a hop acknowledges early
 VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
 
 
@@ -106,6 +107,7 @@ class PathMeter:
     _answered_visible: float = 0.0  # the visible wait of the probe answered last, s
     _hidden_at: float | None = None  # when a queue the sockets did not show was last found (a cut)
     _first_sent: float | None = None  # when the first probe left
+    tcp_rtt: float | None = None  # the kernel's least round trip of the main connection (to the first hop), s
 
     # -- probes ----------------------------------------------------------------------------------------------
     def probe_due(self, now: float) -> bool:
@@ -157,6 +159,7 @@ class PathMeter:
         delay and the rate are kept."""
         self._sent_at, self._last_sent = None, float("-inf")
         self._crossed = min(self._crossed, handed)
+        self.tcp_rtt = None  # (a failover may reach another broker, on another route)
         self._recent.clear()
         self._rates.clear()
         self._grown_at = None
@@ -289,7 +292,19 @@ class PathMeter:
         bursts are never held to the path's estimate)."""
         if not self.measured:  # (a broker that never answers must not silence the robot: FIRST_WAIT)
             return self._first_sent is None or now - self._first_sent < FIRST_WAIT
+        if self.behind_a_hop:
+            return True
         return self._hidden_at is not None and now - self._hidden_at < STEER_FOR
+
+    @property
+    def behind_a_hop(self) -> bool:
+        """The path's least round trip is HOP_GAP longer than the TCP connection's own: something between the
+        robot and the broker acknowledges the robot's bytes before they have crossed (a split-TCP proxy, a VPN, a
+        satellite terminal), so a queue may build where the socket cannot see it. The path then steers from the
+        first answer on, growing from its first guess as its answers show room, instead of waiting for a queue
+        to show: on a thin link that wait is seconds of data already in the hidden queue. On a LAN and on a path
+        whose queue backs up into the robot both round trips are alike, and nothing changes there."""
+        return self.tcp_rtt is not None and self.measured and self.base_rtt - self.tcp_rtt > HOP_GAP
 
     def room(self, handed: int, held: int, now: float) -> int | None:
         """Bytes that may still be handed over beyond what the robot's sockets hold (``held``) while the path

@@ -446,6 +446,8 @@ class Uplink:
             sock = raw_socket(lane.link.client)
             sample = delivered(sock)
             acked.append(sample[0] if sample is not None else 0)
+            if lane is self.main and sample is not None and sample[1] is not None:  # where the probes go
+                self.path.tcp_rtt = sample[1] if self.path.tcp_rtt is None else min(self.path.tcp_rtt, sample[1])
             queued += kernel_unsent(sock)
             if sample is not None and sample[1] is not None:
                 min_rtt = sample[1] if min_rtt is None else min(min_rtt, sample[1])

@@ -258,3 +258,17 @@ def test_a_first_answer_behind_the_bridges_own_start_is_not_kept_as_the_base() -
     print(f"after a 20 kB start: base {meter.base_rtt * 1000:.0f} ms, age p99 {p99(settled) * 1000:.0f} ms")
     assert meter.base_rtt < 0.1
     assert p99(settled) < 0.4
+
+
+def test_a_hop_that_acknowledges_early_is_steered_from_the_first_answer() -> None:
+    """The TCP connection's own round trip (to the first hop) is 0.1 ms while the broker answers in 40 ms: the hop
+    acknowledges before the path is crossed, so the path steers from the first answer, before any queue shows. A
+    LAN (both round trips alike) and a modem (the TCP round trip is the path's) are left to the socket."""
+    for tcp_rtt, steered in ((0.0001, True), (0.039, False), (None, False)):
+        m = PathMeter()
+        m.tcp_rtt = tcp_rtt
+        m.probe_sent(0.0, handed=0)
+        m.probe_answered(0.04)
+        assert m.behind_a_hop == steered and m.steering(1.0) == steered, tcp_rtt
+        room = m.room(handed=0, held=0, now=1.0)
+        assert (room is not None and room > 0) if steered else room is None
