@@ -40,6 +40,21 @@ def _wait(future: Any, timeout: float = 10.0) -> Any:
     return future.result()
 
 
+def _first_call(make: Any, timeout: float = 20.0, resend: float = 2.0) -> Any:
+    """The first ROS service call to a node just discovered, sent again every ``resend`` s until answered: a
+    request sent while the service's request reader is still matching the client's writer (DDS discovery goes on
+    after ``wait_for_services``) is lost, and its future never completes (once in a loaded CI run)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        future = make()
+        sent = time.monotonic()
+        while not future.done() and time.monotonic() - sent < resend:
+            time.sleep(0.01)
+        if future.done():
+            return future.result()
+        assert time.monotonic() < deadline, "the ROS parameter service did not answer"
+
+
 def _until(predicate: Any, timeout: float, what: str) -> float:
     start = time.monotonic()
     while not predicate():
@@ -98,7 +113,7 @@ def test_ros_parameter_client_reaches_the_sdk_node(tmp_path, broker: str) -> Non
                 t0 = time.monotonic()
                 assert ros.wait_for_services(timeout_sec=15), "no /legacy_arm parameter services"
                 print(f"\nROS parameter services of /legacy_arm up {time.monotonic() - t0:.2f} s after waiting")
-                names = _wait(ros.list_parameters()).result.names
+                names = _first_call(ros.list_parameters).result.names
                 assert {"max_force", "speed", "port"} <= set(names)
                 values = _wait(ros.get_parameters(["max_force", "speed", "port"])).values
                 assert [values[0].double_value, values[1].integer_value, values[2].string_value] == \
@@ -174,7 +189,7 @@ def test_killed_sdk_node_and_refusals(tmp_path) -> None:
                 assert proc.stdout.readline().strip() == "declared"
                 ros = AsyncParameterClient(probe.node, "doomed_arm")
                 assert ros.wait_for_services(timeout_sec=15)
-                assert _wait(ros.get_parameters(["gain"])).values[0].double_value == 1.5
+                assert _first_call(lambda: ros.get_parameters(["gain"])).values[0].double_value == 1.5
                 assert _wait(ros.set_parameters([RosParameter("gain", RosParameter.Type.DOUBLE, 2.0)])
                              ).results[0].successful
                 proc.send_signal(signal.SIGKILL)
