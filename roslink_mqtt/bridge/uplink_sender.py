@@ -32,7 +32,6 @@ from .link import MqttLink
 from .path_meter import PROBE_PERIOD, PathMeter
 from .spool import Spool
 from .uplink import (
-    INITIAL_RATE,
     MAX_BUDGET,
     MIN_BUDGET,
     TARGET_DELAY,
@@ -46,6 +45,9 @@ from .uplink import (
 log = logging.getLogger("roslink_mqtt.bridge.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
+# bytes/s the path steers from behind a hop, before its answers say more (256 kbit/s: a thin link's queue stays
+# short; a fast one is found within a second or two, the rate growing 1.25× per answer while no queue shows)
+PATH_START_RATE = 32_000.0
 
 
 def raw_socket(client: Any) -> socket.socket | None:
@@ -113,7 +115,7 @@ class Uplink:
         # the path end to end (a hop may acknowledge at once and hide the queue from the socket): probes on the
         # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock. It steers
         # beside the socket's meter once it finds a queue the sockets do not show (and until its first answer)
-        self.path = PathMeter(target_delay=target_delay, rate=INITIAL_RATE)
+        self.path = PathMeter(target_delay=target_delay, rate=PATH_START_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
         main.on_pong = self._pong
         self.lock = threading.Condition()
