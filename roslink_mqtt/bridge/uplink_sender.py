@@ -117,6 +117,7 @@ class Uplink:
         # beside the socket's meter once it finds a queue the sockets do not show (and until its first answer)
         self.path = PathMeter(target_delay=target_delay, rate=PATH_START_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
+        self._paced_last = 0  # bytes of the last message handed to a state or bulk lane
         main.on_pong = self._pong
         self.lock = threading.Condition()
         self.not_connected = 0  # messages offered while their connection was down (not kept: never replayed stale)
@@ -269,6 +270,7 @@ class Uplink:
                 self.handed += message.size
                 if lane.paced:
                     lane.credit -= message.size
+                    self._paced_last = message.size
                 if lane.link.publish(topic, payload, qos, retain) is None and not lane.link.connected.is_set():
                     self._keep(stream, topic, payload, qos)  # the connection went just now (buffered streams)
                 return
@@ -308,11 +310,15 @@ class Uplink:
         round already; ``size``: the next message's. "network": its bytes wait in the network; "path": the path
         beyond the sockets holds its budget (every lane waits); "allowance": a paced lane used its share."""
         room = self._path_room(time.monotonic())
-        if room is not None and (room <= 0 or (lane.paced and size > room and room < self.path.budget(0.0))):
+        if room is not None:
             # behind a hop, one queue holds every connection's bytes in turn: a scan or a camera frame goes in
-            # only when it fits the room, or when nothing is on the way (then a pose waits behind one of them,
-            # never behind several)
-            return "path"
+            # only when it fits the room, or when at most half the budget is on the way (then a pose waits behind
+            # one of them, never behind several); motion (small, rate-limited) may add a budget's worth, or the
+            # last of those if larger, so that a pose goes in right behind a scan, not a round trip after it
+            if lane.paced and (room <= 0 or (size > room and room < self.path.budget(0.0) / 2)):
+                return "path"
+            if not lane.paced and room <= -max(self.path.budget(0.0), self._paced_last):
+                return "path"
         budget = self.budget()
         if not lane.paced:
             return "network" if self.unsent(lane) + handed >= budget else None
@@ -404,6 +410,7 @@ class Uplink:
                 self.handed += message.size
                 if lane.paced:
                     lane.credit -= message.size
+                    self._paced_last = message.size
                 progress = True
                 break  # from the top: the order may have changed
         self._drain_spool(handed)
@@ -429,6 +436,7 @@ class Uplink:
                 self.handed += wire_size(record.topic, record.payload, record.qos)
                 if lane.paced:
                     lane.credit -= len(record.payload)
+                    self._paced_last = len(record.payload)
                 sent += 1
             if sent:
                 self.spool.commit()
