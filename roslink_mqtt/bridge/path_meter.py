@@ -75,6 +75,7 @@ OVERDUE_FLOOR = 0.5  # a cut on a probe overdue (before its answer) leaves at le
 STEER_FOR = 30.0  # s: once a queue hidden from the sockets was found, the path steers for this long after the last
 FIRST_WAIT = 1.0  # s: only control leaves until the first probe is answered, or this long after it left
 HOP_GAP = 0.015  # s: a path round trip this much longer than the TCP connection's own says a hop acknowledges early
+CLEAN_VISIBLE = 0.002  # s: a probe that waited longer than this behind the robot's own sockets teaches no base
 VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
 
 
@@ -137,7 +138,10 @@ class PathMeter:
         while self._recent and now - self._recent[0].at > PEAK_WINDOW:
             self._recent.popleft()
         bucket = now - now % BASE_BUCKET
-        if self._buckets and self._buckets[-1][0] == bucket:
+        if self._sent_visible > CLEAN_VISIBLE:
+            pass  # the base only from probes that waited behind nothing of ours: the sockets' wait is an estimate
+            # (their bytes over the rate), and an overestimate would make the base 0 and every answer a queue
+        elif self._buckets and self._buckets[-1][0] == bucket:
             self._buckets[-1] = (bucket, min(self._buckets[-1][1], rtt))
         else:
             self._buckets.append((bucket, rtt))
