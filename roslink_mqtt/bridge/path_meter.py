@@ -35,6 +35,8 @@ When it steers (:meth:`PathMeter.steering`, :meth:`PathMeter.room`):
 
 * **before the first answer**, only control leaves: the base round trip must be learnt on an empty path (a queue
   built before it would be taken for the path itself, and kept: the failure of the first attempt);
+* **behind a hop** (:attr:`PathMeter.behind_a_hop`: the path's base round trip HOP_GAP longer than the main
+  TCP connection's own, so something on the way acknowledges early), from the first answer on;
 * **for STEER_FOR after a queue the sockets did not show was found** (a cut: a probe overdue or answered late
   by more than the target), the bytes beyond the robot's sockets and not yet known to have crossed stay under
   the path's budget, and the uplink's rate is at most the path's. Otherwise the socket's meter steers alone: on a
@@ -290,10 +292,9 @@ class PathMeter:
     def steering(self, now: float) -> bool:
         """True while the path, not only the socket, limits what is handed over: before the first answer (the
         base round trip must be learnt on an empty path: a queue built before it would be taken for the path
-        itself, and kept; FIRST_WAIT at most), and for STEER_FOR after a queue the sockets did not show was found.
-        Otherwise the
-        socket's meter alone steers, as on a link whose queue backs up into the robot (and a fast link, whose
-        bursts are never held to the path's estimate)."""
+        itself, and kept; FIRST_WAIT at most), all along :attr:`behind_a_hop`, and for STEER_FOR after a queue the
+        sockets did not show was found. Otherwise the socket's meter alone steers, as on a link whose queue backs
+        up into the robot (and a fast link, whose bursts are never held to the path's estimate)."""
         if not self.measured:  # (a broker that never answers must not silence the robot: FIRST_WAIT)
             return self._first_sent is None or now - self._first_sent < FIRST_WAIT
         if self.behind_a_hop:
