@@ -57,6 +57,16 @@ def login_refused(reason: Any) -> bool:
     return connack_code(reason) in LOGIN_REFUSALS
 
 
+def acknowledged(info: mqtt.MQTTMessageInfo, wait: float) -> bool:
+    """Wait up to ``wait`` s for a QoS 1 publish to be acknowledged; False when it was not, including when paho
+    raises because the publish itself failed (the connection was gone): the caller's answer is the same."""
+    try:
+        info.wait_for_publish(wait)
+        return info.is_published()
+    except (RuntimeError, ValueError):
+        return False
+
+
 def speaks_tls(host: str, port: int, timeout: float = 2.0) -> bool:
     """Does ``host:port`` complete a TLS handshake? Asked when a plain ``mqtt://`` CONNECT was met with a closed
     connection: a TLS listener reads our CONNECT as a broken handshake and hangs up without a word."""

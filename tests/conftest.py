@@ -91,7 +91,7 @@ SAME_WORKER = {
 
 @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: how tests are shared out among the workers
 def pytest_xdist_make_scheduler(config, log):
-    """`make test` runs `pytest -n 4 --dist loadfile`: a test module goes to one worker whole (its module-scoped
+    """`make test` runs `pytest -n 3 --dist loadfile`: a test module goes to one worker whole (its module-scoped
     stack starts once), and the modules of one SAME_WORKER entry go to one worker together."""
     if config.getvalue("dist") != "loadfile":
         return None

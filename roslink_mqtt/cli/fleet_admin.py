@@ -17,7 +17,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 
 from ..connection_options import Login
-from ..mqtt import connack_refusal, make_client
+from ..mqtt import acknowledged, connack_refusal, make_client
 from ..protocol.errors import ProtocolError
 from ..protocol.fleet_control import ControlRequest, ControlResponse
 
@@ -89,13 +89,7 @@ class AdminChannel:
             raise AdminError(f"could not subscribe to {topic_filter} on {self.login.url}")
 
     def publish(self, topic: str, payload: bytes, *, retain: bool = False) -> None:
-        info = self._client.publish(topic, payload, qos=1, retain=retain)
-        try:  # paho raises from both when the publish failed (the connection gone): the same answer, said
-            info.wait_for_publish(self.timeout)
-            published = info.is_published()
-        except (RuntimeError, ValueError):
-            published = False
-        if not published:
+        if not acknowledged(self._client.publish(topic, payload, qos=1, retain=retain), self.timeout):
             raise AdminError(f"{self.login.url} did not acknowledge the message on {topic}")
 
     def request(self, topic: str, response_topic: str, commands: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -45,7 +45,7 @@ from ..connection_options import (
     env_url,
     env_username,
 )
-from ..mqtt import LOGIN_WAIT, BrokerUrl
+from ..mqtt import LOGIN_WAIT, BrokerUrl, acknowledged
 from ..protocol import ProtocolError, SystemStatus
 from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
@@ -552,12 +552,7 @@ class RobotClient:
         """Wait for the broker's PUBACK until ``deadline``; CommandNotConfirmed without one."""
         if self.connection.on_network_thread():
             return  # the network thread cannot wait for itself
-        try:
-            info.wait_for_publish(max(0.0, deadline - time.monotonic()))
-            published = info.is_published()
-        except (RuntimeError, ValueError):  # paho: the publish itself failed (no connection)
-            published = False
-        if not published:
+        if not acknowledged(info, max(0.0, deadline - time.monotonic())):
             raise CommandNotConfirmed(f"{what}: the broker did not acknowledge it within {confirm:g} s; it may not "
                                       "have reached the robot (paho sends it again if the connection comes back)")
 
