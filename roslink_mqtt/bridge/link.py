@@ -12,7 +12,6 @@ import logging
 import secrets
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -29,6 +28,7 @@ from ..mqtt import (
     parse_broker_urls,
 )
 from . import trace
+from .ping_ledger import PingLedger
 
 log = logging.getLogger("roslink_mqtt.bridge.link")
 
@@ -103,23 +103,17 @@ class MqttLink:
         # the uplink's end-to-end probe (bridge/path_meter.py): called with time.monotonic() on paho's thread when a
         # PINGRESP arrives (paho 2.2 has no callback for it: its handler is wrapped; paho is pinned)
         self.on_pong: Callable[[float], None] | None = None
-        # every PINGREQ out, in order (True: the probe's; False: paho's own keep-alive): a PINGRESP answers the
-        # oldest, and only the probe's answer is a round trip of the probe (paho's, answered a moment after a probe
-        # left behind a queue, once taught the path meter a base round trip of 3 ms on a 40 ms path)
-        self._pings: deque[bool] = deque()
-        self._probing = False
+        # every PINGREQ of the connection in order, and which are probes: only a probe's answer is its round trip
+        self._pings = PingLedger()
         handle_pingresp = self.client._handle_pingresp
-        send_pingreq = self.client._send_pingreq
+        self._send_pingreq = self.client._send_pingreq
 
-        def pingreq() -> mqtt.MQTTErrorCode:
-            rc = send_pingreq()
-            if rc == mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS:
-                self._pings.append(self._probing)
-            return rc
+        def pingreq() -> mqtt.MQTTErrorCode:  # paho's own, for the keep-alive (paho's thread)
+            return self._queue_ping(probe=False)
 
         def pingresp() -> mqtt.MQTTErrorCode:
+            ours = self._pings.answer()
             rc = handle_pingresp()
-            ours = self._pings.popleft() if self._pings else False
             if ours and self.on_pong is not None and rc == mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS:
                 self.on_pong(time.monotonic())
             return rc
@@ -191,11 +185,21 @@ class MqttLink:
         the uplink sends one only once the last was answered, so a dead path is still found within keep-alive."""
         if not self.connected.is_set():
             return False
-        self._probing = True
-        try:
-            return self.client._send_pingreq() == mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS
-        finally:
-            self._probing = False
+        if self._queue_ping(probe=True) != mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS:
+            return False
+        if self._pings.none_waiting():
+            # answered before paho marked it out (see bridge/ping_ledger.py): no PINGREQ waits, and a mark left
+            # set would make paho's keep-alive drop a healthy connection once probing pauses
+            self.client._ping_t = 0
+        return True
+
+    def _queue_ping(self, probe: bool) -> mqtt.MQTTErrorCode:
+        """Queue a PINGREQ, entered in the ledger first (its answer may come before this thread's next line)."""
+        number = self._pings.sending(probe)
+        rc = self._send_pingreq()
+        if rc != mqtt.MQTTErrorCode.MQTT_ERR_SUCCESS:
+            self._pings.not_sent(number)
+        return rc
 
     def subscribe(self, topic: str, qos: int = 1) -> None:
         """Add a subscription now; after a reconnect ``subscriptions()`` must list it too."""
@@ -227,7 +231,7 @@ class MqttLink:
 
     def _handle_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         self._answered = True
-        self._pings.clear()  # a new connection: nothing of the old one will be answered
+        self._pings.reset()  # a new connection: nothing of the old one will be answered
         if reason.is_failure:
             if not login_refused(reason):
                 self._attempt_failed(f"refused the connection ({connack_refusal(reason)})")

@@ -32,8 +32,13 @@ RELIED_ON: dict[str, str] = {
     "paho.mqtt.client:Client._packet_queue": "appends each outgoing packet to _out_packet with its to_process",
     "paho.mqtt.client:Client._packet_write": "writes _out_packet's head, lowers to_process, pops what is written: "
                                              "what is left is what paho holds unsent",
-    "paho.mqtt.client:Client._send_pingreq": "MqttLink.ping: the path meter's probe (bridge/path_meter.py)",
-    "paho.mqtt.client:Client._handle_pingresp": "wrapped by MqttLink: a PINGRESP answers the probe",
+    "paho.mqtt.client:Client._send_pingreq": "MqttLink.ping: the path meter's probe (bridge/path_meter.py); wrapped "
+                                             "so the keep-alive's PINGREQs enter bridge/ping_ledger.py too; sets "
+                                             "_ping_t after queuing (MqttLink clears it when the answer came first)",
+    "paho.mqtt.client:Client._handle_pingresp": "wrapped by MqttLink: a PINGRESP answers the oldest PINGREQ (the "
+                                                "ledger says if a probe's); sets _ping_t to 0",
+    "paho.mqtt.client:Client.loop_misc": "drops the connection when _ping_t stays set for keepalive s: why a mark "
+                                         "left set after its answer must be cleared",
     "paho.mqtt.client:Client.reconnect": "connects to _host/_port with _client_id, which failover sets before it",
 }
 
