@@ -14,7 +14,7 @@ DEMO_ARGS ?=
 # The tests marked `alone` (floods, rate-limited links) then run by themselves.
 TEST_WORKERS ?= 3
 
-.PHONY: install demo dashboard test lint bench wheel clean
+.PHONY: install demo dashboard test lint bench bench-peers wheel clean
 
 install: $(STAMP) $(NODE_STAMP)
 
@@ -63,6 +63,10 @@ wheel: install
 
 bench: install
 	$(BIN)/python bench/run_all.py
+
+# rosbridge (rosbridge-server-rs) for bench/weak_link.py's peer rows: not part of `make install`
+bench-peers: install
+	$(BIN)/pip install --quiet -e '.[peers]'
 
 clean:
 	rm -rf $(VENV) node_modules .pytest_cache .ruff_cache .mypy_cache .hypothesis

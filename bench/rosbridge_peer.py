@@ -181,8 +181,19 @@ def shaped_link_args(listen_port: int, rosbridge_port: int, kbit: float, *, dela
     """``python -m roslink_mqtt.shaped_link`` arguments for a viewer → rosbridge link whose *robot uplink* is
     ``kbit``: the robot is the link's target here, so its uplink is the proxy's down direction."""
     return [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen", f"{LOOPBACK}:{listen_port}", "--to",
-            f"{LOOPBACK}:{rosbridge_port}", "--delay-ms", str(delay_ms), "--jitter-ms", "0",
-            "--up-kbit", str(kbit * down_factor), "--down-kbit", str(kbit), *(["--hidden-queue"] if hidden else [])]
+            f"{LOOPBACK}:{rosbridge_port}", "--delay-ms", str(delay_ms),
+            *reversed_link(["--jitter-ms", "0", "--up-kbit", str(kbit), "--down-kbit", str(kbit * down_factor)]),
+            *(["--hidden-queue"] if hidden else [])]
+
+
+SWAPPED = {"--up-kbit": "--down-kbit", "--down-kbit": "--up-kbit", "--phases": "--down-phases",
+           "--down-phases": "--phases"}
+
+
+def reversed_link(robot_side: list[str]) -> list[str]:
+    """shaped_link options written from the robot's side (up: robot → broker) for a link whose target is the robot
+    (a viewer dialling rosbridge): every direction-bound option swapped."""
+    return [SWAPPED.get(arg, arg) for arg in robot_side]
 
 
 def stamp_seconds(msg: Mapping[str, Any]) -> float | None:
@@ -226,6 +237,7 @@ class OdomAges:
         self.disconnects = 0
         self.statuses: list[str] = []
         self._ages: list[float] = []
+        self.timed: list[tuple[float, float]] = []  # (time.monotonic() on arrival, age) of every message, kept
         self._lock = threading.Lock()
         self._first = threading.Event()
         self._stop = threading.Event()
@@ -246,6 +258,7 @@ class OdomAges:
             return
         with self._lock:
             self._ages.append(arrived - stamp)
+            self.timed.append((time.monotonic(), arrived - stamp))
             self.received += 1
         self._first.set()
 

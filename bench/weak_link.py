@@ -63,27 +63,52 @@ BROKER_LOG_LEVEL = os.environ.get("WEAK_BROKER_LOG", "WARNING")  # INFO shows ev
 STOP_PERIOD = 3.0  # s between alice's emergency stops
 
 
+CHANGE_AT = 14.0  # s after the link starts: a changing row's change (the robot is online and warmed up by then)
+AFTER_CHANGE = 8.0  # s measured after it
+DEAD_SPOT = 4.0  # s of the dead-spot row's outage (both directions)
+FRESH = 0.8  # s: a pose this young is fresh (time to fresh: from a change until every pose after is)
+# changing rows: name -> (label, the link's options, its changes in s after CHANGE_AT)
+CHANGES: dict[str, tuple[str, list[str], tuple[float, ...]]] = {
+    "lossy": ("128 kbit/s, 2 % loss stalls, ±15 ms", ["--up-kbit", "128", "--down-kbit", "512", "--loss", "0.02",
+                                                      "--jitter-ms", "15"], ()),
+    "fall": ("1 Mbit/s → 128 kbit/s", ["--phases", f"{CHANGE_AT:g}:1024,600:128", "--down-kbit", "512",
+                                       "--phases-once"], (0.0,)),
+    "dead": (f"256 kbit/s, {DEAD_SPOT:g} s dead spot",
+             ["--phases", f"{CHANGE_AT:g}:256,{DEAD_SPOT:g}:0,600:256",
+              "--down-phases", f"{CHANGE_AT:g}:1024,{DEAD_SPOT:g}:0,600:1024", "--phases-once"], (0.0, DEAD_SPOT)),
+}
+
+
 @dataclass(frozen=True, slots=True)
 class Case:
     kbit: int
     extras: bool  # camera + map
     hidden: bool = False  # the link's queue hidden behind a hop that acknowledges at once (shaped_link --hidden-queue)
+    change: str = ""  # a changing link (CHANGES), else a steady one of ``kbit``
 
     @property
     def label(self) -> str:
-        return f"{self.kbit:g} kbit/s" + (" + camera + map" if self.extras else "") + (" hidden" if self.hidden else "")
+        head = CHANGES[self.change][0] if self.change else f"{self.kbit:g} kbit/s"
+        return head + (" + camera + map" if self.extras else "") + (" hidden" if self.hidden else "")
+
+    def link_args(self) -> list[str]:
+        """shaped_link's options for this row's link (the delay and the hidden queue aside)."""
+        if self.change:
+            return CHANGES[self.change][1]
+        return ["--jitter-ms", "0", "--up-kbit", str(self.kbit), "--down-kbit", str(self.kbit * DOWN_FACTOR)]
 
 
-def cases(rates: list[int], models: list[str] | None = None) -> list[Case]:
+def cases(rates: list[int], models: list[str] | None = None, changes: list[str] | None = None) -> list[Case]:
     """Every rate on every link model (``visible``: a modem whose queue backs up into the robot's socket;
-    ``hidden``: a split-TCP proxy, VPN or load balancer that acknowledges at once); 1000 adds camera + map."""
+    ``hidden``: a split-TCP proxy, VPN or load balancer that acknowledges at once); 1000 adds camera + map; then
+    each changing link (CHANGES) on every model."""
     out = []
     for model in models or ["visible"]:
         hidden = model == "hidden"
         rows = [Case(rate, False, hidden) for rate in rates]
         if 1000 in rates:
             rows.insert(1, Case(1000, True, hidden))
-        out += rows
+        out += rows + [Case(0, False, hidden, change) for change in changes or []]
     return out
 
 
@@ -133,6 +158,8 @@ class Run:
     mode: str
     seconds: float = 0.0
     ages: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))  # stream -> ages (s)
+    motion: list[tuple[float, float]] = field(default_factory=list)  # global_motion (arrival, age), monotonic s
+    changes: list[float] = field(default_factory=list)  # when the link changed (monotonic s)
     heartbeats: list[float] = field(default_factory=list)  # arrival times
     replies: list[float] = field(default_factory=list)  # round trips (s)
     stops: list[float] = field(default_factory=list)  # emergency stop sent → its Bool on the robot's ROS topic (s)
@@ -189,7 +216,9 @@ class Viewer:
             return
         try:
             if name == "global_motion":
-                run.ages[name].append(now - orjson.loads(payload)["payload"]["time_boot_ms"] / 1000)
+                age = now - orjson.loads(payload)["payload"]["time_boot_ms"] / 1000
+                run.ages[name].append(age)
+                run.motion.append((time.monotonic(), age))
             elif name == "range_finder_data":
                 run.ages[name].append(now - orjson.loads(payload)["payload"]["time_usec"] / 1e6)
             elif name == IMAGE_STATE:
@@ -323,6 +352,53 @@ def stopper(operator: Any, watch: StopWatch, stop: threading.Event, run_: list[R
             pass
 
 
+def window(run: Run, link_up: float, began: float, seconds: float) -> float:
+    """Seconds to measure from ``began``: ``seconds``, or for a changing link until AFTER_CHANGE after its last
+    change (whose times go to ``run.changes``); a note on ``run`` when the robot came online too late for them."""
+    if not run.case.change:
+        return seconds
+    at = CHANGES[run.case.change][2]
+    run.changes = [link_up + CHANGE_AT + t for t in at]
+    if began > link_up + CHANGE_AT - 2.0:
+        run.note = f"online {began - link_up:.1f} s after the link started: too late for its change"
+    return link_up + CHANGE_AT + (max(at) if at else 0.0) + AFTER_CHANGE - began
+
+
+def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], rosbridge_port: int) -> Run:
+    """The peer row: the same sim's odometry from rosbridge (``rosbridge-server-rs``) to a WebSocket client across
+    the same link (the robot's uplink is the proxy's down direction there), with rosbridge's own remedies for a
+    thin link set: ``throttle_rate`` 100 ms (global_motion's 10 Hz) and ``queue_length`` 1 (latest wins)."""
+    import rosbridge_peer as rp
+
+    run = Run(case, "rosbridge")
+    with ExitStack() as phase:
+        link_port = lat.free_port()
+        lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen",
+                                f"127.0.0.1:{link_port}", "--to", f"127.0.0.1:{rosbridge_port}", "--delay-ms",
+                                str(DELAY_MS), *rp.reversed_link(case.link_args()),
+                                *(["--hidden-queue"] if case.hidden else [])],
+                        work / f"link-rb-{link_port}.log", env, port=link_port, what="shaped link")
+        link_up = time.monotonic()
+        ages = rp.OdomAges(f"ws://127.0.0.1:{link_port}", throttle_rate=int(1000 / MOTION_RATE), queue_length=1,
+                           backend="websockets", connect_timeout=20.0)
+        phase.callback(ages.close)
+        if not ages.wait_first(30.0):
+            run.note = "no odometry came through rosbridge within 30 s"
+            return run
+        time.sleep(WARMUP)
+        began = time.monotonic()
+        seconds = window(run, link_up, began, seconds)
+        if run.note:
+            return run
+        time.sleep(seconds)
+        run.seconds = time.monotonic() - began
+        run.motion = [(arrived, age) for arrived, age in list(ages.timed) if arrived >= began]
+        run.ages["global_motion"] = [age for _, age in run.motion]
+        if ages.disconnects:
+            run.note = f"rosbridge dropped the client {ages.disconnects} times"
+    return run
+
+
 def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, str], port: int, viewer: Viewer,
             current: list[Run | None], watch: StopWatch | None = None) -> Run:
     run = Run(case, mode)
@@ -331,9 +407,9 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         link_port = lat.free_port()
         lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen",
                                 f"127.0.0.1:{link_port}", "--to", f"127.0.0.1:{port}", "--delay-ms", str(DELAY_MS),
-                                "--jitter-ms", "0", "--up-kbit", str(case.kbit), "--down-kbit",
-                                str(case.kbit * DOWN_FACTOR), *(["--hidden-queue"] if case.hidden else [])],
+                                *case.link_args(), *(["--hidden-queue"] if case.hidden else [])],
                         work / f"link-{link_port}.log", env, port=link_port, what="shaped link")
+        link_up = time.monotonic()  # (its phases count from its start: it listens just before this)
         if case.extras:
             lat.start_child(phase, [sys.executable, str(Path(__file__).resolve()), "--load"],
                             work / f"load-{link_port}.log", env)
@@ -350,6 +426,9 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
             print("  (the bench's ROS subscriber has not discovered the bridge's emergency_stop publisher: its stops "
                   "may go unseen)", flush=True)
         began = time.monotonic()
+        seconds = window(run, link_up, began, seconds)
+        if run.note:
+            return run
         viewer.run = current[0] = run
         before = bridge_log.read_text(errors="replace").count("broker silent")
         time.sleep(seconds)
@@ -393,6 +472,25 @@ def heartbeat_gap(run: Run) -> float:
     return max((b - a for a, b in zip(beats, beats[1:], strict=False)), default=float("nan"))
 
 
+def fresh_after(run: Run, event: float) -> float | None:
+    """Seconds from ``event`` until every pose that arrives is under FRESH old (None: not within the row)."""
+    after = [(arrived, age) for arrived, age in run.motion if arrived >= event]
+    stale = [i for i, (_, age) in enumerate(after) if age >= FRESH]
+    if not after or (stale and stale[-1] == len(after) - 1):
+        return None
+    return after[stale[-1] + 1 if stale else 0][0] - event
+
+
+def change_cell(run: Run) -> str:
+    """A changing row: pose age p99 from 2 s after the (first) change, and the time to fresh after each change."""
+    if not run.changes:
+        return ""
+    later = [age for arrived, age in run.motion if arrived >= run.changes[0] + 2.0]
+    fresh = [fresh_after(run, at) for at in run.changes]
+    cells = ", ".join("never" if f is None else f"{f:.1f} s" for f in fresh)
+    return f"p99 {pct(later, 0.99) * 1000:.0f} ms from 2 s after; fresh after {cells}"
+
+
 def report(runs: list[Run]) -> None:
     extras = any(r.case.extras for r in runs)
     head = (f"{'uplink':<33} {'mode':<10} {'global_motion rate, age p50/p99':<34} {'scan rate, age p50/p99':<30}"
@@ -414,11 +512,16 @@ def report(runs: list[Run]) -> None:
                 f" {stop_cell(run.stops):>10} {stop_cell(run.stop_acks):>10}")
         if extras:
             line += f"  {stream_cell(run, IMAGE_STATE):<30} {stream_cell(run, MAP_STATE):<30}"
+        if run.changes:
+            line += f"  {change_cell(run)}"
         print(line)
     print("\nsilent: heartbeats the broker did not acknowledge in time (each one is a failsafe stop of a driven robot)")
     print(f"e-stop max: alice's emergency stops (one every {STOP_PERIOD:g} s) from her call to the Bool on the robot's "
           f"{ESTOP_TOPIC}, the slowest (seen/sent when some were not seen within 5 s); ack max: the same stops "
           "from her call to the bridge's acknowledgement on state/ack, back at alice")
+    print(f"changing links: the change {CHANGE_AT:g} s after the link started, measured until {AFTER_CHANGE:g} s after "
+          f"the last; fresh after: from each change (a dead spot: its start, then the link's return) until every pose "
+          f"that arrives is under {FRESH * 1000:.0f} ms old")
     print(f"rates: messages a second bob received (global_motion is throttled to {MOTION_RATE:g} Hz on the robot, "
           "the scan is 5 Hz); age = arrival − the message's own timestamp")
 
@@ -449,14 +552,31 @@ def plot(runs: list[Run], plot_dir: Path) -> Path | None:
     return path
 
 
+def start_peer(stack: ExitStack, work: Path, env: dict[str, str]) -> tuple[int, str]:
+    """rosbridge for the peer rows, on the sim's graph: (its port, "") or (0, why it cannot run)."""
+    try:
+        import rosbridge_peer as rp
+
+        port = lat.free_port()
+        rp.start_rosbridge(stack, port, rp.rosbridge_env(env), work / "rosbridge.log")
+        return port, ""
+    except (FileNotFoundError, lat.ChildExited, TimeoutError, ValueError) as err:
+        return 0, f"rosbridge could not run: {str(err)[:200]}"
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=12.0, help="measured per row (default: %(default)s)")
     p.add_argument("--rates", default="1000,256,64", help="uplinks in kbit/s (default: %(default)s; 1000 adds the "
                                                           "camera + map row)")
-    p.add_argument("--modes", default="fifo,scheduled", help="bridge.uplink modes (default: %(default)s)")
+    p.add_argument("--modes", default="fifo,scheduled,rosbridge", help="bridge.uplink modes, and rosbridge: the peer "
+                   "(rosbridge-server-rs, `make bench-peers`) serving the same sim's odometry across the same link "
+                   "(default: %(default)s)")
     p.add_argument("--models", default="visible,hidden", help="link models: visible (a modem: the queue backs up "
                    "into the robot's socket), hidden (a hop that acknowledges at once hides it) (default: %(default)s)")
+    p.add_argument("--changes", default=",".join(CHANGES), help="changing links, on every model: "
+                   + "; ".join(f"{name} ({label})" for name, (label, _, _) in CHANGES.items())
+                   + " ('' for none; default: %(default)s)")
     p.add_argument("--plot-dir", type=Path, default=PLOT_DIR, help="where weak_link.png goes (default: %(default)s)")
     p.add_argument("--keep-logs", type=Path, help="copy the broker's, bridges' and links' logs here")
     p.add_argument("--load", action="store_true", help=argparse.SUPPRESS)
@@ -466,11 +586,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except ValueError:
         p.error(f"--rates: expected kbit/s numbers, got {args.rates!r}")
     args.mode_list = [m.strip() for m in args.modes.split(",") if m.strip()]
-    if not set(args.mode_list) <= {"fifo", "scheduled"}:
-        p.error("--modes: fifo and/or scheduled")
+    if not set(args.mode_list) <= {"fifo", "scheduled", "rosbridge"}:
+        p.error("--modes: fifo, scheduled and/or rosbridge")
     args.model_list = [m.strip() for m in args.models.split(",") if m.strip()]
     if not args.model_list or not set(args.model_list) <= {"visible", "hidden"}:
         p.error("--models: visible and/or hidden")
+    args.change_list = [c.strip() for c in args.changes.split(",") if c.strip()]
+    if not set(args.change_list) <= set(CHANGES):
+        p.error(f"--changes: some of {', '.join(CHANGES)}")
     return args
 
 
@@ -506,13 +629,21 @@ def main(argv: list[str] | None = None) -> int:
         stops = threading.Thread(target=stopper, args=(operator, watch, stop, current), daemon=True)
         stops.start()
         stack.callback(stop.set)
+        rosbridge_port, no_rosbridge = start_peer(stack, work, env) if "rosbridge" in args.mode_list else (0, "")
         try:
-            for case in cases(args.rate_list, args.model_list):
+            for case in cases(args.rate_list, args.model_list, args.change_list):
                 for mode in args.mode_list:
-                    run = one_run(case, mode, args.seconds, work, env, port, viewer, current, watch)
+                    if mode == "rosbridge" and case.extras:
+                        continue  # (the peer row carries odometry only)
+                    if mode == "rosbridge":
+                        run = rosbridge_run(case, args.seconds, work, env, rosbridge_port) if not no_rosbridge \
+                            else Run(case, mode, note=no_rosbridge)
+                    else:
+                        run = one_run(case, mode, args.seconds, work, env, port, viewer, current, watch)
                     runs.append(run)
                     print(f"  {case.label:<33} {mode:<10} motion {stream_cell(run, 'global_motion')}, "
-                          f"hb gap {heartbeat_gap(run):.2f} s, {run.silent} silent, {len(run.replies)} replies"
+                          + (f"{change_cell(run)}, " if run.changes else "")
+                          + f"hb gap {heartbeat_gap(run):.2f} s, {run.silent} silent, {len(run.replies)} replies"
                           + (f" [{run.note}]" if run.note else "")
                           + (f"\n      bridge: {run.link.summary()}" if run.link is not None else "")
                           + "".join(f"\n      call failed: {why}" for why in run.failures[:3])
