@@ -365,9 +365,10 @@ def window(run: Run, link_up: float, began: float, seconds: float) -> float:
 
 
 def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], rosbridge_port: int) -> Run:
-    """The peer row: the same sim's odometry from rosbridge (``rosbridge-server-rs``) to a WebSocket client across
-    the same link (the robot's uplink is the proxy's down direction there), with rosbridge's own remedies for a
-    thin link set: ``throttle_rate`` 100 ms (global_motion's 10 Hz) and ``queue_length`` 1 (latest wins)."""
+    """The peer row: the same sim's odometry and scan from rosbridge (``rosbridge-server-rs``) to WebSocket
+    clients across the same link (the robot's uplink is the proxy's down direction there), with rosbridge's own
+    remedies for a thin link set: ``throttle_rate`` at our rows' rates (odometry 10 Hz like global_motion, the
+    scan 5 Hz) and ``queue_length`` 1 (latest wins)."""
     import rosbridge_peer as rp
 
     run = Run(case, "rosbridge")
@@ -379,9 +380,14 @@ def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], r
                                 *(["--hidden-queue"] if case.hidden else [])],
                         work / f"link-rb-{link_port}.log", env, port=link_port, what="shaped link")
         link_up = time.monotonic()
-        ages = rp.OdomAges(f"ws://127.0.0.1:{link_port}", throttle_rate=int(1000 / MOTION_RATE), queue_length=1,
-                           backend="websockets", connect_timeout=20.0)
+        url = f"ws://127.0.0.1:{link_port}"
+        ages = rp.OdomAges(url, throttle_rate=int(1000 / MOTION_RATE), queue_length=1, backend="websockets",
+                           connect_timeout=20.0)
         phase.callback(ages.close)
+        # and the scan, as a viewer of our rows gets it (5 Hz): the same link carries both, as ours does
+        scans = rp.OdomAges(url, topic="/scan", msg_type="sensor_msgs/msg/LaserScan", throttle_rate=200,
+                            queue_length=1, backend="websockets", connect_timeout=20.0)
+        phase.callback(scans.close)
         if not ages.wait_first(30.0):
             run.note = "no odometry came through rosbridge within 30 s"
             return run
@@ -394,8 +400,9 @@ def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], r
         run.seconds = time.monotonic() - began
         run.motion = [(arrived, age) for arrived, age in list(ages.timed) if arrived >= began]
         run.ages["global_motion"] = [age for _, age in run.motion]
-        if ages.disconnects:
-            run.note = f"rosbridge dropped the client {ages.disconnects} times"
+        run.ages["range_finder_data"] = [age for arrived, age in list(scans.timed) if arrived >= began]
+        if ages.disconnects or scans.disconnects:
+            run.note = f"rosbridge dropped the clients {ages.disconnects + scans.disconnects} times"
     return run
 
 

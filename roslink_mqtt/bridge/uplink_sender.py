@@ -22,13 +22,14 @@ import socket
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from .. import netstat
 from ..config import Priority
 from ..protocol.link import LINK_REPORT_PERIOD, LinkReport, PathReport, StreamReport
 from .link import MqttLink
+from .pacer import Pacer, install
 from .path_meter import PROBE_PERIOD, PathMeter
 from .spool import Spool
 from .uplink import (
@@ -48,6 +49,8 @@ POLL = 0.01  # s between looks at the socket while messages wait
 # bytes/s the path steers from behind a hop, before its answers say more (256 kbit/s: a thin link's queue stays
 # short; a fast one is found within a second or two, the rate growing 1.25× per answer while no queue shows)
 PATH_START_RATE = 32_000.0
+MIN_PACING = 8_000  # bytes/s: the least a paced lane's writes are held to while the path steers (bridge/pacer.py): a
+# slower lane would take seconds over one scan, and the broker drops a connection whose packets stop that long
 
 
 def raw_socket(client: Any) -> socket.socket | None:
@@ -77,6 +80,7 @@ class Lane:
     tier: int  # 0 main (control, motion), 1 state, 2 bulk: a tier gets what the tiers before it leave
     paced: bool  # a small send buffer, one message at a time, and an allowance: never crowds the link for long
     sndbuf: int = 0  # what SO_SNDBUF was last set to
+    pacer: Pacer = field(default_factory=Pacer)  # its writes, at its allowance while the path steers
     credit: float = 0.0  # bytes it may still hand over (its allowance accrues here; a message may overdraw it)
     offered: int = 0  # bytes offered to its classes since it was made (its demand, superseded messages included)
     refilled: float = 0.0  # monotonic: when credit last accrued
@@ -139,9 +143,17 @@ class Uplink:
             return self._visible_delay(self._held()) + self.path.queue_delay(time.monotonic())
 
     def _held(self) -> int:
-        """Bytes the robot's own sockets and paho hold: the queue the robot can see."""
+        """Bytes the robot's own sockets and paho hold ahead of a probe: the queue the robot can see."""
         return paho_unsent(self.main.link.client) + sum(kernel_unsent(raw_socket(lane.link.client))
                                                         for lane in self.lanes)
+
+    def _left(self, held: int | None = None) -> int:
+        """Bytes that have left the robot (``held``: :meth:`_held`, if read already): handed over, less what its
+        sockets and every lane's paho still hold. The path meter's byte clock: a paced lane writes a large message
+        as its pacing lets it, so most of a map waits in paho, and counted as sent it would have made the path
+        look four megabytes faster than it is."""
+        held = self._held() if held is None else held
+        return self.handed - held - sum(paho_unsent(lane.link.client) for lane in self.lanes if lane.paced)
 
     def _visible_delay(self, held: int) -> float:
         return held / self.rate() if held else 0.0
@@ -167,7 +179,7 @@ class Uplink:
         """Bytes the path still takes beyond the sockets while it steers (None: it does not; the lock is held)."""
         if self.fifo or not self.path.steering(now):
             return None  # (the sockets are read only when the answer depends on them: this is on every offer)
-        return self.path.room(self.handed, self._held(), now)
+        return self.path.room(self._left(), 0, now)
 
     def _pong(self, now: float) -> None:
         """A probe's answer (paho's thread): it may open room for what waits."""
@@ -179,12 +191,13 @@ class Uplink:
         """Send the next probe when one is due (the lock is held)."""
         if self.fifo or not self.path.probe_due(now):
             return
-        visible = self._visible_delay(self._held())  # read before the probe is queued behind it
+        held = self._held()  # read before the probe is queued behind it
         if self.main.link.ping():
-            self.path.probe_sent(now, self.handed, visible)
+            self.path.probe_sent(now, self._left(held), self._visible_delay(held))
 
     def _add_lane(self, link: MqttLink, tier: int) -> Lane:
         lane = Lane(link, len(self.lanes), tier, paced=True)
+        install(link.client, lane.pacer)
         self.lanes.append(lane)
         self._watch_socket(lane)
         return lane
@@ -315,9 +328,10 @@ class Uplink:
             # only when it fits the room, or when at most half the budget is on the way (then a pose waits behind
             # one of them, never behind several); motion (small, rate-limited) may add a budget's worth, or the
             # last of those if larger, so that a pose goes in right behind a scan, not a round trip after it
-            if lane.paced and (room <= 0 or (size > room and room < self.path.budget(0.0) / 2)):
+            path_budget = self.path.budget(0.0)
+            if lane.paced and (room <= 0 or (size > room and room < path_budget / 2)):
                 return "path"
-            if not lane.paced and room <= -max(self.path.budget(0.0), self._paced_last):
+            if not lane.paced and room <= -max(path_budget, min(self._paced_last, 4 * path_budget)):
                 return "path"
         budget = self.budget()
         if not lane.paced:
@@ -331,6 +345,12 @@ class Uplink:
             allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate(now))
             lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
+            self._pace(lane, allowance if not self.fifo and self.path.steering(now) else None)
+
+    @staticmethod
+    def _pace(lane: Lane, rate: float | None) -> None:
+        """``lane``'s writes at ``rate`` bytes/s (None: as fast as the socket takes them; bridge/pacer.py)."""
+        lane.pacer.rate = None if rate is None else max(MIN_PACING, rate)
 
     # -- the sender thread ----------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -448,7 +468,7 @@ class Uplink:
         """Feed the meter every lane's delivered bytes; resize the paced lanes' buffers when a window closes."""
         if not self.main.link.connected.is_set():
             self.meter.reset()
-            self.path.reset(self.handed)
+            self.path.reset(self._left())
             return
         acked: list[int] = []
         min_rtt, queued = None, 0

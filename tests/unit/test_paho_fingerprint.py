@@ -37,6 +37,8 @@ RELIED_ON: dict[str, str] = {
                                              "_ping_t after queuing (MqttLink clears it when the answer came first)",
     "paho.mqtt.client:Client._handle_pingresp": "wrapped by MqttLink: a PINGRESP answers the oldest PINGREQ (the "
                                                 "ledger says if a probe's); sets _ping_t to 0",
+    "paho.mqtt.client:Client._sock_send": "wrapped per paced lane (bridge/pacer.py): writes part of a buffer or raises "
+                                          "BlockingIOError, as a full socket would; only _packet_write calls it",
     "paho.mqtt.client:Client.loop_misc": "drops the connection when _ping_t stays set for keepalive s: why a mark "
                                          "left set after its answer must be cleared",
     "paho.mqtt.client:Client.reconnect": "connects to _host/_port with _client_id, which failover sets before it",
