@@ -49,8 +49,9 @@ POLL = 0.01  # s between looks at the socket while messages wait
 # bytes/s the path steers from behind a hop, before its answers say more (256 kbit/s: a thin link's queue stays
 # short; a fast one is found within a second or two, the rate growing 1.25× per answer while no queue shows)
 PATH_START_RATE = 32_000.0
-MIN_PACING = 8_000  # bytes/s: the least a paced lane's writes are held to while the path steers (bridge/pacer.py): a
-# slower lane would take seconds over one scan, and the broker drops a connection whose packets stop that long
+MIN_PACING = 1_000  # bytes/s: the least a paced lane's writes are held to while the path steers (bridge/pacer.py;
+# the path's own least rate): each paced lane gets its allowance, and several floors of a few kB/s each would
+# together overfill a thin link (two lanes at 8 kB/s cut a 128 kbit/s path to 28 kbit/s)
 
 
 def raw_socket(client: Any) -> socket.socket | None:

@@ -41,12 +41,15 @@ RULES = """    rules: &rules
          mqtt_topic: state/camera, encoding: raw}
 """
 MEASURE = 4.0  # s of flood measured, after the first pose arrived
+LARGE_FRAME = 300_000  # bytes: 19 s of the thin uplink in one message
 HEARTBEAT_GAP_LINE = DEFAULT_STALE_AFTER - 1.0  # s: a viewer still sees the robot online, with a second to spare
 
 
-def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settle: float = 0.0) -> dict:
+def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settle: float = 0.0,
+           large_every: int = 0) -> dict:
     """Flood the robot for ``measure`` s; what bob and a service caller saw. ``link_args``: more options of the
-    shaped link (``--hidden-queue``); ``settle``: s of the flood before measuring, after the first pose."""
+    shaped link (``--hidden-queue``); ``settle``: s of the flood before measuring, after the first pose;
+    ``large_every``: every that many camera frames is a LARGE_FRAME (a map's worth in one message)."""
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CompressedImage
     from std_msgs.msg import String
@@ -96,6 +99,7 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                 blob = probe.publisher(String, "/wl/blob")
                 camera = probe.publisher(CompressedImage, "/wl/camera")
                 frame = CompressedImage(format="jpeg", data=bytes(20_000))
+                large = CompressedImage(format="jpeg", data=bytes(LARGE_FRAME))
                 stop = threading.Event()
 
                 def flood() -> None:
@@ -108,7 +112,7 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                         msg.pose.pose.position.x = float(n)
                         odom.publish(msg)
                         blob.publish(String(data=f"{time.time():<20.6f}" + "x" * 2000))
-                        camera.publish(frame)
+                        camera.publish(large if large_every and n % large_every == 0 else frame)
 
                 flooder = threading.Thread(target=flood, daemon=True)
                 flooder.start()
@@ -176,8 +180,10 @@ def test_behind_a_hop_that_hides_the_queue_the_path_steers_and_poses_stay_fresh(
     balancer that terminates TCP: ``shaped_link --hidden-queue``), so the robot's socket never shows the queue.
     The socket alone let it grow: poses 5-9 s old and getting older (issue 42). The path's probes find it: after
     the first seconds, in which the path's rate is learnt (``settle``), the poses stay fresh, heartbeats on time,
-    and ``state/link`` says the path steers, at about the link's rate."""
-    seen = _scene(tmp_path, "scheduled", "--hidden-queue", measure=2 * MEASURE, settle=3.0)
+    and ``state/link`` says the path steers, at about the link's rate. Every 20th camera frame is 300 kB: written
+    in one go it would put 19 s of the link ahead of every connection's keep-alive (a 4 MB map did so behind a
+    1 Mbit/s hop, and the robot went offline); the camera's lane writes it at its allowance instead."""
+    seen = _scene(tmp_path, "scheduled", "--hidden-queue", measure=2 * MEASURE, settle=3.0, large_every=20)
     poses = seen["poses"]
     ages = [age for _, _, age in poses]
     assert len(poses) >= 5 * 2 * MEASURE, f"only {len(poses)} poses in {2 * MEASURE} s"
