@@ -1,6 +1,7 @@
 """Benchmark: the demo robot on a thin uplink, the bridge's scheduled uplink next to plain FIFO.
 
-    .venv/bin/python bench/weak_link.py [--seconds 20] [--rates 1000,256,64] [--modes fifo,scheduled]
+    .venv/bin/python bench/weak_link.py [--seconds 20] [--rates 1000,256,64] [--modes fifo,scheduled,rosbridge]
+        [--models visible,hidden] [--changes lossy,fall,dead]
 
 The robot's bridge reaches the embedded broker through ``roslink_mqtt.shaped_link``: 40 ms each way, an uplink
 of 1 Mbit/s, 256 kbit/s or 64 kbit/s (one FIFO shared by the bridge's connections, like a modem; the downlink
@@ -12,8 +13,13 @@ emergency stop every 3 s, timed from her call to the stop's ``std_msgs/Bool`` on
 rclpy subscriber in this process) and to the bridge's acknowledgement on ``state/ack`` back at her, then arms
 again.
 
-Each row runs twice in one run, with the fleet file's ``bridge.uplink: fifo`` (every message handed to the
-network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's) and ``scheduled``.
+Each row runs once per mode in one run: the fleet file's ``bridge.uplink: fifo`` (every message handed to the
+network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's), ``scheduled``, and
+``rosbridge``: the peer (``rosbridge-server-rs``, ``make bench-peers``) serving the same sim's odometry and scan to
+WebSocket clients across the same link, throttled to our rates with ``queue_length`` 1. Every row runs on each link
+model (``visible``: a modem whose queue backs up into the robot's socket; ``hidden``: a hop that acknowledges at
+once), and the changing links after them (``--changes``: 2 % loss stalls with jitter, a fall from 1 Mbit/s to
+128 kbit/s, a 4 s dead spot; the time to fresh after each change is in their rows).
 
 Columns: per stream the rate bob received and the age of what he received (arrival − the message's own
 timestamp, one clock: everything runs on this machine) at p50/p99 — 50 to 150 ms of a pose's age is the robot's
@@ -544,13 +550,14 @@ def plot(runs: list[Run], plot_dir: Path) -> Path | None:
     shown = [r for r in runs if not r.note and r.ages.get("global_motion")]
     if not shown:
         return None
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, ax = plt.subplots(figsize=(max(10.0, 0.55 * len(shown)), 6.0))
     data = [[a * 1000 for a in r.ages["global_motion"]] for r in shown]
     ax.boxplot(data, whis=(1, 99), showfliers=False)
-    ax.set_xticks(range(1, len(shown) + 1), [f"{r.case.label}\n{r.mode}" for r in shown], fontsize=7)
+    ax.set_xticks(range(1, len(shown) + 1), [f"{r.case.label}, {r.mode}" for r in shown], fontsize=7,
+                  rotation=60, ha="right")
     ax.set_yscale("log")
     ax.set_ylabel("global_motion age at the viewer (ms, log)")
-    ax.set_title("Thin uplinks: FIFO vs the scheduled uplink (whiskers p1–p99)")
+    ax.set_title("Thin uplinks: " + ", ".join(dict.fromkeys(r.mode for r in shown)) + " (whiskers p1–p99)")
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     plot_dir.mkdir(parents=True, exist_ok=True)
