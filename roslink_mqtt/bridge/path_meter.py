@@ -118,9 +118,10 @@ class PathMeter:
         return self._sent_at is None and now - self._last_sent >= PROBE_PERIOD
 
     def probe_sent(self, now: float, handed: int, visible: float = 0.0) -> None:
-        """A probe left at ``now``; ``handed``: the bytes handed over before it (all connections); ``visible``:
-        the seconds it will wait behind what the robot's own sockets hold (the socket's controller keeps that
-        queue at its target already: this meter steers only by what is hidden beyond it)."""
+        """A probe left at ``now``; ``handed``: the sender's byte clock then (bytes that had left the robot, all
+        connections: they have crossed once it is answered); ``visible``: the seconds it will wait behind what the
+        robot's own sockets hold (the socket's controller keeps that queue at its target already: this meter
+        steers only by what is hidden beyond it)."""
         self._sent_at, self._sent_handed, self._last_sent = now, handed, now
         self._sent_visible = max(0.0, visible)
         if self._first_sent is None:

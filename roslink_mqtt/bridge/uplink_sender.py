@@ -118,8 +118,9 @@ class Uplink:
         self.scheduler = UplinkScheduler()
         self.meter = LinkMeter(target_delay=target_delay)
         # the path end to end (a hop may acknowledge at once and hide the queue from the socket): probes on the
-        # main connection, answered by the broker (bridge/path_meter.py); ``handed`` is its byte clock. It steers
-        # beside the socket's meter once it finds a queue the sockets do not show (and until its first answer)
+        # main connection, answered by the broker (bridge/path_meter.py); :meth:`_left` is its byte clock. It
+        # steers beside the socket's meter behind a hop, once it finds a queue the sockets do not show, and until
+        # its first answer
         self.path = PathMeter(target_delay=target_delay, rate=PATH_START_RATE)
         self.handed = 0  # bytes handed to any of the bridge's connections so far
         self._paced_last = 0  # bytes of the last message handed to a state or bulk lane
