@@ -13,6 +13,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Iterator
@@ -62,10 +63,20 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
     out = tmp_path / "incident.mcap"
     with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
         alice.wait_for_robot("turtle1")
-        for _ in range(int(LAST * 10) + 5):  # drive for longer than the window: the buffer is full, twists in it
-            alice.twist("turtle1", lx=0.2)
-            time.sleep(0.1)
-        done = _cli(port, "alice", "--last", f"{LAST:g}s", "-o", str(out))
+        taken = threading.Event()
+
+        def drive() -> None:  # until the snapshot is taken: the window asked for is one of driving
+            while not taken.wait(0.1):  # (a clean-clone run once stopped first, and the CLI, slow to start on
+                alice.twist("turtle1", lx=0.2)  # a busy machine, took a window half of the dead-man's zeros)
+
+        driver = threading.Thread(target=drive, daemon=True)
+        driver.start()
+        time.sleep(LAST + 0.5)  # the buffer is full, twists in it
+        try:
+            done = _cli(port, "alice", "--last", f"{LAST:g}s", "-o", str(out))
+        finally:
+            taken.set()
+            driver.join(2)
     assert done.returncode == 0, done.stderr
     assert "checked" in done.stderr and str(out) in done.stderr, done.stderr
 
