@@ -176,7 +176,10 @@ def test_a_ros2_bag_plays_as_a_robot_through_its_rules(tmp_path, stack) -> None:
     motion = [m for m in seen if m.topic == "roslink/turtle2/state/global_motion"]
     scans = [m for m in seen if m.topic == "roslink/turtle2/state/range_finder_data"]
     beats = [m.json()["payload"]["system_status"] for m in seen if m.topic == "roslink/turtle2/heartbeat"]
-    span = (motion[-1].at - motion[0].at) if len(motion) > 1 else 0.0
+    # the rate in the bag's own time (the messages' stamps): on a busy machine the player may fall behind and catch
+    # up, and arrival times then crowd 3 s of the bag into 2 s (a clean-clone run: "13.7 Hz")
+    stamps = sorted(m.json()["payload"]["time_boot_ms"] / 1000 for m in motion)
+    span = stamps[-1] - stamps[0] if len(stamps) > 1 else 0.0
     assert span > 2.0 and abs((len(motion) - 1) / span - 10.0) <= 1.5, (len(motion), span)
     assert 8 <= len(scans) <= 20, len(scans)
     assert {round(m.json()["payload"]["x"], 6) for m in motion} <= set(xs)  # the bag's own positions
