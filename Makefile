@@ -11,7 +11,7 @@ DEMO_ARGS ?=
 # three share this 2-core machine well (this part alone: 507 s with three, 594 s with two; every timing in it is
 # asserted only at a generous deadline). Four took 430 s but loaded the machine enough for rate and start-up checks
 # to fail now and then. Each gets its own ROS domain, a module stays on one worker.
-# The tests marked `alone` (floods, rate-limited links) then run by themselves.
+# The tests marked `alone` (floods, rate-limited links) then run in two lanes (tests/conftest.py), `solo` ones last.
 TEST_WORKERS ?= 3
 
 .PHONY: install demo dashboard test lint bench bench-peers wheel clean
@@ -48,9 +48,10 @@ test: install
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/mypy --python-version 3.10  # the core's oldest Python (requires-python): no newer stdlib slips in
-	$(BIN)/python -m pytest -q tests/unit
+	$(BIN)/python -m pytest -q -n 2 tests/unit
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --ignore=tests/unit -m "not alone"
-	$(BIN)/python -m pytest --ignore=tests/unit -m alone
+	$(BIN)/python -m pytest -n 2 --dist loadfile --ignore=tests/unit -m "alone and not solo"
+	$(BIN)/python -m pytest --ignore=tests/unit -m solo
 
 lint: install
 	$(BIN)/ruff check .

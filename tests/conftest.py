@@ -48,13 +48,22 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 
 
-# Tests that need the machine to themselves, marked `alone`: `make test` runs them after the others, one at a time.
+# Tests kept from the parallel part, marked `alone`: `make test` runs them after the others, in two lanes.
 # They flood a broker or a robot on purpose and measure that nothing else suffers, or measure freshness through a
-# rate-limited link; beside another worker's tests they would measure that worker (and starve it: a pub's notice
-# came after its wait, a bridge missed its broker's answer by 50 ms).
+# rate-limited link; beside three workers' tests they would measure those (and starve them: a pub's notice came
+# after its wait, a bridge missed its broker's answer by 50 ms).
 ALONE = ("tests/security/", "tests/integration/test_weak_link.py", "tests/integration/test_presence_flood.py",
          "tests/integration/test_large_slow_viewer.py", "tests/integration/test_rabbitmq_cluster.py",
          "tests/integration/test_wss.py")  # the last: how far 1.5 s of twists move the robot (0.13 m once, beside)
+
+# The two lanes (`pytest -n 2 --dist loadfile -m "alone and not solo"`): the rate-limited links in one, the rest in
+# the other. A link's checks are on what crosses it (its lines sit 5-10x above what a core taken by stress-ng
+# leaves: 224 ms pose age against 1.5 s), the others' on round trips with 5x to spare; one lane is to the other
+# what `stress-ng --cpu 1` is to the suite, under which each already passes. Alone in the machine 323 s, in two
+# lanes about 180 s. `solo` tests run last, one at a time: the one whose line is nearest (a parameter-read flood's
+# worst twist delay, 213 ms beside a CPU hog against 500 ms).
+LINK_LANE = ("tests/integration/test_weak_link.py",)
+SOLO = ("tests/security/test_request_flood.py",)
 
 
 def pytest_collection_modifyitems(config, items) -> None:
@@ -67,6 +76,8 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(getattr(pytest.mark, where.parts[0]))
         if f"tests/{where.as_posix()}".startswith(ALONE):
             item.add_marker(pytest.mark.alone)
+        if f"tests/{where.as_posix()}".startswith(SOLO):
+            item.add_marker(pytest.mark.solo)
 
 
 def pytest_sessionfinish(session) -> None:
@@ -92,7 +103,8 @@ SAME_WORKER = {
 @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: how tests are shared out among the workers
 def pytest_xdist_make_scheduler(config, log):
     """`make test` runs `pytest -n 3 --dist loadfile`: a test module goes to one worker whole (its module-scoped
-    stack starts once), and the modules of one SAME_WORKER entry go to one worker together."""
+    stack starts once), and the modules of one SAME_WORKER entry go to one worker together. The `alone` tests
+    go to their two lanes (LINK_LANE and the rest), each lane one worker."""
     if config.getvalue("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadScopeScheduling
@@ -100,6 +112,8 @@ def pytest_xdist_make_scheduler(config, log):
     class ModuleOrShared(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
+            if module.startswith(ALONE):
+                return "lane: rate-limited links" if module.startswith(LINK_LANE) else "lane: the other alone tests"
             return f"shared: {SAME_WORKER[module]}" if module in SAME_WORKER else module
 
     return ModuleOrShared(config, log)

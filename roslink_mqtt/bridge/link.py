@@ -193,6 +193,20 @@ class MqttLink:
             self.client._ping_t = 0
         return True
 
+    def heard_while_writing(self) -> None:
+        """Count this moment as hearing from the broker, for paho's keep-alive: the caller knows the broker is
+        there (the path's probes on another connection are answered) and sees this connection's bytes leave.
+
+        Why: paho drops a connection that receives nothing for ``keepalive`` s after its PINGREQ, and a PINGREQ
+        queues behind the message being written. On a paced lane that message may be a 300 kB camera frame at
+        8 kB/s, or a 4 MB map at what the other lanes leave: its connection received nothing for longer than any
+        keep-alive, and paho dropped it mid-message, the message lost, every time (the lane reconnected and the
+        path meter started over). A connection whose writes stop going out is still dropped as before: its
+        caller sees no progress and stops calling this."""
+        client = self.client
+        with client._msgtime_mutex:
+            client._last_bytes_received = time.monotonic()  # paho's own clock (time_func) is monotonic
+
     def _queue_ping(self, probe: bool) -> mqtt.MQTTErrorCode:
         """Queue a PINGREQ, entered in the ledger first (its answer may come before this thread's next line)."""
         number = self._pings.sending(probe)

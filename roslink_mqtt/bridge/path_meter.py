@@ -96,6 +96,7 @@ class PathMeter:
     target_delay: float = 0.1  # s of queueing the path may hold (robots.yaml bridge.uplink_target_delay)
     rate: float = 125_000.0  # bytes/s: what the uplink may send (starts at the caller's guess)
     answers: int = 0
+    last_answer: float | None = None  # when a probe was last answered: the broker was there then
     overused: int = 0  # decreases so far (state/link and tests read it)
     _sent_at: float | None = None  # the probe out, if any: when it left
     _sent_handed: int = 0  # and the bytes handed over before it
@@ -137,6 +138,7 @@ class PathMeter:
         self._sent_at = None
         self._crossed = max(self._crossed, self._sent_handed)
         self.answers += 1
+        self.last_answer = now
         self._recent.append(_Answer(now, rtt, self._sent_handed))
         while self._recent and now - self._recent[0].at > PEAK_WINDOW:
             self._recent.popleft()

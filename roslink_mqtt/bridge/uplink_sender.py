@@ -85,6 +85,7 @@ class Lane:
     credit: float = 0.0  # bytes it may still hand over (its allowance accrues here; a message may overdraw it)
     offered: int = 0  # bytes offered to its classes since it was made (its demand, superseded messages included)
     refilled: float = 0.0  # monotonic: when credit last accrued
+    acked: int = 0  # its socket's bytes acknowledged at the last look (tcpi_bytes_acked)
 
 
 class Uplink:
@@ -478,6 +479,8 @@ class Uplink:
             sock = raw_socket(lane.link.client)
             sample = delivered(sock)
             acked.append(sample[0] if sample is not None else 0)
+            if lane.paced and sample is not None:
+                self._keep_alive_while_writing(lane, sample[0], now)
             if lane is self.main and sample is not None and sample[1] is not None:  # where the probes go
                 self.path.tcp_rtt = sample[1] if self.path.tcp_rtt is None else min(self.path.tcp_rtt, sample[1])
             queued += kernel_unsent(sock)
@@ -492,6 +495,16 @@ class Uplink:
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)
+
+    def _keep_alive_while_writing(self, lane: Lane, acked: int, now: float) -> None:
+        """A paced lane in the middle of a message whose bytes keep leaving, while the broker answers the path's
+        probes, is alive: paho is told so (MqttLink.heard_while_writing), or its keep-alive would drop the lane
+        mid-message, its PINGREQ queued behind the message (the lock is held)."""
+        progressed, lane.acked = acked > lane.acked, acked
+        answered = self.path.last_answer
+        if progressed and answered is not None and now - answered < lane.link.keepalive \
+                and paho_unsent(lane.link.client) > 0:
+            lane.link.heard_while_writing()
 
     def _size_buffer(self, lane: Lane, sock: socket.socket | None = None) -> None:
         """A paced lane's send buffer ≈ the budget (the kernel doubles what it is given)."""

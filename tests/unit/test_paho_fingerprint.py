@@ -41,6 +41,10 @@ RELIED_ON: dict[str, str] = {
                                           "BlockingIOError, as a full socket would; only _packet_write calls it",
     "paho.mqtt.client:Client.loop_misc": "drops the connection when _ping_t stays set for keepalive s: why a mark "
                                          "left set after its answer must be cleared",
+    "paho.mqtt.client:Client._check_keepalive": "drops a connection that received nothing (_last_bytes_received, "
+                                                "under _msgtime_mutex, time_func monotonic) for keepalive s after "
+                                                "its PINGREQ: MqttLink.heard_while_writing moves that clock while a "
+                                                "paced lane's message leaves",
     "paho.mqtt.client:Client.reconnect": "connects to _host/_port with _client_id, which failover sets before it",
 }
 
