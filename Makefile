@@ -11,7 +11,7 @@ DEMO_ARGS ?=
 # three share this 2-core machine well (this part alone: 507 s with three, 594 s with two; every timing in it is
 # asserted only at a generous deadline). Four took 430 s but loaded the machine enough for rate and start-up checks
 # to fail now and then. Each gets its own ROS domain, a module stays on one worker.
-# The tests marked `alone` (floods, rate-limited links) then run in two lanes (tests/conftest.py), `solo` ones last.
+# The tests marked `alone` (floods, rate-limited links) then run two at a time, `solo` ones last (tests/conftest.py).
 TEST_WORKERS ?= 3
 
 .PHONY: install demo dashboard test lint bench bench-peers wheel clean

@@ -48,7 +48,7 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 
 
-# Tests kept from the parallel part, marked `alone`: `make test` runs them after the others, in two lanes.
+# Tests kept from the parallel part, marked `alone`: `make test` runs them after the others, two at a time.
 # They flood a broker or a robot on purpose and measure that nothing else suffers, or measure freshness through a
 # rate-limited link; beside three workers' tests they would measure those (and starve them: a pub's notice came
 # after its wait, a bridge missed its broker's answer by 50 ms).
@@ -56,16 +56,16 @@ ALONE = ("tests/security/", "tests/integration/test_weak_link.py", "tests/integr
          "tests/integration/test_large_slow_viewer.py", "tests/integration/test_rabbitmq_cluster.py",
          "tests/integration/test_wss.py")  # the last: how far 1.5 s of twists move the robot (0.13 m once, beside)
 
-# The two lanes (`pytest -n 2 --dist loadfile -m "alone and not solo"`): the rate-limited links in one, the rest in
-# the other. A link's checks are on what crosses it (its lines sit 5-10x above what a core taken by stress-ng
-# leaves: 224 ms pose age against 1.5 s), the others' on round trips with 5x to spare; one lane is to the other
-# what `stress-ng --cpu 1` is to the suite, under which each already passes. Alone in the machine 323 s, in two
-# lanes and solo about 250 s. `solo` tests run last, one at a time: those whose line is nearest, a parameter-read
-# flood's worst twist delay (213 ms beside a CPU hog, against 500 ms reported and 1 s asserted), and the RabbitMQ
-# cluster, whose `fleet apply` waits on rabbitmqctl, an Erlang VM per call (a new user drove 2.2 s after the plan
-# beside a hog, 3.0 s beside a hog and the other lane, against 3 s).
-LINK_LANE = ("tests/integration/test_weak_link.py",)
-SOLO = ("tests/security/test_request_flood.py", "tests/integration/test_rabbitmq_cluster.py")
+# Two at a time (`pytest -n 2 --dist loadfile -m "alone and not solo"`): a flood beside a flood is to each about
+# what `stress-ng --cpu 1` is to the suite, and their lines (round trips) had 5x to spare under that. Alone in the
+# machine the `alone` tests took 323 s; now about 280 s. `solo` tests run last, one at a time:
+# * the rate-limited links: beside the floods and a CPU hog, the uplink's thread starved and its controller with
+#   it (a thin link's rate read 44 kbit/s of 128, poses 2.4 s old after a fall, a service call unanswered);
+# * a parameter-read flood's worst twist delay (213 ms beside a hog, against 500 ms reported and 1 s asserted);
+# * the RabbitMQ cluster, whose `fleet apply` waits on rabbitmqctl, an Erlang VM per call (a new user drove 2.2 s
+#   after the plan beside a hog, 3.0 s beside a hog and the links, against 3 s).
+SOLO = ("tests/integration/test_weak_link.py", "tests/security/test_request_flood.py",
+        "tests/integration/test_rabbitmq_cluster.py")
 
 
 def pytest_collection_modifyitems(config, items) -> None:
@@ -105,8 +105,7 @@ SAME_WORKER = {
 @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: how tests are shared out among the workers
 def pytest_xdist_make_scheduler(config, log):
     """`make test` runs `pytest -n 3 --dist loadfile`: a test module goes to one worker whole (its module-scoped
-    stack starts once), and the modules of one SAME_WORKER entry go to one worker together. The `alone` tests
-    go to their two lanes (LINK_LANE and the rest), each lane one worker."""
+    stack starts once), and the modules of one SAME_WORKER entry go to one worker together."""
     if config.getvalue("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadScopeScheduling
@@ -114,8 +113,6 @@ def pytest_xdist_make_scheduler(config, log):
     class ModuleOrShared(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            if module.startswith(ALONE):
-                return "lane: rate-limited links" if module.startswith(LINK_LANE) else "lane: the other alone tests"
             return f"shared: {SAME_WORKER[module]}" if module in SAME_WORKER else module
 
     return ModuleOrShared(config, log)
