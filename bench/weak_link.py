@@ -66,6 +66,7 @@ WARMUP = 4.0  # s after the robot is online before measuring
 MOTION_RATE = 10.0  # the demo fleet's max_rate for global_motion
 ESTOP_TOPIC = "/emergency_stop"  # where the demo fleet's emergency_stop rule publishes (std_msgs/Bool, latched)
 BROKER_LOG_LEVEL = os.environ.get("WEAK_BROKER_LOG", "WARNING")  # INFO shows every connection (with --keep-logs)
+BRIDGE_LOG_LEVEL = os.environ.get("WEAK_BRIDGE_LOG", "WARNING")  # DEBUG: the uplink's rates every window (--keep-logs)
 STOP_PERIOD = 3.0  # s between alice's emergency stops
 
 
@@ -429,7 +430,7 @@ def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, st
         viewer.online.clear()
         bridge_log = work / f"bridge-{mode}-{link_port}.log"
         lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
-                                ROBOT, "--url", f"mqtt://127.0.0.1:{link_port}", "--log-level", "WARNING"],
+                                ROBOT, "--url", f"mqtt://127.0.0.1:{link_port}", "--log-level", BRIDGE_LOG_LEVEL],
                         bridge_log, {**env, "ROSLINK_PASSWORD": ROBOT_PASSWORD})
         if not viewer.online.wait(30):
             run.note = f"the robot did not come online: {lat.tail(bridge_log, 5)}"

@@ -20,6 +20,7 @@ from typing import Any
 BURST_TIME = 0.02  # s of the rate a lane may write at once
 MIN_BURST = 1_500  # bytes: a burst is never smaller than one packet's worth
 SLEEP_MAX = 0.02  # s paho's thread may wait for tokens in one write (it reads between writes)
+ZERO_COPY_FROM = 16_384  # bytes: a packet this large is queued as a view (paho copies the rest at every write)
 
 
 class Pacer:
@@ -67,7 +68,11 @@ def paced_send(pacer: Pacer, send: Callable[[bytes | bytearray], int],
         for attempt in (0, 1):
             allowed, wait = pacer.grant(len(buf), clock())
             if allowed:
-                sent = send(buf[:allowed] if allowed < len(buf) else buf)
+                try:
+                    sent = send(buf[:allowed] if allowed < len(buf) else buf)
+                except BlockingIOError:
+                    pacer.refund(allowed)  # the socket is full: nothing left, the tokens are not spent
+                    raise
                 pacer.refund(allowed - sent)
                 return sent
             if attempt == 0:
@@ -77,6 +82,24 @@ def paced_send(pacer: Pacer, send: Callable[[bytes | bytearray], int],
     return write
 
 
+def zero_copy_queue(queue: Callable[..., Any]) -> Callable[..., Any]:
+    """A replacement for paho's ``_packet_queue`` that stores a large packet as a ``memoryview``.
+
+    Why: paho writes the rest of its head packet as ``packet[pos:]`` at every attempt, a copy of the whole rest.
+    Paced, a 4 MB map is written a burst at a time, 50 attempts a second for the half minute it takes to cross
+    a 1 Mbit/s link: 200 MB/s of copies (a new 4 MB allocation each, page faults and the GIL held through each),
+    which took so much of the bridge's time that its poses, scans and emergency stops were late while a map was
+    under way (bench/weak_link.py, the camera + map rows). A slice of a memoryview copies nothing; sockets, TLS
+    and paho's WebSocket wrapper all take one."""
+
+    def packet_queue(command: int, packet: bytes | bytearray, mid: int, qos: int, info: Any = None) -> Any:
+        return queue(command, memoryview(packet) if len(packet) >= ZERO_COPY_FROM else packet, mid, qos, info)
+
+    return packet_queue
+
+
 def install(client: Any, pacer: Pacer) -> None:
-    """Pace ``client``'s (a paho client's) socket writes by ``pacer`` (paho 2.2's ``_sock_send``; pinned)."""
+    """Pace ``client``'s (a paho client's) socket writes by ``pacer`` (paho 2.2's ``_sock_send``; pinned), and
+    keep its large packets as views, so that writing them a burst at a time copies nothing (``_packet_queue``)."""
     client._sock_send = paced_send(pacer, client._sock_send)
+    client._packet_queue = zero_copy_queue(client._packet_queue)

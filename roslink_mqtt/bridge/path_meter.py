@@ -79,6 +79,8 @@ FIRST_WAIT = 1.0  # s: only control leaves until the first probe is answered, or
 HOP_GAP = 0.015  # s: a path round trip this much longer than the TCP connection's own says a hop acknowledges early
 CLEAN_VISIBLE = 0.002  # s: a probe that waited longer than this behind the robot's own sockets teaches no base
 VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
+CLEAR_QUEUE = 0.25  # × the target: answers whole within this of the base say nothing queues (shows_no_queue)
+FRESH_ANSWER = 0.5  # s: how recent the last answer must be for shows_no_queue to speak
 
 
 @dataclass(slots=True)
@@ -86,6 +88,7 @@ class _Answer:
     at: float  # when the answer came
     rtt: float  # the round trip less the wait the robot could see (its own sockets' queue)
     crossed: int  # bytes handed over before the probe left: they have crossed the path now
+    raw: float = 0.0  # the whole round trip, the wait behind the robot's own sockets included
 
 
 @dataclass
@@ -139,7 +142,7 @@ class PathMeter:
         self._crossed = max(self._crossed, self._sent_handed)
         self.answers += 1
         self.last_answer = now
-        self._recent.append(_Answer(now, rtt, self._sent_handed))
+        self._recent.append(_Answer(now, rtt, self._sent_handed, raw))
         while self._recent and now - self._recent[0].at > PEAK_WINDOW:
             self._recent.popleft()
         bucket = now - now % BASE_BUCKET
@@ -191,6 +194,24 @@ class PathMeter:
         answered = min(last) if last else self.base_rtt
         overdue = now - self._sent_at - self._sent_visible if self._sent_at is not None else 0.0
         return max(answered, overdue)
+
+    def shows_no_queue(self, now: float) -> bool:
+        """True when the path's latest answers came back at its base round trip, counted whole (the wait behind
+        the robot's own sockets included), and no probe is overdue: nothing queues anywhere on the way, so bytes
+        the robot's sockets hold are on their way, not a backlog.
+
+        Why: the socket's meter takes a window in which its sockets held bytes at every look for a full link and
+        its delivered bytes for the link's capacity. A paced lane trickles a burst at a time, so its socket holds
+        a little at most looks however idle the link is: once one window had measured a stall, the meter took the
+        trickle for the capacity, paced to it, and measured it again (a 1 Mbit/s link held at 50 kbit/s for
+        minutes, scans 3 s old: bench/weak_link.py, one run in three). The probes are the check: on a full link
+        they wait too."""
+        if not self._recent or now - self._recent[-1].at > FRESH_ANSWER:
+            return False
+        if self._sent_at is not None and now - self._sent_at - self.base_rtt > CLEAR_QUEUE * self.target_delay:
+            return False
+        last = list(self._recent)[-CURRENT_SAMPLES:]
+        return min(a.raw for a in last) - self.base_rtt < CLEAR_QUEUE * self.target_delay
 
     def queue_delay(self, now: float) -> float:
         """Seconds of queue in the path now: current − base (0 before the first answer)."""

@@ -228,17 +228,19 @@ class LinkMeter:
     def budget(self) -> int:
         return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate * (self.min_rtt + self.target_delay))))
 
-    def allowance(self, lane: int, tiers: Sequence[int] | None = None, rate: float | None = None) -> float:
+    def allowance(self, lane: int, tiers: Sequence[int] | None = None, rate: float | None = None,
+                  probe: float = PROBE) -> float:
         """Bytes/s lane ``lane`` may hand over: what the lanes of earlier tiers (``tiers[i]`` is lane i's; by
-        default each lane its own tier) need, taken from PROBE × rate, shared by the busy lanes of its tier
-        (``rate``: the uplink's, when something other than this meter limits it)."""
+        default each lane its own tier) need, taken from ``probe`` × rate, shared by the busy lanes of its tier
+        (``rate``: the uplink's, when something other than this meter limits it; ``probe``: 1 where another
+        controller finds a faster link, as the path meter does by its own answers)."""
         tiers = tiers if tiers is not None else range(len(self.lane_rates))
         rates = self.lane_rates + [0.0] * (len(tiers) - len(self.lane_rates))
         demand = self.lane_demand + [0.0] * (len(tiers) - len(self.lane_demand))
         mine = tiers[lane] if lane < len(tiers) else lane
         need = sum(max(rates[i], demand[i]) for i, tier in enumerate(tiers) if tier < mine)
         peers = sum(1 for i, tier in enumerate(tiers) if tier == mine and (demand[i] > 0 or i == lane))
-        total = PROBE * (self.rate if rate is None else rate)
+        total = probe * (self.rate if rate is None else rate)
         return max(MIN_RATE, (total - need) / max(1, peers))
 
     def sample(self, now: float, acked: tuple[int, ...], limited: bool, min_rtt: float | None = None,

@@ -35,6 +35,7 @@ from .spool import Spool
 from .uplink import (
     MAX_BUDGET,
     MIN_BUDGET,
+    PROBE,
     TARGET_DELAY,
     LinkMeter,
     Outgoing,
@@ -344,11 +345,24 @@ class Uplink:
         return "allowance" if lane.credit < 0 else None
 
     def _refill(self, lane: Lane, now: float) -> None:
+        """A paced lane's allowance since its last refill, and while the path steers, the pace of its writes.
+
+        While the path steers, the lanes together get at most the path's rate: the socket's meter offers PROBE ×
+        its estimate to find a faster link (and still may, up to the path's rate), but the path meter finds one by
+        its own answers. A lane with a long backlog (a 4 MB map) written at PROBE × the path's rate overfilled a
+        hidden queue for as long as the map took: the path cut its rate to 0.85 × what it delivered, PROBE put the
+        lanes back over it, and the queue grew until the camera got nothing and poses were seconds old
+        (bench/weak_link.py, the camera + map rows)."""
         if lane.paced:
-            allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate(now))
+            steering = not self.fifo and self.path.steering(now)
+            if steering:
+                allowance = self.meter.allowance(lane.index, self._tiers, probe=1.0,
+                                                 rate=min(PROBE * self.meter.rate, self.path.rate))
+            else:
+                allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate(now))
             lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
-            self._pace(lane, allowance if not self.fifo and self.path.steering(now) else None)
+            self._pace(lane, allowance if steering else None)
 
     @staticmethod
     def _pace(lane: Lane, rate: float | None) -> None:
@@ -486,12 +500,17 @@ class Uplink:
             queued += kernel_unsent(sock)
             if sample is not None and sample[1] is not None:
                 min_rtt = sample[1] if min_rtt is None else min(min_rtt, sample[1])
-        # The link was the limit if bytes waited in the network at every look of the window: it never idled.
+        # The link was the limit if bytes waited in the network at every look of the window: it never idled. While
+        # the path steers, not if its probes came back at the base round trip meanwhile: nothing queued then, and
+        # what the sockets held was a paced lane's trickle on its way (PathMeter.shows_no_queue)
+        limited = queued > 0 and not (not self.fifo and self.path.steering(now) and self.path.shows_no_queue(now))
         offered = tuple(lane.offered for lane in self.lanes)
-        if self.meter.sample(now, tuple(acked), queued > 0, min_rtt, offered) is not None:
-            log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s", self.meter.rate,
-                      "measured" if self.meter.measured else "assumed", self.meter.budget,
-                      [round(r) for r in self.meter.lane_rates])
+        if self.meter.sample(now, tuple(acked), limited, min_rtt, offered) is not None:
+            log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s, offered %s B/s; path %.0f B/s%s, "
+                      "queue %.0f ms", self.meter.rate, "measured" if self.meter.measured else "assumed",
+                      self.meter.budget, [round(r) for r in self.meter.lane_rates],
+                      [round(r) for r in self.meter.lane_demand], self.path.rate,
+                      " (steering)" if self.path.steering(now) else "", 1000 * self.path.queue_delay(now))
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)

@@ -525,7 +525,8 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
     came, the link goes for a second (its process killed and started again), so every connection of the bridge
     drops. (Counted from the request, a busy machine's bridge once took longer than that to write the file, and
     the link was back before the first chunk left.)
-    Returns (the snapshot, seconds it took, the poses' ages while it crossed, the file's message count)."""
+    Returns (the snapshot, seconds it took, the poses' ages while it crossed, the file's message count, and the
+    seconds from the request to the outage: None without one)."""
     from mcap.reader import make_reader
     from nav_msgs.msg import Odometry
     from std_msgs.msg import String
@@ -546,6 +547,7 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
                 TestClient(broker.port, "bob", "bob-demo") as bob:
             probe = RosProbe()
             fetching, first_chunk = threading.Event(), threading.Event()
+            killed: list[float] = []
 
             def on_message(_c, _u, m) -> None:
                 if fetching.is_set() and m.topic.endswith("/state/pose"):
@@ -553,6 +555,7 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
 
             def break_link() -> None:
                 if first_chunk.wait(60) and not stop.wait(break_at):
+                    killed.append(time.monotonic())
                     link.kill()
                     time.sleep(1.0)
                     link.spawn()
@@ -593,14 +596,14 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
                 probe.close()
     with (tmp_path / "thin.mcap").open("rb") as f:
         stats = make_reader(f).get_summary().statistics
-    return snap, took, ages, stats.message_count
+    return snap, took, ages, stats.message_count, (killed[0] - started if killed else None)
 
 
 def test_a_snapshot_crosses_a_thin_uplink_intact_while_poses_stay_fresh(tmp_path) -> None:
     """≈ 200 kB, eight seconds of the whole link: the file arrives whole (its SHA-256 checked), and the poses stay
     fresh meanwhile: the chunks go at bulk priority, one at a time, on a connection of their own. (Handing every chunk
     to the command connection at once — the naive way — fails this test: tried by hand.)"""
-    snap, took, ages, messages = _thin_link_snapshot(tmp_path)
+    snap, took, ages, messages, _ = _thin_link_snapshot(tmp_path)
     assert messages == snap.messages >= 100, snap.messages  # 4 s of 20 + 10 Hz, less the window's cut
     assert len(snap.data) > 150_000, f"{len(snap.data)} bytes"  # seconds of the link: long enough to show the poses
     # held up (or not)
@@ -611,11 +614,16 @@ def test_a_snapshot_crosses_a_thin_uplink_intact_while_poses_stay_fresh(tmp_path
     assert len(ages) >= 5 * took, f"only {len(ages)} poses in {took:.1f} s"
 
 
-def test_a_snapshot_broken_by_a_link_outage_resumes_and_arrives_whole(tmp_path) -> None:
+def test_a_snapshot_broken_by_a_link_outage_arrives_whole(tmp_path) -> None:
     """The link goes for a second in the middle of the transfer: every connection of the bridge drops and comes
-    back; the SDK asks again from its first missing chunk and the file still arrives whole, its SHA-256 checked."""
-    snap, took, _ages, messages = _thin_link_snapshot(tmp_path, break_at=1.0)
+    back, and the file still arrives whole, its SHA-256 checked. A chunk lost with the connection is asked again by
+    the SDK from its first missing chunk (a resume); a chunk paho had in flight it sends again itself (QoS 1), so an
+    outage may cost no chunk at all (a clean-clone run beside a CPU hog: no resume, the file whole; the test asked
+    for a resume then and failed)."""
+    snap, took, _ages, messages, broken = _thin_link_snapshot(tmp_path, break_at=1.0)
+    assert broken is not None and broken < took, f"the outage ({broken} s) came after the transfer ({took:.1f} s)"
+    log = (tmp_path / "bridge.log").read_text(errors="replace")
+    assert "lost the broker" in log, "the bridge's connections never dropped: the transfer was not broken"
     assert messages == snap.messages >= 100, snap.messages
-    assert snap.resumes >= 1, "the outage cost no chunk? (the transfer was not broken)"
     record_measurement(f"snapshot over {SNAPSHOT_KBIT} kbit/s with a 1 s outage ({snap.resumes} resumes)", took, 120.0)
 

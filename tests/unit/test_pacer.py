@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
-import pytest
+import socket
+import threading
+import tracemalloc
 
-from roslink_mqtt.bridge.pacer import MIN_BURST, SLEEP_MAX, Pacer, paced_send
+import paho.mqtt.client as mqtt
+import pytest
+from paho.mqtt.enums import CallbackAPIVersion
+
+from roslink_mqtt.bridge.pacer import MIN_BURST, SLEEP_MAX, ZERO_COPY_FROM, Pacer, install, paced_send
 
 pytestmark = pytest.mark.unit
 
@@ -60,9 +66,72 @@ def test_what_the_socket_did_not_take_is_refunded() -> None:
     assert clock.now == 0.0
 
 
+def test_a_full_socket_spends_no_tokens() -> None:
+    """A socket that takes nothing (its buffer full) raises BlockingIOError: the granted tokens were not spent (they
+    were, and a lane whose small send buffer filled now and then wrote slower than its allowance)."""
+    clock, pacer = Clock(), Pacer()
+    pacer.rate = 1_000.0
+
+    def full(buf: bytes | bytearray) -> int:
+        raise BlockingIOError
+
+    with pytest.raises(BlockingIOError):
+        paced_send(pacer, full, clock.sleep, clock)(b"x" * 1_500)
+    assert paced_send(pacer, lambda buf: len(buf), clock.sleep, clock)(b"x" * 1_500) == MIN_BURST
+    assert clock.now == 0.0
+
+
 def test_unpacing_lets_the_rest_through_at_once() -> None:
     pacer = Pacer()
     pacer.rate = 1_000.0
     assert pacer.grant(10_000, 0.0)[0] == MIN_BURST
     pacer.rate = None
     assert pacer.grant(10_000, 0.0) == (10_000, 0.0)
+
+
+def test_a_large_packet_is_written_a_burst_at_a_time_without_copying_its_rest() -> None:
+    """A 4 MB map through a paced lane: paho writes its head packet as ``packet[pos:]`` at every attempt, a copy of
+    the whole rest (200 MB/s of copies at 50 bursts a second: the bridge's poses and stops were late while a map
+    crossed). Queued as a view, the writes allocate no more than a burst. A real paho client writes it into a
+    real socket; what arrives is the packet, whole."""
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="paced")
+    near, far = socket.socketpair()
+    near.setblocking(False)
+    client._sock = near
+    pacer = Pacer()
+    pacer.rate = 20_000_000.0  # bytes/s: 400 kB bursts, 0.2 s for the whole map
+    install(client, pacer)
+    packet = bytearray(range(256)) * (4_000_000 // 256)
+    client._packet_queue(mqtt.PUBLISH, packet, 1, 0, mqtt.MQTTMessageInfo(1))
+    assert isinstance(client._out_packet[0]["packet"], memoryview)
+    client._packet_queue(mqtt.PINGREQ, b"\xc0\x00", 0, 0)  # small packets stay as they are
+    assert isinstance(client._out_packet[1]["packet"], bytes)
+    assert ZERO_COPY_FROM > 2
+    received = bytearray(len(packet) + 2)  # allocated before the measurement: the reader's own memory
+    got = [0]
+
+    def read() -> None:
+        view = memoryview(received)
+        while got[0] < len(received):
+            count = far.recv_into(view[got[0]:])
+            if not count:
+                return
+            got[0] += count
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    tracemalloc.start()
+    try:
+        for _ in range(10_000):
+            if not client._out_packet:
+                break
+            client._packet_write()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    reader.join(10)
+    near.close()
+    far.close()
+    assert not client._out_packet
+    assert got[0] == len(received) and received == packet + b"\xc0\x00"
+    assert peak < 1_000_000, f"{peak} bytes allocated while writing a 4 MB packet: its rest was copied"

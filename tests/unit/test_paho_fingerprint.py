@@ -29,9 +29,12 @@ WRITE = "python -m tests.unit.test_paho_fingerprint --write"
 RELIED_ON: dict[str, str] = {
     "paho.mqtt.client:Client.__init__": "creates _out_packet (a deque of dicts with to_process: uplink_sender."
                                         "paho_unsent), _host, _port and _client_id (mqtt.Failover.advance)",
-    "paho.mqtt.client:Client._packet_queue": "appends each outgoing packet to _out_packet with its to_process",
+    "paho.mqtt.client:Client._packet_queue": "appends each outgoing packet to _out_packet with its to_process; "
+                                             "wrapped per paced lane (bridge/pacer.zero_copy_queue): a large "
+                                             "packet is queued as a memoryview",
     "paho.mqtt.client:Client._packet_write": "writes _out_packet's head, lowers to_process, pops what is written: "
-                                             "what is left is what paho holds unsent",
+                                             "what is left is what paho holds unsent; slices packet[pos:] at "
+                                             "every attempt (a copy, unless the packet is a view: bridge/pacer.py)",
     "paho.mqtt.client:Client._send_pingreq": "MqttLink.ping: the path meter's probe (bridge/path_meter.py); wrapped "
                                              "so the keep-alive's PINGREQs enter bridge/ping_ledger.py too; sets "
                                              "_ping_t after queuing (MqttLink clears it when the answer came first)",

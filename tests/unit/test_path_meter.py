@@ -10,7 +10,14 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from roslink_mqtt.bridge.path_meter import FIRST_WAIT, MIN_RATE, PROBE_PERIOD, STEER_FOR, PathMeter
+from roslink_mqtt.bridge.path_meter import (
+    FIRST_WAIT,
+    FRESH_ANSWER,
+    MIN_RATE,
+    PROBE_PERIOD,
+    STEER_FOR,
+    PathMeter,
+)
 
 
 def test_round_trips_give_base_current_and_queue_delay() -> None:
@@ -33,6 +40,32 @@ def test_round_trips_give_base_current_and_queue_delay() -> None:
     m.probe_sent(t, handed=0)
     assert m.current_rtt(t + 1.0) == pytest.approx(1.0)
     assert m.queue_delay(t + 1.0) == pytest.approx(0.94)
+
+
+def test_answers_at_the_base_round_trip_show_no_queue_anywhere() -> None:
+    """What the socket's meter asks before it takes a window of bytes held in its sockets for a full link: the
+    probes, counted whole, came back at the base round trip (a paced trickle on its way), or not (a backlog: in
+    the sockets or beyond them)."""
+    m = PathMeter(target_delay=0.1)
+    assert not m.shows_no_queue(0.0)  # nothing measured: no word
+    t = 0.0
+    for _ in range(4):
+        m.probe_sent(t, handed=0)
+        m.probe_answered(t + 0.08)
+        t += 0.08 + PROBE_PERIOD
+    assert m.shows_no_queue(t)
+    assert not m.shows_no_queue(t + FRESH_ANSWER + 0.01)  # no recent answer: no word
+    m.probe_sent(t, handed=0)
+    assert m.shows_no_queue(t + 0.1)  # a probe out for its round trip is no queue
+    assert not m.shows_no_queue(t + 0.08 + 0.03)  # overdue by more than a quarter of the target
+    m.probe_answered(t + 0.08)
+    t += 0.08 + PROBE_PERIOD
+    for _ in range(3):  # the probes wait 60 ms behind the robot's own sockets: the meter's queue says nothing
+        m.probe_sent(t, handed=0, visible=0.06)
+        m.probe_answered(t + 0.14)
+        t += 0.14 + PROBE_PERIOD
+    assert m.queue_delay(t) == pytest.approx(0.0)
+    assert not m.shows_no_queue(t)  # but counted whole they waited: the sockets hold a backlog
 
 
 def test_bytes_cross_when_the_probe_sent_after_them_is_answered() -> None:

@@ -8,6 +8,7 @@ import time
 
 import pytest
 
+from roslink_mqtt.bridge.uplink import PROBE
 from roslink_mqtt.bridge.uplink_sender import Uplink
 from tests.unit.test_uplink_sender_offline import Link
 
@@ -47,8 +48,50 @@ def test_paced_lanes_write_at_their_allowance_only_while_the_path_steers() -> No
     lane = sender.lanes[1]
     with sender.lock:
         sender._refill(lane, time.monotonic())
-    assert lane.pacer.rate == pytest.approx(sender.meter.allowance(lane.index, sender._tiers, rate=sender.rate()))
+    assert lane.pacer.rate == pytest.approx(sender.meter.allowance(lane.index, sender._tiers, probe=1.0,
+                                                                   rate=sender.path.rate))
     sender.path.tcp_rtt = 0.039  # the TCP round trip is the path's: a modem, no hop; the socket steers alone
     with sender.lock:
         sender._refill(lane, time.monotonic())
     assert lane.pacer.rate is None
+
+
+def test_paced_lanes_together_never_write_faster_than_the_path_carries() -> None:
+    """While the path steers, the paced lanes' writes add up to the path's rate, not PROBE × it: a lane with a
+    backlog that lasts (a 4 MB map) written 25 % over the path's rate kept a hidden queue growing for as long as
+    the map took (the path cut to 0.85 × what it delivered, and 1.25 × that is still over it), until the camera
+    got nothing and poses were seconds old (bench/weak_link.py's camera + map rows)."""
+    main, state, camera, grid = Link("main"), Link("state"), Link("camera"), Link("map")
+    sender = Uplink(main, state, {"camera": camera, "map": grid})  # type: ignore[arg-type] - stand-ins
+    sender.path.tcp_rtt = 0.0001
+    now = time.monotonic()
+    sender.path.probe_sent(now - 0.04, 0)
+    sender.path.probe_answered(now)
+    assert sender.path.steering(now)
+    with sender.lock:
+        for lane in sender.lanes:
+            sender._refill(lane, now)
+        rate = sender.rate(now)
+        # every lane busy: the state lane may take all the path leaves the main lane, the bulk lanes share it
+        state_pace = sender.lanes[1].pacer.rate
+        bulk_paces = [lane.pacer.rate for lane in sender.lanes[2:]]
+    assert rate == sender.path.rate  # (the socket's meter starts at 1 Mbit/s, the path at 256 kbit/s)
+    assert state_pace is not None and state_pace <= rate * 1.0001
+    assert all(pace is not None for pace in bulk_paces)
+    assert max(p or 0.0 for p in bulk_paces) <= rate * 1.0001
+
+
+def test_behind_a_hop_the_sockets_meter_may_still_probe_up_to_the_paths_rate() -> None:
+    """Where the socket's estimate is below the path's, the lanes offer PROBE × it (how the socket's meter finds a
+    faster link; at exactly its estimate it would never see more delivered), but never more than the path's."""
+    sender, state = behind_a_hop()
+    lane = sender.lanes[1]
+    sender.meter.rate = 10_000.0
+    sender.path.rate = 100_000.0
+    with sender.lock:
+        sender._refill(lane, time.monotonic())
+    assert lane.pacer.rate == pytest.approx(PROBE * 10_000.0)
+    sender.meter.rate = 90_000.0
+    with sender.lock:
+        sender._refill(lane, time.monotonic())
+    assert lane.pacer.rate == pytest.approx(100_000.0)
