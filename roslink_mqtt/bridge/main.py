@@ -319,8 +319,21 @@ def main(argv: list[str] | None = None) -> int:
         if rclpy.ok():
             rclpy.shutdown()
     if bridge.login_refused is not None:
-        return EXIT_LOGIN_REFUSED
-    return EXIT_FENCED if bridge.fenced_by is not None else 0
+        _leave(EXIT_LOGIN_REFUSED)
+    _leave(EXIT_FENCED if bridge.fenced_by is not None else 0)
+
+
+def _leave(code: int) -> NoReturn:
+    """End a bridge that has stopped in order (the robot's zero velocity and offline heartbeat sent, its
+    connections closed, its executors and nodes shut down, rclpy shut down) with ``code``, skipping the
+    interpreter's teardown: what is left is garbage, and collected after rclpy's shutdown it printed a traceback
+    now and then (``Executor.__del__``: "cannot use Destroyable because destruction was requested": a README
+    command's test failed on it in a clean-clone run). A trace (``ROSLINK_BRIDGE_TRACE``) is written first."""
+    from . import trace
+
+    if trace.TRACE is not None:
+        trace.TRACE.write()
+    _leave_before_start(code)
 
 
 def _leave_before_start(code: int) -> NoReturn:
