@@ -318,22 +318,27 @@ def main(argv: list[str] | None = None) -> int:
             spun_node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        _ignore_executor_teardown()
     if bridge.login_refused is not None:
-        _leave(EXIT_LOGIN_REFUSED)
-    _leave(EXIT_FENCED if bridge.fenced_by is not None else 0)
+        return EXIT_LOGIN_REFUSED
+    return EXIT_FENCED if bridge.fenced_by is not None else 0
 
 
-def _leave(code: int) -> NoReturn:
-    """End a bridge that has stopped in order (the robot's zero velocity and offline heartbeat sent, its
-    connections closed, its executors and nodes shut down, rclpy shut down) with ``code``, skipping the
-    interpreter's teardown: what is left is garbage, and collected after rclpy's shutdown it printed a traceback
-    now and then (``Executor.__del__``: "cannot use Destroyable because destruction was requested": a README
-    command's test failed on it in a clean-clone run). A trace (``ROSLINK_BRIDGE_TRACE``) is written first."""
-    from . import trace
+def _ignore_executor_teardown() -> None:
+    """From here on, an rclpy executor collected at the interpreter's exit whose guard condition rclpy's shutdown
+    destroyed already is not reported as an error (it was printed as a traceback now and then, ``Executor.__del__``:
+    "cannot use Destroyable because destruction was requested", and a README command's test failed on it in a
+    clean-clone run). Everything else still reaches Python's own hook. Ending the process at once instead
+    (``os._exit``) was tried: events a ``buffer: disk`` rule had kept were lost across a bridge restart."""
+    default = sys.unraisablehook
 
-    if trace.TRACE is not None:
-        trace.TRACE.write()
-    _leave_before_start(code)
+    def hook(unraisable: Any) -> None:
+        where = getattr(unraisable.object, "__qualname__", "")
+        if where == "Executor.__del__" and type(unraisable.exc_value).__name__ == "InvalidHandle":
+            return
+        default(unraisable)
+
+    sys.unraisablehook = hook
 
 
 def _leave_before_start(code: int) -> NoReturn:
