@@ -88,11 +88,17 @@ def test_set_changes_the_robot_and_emits_an_event(stack) -> None:
         assert event.json() == {"node": "/sim_robot", "new": {}, "changed": {"max_speed": 0.25}, "deleted": []}
         assert ask(stack.alice, "alice", {"op": "get", "names": ["max_speed"]})["values"] == {"max_speed": 0.25}
         # the motion model obeys it: a 0.5 m/s command (the bridge's limit) is driven at 0.25
+        # alice streams at 10 Hz for at least 1.5 s, and on until the robot's odometry shows it moving (15 s at most:
+        # a clean-clone run on a busy machine had no odometry at all within the first 1.5 s)
         start = time.monotonic()
-        for seq in range(1, 16):
+        seq = 0
+        while time.monotonic() - start < 15:
+            seq += 1
             stack.alice.publish("roslink/turtle1/from/alice/cmd/twist",
                                 {"message_id": 100, "sequence_number": 10_000 + seq, "payload": {"lx": 0.5}}, qos=0)
             time.sleep(0.1)
+            if seq >= 15 and any(m.twist.twist.linear.x > 0.2 for _, m in odom.since(start)):
+                break
         speeds = [m.twist.twist.linear.x for t, m in odom.since(start)]
         assert speeds and max(speeds) == pytest.approx(0.25, abs=1e-6), speeds[-5:]
     finally:
