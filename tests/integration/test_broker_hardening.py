@@ -259,6 +259,8 @@ def test_will_topic_is_checked_against_the_publish_acl(broker, clients) -> None:
 # -- 8: broadcast while subscriptions change ---------------------------------------------------
 
 def test_no_message_lost_while_another_client_subscribes_concurrently(broker, clients) -> None:
+    # On state/ack, which the broker never conflates: on state/count a loaded machine's slow reader had 215 of 1,500
+    # superseded (latest wins per topic for a viewer that falls behind, by design), and the test counted them lost.
     n = 1500
     counter = clients(broker.port, "alice")
     assert counter.subscribe("roslink/turtle1/state/#", qos=0) == [0]
@@ -277,7 +279,7 @@ def test_no_message_lost_while_another_client_subscribes_concurrently(broker, cl
     thread.start()
     try:
         for i in range(n):
-            publisher.client.publish("roslink/turtle1/state/count", str(i), qos=0)
+            publisher.client.publish("roslink/turtle1/state/ack", str(i), qos=0)
             if i % 100 == 0:
                 time.sleep(0.01)
         deadline = time.monotonic() + 20
