@@ -149,10 +149,14 @@ def test_the_fleet_at_a_glance_with_alerts_map_and_charts(fleet, tmp_path, width
         assert {(a["robot"], a["severity"]) for a in battery} == {("sim08", "critical"), ("sim09", "warning")}
 
         # a robot's link goes down: stale at the top of the list and a critical alert, within the stale time
+        # every listed robot keeps its item while the list changes around it (a rebuilt item swallows a click)
+        driver.execute_script("window.kept = document.querySelector('#attention li[data-robot=\"sim08\"] button')")
         sim.silence(silent)
         try:
             wait_until(f"{silent} first in the list", lambda: attention(driver)[0][:2] == (silent, "critical"),
                        timeout=15)
+            assert driver.execute_script("return window.kept.isConnected && window.kept === document.querySelector("
+                                         "'#attention li[data-robot=\"sim08\"] button')")
             alert = wait_until("the stale alert", lambda: next((a for a in alerts(driver) if a["robot"] == silent
                                                                 and a["kind"] == "stale"), None))
             assert alert["severity"] == "critical" and alert["state"] == "active" and "no heartbeat" in alert["text"]
@@ -197,7 +201,8 @@ def test_the_fleet_at_a_glance_with_alerts_map_and_charts(fleet, tmp_path, width
         # a click in the attention list opens that robot; its charts fill as its series grow
         # the list is rebuilt while sim02's failsafe and sim06's return reach it: found afresh at the click
         click_css(driver, '#attention li[data-robot="sim08"] button')
-        assert visible(driver, "robot-view") and not visible(driver, "fleet-view")
+        wait_until("the robot's view opened by the click", lambda: visible(driver, "robot-view"), timeout=5)
+        assert not visible(driver, "fleet-view")
         assert driver.find_element(By.ID, "robot-title").text == "Robot sim08"
         points = wait_until("the charts filled", lambda: (p := driver.execute_script(
             "return Object.fromEntries([...document.querySelectorAll('.chart')].map(c => "

@@ -71,7 +71,7 @@ class Driver(TestClient):
     def control(self, op: str) -> None:
         self.publish(f"roslink/turtle1/from/{self.username}/control/{op}", b"")
 
-    def error(self, contains: str, timeout: float = 5.0) -> Received:
+    def error(self, contains: str, timeout: float = 10.0) -> Received:
         return self.wait_for(lambda m: m.topic.endswith(f"/to/{self.username}/error")
                              and contains in m.json()["error"], timeout=timeout)
 
@@ -107,7 +107,7 @@ def _cli(port: int, user: str, *args: str) -> subprocess.CompletedProcess:
                           env={**os.environ, "ROSLINK_PASSWORD": f"{user}-demo"})
 
 
-def _control_state(watcher: TestClient, predicate, timeout: float = 5.0) -> ControlState:
+def _control_state(watcher: TestClient, predicate, timeout: float = 10.0) -> ControlState:
     m = watcher.wait_for(lambda m: m.topic.endswith("/state/control") and m.payload
                          and predicate(ControlState.from_json(m.payload)), timeout=timeout)
     return ControlState.from_json(m.payload)

@@ -69,16 +69,21 @@ class TestClient:
 
     def wait_for(self, predicate: Callable[[Received], bool], timeout: float = 10.0) -> Received:
         deadline = time.monotonic() + timeout
+        seen: list[str] = []
         while True:
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise TimeoutError("no matching message")
             try:
+                if remaining <= 0:
+                    raise queue.Empty
                 msg = self.messages.get(timeout=remaining)
             except queue.Empty:
-                raise TimeoutError("no matching message") from None
+                # what did come, so that a CI log that shows only this line still says which wait it was
+                topics = sorted(set(seen))
+                raise TimeoutError(f"no matching message within {timeout} s ({len(seen)} others on "
+                                   f"{', '.join(topics[:6])}{' …' if len(topics) > 6 else ''})") from None
             if predicate(msg):
                 return msg
+            seen.append(msg.topic)
 
     def drain(self, seconds: float) -> list[Received]:
         return drain(self.messages, seconds)

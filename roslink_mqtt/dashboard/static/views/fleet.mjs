@@ -23,6 +23,7 @@ let mapDrawnAt = 0;
 let mapPending = false;
 let placed = [];            // [name, px, py] where the map drew each robot (for clicks)
 let attentionKey = "";
+const attentionItems = new Map();  // robot name → {li, why}: kept while listed
 
 export function addFleetRow(robot) {
   const tr = el("tr", { "data-robot": robot.name });
@@ -54,6 +55,7 @@ export function clearFleet() {
   rows.clear();
   ui.fleet.tBodies[0].replaceChildren();
   ui.attention.replaceChildren();
+  attentionItems.clear();
   attentionKey = "";
   placed = [];
 }
@@ -87,19 +89,41 @@ export function updateRow(robot, now) {
   row.tr.classList.toggle("selected", dash.selected === robot.name);
 }
 
-/** The attention list: every robot, most urgent first, with why; rebuilt only when what it says changed. */
+/** The attention list: every robot, most urgent first, with why; changed in place only when what it says changed.
+ * Each robot keeps its own item for as long as it is listed: an item rebuilt between a press and its release (the
+ * reasons change while a robot's link is down) would swallow the click that was meant to open that robot. */
 export function updateAttention(now) {
   const list = attention(dash.robots.values(), now, dash.rules ? dash.rules.battery_below || 0 : undefined);
   const key = list.map((a) => `${a.robot.name}|${a.level}|${a.reasons.join(";")}`).join("\n");
   if (key === attentionKey) return;
   attentionKey = key;
-  ui.attention.replaceChildren(...list.map(({ robot, level, reasons }) => {
-    const li = el("li", { "data-robot": robot.name, "data-level": LEVELS[level] });
-    const b = el("button", { type: "button", class: "robot-link" }, robot.name);
-    b.addEventListener("click", () => openRobot(robot.name));
-    li.append(b, el("span", { class: "why" }, reasons.length ? reasons.join(" · ") : "ok"));
-    return li;
-  }));
+  const listed = new Set();
+  let next = ui.attention.firstChild;
+  for (const { robot, level, reasons } of list) {
+    const item = attentionItem(robot.name);
+    item.li.dataset.level = LEVELS[level];
+    setText(item.why, reasons.length ? reasons.join(" · ") : "ok");
+    if (item.li === next) next = next.nextSibling;
+    else ui.attention.insertBefore(item.li, next);  // moved only when the order changed
+    listed.add(robot.name);
+  }
+  for (const [name, item] of attentionItems) {
+    if (!listed.has(name)) { item.li.remove(); attentionItems.delete(name); }
+  }
+}
+
+function attentionItem(name) {
+  let item = attentionItems.get(name);
+  if (!item) {
+    const li = el("li", { "data-robot": name });
+    const b = el("button", { type: "button", class: "robot-link" }, name);
+    b.addEventListener("click", () => openRobot(name));
+    const why = el("span", { class: "why" });
+    li.append(b, why);
+    item = { li, why };
+    attentionItems.set(name, item);
+  }
+  return item;
 }
 
 // ---------------------------------------------------------------------------------------------------- the map
