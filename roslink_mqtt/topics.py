@@ -254,6 +254,14 @@ def state_rule_name(path: str) -> str | None:
     return rest if head == STATE and rest else None
 
 
+VDA5050_INTERFACE = "uagv/v2"  # VDA 5050 §6.3: interface name and major version, the standard's own tree
+
+
+def vda5050_topic(manufacturer: str, serial_number: str, leaf: str) -> str:
+    """``uagv/v2/<manufacturer>/<serialNumber>/<leaf>``: a VDA 5050 vehicle's topic (roslink_mqtt/vda5050)."""
+    return _join(VDA5050_INTERFACE, manufacturer, serial_number, leaf)
+
+
 def sys_topic(*names: str) -> str:
     """A topic of the broker's own ``$SYS`` tree (outside the robots' tree): ``sys_topic("broker", "clients")``."""
     return _join("$SYS", *names)

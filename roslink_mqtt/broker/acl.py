@@ -16,6 +16,9 @@ With ``P`` the fleet prefix (``roslink``):
   ``P/R/from/U/cancel/<a>`` for its actions marked ``viewers: true``, ``P/R/from/U/param/<n>`` for
   its exposed parameter nodes (reads; the bridge refuses a viewer's set unless ``viewers_may_set``), and the
   robot's emergency-stop inputs (``P/R/from/U/cmd/emergency_stop``) unless the robot says ``estop: operators``.
+* a robot with a ``vda5050`` profile (manufacturer ``M``, serial number ``S``) reads ``uagv/v2/M/S/order`` and
+  ``…/instantActions`` and writes ``…/state``, ``…/visualization``, ``…/connection`` and ``…/factsheet``; the
+  profile's master control (an operator of the robot) the other way round; no other user has them.
 * an admin reads and writes ``#`` and ``$CONTROL/roslink/#`` (``fleet apply``: broker/admin.py) and reads
   ``$SYS/#``. Nobody writes ``$SYS`` (brokers refuse it).
 * an unknown login (and anonymous) may do nothing.
@@ -41,6 +44,7 @@ from typing import Any
 from ..compat import StrEnum
 from ..config import Fleet, Role
 from ..topics import ANY, FLEET_CONTROL_FILTER, SYS_TOPICS, Kind, Verb, filter_levels
+from ..vda5050 import wire
 
 
 class Access(IntFlag):
@@ -141,7 +145,21 @@ def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
         AclEntry(t.from_user_filter(robot, ANY), Access.READ),
     ]
     entries += [AclEntry(t.operators_filter(user, deep=True), Access.READ) for user in sorted(fleet.users_of(robot))]
-    return entries
+    return entries + vda5050_entries(fleet, robot, master=False)
+
+
+def vda5050_entries(fleet: Fleet, robot: str, *, master: bool) -> list[AclEntry]:
+    """A VDA 5050 robot's topics (``uagv/v2/<manufacturer>/<serial>/…``, roslink_mqtt/vda5050/wire.py): the
+    master control writes ``order`` and ``instantActions`` and reads the rest, the robot the other way round;
+    nobody else has them (admins through ``#``)."""
+    vda = fleet.robots[robot].vda5050
+    if vda is None:
+        return []
+    to_vehicle, from_vehicle = (Access.WRITE, Access.READ) if master else (Access.READ, Access.WRITE)
+    return [AclEntry(wire.topic(vda.manufacturer, vda.serial_number, leaf), to_vehicle)
+            for leaf in wire.FROM_MASTER] + [
+            AclEntry(wire.topic(vda.manufacturer, vda.serial_number, leaf), from_vehicle)
+            for leaf in wire.FROM_VEHICLE]
 
 
 def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
@@ -176,6 +194,9 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
             if fleet.robots[robot].estop == "viewers":
                 entries += [AclEntry(t.from_user(robot, user, leaf), Access.WRITE)
                             for leaf in fleet.robots[robot].estop_inputs]
+        vda = fleet.robots[robot].vda5050
+        if vda is not None and vda.master == user:
+            entries += vda5050_entries(fleet, robot, master=True)
     return entries
 
 

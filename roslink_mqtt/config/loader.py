@@ -43,6 +43,8 @@ from .model import (
     RAW_TYPES,
     ROBOT_FILE,
     SNAPSHOT_WHO,
+    VDA_CLASSES,
+    VDA_KINEMATICS,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -61,12 +63,14 @@ from .model import (
     SnapshotTopic,
     TlsSettings,
     User,
+    Vda5050Settings,
     VelocityLimits,
 )
 from .passwords import PasswordHashError, check_hash_format
 from .yamlsource import ConfigError, Path, Source, load_yaml
 
 _REQUIRED: Any = object()
+_VDA_LEVEL = re.compile(r"^[A-Za-z0-9_.:-]+$")  # VDA 5050 §6.3: the characters of a topic level
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
@@ -252,6 +256,7 @@ class _FleetReader:
                          grants_pending=True)
         users = self.users(("users",), robots)
         self.check_supervisors(robots, users)
+        self.check_vda5050(robots, users)
         return Fleet(self.src.file, prefix, broker, robots, users, tuple(self.notes), self.robot_file)
 
     def names(self, path: Path, what: str) -> tuple[str, ...]:
@@ -275,6 +280,26 @@ class _FleetReader:
                     why = "no such user" if user is None else f"'{name}' is not an operator of {robot.name}"
                     raise self.err(("robots", robot.name, "supervisors", i),
                                    f"a supervisor must be an operator of the robot: {why}")
+
+    def check_vda5050(self, robots: dict[str, Robot], users: dict[str, User]) -> None:
+        """A master control is an operator of its robot; no two robots share a VDA 5050 identity."""
+        keys = {r.key: r.name for r in robots.values()}
+        seen: dict[tuple[str, str], str] = {}
+        for robot in robots.values():
+            vda = robot.vda5050
+            if vda is None:
+                continue
+            path = ("robots", robot.name, "vda5050")
+            user = users.get(vda.master)
+            if user is None or not (user.admin or any(keys.get(g.key) == robot.name and g.role is Role.OPERATOR
+                                                      for g in user.grants)):
+                why = "no such user" if user is None else f"'{vda.master}' is not an operator of {robot.name}"
+                raise self.err(path + ("master",), f"the master control must be an operator of the robot: {why}")
+            identity = (vda.manufacturer, vda.serial_number)
+            if identity in seen:
+                raise self.err(path + ("serial_number",), f"{vda.manufacturer}/{vda.serial_number} is already robot "
+                                                          f"'{seen[identity]}'s VDA 5050 identity")
+            seen[identity] = robot.name
 
     def broker(self, path: Path) -> BrokerSettings:
         self.mapping(path, ("host", "port", "ws_port", "ws_host", "tls", "max_payload", "allow_plaintext"))
@@ -326,7 +351,8 @@ class _FleetReader:
 
     def robot(self, path: Path, name: str) -> Robot:
         self.mapping(path, ("system_id", "key", "password", "previous_password", "type", "bridge", "rules",
-                            "services", "actions", "parameters", "control", "supervisors", "estop", "snapshot"))
+                            "services", "actions", "parameters", "control", "supervisors", "estop", "snapshot",
+                            "vda5050"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         rules = self.rules(path + ("rules",)) if "rules" in self.get(path) else ()
@@ -347,7 +373,44 @@ class _FleetReader:
             previous_password_hash=self.previous_hash(path),
             snapshot=self.snapshot(path + ("snapshot",), rules) if self.get(path).get("snapshot") is not None
             else None,
+            vda5050=self.vda5050(path + ("vda5050",), name) if self.get(path).get("vda5050") is not None else None,
         )
+
+    def vda5050(self, path: Path, robot: str) -> Vda5050Settings:
+        """``vda5050:``: the robot's VDA 5050 identity (topic levels of the standard's own alphabet), its map, its
+        master control's login, the ROS names it drives and reads, and what its factsheet says."""
+        self.mapping(path, ("manufacturer", "serial_number", "map_id", "master", "navigate", "odometry", "battery",
+                            "tolerance", "state_interval", "visualization_interval", "vehicle"))
+        vp = path + ("vehicle",)
+        if self.get(path).get("vehicle") is None:
+            raise self.err(path, "missing required key 'vehicle' (the factsheet's width, length and height in m)")
+        self.mapping(vp, ("width", "length", "height", "acceleration", "series_name", "kinematic", "class"))
+        d = Vda5050Settings("", "", "", "", 0.0, 0.0, 0.0)
+        size = self.number(0, 100, open_low=True)
+        return Vda5050Settings(
+            manufacturer=self.value(path, "manufacturer", self.vda_level),
+            serial_number=self.value(path, "serial_number", self.vda_level, robot),
+            map_id=self.value(path, "map_id", self.string),
+            master=self.value(path, "master", self.topic_name("master control login")),
+            width=self.value(vp, "width", size), length=self.value(vp, "length", size),
+            height=self.value(vp, "height", size), acceleration=self.value(vp, "acceleration", size, d.acceleration),
+            navigate=self.value(path, "navigate", self.ros_name, d.navigate),
+            odometry=self.value(path, "odometry", self.ros_name, d.odometry),
+            battery=self.value(path, "battery", self.ros_name, d.battery),
+            tolerance=self.value(path, "tolerance", self.number(0, 100, open_low=True), d.tolerance),
+            state_interval=self.value(path, "state_interval", self.number(1, 30), d.state_interval),
+            visualization_interval=self.value(path, "visualization_interval", self.number(0, 60),
+                                              d.visualization_interval),
+            series_name=self.value(vp, "series_name", self.string, d.series_name),
+            kinematic=self.value(vp, "kinematic", self.choice(VDA_KINEMATICS), d.kinematic),
+            vehicle_class=self.value(vp, "class", self.choice(VDA_CLASSES), d.vehicle_class),
+        )
+
+    def vda_level(self, path: Path, v: Any) -> str:
+        """A VDA 5050 topic level (manufacturer, serial number): the standard's alphabet, A-Z a-z 0-9 _ . : -"""
+        if not isinstance(v, str) or not _VDA_LEVEL.match(v):
+            raise self.err(path, f"expected letters, digits and _ . : - only (a VDA 5050 topic level), got {_show(v)}")
+        return v
 
     def snapshot(self, path: Path, rules: tuple[Rule, ...]) -> SnapshotSettings:
         """``snapshot:``: the ring buffer's topics (a ROS topic a ``ros_to_mqtt`` rule names, or

@@ -254,6 +254,37 @@ class SnapshotSettings:
     keep: int = 20
 
 
+VDA_KINEMATICS = ("DIFF", "OMNI", "THREEWHEEL")
+VDA_CLASSES = ("FORKLIFT", "CONVEYOR", "TUGGER", "CARRIER")
+
+
+@dataclass(frozen=True, slots=True)
+class Vda5050Settings:
+    """The robot speaks VDA 5050 2.1.0 to a master control (docs/vda5050.md): its topics
+    ``uagv/v2/<manufacturer>/<serial_number>/…``, orders driven through the ROS action ``navigate`` (the shape of
+    Nav2's NavigateToPose), pose and velocity from ``odometry``, charge from ``battery``. ``master`` is the one
+    login that may send orders and instant actions (an operator of the robot); the factsheet gives the vehicle's
+    size and kind."""
+
+    manufacturer: str
+    serial_number: str
+    map_id: str
+    master: str
+    width: float  # m, for the factsheet's physicalParameters
+    length: float
+    height: float
+    acceleration: float = 0.5  # m/s², the factsheet's accelerationMax and decelerationMax
+    navigate: str = "navigate_to_pose"
+    odometry: str = "odom"
+    battery: str = "battery_state"  # sensor_msgs/msg/BatteryState: batteryState (charge, charging, voltage)
+    tolerance: float = 0.25  # m: "on the node" when an order's node allows no deviation of its own
+    state_interval: float = 30.0  # s: a state at least this often (and on every event)
+    visualization_interval: float = 1.0  # s between visualization messages; 0: none
+    series_name: str = "ROSLink robot"
+    kinematic: str = "DIFF"
+    vehicle_class: str = "CARRIER"
+
+
 @dataclass(frozen=True, slots=True)
 class BridgeSettings:
     broker_url: str = "mqtt://127.0.0.1:1883"
@@ -322,6 +353,7 @@ class Robot:
     # accepted until the robot's bridge has moved to the new one; "" when none.
     previous_password_hash: str = ""
     snapshot: SnapshotSettings | None = None  # None: the bridge keeps no ring buffer and refuses snapshot requests
+    vda5050: Vda5050Settings | None = None  # None: the robot speaks ROSLink only
 
     @property
     def estop_inputs(self) -> tuple[str, ...]:
