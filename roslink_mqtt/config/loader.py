@@ -43,6 +43,8 @@ from .model import (
     RAW_TYPES,
     ROBOT_FILE,
     SNAPSHOT_WHO,
+    VDA_BUILT_IN_ACTIONS,
+    VDA_CALL_TYPES,
     VDA_CLASSES,
     VDA_KINEMATICS,
     ActionRule,
@@ -63,6 +65,7 @@ from .model import (
     SnapshotTopic,
     TlsSettings,
     User,
+    Vda5050Call,
     Vda5050Settings,
     VelocityLimits,
 )
@@ -71,6 +74,7 @@ from .yamlsource import ConfigError, Path, Source, load_yaml
 
 _REQUIRED: Any = object()
 _VDA_LEVEL = re.compile(r"^[A-Za-z0-9_.:-]+$")  # VDA 5050 §6.3: the characters of a topic level
+_VDA_ACTION = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")  # an actionType (startCharging, initPosition, …)
 _ROS_NAME = re.compile(r"^~?/?[A-Za-z_{][A-Za-z0-9_{}]*(/[A-Za-z_{][A-Za-z0-9_{}]*)*$")
 _MQTT_URL = re.compile(r"^(mqtts?|ws|wss)://[^:/\s]+(:\d{1,5})?/?$")
 
@@ -379,8 +383,9 @@ class _FleetReader:
     def vda5050(self, path: Path, robot: str) -> Vda5050Settings:
         """``vda5050:``: the robot's VDA 5050 identity (topic levels of the standard's own alphabet), its map, its
         master control's login, the ROS names it drives and reads, and what its factsheet says."""
-        self.mapping(path, ("manufacturer", "serial_number", "map_id", "master", "navigate", "odometry", "battery",
-                            "tolerance", "state_interval", "visualization_interval", "vehicle"))
+        self.mapping(path, ("manufacturer", "serial_number", "map_id", "master", "navigate", "navigate_type", "frame",
+                            "odometry", "battery", "estop", "actions", "tolerance", "state_interval",
+                            "visualization_interval", "vehicle"))
         vp = path + ("vehicle",)
         if self.get(path).get("vehicle") is None:
             raise self.err(path, "missing required key 'vehicle' (the factsheet's width, length and height in m)")
@@ -395,8 +400,12 @@ class _FleetReader:
             width=self.value(vp, "width", size), length=self.value(vp, "length", size),
             height=self.value(vp, "height", size), acceleration=self.value(vp, "acceleration", size, d.acceleration),
             navigate=self.value(path, "navigate", self.ros_name, d.navigate),
+            navigate_type=self.value(path, "navigate_type", self.ros_type("action"), d.navigate_type),
+            frame=self.value(path, "frame", self.string, d.frame),
             odometry=self.value(path, "odometry", self.ros_name, d.odometry),
             battery=self.value(path, "battery", self.ros_name, d.battery),
+            estop=self.value(path, "estop", self.ros_name, d.estop),
+            actions=self.vda5050_calls(path + ("actions",)) if self.get(path).get("actions") is not None else (),
             tolerance=self.value(path, "tolerance", self.number(0, 100, open_low=True), d.tolerance),
             state_interval=self.value(path, "state_interval", self.number(1, 30), d.state_interval),
             visualization_interval=self.value(path, "visualization_interval", self.number(0, 60),
@@ -405,6 +414,21 @@ class _FleetReader:
             kinematic=self.value(vp, "kinematic", self.choice(VDA_KINEMATICS), d.kinematic),
             vehicle_class=self.value(vp, "class", self.choice(VDA_CLASSES), d.vehicle_class),
         )
+
+    def vda5050_calls(self, path: Path) -> tuple[Vda5050Call, ...]:
+        """``actions:`` instant action type → ``{service, type}``: what the robot does for the master's own
+        instant actions (the factsheet lists them with the built-in ones)."""
+        calls = []
+        for name in self.mapping(path, tuple(self.get(path) or ())):
+            ap = path + (name,)
+            if not isinstance(name, str) or not _VDA_ACTION.match(name):
+                raise self.err(ap, f"expected an instant action type (letters and digits), got {_show(name)}")
+            if name in VDA_BUILT_IN_ACTIONS:
+                raise self.err(ap, f"'{name}' is one of the standard's actions the bridge carries out itself")
+            self.mapping(ap, ("service", "type"))
+            calls.append(Vda5050Call(name, self.value(ap, "service", self.ros_name),
+                                     self.value(ap, "type", self.choice(VDA_CALL_TYPES), "std_srvs/srv/Trigger")))
+        return tuple(calls)
 
     def vda_level(self, path: Path, v: Any) -> str:
         """A VDA 5050 topic level (manufacturer, serial number): the standard's alphabet, A-Z a-z 0-9 _ . : -"""

@@ -255,6 +255,18 @@ class SnapshotSettings:
 
 
 VDA_KINEMATICS = ("DIFF", "OMNI", "THREEWHEEL")
+VDA_CALL_TYPES = ("std_srvs/srv/Trigger", "std_srvs/srv/Empty")  # what a mapped instant action may call
+VDA_BUILT_IN_ACTIONS = ("startPause", "stopPause", "cancelOrder", "stateRequest", "factsheetRequest")
+
+
+@dataclass(frozen=True, slots=True)
+class Vda5050Call:
+    """An instant action the robot carries out by calling a ROS service (``startCharging`` → ``dock``)."""
+
+    action_type: str
+    service: str
+    service_type: str = "std_srvs/srv/Trigger"
+
 VDA_CLASSES = ("FORKLIFT", "CONVEYOR", "TUGGER", "CARRIER")
 
 
@@ -275,8 +287,12 @@ class Vda5050Settings:
     height: float
     acceleration: float = 0.5  # m/s², the factsheet's accelerationMax and decelerationMax
     navigate: str = "navigate_to_pose"
+    navigate_type: str = "nav2_msgs/action/NavigateToPose"  # any action whose goal has `pose` (PoseStamped)
+    frame: str = "map"  # the frame of the nodes' positions (the goals' header.frame_id and the odometry's pose)
     odometry: str = "odom"
     battery: str = "battery_state"  # sensor_msgs/msg/BatteryState: batteryState (charge, charging, voltage)
+    estop: str | None = None  # std_msgs/msg/Bool from the robot's own e-stop: true = pressed (eStop MANUAL)
+    actions: tuple[Vda5050Call, ...] = ()  # instant actions carried out through ROS services
     tolerance: float = 0.25  # m: "on the node" when an order's node allows no deviation of its own
     state_interval: float = 30.0  # s: a state at least this often (and on every event)
     visualization_interval: float = 1.0  # s between visualization messages; 0: none

@@ -14,7 +14,9 @@ example in the docs does something a user can see: ``mode``
 ``land`` and ``get_map`` (std_srvs/Trigger) answer, and the bridge reports
 the answer on ``state/ack``. A ground robot does not fly: takeoff and land
 say so instead of pretending. ``fibonacci`` (test_msgs/action/Fibonacci) is a
-ROS action whose goals take a while and report progress (:mod:`.fibonacci`).
+ROS action whose goals take a while and report progress (:mod:`.fibonacci`);
+``navigate_to_pose`` (Nav2's NavigateToPose shape) drives the robot to a pose
+by itself (:mod:`.navigate`).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 
 from .fibonacci import FibonacciServer
+from .navigate import NavigateServer, load_action_type
 from .world import World
 
 PHYSICS_RATE = 50.0  # Hz
@@ -86,6 +89,10 @@ class SimRobot(Node):
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # as the bridge publishes it
         self.create_subscription(Bool, "emergency_stop", on_emergency_stop, latched)
         self.fibonacci = FibonacciServer(self)  # a ROS action: goals with feedback, cancelable
+        navigate_type = load_action_type()  # drives itself to a pose (a VDA 5050 order's nodes: docs/vda5050.md)
+        self.navigate = NavigateServer(self, self.world, navigate_type) if navigate_type is not None else None
+        if self.navigate is None:
+            self.get_logger().info("no navigate_to_pose: roslink_sim_msgs is not installed (make install builds it)")
         self.create_service(Trigger, "land", self.on_land)
         self.create_service(Trigger, "get_map", self.on_get_map)
         self.create_timer(1.0 / PHYSICS_RATE, self.on_physics)

@@ -25,6 +25,7 @@ class Telemetry:
     velocity: tuple[float, float, float] | None = None  # vx, vy (m/s), omega (rad/s) in the vehicle's frame
     battery: tuple[float, bool, float | None] | None = None  # charge (%), charging, voltage (V)
     emergency_stop: bool = False  # a ROSLink emergency stop holds the robot (any granted user may press it)
+    hardware_estop: bool = False  # the robot's own e-stop (robots.yaml vda5050.estop) is pressed
 
     @property
     def moving(self) -> bool:
@@ -59,7 +60,8 @@ def state_body(vehicle: Vehicle, t: Telemetry, settings: Vda5050Settings) -> dic
         if voltage is not None:
             battery["batteryVoltage"] = voltage
     body.update(batteryState=battery, operatingMode="AUTOMATIC",
-                safetyState={"eStop": "REMOTE" if t.emergency_stop else "NONE", "fieldViolation": False})
+                safetyState={"eStop": "MANUAL" if t.hardware_estop else "REMOTE" if t.emergency_stop else "NONE",
+                             "fieldViolation": False})
     if (position := _position(t, settings)) is not None:
         body["agvPosition"] = position
     if (velocity := _velocity(t)) is not None:
@@ -97,11 +99,16 @@ def factsheet_body(settings: Vda5050Settings, limits: VelocityLimits) -> dict[st
                                       **({"visualizationInterval": settings.visualization_interval}
                                          if settings.visualization_interval else {})}},
         "protocolFeatures": {
+            # a position for every node (the robot drives to positions); the rest it honours when given
             "optionalParameters": [
+                {"parameter": "order.nodes.nodePosition", "support": "REQUIRED"},
                 {"parameter": "order.nodes.nodePosition.allowedDeviationXY", "support": "SUPPORTED"},
                 {"parameter": "order.nodes.nodePosition.theta", "support": "SUPPORTED"},
+                {"parameter": "order.zoneSetId", "support": "SUPPORTED"},
             ],
-            "agvActions": [{"actionType": name, "actionScopes": ["INSTANT"]} for name in INSTANT_ACTIONS],
+            "agvActions": [{"actionType": name, "actionScopes": ["INSTANT"]} for name in INSTANT_ACTIONS] + [
+                {"actionType": c.action_type, "actionScopes": ["INSTANT"],
+                 "actionDescription": f"calls the robot's ROS service {c.service}"} for c in settings.actions],
         },
         "agvGeometry": {},
         "loadSpecification": {},

@@ -91,7 +91,7 @@ class Order:
                 ("orderUpdateId", str(self.order_update_id))]
 
 
-class _Reader:
+class Reader:
     """Typed reads from a JSON object with the path of every field, for errors that say where."""
 
     def __init__(self, refs: list[tuple[str, str]]) -> None:
@@ -158,7 +158,7 @@ def _join(path: str, key: str) -> str:
 THETA = math.pi + 1e-9  # the schema's bound is ±3.14159265359
 
 
-def read_actions(r: _Reader, items: list[Any], path: str) -> tuple[Action, ...]:
+def read_actions(r: Reader, items: list[Any], path: str) -> tuple[Action, ...]:
     actions = []
     for i, raw in enumerate(items):
         p = f"{path}[{i}]"
@@ -179,7 +179,7 @@ def read_actions(r: _Reader, items: list[Any], path: str) -> tuple[Action, ...]:
     return tuple(actions)
 
 
-def _position(r: _Reader, node: dict[str, Any], path: str) -> Position | None:
+def _position(r: Reader, node: dict[str, Any], path: str) -> Position | None:
     if "nodePosition" not in node:
         return None
     p = f"{path}.nodePosition"
@@ -196,7 +196,7 @@ def read_order(message: Any) -> Order:
     """``message`` (the decoded JSON of an order) as an :class:`Order`; raises :class:`VdaError`
     (``validationError``) naming the first field that is wrong."""
     refs: list[tuple[str, str]] = [("topic", "order")]
-    r = _Reader(refs)
+    r = Reader(refs)
     m = r.obj(message, "order")
     if isinstance(m.get("headerId"), int):
         refs.insert(0, ("headerId", str(m["headerId"])))

@@ -16,8 +16,9 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
+from ..config.model import VDA_BUILT_IN_ACTIONS
 from .errors import FATAL, VdaError, order_error, order_update_error
 from .order import Action, Edge, Node, Order
 
@@ -25,7 +26,7 @@ WAITING, INITIALIZING, RUNNING, PAUSED, FINISHED, FAILED = (
     "WAITING", "INITIALIZING", "RUNNING", "PAUSED", "FINISHED", "FAILED")
 TERMINAL = (FINISHED, FAILED)
 
-INSTANT_ACTIONS = ("startPause", "stopPause", "cancelOrder", "stateRequest", "factsheetRequest")
+INSTANT_ACTIONS = VDA_BUILT_IN_ACTIONS  # what every vehicle carries out (robots.yaml may map more to ROS calls)
 # Optional edge fields this vehicle cannot carry out (it plans its own path to each node at its own limits): an
 # order that asks for one is refused (§6.1.1) rather than driven without it.
 UNSUPPORTED_EDGE_FIELDS = ("trajectory", "corridor", "orientation", "orientationType", "maxSpeed",
@@ -48,12 +49,21 @@ class ActionState:
         return out
 
 
+class InstantResult(NamedTuple):
+    """What :meth:`Vehicle.instant` leaves to the adapter: messages to publish besides the state (``"factsheet"``),
+    and the actions robots.yaml maps to ROS calls (each finished later with :meth:`Vehicle.finish_action`)."""
+
+    publish: set[str]
+    calls: list[Action]
+
+
 @dataclass(slots=True)
 class Vehicle:
     """One vehicle's order, its progress and its warnings."""
 
     map_id: str
     tolerance: float = 0.25  # m: "on the node" when an order's node allows no deviation of its own
+    mapped: frozenset[str] = frozenset()  # instant action types robots.yaml maps to ROS calls
     order_id: str = ""
     order_update_id: int = 0
     zone_set_id: str | None = None
@@ -134,6 +144,10 @@ class Vehicle:
             if node.position is None:
                 raise order_error(f"node {node.node_id}: nodePosition is needed (this vehicle drives to positions)",
                                   refs + [("nodeId", node.node_id)])
+            if node.position.allowed_deviation_theta is not None:
+                raise order_error(f"node {node.node_id}: allowedDeviationTheta is not supported by this vehicle (its "
+                                  f"navigation decides when the heading is reached)",
+                                  refs + [("nodeId", node.node_id), ("field", "allowedDeviationTheta")])
             if node.position.map_id != self.map_id:
                 raise order_error(f"node {node.node_id}: map {node.position.map_id!r} is not on this vehicle "
                                   f"(it has {self.map_id!r})", refs + [("nodeId", node.node_id),
@@ -216,10 +230,11 @@ class Vehicle:
         self.pose = (x, y, theta)
 
     # ------------------------------------------------------------------ instant actions
-    def instant(self, actions: Iterable[Action], references: list[tuple[str, str]]) -> set[str]:
-        """Carry out instant actions (each one gets an action state); returns what to publish besides ``state``
-        (``{"factsheet"}`` for a factsheetRequest)."""
+    def instant(self, actions: Iterable[Action], references: list[tuple[str, str]]) -> InstantResult:
+        """Carry out instant actions (each one gets an action state); returns what to publish besides ``state`` and
+        the ROS calls to make."""
         publish: set[str] = set()
+        calls: list[Action] = []
         for action in actions:
             state = self.actions[action.action_id] = ActionState(action.action_id, action.action_type, RUNNING)
             kind = action.action_type
@@ -244,6 +259,8 @@ class Vehicle:
             elif kind == "factsheetRequest":
                 state.status = FINISHED
                 publish.add("factsheet")
+            elif kind in self.mapped:
+                calls.append(action)  # RUNNING until the ROS call answers
             else:
                 state.status = FAILED
                 self._warn(VdaError("instantActionError", f"instant action {kind!r} is not supported by this "
@@ -251,7 +268,13 @@ class Vehicle:
                                         ("actionId", action.action_id), ("actionType", kind)])))
         if not self.driving:
             self._settle()
-        return publish
+        return InstantResult(publish, calls)
+
+    def finish_action(self, action_id: str, ok: bool, result: str) -> None:
+        """A mapped instant action's ROS call answered (or failed): FINISHED or FAILED, with what it said."""
+        state = self.actions.get(action_id)
+        if state is not None and state.status not in TERMINAL:
+            state.status, state.result = (FINISHED if ok else FAILED), result
 
     def _settle(self) -> None:
         """The robot stands: pauses are in effect, cancels complete (§6.6.3: nodes and edges deleted; the order's
@@ -262,6 +285,11 @@ class Vehicle:
                 self.nodes, self.edges, self.cancelled = [], [], True
             state.status = FINISHED
         self._pending = []
+
+    def refuse(self, error: VdaError) -> None:
+        """A message the adapter refused before it reached the vehicle (not JSON, the lease held by another):
+        a warning in ``state.errors`` like the vehicle's own refusals."""
+        self._warn(error)
 
     def _warn(self, error: VdaError) -> None:
         self.errors = (self.errors + [error])[-MAX_ERRORS:]

@@ -247,3 +247,24 @@ def test_a_child_that_dies_ends_the_demo_with_its_log(tmp_path) -> None:
     left = _wait_gone(started)
     _kill(left)
     assert not left, "processes outlived the demo"
+
+
+VDA_SCENE = ("connection: ONLINE; factsheet: ROSLink sim (DIFF, CARRIER), instant actions: startPause, stopPause, "
+             "cancelOrder, stateRequest, factsheetRequest",
+             "reached a at", "reached b at", "reached c at",
+             "waits at c, the decision point, and asks for more (newBaseRequest)",
+             "order o1 done", "demo-cancel: FAILED, warning noOrderToCancel")
+
+
+def test_the_vda5050_demo_drives_an_order_to_its_end(tmp_path) -> None:
+    """``make vda5050``: a master control (plain MQTT) drives the simulated robot through an order with a horizon
+    and an update, then asks to cancel with nothing left; the demo exits 0 and stops everything."""
+    done = subprocess.run([sys.executable, "-m", "roslink_mqtt.demo", "--vda5050", "--logs", str(tmp_path),
+                           *OUR_DOMAIN], cwd=ROOT, capture_output=True, text=True, timeout=100)
+    text = done.stdout + done.stderr
+    assert done.returncode == 0, text
+    for expected in VDA_SCENE:
+        assert expected in text, f"missing {expected!r} in:\n{text}"
+    end = re.search(r"reached d at \(([-\d.]+), ([-\d.]+)\)", text)
+    assert end and abs(float(end.group(2)) - 1.0) < 0.2, text  # one metre up from where it started (the centre)
+    assert nobody_listens(int(re.search(r"broker on 127\.0\.0\.1:(\d+)", text).group(1)))

@@ -241,8 +241,13 @@ def _run_servers(snippet: Snippet, tmp_path: Path) -> None:
         with_broker = any("roslink-mqtt-broker" in c or "roslink_mqtt.broker" in c for c in servers)
         if with_broker and any("roslink-mqtt-bridge" in c or "roslink_mqtt.bridge" in c for c in servers):
             _wait_online("turtle1", DEMO_PORTS[0])  # sim and bridge are up: the robot's heartbeat says ACTIVE
-        else:
-            time.sleep(2.0)
+        else:  # a server that says where it listens (`--port N`, or `# http://127.0.0.1:N/`) is waited for there
+            listens = r"--port (\d+)|#\s*https?://127\.0\.0\.1:(\d+)"
+            ports = [int(a or b) for c in servers for a, b in re.findall(listens, c)]
+            for port in ports:
+                wait_for_port(port, timeout=30)
+            if not ports:
+                time.sleep(2.0)  # one that listens nowhere (a bridge): its exit, if any, shows by then
         for i, proc in enumerate(procs):
             assert proc.poll() is None, f"{servers[i]!r} exited:\n{(tmp_path / f'server{i}.log').read_text()[-2000:]}"
         if after:

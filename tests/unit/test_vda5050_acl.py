@@ -9,6 +9,7 @@ import pytest
 
 from roslink_mqtt.broker.acl import Access, Action, FleetAcl
 from roslink_mqtt.broker.export import acl_text
+from roslink_mqtt.broker.export_dynsec import role_acls
 from roslink_mqtt.broker.export_rabbitmq import topic_permission_regex
 from roslink_mqtt.config import parse_fleet
 from tests.unit.test_vda5050_messages import FLEET
@@ -57,3 +58,6 @@ def test_the_exports_carry_the_same_entries() -> None:
     read = re.compile(topic_permission_regex(a.entries("mc"), Access.READ))
     assert write.search("uagv.v2.RoslinkSim.turtle1.order") and not write.search("uagv.v2.RoslinkSim.turtle1.state")
     assert read.search("uagv.v2.RoslinkSim.turtle1.state")
+    dynsec = {(e["acltype"], e["topic"]) for e in role_acls(a.fleet, "mc", a)}
+    assert ("publishClientSend", T + "order") in dynsec and ("publishClientReceive", T + "state") in dynsec
+    assert ("publishClientSend", T + "state") not in dynsec

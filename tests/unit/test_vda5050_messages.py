@@ -81,6 +81,12 @@ def test_the_section_loads_with_its_defaults() -> None:
     ("map_id: demo", "map_id: demo\n      state_interval: 60", "robots.turtle1.vda5050.state_interval: expected a "
                                                                "finite number >= 1"),
     ("map_id: demo", "map_id: demo\n      navigte: nav", "unknown key 'navigte' (did you mean 'navigate'?)"),
+    ("map_id: demo", "map_id: demo\n      actions: {cancelOrder: {service: stop}}",
+     "robots.turtle1.vda5050.actions.cancelOrder: 'cancelOrder' is one of the standard's actions"),
+    ("map_id: demo", "map_id: demo\n      actions: {startCharging: {service: dock, type: std_srvs/srv/SetBool}}",
+     "robots.turtle1.vda5050.actions.startCharging.type: expected one of std_srvs/srv/Trigger, std_srvs/srv/Empty"),
+    ("map_id: demo", "map_id: demo\n      actions: {start-charging: {service: dock}}",
+     "expected an instant action type"),
 ])
 def test_mistakes_in_the_section_are_named(old: str, new: str, expected: str) -> None:
     text = FLEET.replace(old, new, 1)
@@ -88,6 +94,20 @@ def test_mistakes_in_the_section_are_named(old: str, new: str, expected: str) ->
     with pytest.raises(ConfigError) as info:
         parse_fleet(text, "robots.yaml")
     assert expected in str(info.value), str(info.value)
+
+
+def test_instant_actions_mapped_to_ros_services_join_the_factsheet() -> None:
+    text = FLEET.replace("map_id: demo", "map_id: demo\n      estop: base/estop\n"
+                                         "      actions: {startCharging: {service: dock}, "
+                                         "stopCharging: {service: undock, type: std_srvs/srv/Empty}}", 1)
+    vda = parse_fleet(text, "robots.yaml").robots["turtle1"].vda5050
+    assert vda is not None and vda.estop == "base/estop"
+    assert [(c.action_type, c.service, c.service_type) for c in vda.actions] == [
+        ("startCharging", "dock", "std_srvs/srv/Trigger"), ("stopCharging", "undock", "std_srvs/srv/Empty")]
+    factsheet = Headers("RoslinkSim", "turtle1").stamp("factsheet", factsheet_body(vda, VelocityLimits()))
+    assert SCHEMAS.errors("factsheet", factsheet) == []
+    assert [a["actionType"] for a in factsheet["protocolFeatures"]["agvActions"]][-2:] == [
+        "startCharging", "stopCharging"]
 
 
 def test_two_robots_cannot_share_a_vda_identity() -> None:
@@ -139,6 +159,13 @@ def test_every_message_the_robot_sends_validates_against_the_standards_schemas()
     assert factsheet["physicalParameters"]["speedMax"] == 0.8
     # the factsheet lists exactly what the vehicle carries out
     assert [a["actionType"] for a in factsheet["protocolFeatures"]["agvActions"]] == list(INSTANT_ACTIONS)
+
+
+def test_the_robots_own_estop_reads_manual_before_a_remote_one() -> None:
+    vda, vehicle = settings(), Vehicle(map_id="demo")
+    assert state_body(vehicle, Telemetry(emergency_stop=True), vda)["safetyState"]["eStop"] == "REMOTE"
+    both = Telemetry(emergency_stop=True, hardware_estop=True)
+    assert state_body(vehicle, both, vda)["safetyState"] == {"eStop": "MANUAL", "fieldViolation": False}
 
 
 def test_moving_is_measured_not_commanded() -> None:

@@ -281,9 +281,9 @@ def test_pause_holds_the_order_and_resume_goes_on() -> None:
 
 def test_instant_actions_the_vehicle_does_not_know_fail_with_a_warning() -> None:
     v = vehicle_at()
-    publish = v.instant([Action("stateRequest", "s1", "NONE"), Action("factsheetRequest", "f1", "NONE"),
-                         Action("pick", "x1", "HARD")], [("headerId", "7"), ("topic", "instantActions")])
-    assert publish == {"factsheet"}
+    publish, calls = v.instant([Action("stateRequest", "s1", "NONE"), Action("factsheetRequest", "f1", "NONE"),
+                                Action("pick", "x1", "HARD")], [("headerId", "7"), ("topic", "instantActions")])
+    assert publish == {"factsheet"} and calls == []
     s = valid(v)
     assert [(a["actionId"], a["actionStatus"]) for a in s["actionStates"]] == [
         ("s1", "FINISHED"), ("f1", "FINISHED"), ("x1", "FAILED")]
@@ -311,3 +311,17 @@ def test_headers_count_per_topic_and_stamp_utc_milliseconds() -> None:
     assert (first["headerId"], second["headerId"], other["headerId"]) == (0, 1, 0)
     assert first["timestamp"] == "2025-11-29T08:00:00.125Z" and first["version"] == "2.1.0"
     assert h.topic("order") == "uagv/v2/Sim/turtle1/order"
+
+
+def test_instant_actions_mapped_to_ros_calls_run_until_the_call_answers() -> None:
+    v = Vehicle(map_id=MAP, mapped=frozenset({"startCharging"}))
+    publish, calls = v.instant([Action("startCharging", "c1", "HARD"), Action("startCharging", "c2", "HARD")], [])
+    assert publish == set() and [a.action_id for a in calls] == ["c1", "c2"]
+    assert v.actions["c1"].status == "RUNNING"
+    v.finish_action("c1", True, "docked")
+    v.finish_action("c2", False, "no charger")
+    v.finish_action("c1", False, "late")  # a finished action stays as it ended
+    states = {a["actionId"]: a for a in valid(v)["actionStates"]}
+    assert states["c1"] == {"actionId": "c1", "actionType": "startCharging", "actionStatus": "FINISHED",
+                            "resultDescription": "docked"}
+    assert states["c2"]["actionStatus"] == "FAILED" and states["c2"]["resultDescription"] == "no charger"
