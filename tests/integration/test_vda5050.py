@@ -183,7 +183,8 @@ def stack(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[dict[str, 
         s.callback(watch.client.close)
         bridge = s.enter_context(run(bridge_args("turtle1", port, config=fleet), tmp_path / "bridge.log",
                                      bridge_env("turtle1")))
-        yield {"port": port, "watch": watch, "bridge": bridge, "broker": request.param, "tmp": tmp_path}
+        yield {"port": port, "watch": watch, "bridge": bridge, "broker": request.param, "tmp": tmp_path,
+               "fleet": fleet}
 
 
 def test_a_master_control_drives_the_robot_through_orders(stack: dict[str, Any]) -> None:
@@ -197,13 +198,25 @@ def test_a_master_control_drives_the_robot_through_orders(stack: dict[str, Any])
     finally:
         master.close()
 
-    # -- the bridge killed: the broker publishes the robot's last will, CONNECTIONBROKEN (retained)
-    killed = time.monotonic()
-    stack["bridge"].popen.kill()
-    deadline = killed + 1.5 * KEEPALIVE + 10
-    while not any(c["connectionState"] == "CONNECTIONBROKEN" for c in watch.of("connection")):
-        assert time.monotonic() < deadline, [c["connectionState"] for c in watch.of("connection")]
-        time.sleep(0.05)
+    # -- a clean stop says OFFLINE (retained); a new bridge says ONLINE; killed, the broker publishes the robot's
+    #    last will, CONNECTIONBROKEN (retained)
+    def connection_becomes(state: str, since: int, within: float) -> None:
+        deadline = time.monotonic() + within
+        while not any(c["connectionState"] == state for c in watch.of("connection")[since:]):
+            assert time.monotonic() < deadline, (state, [c["connectionState"] for c in watch.of("connection")])
+            time.sleep(0.05)
+
+    since = len(watch.of("connection"))
+    stack["bridge"].stop()  # SIGINT, as systemd stops it
+    connection_becomes("OFFLINE", since, 15)
+    since = len(watch.of("connection"))
+    with run(bridge_args("turtle1", port, config=stack["fleet"]), stack["tmp"] / "bridge2.log",
+             bridge_env("turtle1")) as again:
+        connection_becomes("ONLINE", since, 30)
+        since = len(watch.of("connection"))
+        killed = time.monotonic()
+        again.popen.kill()
+        connection_becomes("CONNECTIONBROKEN", since, 1.5 * KEEPALIVE + 10)
     record_measurement(f"[{broker}] VDA 5050 bridge killed → CONNECTIONBROKEN", time.monotonic() - killed,
                        1.5 * KEEPALIVE + 10)
 
