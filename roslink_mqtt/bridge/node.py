@@ -355,7 +355,8 @@ class Bridge:
         if robot.vda5050 is not None:
             try:
                 self.vda = VdaRobot(node, fleet, robot, robot.vda5050, password=password, broker_url=broker_url,
-                                    ca_file=ca_file, endpoint=self.endpoint, on_executor=self.on_executor)
+                                    ca_file=ca_file, endpoint=self.endpoint, on_executor=self.on_executor,
+                                    uplink=self.uplink)
             except UnknownTypeError as err:
                 raise RuleError(str(err)) from None
             self.actuators.on_cancel_goals = self.vda.check_now

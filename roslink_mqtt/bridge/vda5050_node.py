@@ -38,7 +38,7 @@ from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Bool
 
 from ..config import Fleet, Robot
-from ..config.model import Vda5050Settings
+from ..config.model import Priority, Vda5050Settings
 from ..mqtt import BrokerUrl
 from ..protocol import loads
 from ..protocol.enums import AckResult
@@ -61,6 +61,7 @@ from .endpoint import CommandEndpoint
 from .link import MqttLink, bridge_client_id
 from .on_executor import OnExecutor
 from .ros_types import UnknownTypeError, load_interface
+from .uplink_sender import Uplink
 
 log = logging.getLogger("roslink_mqtt.bridge.vda5050")
 
@@ -74,9 +75,11 @@ class VdaRobot:
 
     def __init__(self, node: Node, fleet: Fleet, robot: Robot, settings: Vda5050Settings, *, password: str | None,
                  broker_url: BrokerUrl | list[BrokerUrl], ca_file: str | None, endpoint: CommandEndpoint,
-                 on_executor: OnExecutor) -> None:
+                 on_executor: OnExecutor, uplink: Uplink) -> None:
+        """``uplink``: the bridge's (bridge/uplink_sender.py): ``state`` leaves there as control (at once, never
+        held back), ``visualization`` as motion, latest wins, so a thin link never queues old poses."""
         self.node, self.robot, self.settings = node, robot, settings
-        self.endpoint, self.on_executor = endpoint, on_executor
+        self.endpoint, self.on_executor, self.uplink = endpoint, on_executor, uplink
         try:
             self.action_type: Any = load_interface(settings.navigate_type)
         except UnknownTypeError as err:
@@ -90,9 +93,12 @@ class VdaRobot:
         self._waiting_since: float | None = None  # monotonic: a goal waits for the navigation server since then
         self._state_at = 0.0  # monotonic: the last state went out
         self._visualized_at = 0.0
-        self._visualization: Any = None  # paho's message info of the last visualization (still queued: skip)
         self._stood_still = True  # the lease and e-stop as last seen by tick(), to notice changes
         self._out = threading.Lock()  # a header's number and its message leave together, in order (two threads send)
+        self._streams = {
+            wire.STATE: uplink.stream(self.headers.topic(wire.STATE), Priority.CONTROL, False, label="vda5050_state"),
+            wire.VISUALIZATION: uplink.stream(self.headers.topic(wire.VISUALIZATION), Priority.MOTION, True,
+                                              label="vda5050_visualization")}
         self._order_topic = self.headers.topic(wire.ORDER)
         self._actions_topic = self.headers.topic(wire.INSTANT_ACTIONS)
         will = self.headers.stamp(wire.CONNECTION, connection_body(CONNECTIONBROKEN))
@@ -370,22 +376,24 @@ class VdaRobot:
         self._send(wire.STATE, body)
 
     def publish_visualization(self) -> None:
-        previous = self._visualization
-        if previous is not None and not previous.is_published() and self.link.connected.is_set():
-            return  # the last one has not left yet: on a thin link a newer one would only queue behind it
         with self.lock:
             body = visualization_body(self.telemetry, self.settings)
-        self._visualization = self._send(wire.VISUALIZATION, body)
+        self._send(wire.VISUALIZATION, body)
 
     def publish_factsheet(self) -> None:
         self._send(wire.FACTSHEET, factsheet_body(self.settings, self.robot.bridge.limits), retain=True)
 
-    def _send(self, leaf: str, body: dict[str, Any], qos: int = 0, retain: bool = False) -> Any:
+    def _send(self, leaf: str, body: dict[str, Any], qos: int = 0, retain: bool = False) -> None:
+        """state and visualization through the uplink (their classes), connection and factsheet on this link."""
         with self._out:
             if leaf == wire.STATE:
                 self._state_at = time.monotonic()
-            return self.link.publish(self.headers.topic(leaf), orjson.dumps(self.headers.stamp(leaf, body)), qos=qos,
-                                     retain=retain)
+            topic, payload = self.headers.topic(leaf), orjson.dumps(self.headers.stamp(leaf, body))
+            stream = self._streams.get(leaf)
+            if stream is not None:
+                self.uplink.offer(stream, topic, payload, qos, retain)
+            else:
+                self.link.publish(topic, payload, qos=qos, retain=retain)
 
 
 class _Goal:

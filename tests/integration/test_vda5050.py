@@ -111,6 +111,7 @@ class Watch:
         self.client = TestClient(port, "admin", "admin-demo")
         assert self.client.connect() == 0
         self.all: list[tuple[str, dict[str, Any]]] = []
+        self.arrived: list[float] = []  # when each of them came (wall clock, as the messages' timestamps)
         self.lock = threading.Lock()
         self.client.client.on_message = self._on_message
         self.client.subscribe("uagv/#")
@@ -119,6 +120,7 @@ class Watch:
         if m.payload:
             with self.lock:
                 self.all.append((m.topic, json.loads(m.payload)))
+                self.arrived.append(time.time())
 
     def of(self, leaf: str) -> list[dict[str, Any]]:
         with self.lock:
@@ -369,3 +371,51 @@ def _drive_orders(port: int, watch: Watch, master: Master, broker: str) -> None:
                     after=mark)
     finally:
         probe.close()
+
+
+def test_visualization_stays_fresh_on_a_thin_uplink(tmp_path: Path) -> None:
+    """Behind a 96 kbit/s uplink that the robot's ROSLink telemetry fills, the VDA 5050 ``visualization`` leaves as
+    motion with latest wins: what the master sees is fresh, not a queue of old poses; ``state`` still arrives."""
+    from datetime import datetime
+
+    from roslink_mqtt.protocol.link import LinkReport
+    from tests.support.net import free_port, wait_for_port
+
+    fleet = write_fleet(tmp_path, edit=lambda t: _with_vda(t).replace("visualization_interval: 0.5",
+                                                                      "visualization_interval: 0.1"))
+    with ExitStack() as s:
+        broker = s.enter_context(EmbeddedBrokerProcess(tmp_path, fleet))
+        link_port = free_port()
+        s.enter_context(run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                             f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--up-kbit", "96",
+                             "--down-kbit", "1024"], tmp_path / "link.log"))
+        wait_for_port(link_port, 10)
+        s.enter_context(run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"))
+        watch = Watch(broker.port)
+        s.callback(watch.client.close)
+        links: list[LinkReport] = []
+        with TestClient(broker.port, "admin", "admin-demo") as admin:
+            assert admin.connect() == 0
+            admin.client.on_message = lambda _c, _u, m: links.append(LinkReport.from_json(m.payload)) \
+                if m.payload else None
+            admin.subscribe("roslink/turtle1/state/link")
+            s.enter_context(run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1",
+                                 "--url", f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log",
+                                bridge_env("turtle1")))
+            watch.state(lambda st: "agvPosition" in st, "a first state through the thin link", timeout=60)
+            began = len(watch.all)
+            time.sleep(8.0)  # the measured window: the uplink is full all along (the link reports say so below)
+            with watch.lock:
+                got = list(zip(watch.all[began:], watch.arrived[began:], strict=True))
+            seen = [body for (topic, body), _ in got if topic == T + "visualization"]
+            ages = sorted(at - datetime.fromisoformat(body["timestamp"].replace("Z", "+00:00")).timestamp()
+                          for (topic, body), at in got if topic == T + "visualization")
+            full = [r for r in links if r.streams.get("vda5050_visualization") is not None]
+        assert len(seen) >= 8, f"only {len(seen)} visualization messages in 8 s"
+        p90 = ages[int(0.9 * (len(ages) - 1))]
+        record_measurement("VDA 5050 visualization on a 96 kbit/s uplink: age p90", p90, 2.0)
+        assert p90 < 2.0, ages[-5:]
+        report = full[-1]
+        vis = report.streams["vda5050_visualization"]
+        assert vis.priority == "motion" and vis.latest_only and report.streams["vda5050_state"].priority == "control"
+        assert any(st.superseded > 0 for st in report.streams.values()), report.streams  # the link was full
