@@ -292,6 +292,8 @@ class VdaRobot:
     # -- driving (the executor) --------------------------------------------------------------------------
     def _standing_reason(self) -> str | None:
         """Why the robot may not drive the order now (None: it may)."""
+        if self.endpoint.fenced:
+            return self.endpoint.fenced  # another bridge has the robot: this one only stops it, then exits
         if self.telemetry.hardware_estop:
             return "the robot's own emergency stop is pressed"
         blocked = self.endpoint.motion_blocked
