@@ -44,6 +44,7 @@ from ..protocol import loads
 from ..protocol.enums import AckResult
 from ..vda5050 import wire
 from ..vda5050.errors import VdaError, order_error, validation_error
+from ..vda5050.lease import LeaseStep, OrderLease
 from ..vda5050.messages import (
     CONNECTIONBROKEN,
     OFFLINE,
@@ -88,6 +89,7 @@ class VdaRobot:
         self.vehicle = Vehicle(settings.map_id, settings.tolerance,
                                mapped=frozenset(c.action_type for c in settings.actions))
         self.telemetry = Telemetry()
+        self.lease = OrderLease(settings.master)  # tick() only (the executor)
         self.lock = threading.Lock()  # the vehicle and the telemetry: paho's thread and the executor both
         self._goal: _Goal | None = None  # the navigation goal under way (executor thread only)
         self._waiting_since: float | None = None  # monotonic: a goal waits for the navigation server since then
@@ -305,14 +307,17 @@ class VdaRobot:
         return None
 
     def _sync_lease(self) -> None:
-        """The master holds the lease exactly while an order is under way (and nobody else has it)."""
+        """An order under way takes the free lease for the master; when it ends, it gives back only the lease it
+        took (vda5050/lease.py)."""
         with self.lock:
             executing = self.vehicle.executing
         master = self.settings.master
-        if executing and self.endpoint.holder() is None:
-            self.endpoint.hold_for_order(master)
-        elif not executing and self.endpoint.holder() == master:
+        step = self.lease.step(executing, self.endpoint.holder())
+        if step is LeaseStep.HOLD:
+            self.lease.held(self.endpoint.hold_for_order(master) is None)
+        elif step is LeaseStep.RELEASE:
             self.endpoint.release_after_order(master, "its VDA 5050 order ended")
+            self.lease.released()
 
     def reconcile(self) -> None:
         """Send or cancel navigation goals so that the robot drives to the vehicle's target, or stands."""

@@ -16,8 +16,9 @@ from typing import Any
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.task import Future
 from test_msgs.action import Fibonacci
+
+from .wait import executor_sleep
 
 MAX_ORDER = 40
 
@@ -43,7 +44,7 @@ class FibonacciServer:
                 goal_handle.canceled()
                 self.node.get_logger().info(f"fibonacci: canceled after {len(sequence)} terms")
                 return Fibonacci.Result(sequence=sequence)
-            await self._sleep(self.step_period)
+            await executor_sleep(self.node, self.step_period)
             sequence.append(sequence[-1] + sequence[-2])
             goal_handle.publish_feedback(Fibonacci.Feedback(sequence=sequence))
         if goal_handle.is_cancel_requested:
@@ -51,18 +52,3 @@ class FibonacciServer:
             return Fibonacci.Result(sequence=sequence)
         goal_handle.succeed()
         return Fibonacci.Result(sequence=sequence)
-
-    async def _sleep(self, seconds: float) -> None:
-        """Yield to the executor for ``seconds`` (a one-shot timer resolves the future)."""
-        done = Future()
-
-        def fire() -> None:
-            timer.cancel()
-            if not done.done():
-                done.set_result(None)
-
-        timer = self.node.create_timer(seconds, fire)
-        try:
-            await done
-        finally:
-            self.node.destroy_timer(timer)

@@ -18,9 +18,9 @@ from geometry_msgs.msg import Twist
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.task import Future
 
 from .steer import Steering, wrap
+from .wait import executor_sleep
 from .world import World
 
 CONTROL_RATE = 20.0  # Hz
@@ -96,7 +96,7 @@ class NavigateServer:
                 return self._result(2, "took too long: the goal may be outside the room")
             self._drive(v, w)
             goal_handle.publish_feedback(self._feedback(pose, started, self.steering.remaining(pose.x, pose.y, gx, gy)))
-            await self._sleep(1.0 / CONTROL_RATE)
+            await executor_sleep(self.node, 1.0 / CONTROL_RATE)
 
     def _drive(self, v: float, w: float) -> None:
         twist = Twist()
@@ -118,17 +118,3 @@ class NavigateServer:
         feedback.navigation_time.sec, feedback.navigation_time.nanosec = int(elapsed), int(elapsed % 1 * 1e9)
         feedback.distance_remaining = float(remaining)
         return feedback
-
-    async def _sleep(self, seconds: float) -> None:
-        done = Future()
-
-        def fire() -> None:
-            timer.cancel()
-            if not done.done():
-                done.set_result(None)
-
-        timer = self.node.create_timer(seconds, fire)
-        try:
-            await done
-        finally:
-            self.node.destroy_timer(timer)

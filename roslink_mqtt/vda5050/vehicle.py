@@ -32,6 +32,9 @@ INSTANT_ACTIONS = VDA_BUILT_IN_ACTIONS  # what every vehicle carries out (robots
 UNSUPPORTED_EDGE_FIELDS = ("trajectory", "corridor", "orientation", "orientationType", "maxSpeed",
                            "maxRotationSpeed", "rotationAllowed")
 MAX_ERRORS = 16  # warnings kept in state.errors (the newest): a flood of bad orders cannot grow the state
+# Ended action states kept in state.actionStates between orders (the newest): a master that sends instant actions
+# for hours without a new order cannot grow the state past what a thin uplink carries. Running ones always stay.
+MAX_ENDED_ACTIONS = 32
 
 
 @dataclass(slots=True)
@@ -268,7 +271,13 @@ class Vehicle:
                                         ("actionId", action.action_id), ("actionType", kind)])))
         if not self.driving:
             self._settle()
+        self._forget_old_actions()
         return InstantResult(publish, calls)
+
+    def _forget_old_actions(self) -> None:
+        ended = [k for k, a in self.actions.items() if a.status in TERMINAL]
+        for action_id in ended[:-MAX_ENDED_ACTIONS]:
+            del self.actions[action_id]
 
     def finish_action(self, action_id: str, ok: bool, result: str) -> None:
         """A mapped instant action's ROS call answered (or failed): FINISHED or FAILED, with what it said."""

@@ -12,7 +12,7 @@ from vda5050.validation import SchemaValidator
 
 from roslink_mqtt.vda5050.errors import VdaError
 from roslink_mqtt.vda5050.order import Action, read_order
-from roslink_mqtt.vda5050.vehicle import Vehicle
+from roslink_mqtt.vda5050.vehicle import MAX_ENDED_ACTIONS, Vehicle
 from roslink_mqtt.vda5050.wire import Headers
 
 pytestmark = pytest.mark.unit
@@ -289,6 +289,17 @@ def test_instant_actions_the_vehicle_does_not_know_fail_with_a_warning() -> None
         ("s1", "FINISHED"), ("f1", "FINISHED"), ("x1", "FAILED")]
     assert s["errors"][-1]["errorType"] == "instantActionError"
     assert {"referenceKey": "actionType", "referenceValue": "pick"} in s["errors"][-1]["errorReferences"]
+
+
+def test_hours_of_instant_actions_keep_the_newest_ended_states_and_every_running_one() -> None:
+    v = vehicle_at()
+    v.receive_order(read_order(order("o1", 0, [A, B])))
+    v.set_driving(True)
+    v.instant([Action("startPause", "pause", "HARD")], [])  # running until the robot stands
+    for i in range(500):
+        v.instant([Action("stateRequest", f"s{i}", "NONE")], [])
+    kept = [a["actionId"] for a in valid(v)["actionStates"]]
+    assert kept[0] == "pause" and kept[1:] == [f"s{i}" for i in range(500 - MAX_ENDED_ACTIONS, 500)]
 
 
 def test_a_node_the_navigation_cannot_reach_is_a_fatal_error_and_the_robot_stands() -> None:
