@@ -237,11 +237,7 @@ class PacketGate(ReaderAdapter):
             self._header_done()
 
     def _header_done(self) -> None:
-        limit = self.limit_for(self._type)
-        if limit and self._length > limit:
-            name = PACKET_NAMES.get(self._type, f"type {self._type}")
-            log.warning("closing %s: %s of %d bytes announced, limit %d", self.describe(), name, self._length, limit)
-            raise PacketTooLarge(f"{name} of {self._length} bytes > {limit}")
+        check_size(self._type, self._length, self.limit_for(self._type), self.describe)
         self._left = self._length
         self._state = self._BODY if self._length else self._TYPE
         self._topic = bytearray() if self._type == PUBLISH and self._length else None
@@ -278,12 +274,24 @@ class PacketGate(ReaderAdapter):
             need = 2 + int.from_bytes(topic[:2], "big")
         if len(topic) < need:
             return
-        name = bytes(topic[2:need])
         self._topic = None
-        for bad, why in ((b"+", "a wildcard"), (b"#", "a wildcard"), (b"\0", "U+0000")):
-            if bad in name:
-                log.warning("closing %s: PUBLISH topic %r contains %s", self.describe(), name[:200], why)
-                raise BadTopic(f"PUBLISH topic contains {why}")
+        check_topic_name(bytes(topic[2:need]), self.describe)
+
+
+def check_size(packet_type: int, length: int, limit: int, describe: Callable[[], str]) -> None:
+    """Refuse a packet whose fixed header announces more than its type may carry (``limit``; 0: no limit)."""
+    if limit and length > limit:
+        name = PACKET_NAMES.get(packet_type, f"type {packet_type}")
+        log.warning("closing %s: %s of %d bytes announced, limit %d", describe(), name, length, limit)
+        raise PacketTooLarge(f"{name} of {length} bytes > {limit}")
+
+
+def check_topic_name(name: bytes, describe: Callable[[], str]) -> None:
+    """Refuse a PUBLISH topic with a wildcard or U+0000 (MQTT-3.3.2-2, MQTT-1.5.3-2)."""
+    for bad, why in ((b"+", "a wildcard"), (b"#", "a wildcard"), (b"\0", "U+0000")):
+        if bad in name:
+            log.warning("closing %s: PUBLISH topic %r contains %s", describe(), name[:200], why)
+            raise BadTopic(f"PUBLISH topic contains {why}")
 
 
 class SafeWebSocketsReader(WebSocketsReader):

@@ -105,6 +105,13 @@ behaviour.
     client loop drains as each is ready, so an UNSUBSCRIBE and a SUBSCRIBE of the same filter read in one turn
     were handled subscribe first, and the client lost the subscription its SUBACK had just granted (the SDK
     reads a retained value, unsubscribes, and subscribes again to follow it).
+32. **TCP and TLS connections are read inline** (:class:`~.inline_reader.InlineReader`): one read takes whatever the
+    socket has, :class:`~.frames.FrameParser` cuts it into packets, and each is handled in order before the next
+    read -- a PUBLISH checked and fanned out to the subscribers right there, a SUBSCRIBE in force before the
+    connection's next packet, QoS 2 from the client delivered at its PUBREL. Stock reads every field with an
+    ``await``, wraps each header read in a Task (``wait_for``), runs a Task per packet and passes each PUBLISH through
+    two queues and two more loops. The packet gate's checks (14, 23, 27, 29) hold on this path too. WebSocket
+    connections, and brokers whose plugins listen to amqtt's per-packet or per-message events, keep amqtt's reader.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -122,6 +129,10 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
   ``_broadcast_queue``, ``_servers``, ``_get_handler``, ``_matches``, ``_delete_session``,
   ``add_subscription``, ``plugins_manager._topic_plugins``.
 * The broadcast dict keys ``session``/``topic``/``data``/``qos`` (we add ``pub_qos``).
+* The inline reader (fix 32): ``ProtocolHandler._reader_loop`` (replaced for TCP/TLS), ``stop``, ``_reader_ready``
+  and ``_reader_stopped`` (set as amqtt's loop does), ``StreamReaderAdapter._reader``, ``packet_class`` and
+  ``MQTTFixedHeader`` (to decode SUBSCRIBE/UNSUBSCRIBE), ``Subscription``/``UnSubscription``, ``handle_pingreq``,
+  ``handle_connect``, ``PluginManager._event_plugin_callbacks`` (filled by ``_load_plugins``).
 * ``BrokerProtocolHandler.handle_unsubscribe`` (replaced, fix 31: an ``UnSubscription`` on ``_pending_subscriptions``),
   ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
   ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
@@ -153,7 +164,7 @@ from amqtt.adapters import ReaderAdapter, StreamWriterAdapter, WebSocketsWriter,
 from amqtt.broker import Broker
 from amqtt.contexts import Action
 from amqtt.errors import AMQTTError, MQTTError, NoDataError
-from amqtt.events import MQTTEvents
+from amqtt.events import BrokerEvents, MQTTEvents
 from amqtt.mqtt.connack import NOT_AUTHORIZED, UNACCEPTABLE_PROTOCOL_VERSION, ConnackPacket
 from amqtt.mqtt.constants import QOS_1, QOS_2
 from amqtt.mqtt.disconnect import DisconnectPacket
@@ -164,7 +175,9 @@ from amqtt.utils import gen_client_id
 
 from .. import netstat
 from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE
+from . import inline_reader
 from .conflate import Conflator
+from .frames import Publish
 from .guard import (
     CONNECT,
     PUBLISH,
@@ -356,6 +369,14 @@ class HardenedHandler(BrokerProtocolHandler):
 
     _expired = False
     _closing: asyncio.Task[None] | None = None
+    broker: Any = None  # the HardenedBroker, when this connection's packets are read inline (fix 32)
+
+    async def _reader_loop(self) -> None:
+        """Fix 32: TCP and TLS connections are read by :class:`~.inline_reader.InlineReader`; others by amqtt."""
+        if self.broker is not None and inline_reader.usable(self.reader):
+            await inline_reader.InlineReader(self, self.broker).run()
+        else:
+            await super()._reader_loop()
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -501,8 +522,11 @@ class HardenedBroker(Broker):
     """
 
     def __init__(self, config: dict[str, Any], *, connect_timeout: float = CONNECT_TIMEOUT,
-                 max_payload: int = 0, limits: BrokerLimits | None = None, policy: Any = None) -> None:
+                 max_payload: int = 0, limits: BrokerLimits | None = None, policy: Any = None,
+                 inline: bool = True) -> None:
         super().__init__(config)
+        self.inline = inline  # fix 32: TCP/TLS packets read and handled inline (False: amqtt's reader and queues)
+        self._inline_tasks: set[asyncio.Future[Any]] = set()  # QoS 1/2 deliveries started by inline fan-outs
         self.connect_timeout = connect_timeout
         self.max_payload = max_payload
         self.limits = limits or BrokerLimits()
@@ -689,6 +713,8 @@ class HardenedBroker(Broker):
         if isinstance(reader, PacketGate):
             reader.pacer = self._pacer_of(session.username)
             reader.budget = self._budget_of(session.username)  # fix 29
+        if self.inline and isinstance(handler, HardenedHandler) and not self._packet_events():
+            handler.broker = self  # fix 32
         log.info("connected %s keepalive=%ss clean=%d%s", describe_session(session), session.attributes[ATTR_KEEPALIVE],
                  int(session.clean_session), " (session resumed)" if resumed else "")
         return handler, session
@@ -764,43 +790,86 @@ class HardenedBroker(Broker):
                                        wait_deliver: asyncio.Future[Any]) -> bool:
         message = wait_deliver.result()
         if message is not None:
-            topic = message.topic
-            if not topic:
-                # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
-                # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
-                _drop_connection(handler, "PUBLISH with an empty topic")
-                return True
-            if topic == FLEET_CONTROL and self.control is not None:
-                if self.control.is_admin(client_session.username):
-                    self._answer_control(client_session.username, bytes(message.data or b""))
-                else:  # anyone else's request is dropped here, logged once per session: no task, no log flood
-                    _log_once(client_session, "$control", logging.WARNING, "deny publish %s topic=%r: only the "
-                              "fleet's administrators may use it", describe_session(client_session), topic)
-                return True
-            if topic.startswith("$"):
-                _log_once(client_session, "$" + topic, logging.INFO,
-                          "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
-                          topic)
-                return True
-            size = len(message.data) if message.data is not None else 0
-            limit = self.max_payload
-            if self.policy is not None and (topic_limit := self.policy.payload_limit(topic)):
-                limit = min(limit, topic_limit) if limit else topic_limit
-            if limit and size > limit:
-                _log_once(client_session, "size:" + topic[:200], logging.WARNING,
-                          "dropped publish %s topic=%r: %d bytes > %d", describe_session(client_session), topic,
-                          size, limit)
-                return True
             retained = message.publish_packet is not None and message.publish_packet.retain_flag
-            if retained and self.policy is not None and (why := self.policy.retain_refusal(topic)):
-                _log_once(client_session, "retain:" + topic[:200], logging.WARNING, "dropped publish %s topic=%r: %s",
-                          describe_session(client_session), topic, why)
+            if self._refused(client_session, handler, message.topic, message.data, retained):
                 return True
         token = _PUB_QOS.set(getattr(message, "qos", None))
         try:
             return await super()._handle_message_delivery(client_session, handler, wait_deliver)
         finally:
             _PUB_QOS.reset(token)
+
+    def _refused(self, client_session: Session, handler: BrokerProtocolHandler, topic: str | None,
+                 data: bytes | bytearray | None, retained: bool) -> bool:
+        """True when a client's PUBLISH goes no further: refused (logged once per session) or, on the fleet control
+        topic, answered here."""
+        if not topic:
+            # MQTT-4.7.3-1: a protocol violation ends the connection (stock stops reading this client's
+            # packets silently). Wildcards and NUL never get here: the packet gate closes on them (fix 14).
+            _drop_connection(handler, "PUBLISH with an empty topic")
+            return True
+        if topic == FLEET_CONTROL and self.control is not None:
+            if self.control.is_admin(client_session.username):
+                self._answer_control(client_session.username, bytes(data or b""))
+            else:  # anyone else's request is dropped here, logged once per session: no task, no log flood
+                _log_once(client_session, "$control", logging.WARNING, "deny publish %s topic=%r: only the "
+                          "fleet's administrators may use it", describe_session(client_session), topic)
+            return True
+        if topic.startswith("$"):
+            _log_once(client_session, "$" + topic, logging.INFO,
+                      "deny publish %s topic=%r: '$' topics are the broker's", describe_session(client_session),
+                      topic)
+            return True
+        size = len(data) if data is not None else 0
+        limit = self.max_payload
+        if self.policy is not None and (topic_limit := self.policy.payload_limit(topic)):
+            limit = min(limit, topic_limit) if limit else topic_limit
+        if limit and size > limit:
+            _log_once(client_session, "size:" + topic[:200], logging.WARNING,
+                      "dropped publish %s topic=%r: %d bytes > %d", describe_session(client_session), topic,
+                      size, limit)
+            return True
+        if retained and self.policy is not None and (why := self.policy.retain_refusal(topic)):
+            _log_once(client_session, "retain:" + topic[:200], logging.WARNING, "dropped publish %s topic=%r: %s",
+                      describe_session(client_session), topic, why)
+            return True
+        return False
+
+    # -- fix 32: packets read inline (inline_reader.py) ---------------------------------------
+    def _packet_events(self) -> bool:
+        """Whether a plugin listens to single packets or messages (amqtt's events, which the inline reader does not
+        fire): then amqtt's reader serves every connection."""
+        callbacks = self.plugins_manager._event_plugin_callbacks  # a defaultdict: .get() adds nothing
+        return any(callbacks.get(event) for event in (MQTTEvents.PACKET_RECEIVED, BrokerEvents.MESSAGE_RECEIVED,
+                                                       BrokerEvents.MESSAGE_BROADCAST))
+
+    async def receive_publish(self, session: Session, handler: BrokerProtocolHandler, publish: Publish) -> None:
+        """A client's PUBLISH, from its reader: checked, fanned out to the subscribers now, retained if asked."""
+        if self._refused(session, handler, publish.topic, publish.payload, publish.retain):
+            return
+        if not await self._topic_filtering(session, topic=publish.topic, action=Action.PUBLISH):
+            log.info("%s not allowed to publish to TOPIC %s.", session.client_id, publish.topic)
+            return
+        await self._fan_out({"session": session, "topic": publish.topic, "data": publish.payload,
+                             "pub_qos": publish.qos}, self)
+        if publish.retain:
+            await self.retain_message(session, publish.topic, publish.payload, publish.qos)
+
+    async def receive_subscription(self, session: Session, handler: BrokerProtocolHandler, request: Any) -> None:
+        """A SUBSCRIBE or UNSUBSCRIBE, from its reader: in force before the connection's next packet."""
+        done: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        done.set_result(request)
+        await self._handle_subscription(session, handler, done, inline=True)
+
+    def add_delivery(self, task: asyncio.Future[Any]) -> None:
+        """Keep a QoS 1/2 delivery an inline fan-out started until it ends (a failure is logged, as fix 22 does)."""
+        self._inline_tasks.add(task)
+        task.add_done_callback(self._delivery_done)
+
+    def _delivery_done(self, task: asyncio.Future[Any]) -> None:
+        self._inline_tasks.discard(task)
+        if not task.cancelled() and (error := task.exception()) is not None:
+            log.warning("delivery failed: %s", error)
 
     async def _broadcast_message(self, session: Session | None, topic: str | None,
                                  data: bytes | bytearray | None, force_qos: int | None = None) -> None:
@@ -818,6 +887,11 @@ class HardenedBroker(Broker):
         if len(running_tasks) >= self._sweep_at:
             self._sweep_at = max(SWEEP_AT, 2 * _sweep_finished(running_tasks))
         broadcast = await self._broadcast_queue.get()
+        await self._fan_out(broadcast, running_tasks)
+
+    async def _fan_out(self, broadcast: dict[str, Any], running_tasks: Any) -> None:
+        """One message to every session subscribed to its topic that may read it; ``running_tasks`` keeps the QoS 1/2
+        deliveries started (amqtt's deque in the broadcast loop, or the broker itself: :meth:`add_delivery`)."""
         topic: str = broadcast["topic"]
         pub_qos = broadcast.get("qos", broadcast.get("pub_qos"))
 
@@ -841,7 +915,10 @@ class HardenedBroker(Broker):
                 continue
             task = self._deliver(target, topic, broadcast["data"], qos, retain=False)
             if task is not None:
-                running_tasks.append(task)
+                if running_tasks is self:
+                    self.add_delivery(task)
+                else:
+                    running_tasks.append(task)
 
     def _deliver(self, target: Session, topic: str, data: bytes | bytearray, qos: int,
                  *, retain: bool) -> asyncio.Future[Any] | None:
@@ -998,7 +1075,7 @@ class HardenedBroker(Broker):
 
     # -- fixes 2, 14, 24: SUBSCRIBE --------------------------------------------------------------
     async def _handle_subscription(self, client_session: Session, handler: BrokerProtocolHandler,
-                                   subscribe_waiter: asyncio.Future[Any]) -> None:
+                                   subscribe_waiter: asyncio.Future[Any], inline: bool = False) -> None:
         # Replaces stock: bounded filters per session, the loop yields between filters, and retained
         # messages are found through the index and sent for this session's own filters only.
         request = subscribe_waiter.result()
@@ -1032,7 +1109,7 @@ class HardenedBroker(Broker):
             if code == 0x80 or topic_filter in seen:
                 continue
             seen.add(topic_filter)
-            await self._send_retained(topic_filter, code, client_session)
+            await self._send_retained(topic_filter, code, client_session, wait=not inline)
 
     async def _handle_unsubscription(self, client_session: Session, handler: BrokerProtocolHandler,
                                      unsubscribe_waiter: asyncio.Future[Any]) -> None:
@@ -1052,7 +1129,9 @@ class HardenedBroker(Broker):
         # table (anybody's). Retained messages go out only from _handle_subscription.
         return
 
-    async def _send_retained(self, topic_filter: str, granted: int, session: Session) -> None:
+    async def _send_retained(self, topic_filter: str, granted: int, session: Session, *, wait: bool = True) -> None:
+        """The retained messages ``topic_filter`` matches that ``session`` may read. ``wait``: until their QoS 1/2
+        deliveries end (amqtt's client loop); never from the inline reader, which reads their acknowledgements."""
         handler = self._get_handler(session)
         if handler is None:
             return
@@ -1067,7 +1146,9 @@ class HardenedBroker(Broker):
             task = self._deliver(session, retained.topic, retained.data, qos, retain=True)
             if task is not None:
                 tasks.append(task)
-        if tasks:
+                if not wait:
+                    self.add_delivery(task)
+        if tasks and wait:
             await asyncio.wait(tasks)
 
     # -- fix 11: inline ACL dispatch ---------------------------------------------------------

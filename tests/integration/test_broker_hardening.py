@@ -351,15 +351,15 @@ def test_failed_start_leaves_no_listener_open(tmp_path: Path) -> None:
 
 
 @contextlib.asynccontextmanager
-async def anonymous_broker() -> AsyncIterator[tuple[Any, int]]:
+async def anonymous_broker(inline: bool = True) -> AsyncIterator[tuple[Any, int]]:
     """A hardened broker in this process on a free loopback port, anonymous logins allowed: for tests that look at
-    its tables or speak raw MQTT to it."""
+    its tables or speak raw MQTT to it. ``inline``: packets read by the inline reader (fix 32), else by amqtt's."""
     from roslink_mqtt.broker.hardened import HardenedBroker
 
     port = free_port()
     anonymous = {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}
     broker = HardenedBroker({"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
-                             "plugins": anonymous})
+                             "plugins": anonymous}, inline=inline)
     await broker.start()
     try:
         yield broker, port
@@ -433,6 +433,52 @@ def test_a_clients_qos1_and_qos0_messages_are_fanned_out_in_the_order_sent(tmp_p
                     assert await sub_r.readexactly(len(packets[i])) == packets[i], i
             pub_w.close()
             sub_w.close()
+
+    asyncio.run(scenario())
+
+
+# -- 32: a connection's packets in the order sent -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("inline", [True, False], ids=["inline", "amqtt"])
+def test_a_subscription_is_in_force_for_what_the_same_write_sends_after_it(tmp_path: Path, inline: bool) -> None:
+    """A bridge subscribes and publishes before its SUBACK comes: SUBSCRIBE, a retained QoS 1 PUBLISH and a QoS 0
+    PUBLISH to the same topic in one write. Both messages must come back to it, the retained one with RETAIN=0
+    (MQTT-3.3.1-9: a live subscription), and nothing twice. A reader that handled PUBLISHes inline while SUBSCRIBEs
+    waited in amqtt's queue lost them."""
+    from roslink_mqtt.broker.frames import FrameParser, read_publish
+    from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
+
+    async def scenario() -> None:
+        async with anonymous_broker(inline) as (_broker, port):
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(connect_packet("bridge", None, None))
+            assert (await reader.readexactly(4))[3] == 0
+            writer.write(subscribe_packet(["robot/state/#"], 1, qos=1)
+                         + publish_packet("robot/state/heartbeat", b"one", qos=1, retain=True, packet_id=2)
+                         + publish_packet("robot/state/pose", b"two"))
+            parser, seen = FrameParser(lambda _kind: 0, lambda: "test"), []
+            async with asyncio.timeout(10):
+                while sum(1 for kind, _ in seen if kind == 3) < 2:
+                    for frame in parser.feed(await reader.read(4096)):
+                        if frame.kind == 3:
+                            publish = read_publish(frame.flags, frame.body)
+                            seen.append((3, (publish.topic, publish.payload, publish.retain)))
+                            if publish.qos:
+                                writer.write(b"\x40\x02" + (publish.packet_id or 0).to_bytes(2, "big"))
+                        else:
+                            seen.append((frame.kind, frame.body))
+            assert (9, b"\x00\x01\x01") in seen, seen  # SUBACK: QoS 1 granted
+            assert (4, b"\x00\x02") in seen, seen  # PUBACK of the retained message
+            assert sorted(v for kind, v in seen if kind == 3) == [
+                ("robot/state/heartbeat", b"one", False), ("robot/state/pose", b"two", False)], seen
+            try:  # nothing more comes (no second copy from the retained store)
+                async with asyncio.timeout(0.5):
+                    extra = await reader.read(4096)
+            except TimeoutError:
+                extra = b""
+            assert parser.feed(extra) == [], extra
+            writer.close()
 
     asyncio.run(scenario())
 

@@ -60,7 +60,8 @@ RELIED_ON: dict[str, str] = {
                                                 "unsubscriptions (fix 31 queues both as one)",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_unsubscribe": "replaced: queued with the "
                                                                                    "SUBSCRIBEs (fix 31)",
-    "amqtt.mqtt.protocol.broker_handler:UnSubscription": "built by our handle_unsubscribe (fix 31)",
+    "amqtt.mqtt.protocol.broker_handler:UnSubscription": "built by our handle_unsubscribe and the inline reader "
+                                                         "(fixes 31, 32)",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.__init__": "creates _pending_subscriptions, the one "
                                                                          "queue fix 31 uses for both",
     "amqtt.broker:Broker._authenticate": "replaced, and called unbound by HardenedBroker._admit (fix 4)",
@@ -118,10 +119,22 @@ RELIED_ON: dict[str, str] = {
                                                                              "for incoming (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._handle_qos2_message_flow": "replaced for outgoing messages, called "
                                                                              "for incoming (fix 28)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler._reader_loop": "reads session.keep_alive once as its read timeout, "
-                                                                "calls handle_read_timeout, ends on other errors "
-                                                                "(fixes 1, 13, 14)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fix 28)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler._reader_loop": "WebSocket connections (TCP: the inline reader, "
+                                                                "fix 32): reads session.keep_alive once as its read "
+                                                                "timeout, calls handle_read_timeout, ends on other "
+                                                                "errors (fixes 1, 13, 14)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fixes 28, 32)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_pingreq": "called by the inline reader (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_connect": "a second CONNECT: called by the "
+                                                                               "inline reader (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:Subscription": "built by the inline reader for _handle_subscription (fix 32)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler.stop": "called when the inline reader ends, as amqtt's loop does; "
+                                                        "waits for _reader_stopped (fix 32)",
+    "amqtt.adapters:StreamReaderAdapter": "_reader, the asyncio stream the inline reader reads (fix 32)",
+    "amqtt.mqtt:packet_class": "decodes the inline reader's rare packets (SUBSCRIBE, UNSUBSCRIBE; fix 32)",
+    "amqtt.mqtt.packet:MQTTFixedHeader.__init__": "built by the inline reader for amqtt's decoders (fix 32)",
+    "amqtt.plugins.manager:PluginManager._load_plugins": "fills _event_plugin_callbacks, which the broker reads to "
+                                                         "choose the inline reader (fix 32)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_puback": "wrapped (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubrec": "wrapped: a late PUBREC is released (fix 28)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.handle_pubcomp": "wrapped (fix 28)",
