@@ -253,10 +253,14 @@ class Step:
 
 
 def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: float, loop: str = "auto",
-             presence: bool = True, cluster: Any = None) -> Step | None:
+             presence: bool = True, cluster: Any = None, reader: str = "inline") -> Step | None:
     """One count on one broker; ``cluster`` (kind "rabbitmq"): a running RabbitCluster whose fleet covers it."""
     names = {"embedded": "embedded", "mosquitto": "Mosquitto", "rabbitmq": "RabbitMQ ×3"}
-    step = Step(f"embedded ({loop})" if kind == "embedded" and loop != "auto" else names[kind], robots, seconds)
+    name = names[kind]
+    if kind == "embedded":
+        name += "".join(f" ({part})" for part in (loop if loop != "auto" else "",
+                                                   "amqtt reader" if reader != "inline" else "") if part)
+    step = Step(name, robots, seconds)
     with ExitStack() as phase:
         port = lat.free_port()
         ports = [port]
@@ -269,7 +273,7 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
             pass
         elif kind == "embedded":
             broker_pids = [lat.start_embedded_broker(phase, fleet, port, work / f"embedded-{robots}.log", env,
-                                                     "--loop", loop).pid]
+                                                     "--loop", loop, "--reader", reader).pid]
         else:
             if lat.mosquitto_exe() is None:
                 return None
@@ -406,6 +410,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="(default: %(default)s)")
     p.add_argument("--loops", default="auto", help="event loops of the embedded broker to run, comma-separated: "
                                                    "auto, uvloop, asyncio (default: %(default)s)")
+    p.add_argument("--readers", default="inline", help="readers of the embedded broker to run, comma-separated: "
+                                                       "inline, amqtt (default: %(default)s)")
     p.add_argument("--no-presence", action="store_true",
                    help="operators send no presence heartbeats (what presence costs a broker; robots then refuse "
                         "their commands on a real bridge)")
@@ -439,9 +445,10 @@ def main(argv: list[str] | None = None) -> int:
     print(HEADER, flush=True)
     try:
         with tempfile.TemporaryDirectory(prefix="roslink-fleet-") as tmp:
-            runs = [(kind, loop) for kind in args.brokers
-                    for loop in (args.loops.split(",") if kind == "embedded" else ["auto"])]
-            for kind, loop in runs:
+            runs = [(kind, loop, reader) for kind in args.brokers
+                    for loop in (args.loops.split(",") if kind == "embedded" else ["auto"])
+                    for reader in (args.readers.split(",") if kind == "embedded" else ["inline"])]
+            for kind, loop, reader in runs:
                 counts = args.counts or DEFAULT_COUNTS[kind]
                 if args.quick and not args.counts:
                     counts = counts[::2]
@@ -454,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     for robots in counts:
                         step = run_step(kind, robots, Path(tmp), env, args.seconds, loop, not args.no_presence,
-                                        cluster)
+                                        cluster, reader)
                         if step is None:
                             print(f"{kind}: Mosquitto not installed, skipped")
                             break

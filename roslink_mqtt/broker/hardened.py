@@ -170,7 +170,7 @@ from amqtt.mqtt.constants import QOS_1, QOS_2
 from amqtt.mqtt.disconnect import DisconnectPacket
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler, UnSubscription
 from amqtt.mqtt.pubrel import PubrelPacket
-from amqtt.session import OUTGOING, Session
+from amqtt.session import OUTGOING, OutgoingApplicationMessage, Session
 from amqtt.utils import gen_client_id
 
 from .. import netstat
@@ -266,15 +266,33 @@ def _sweep_finished(running_tasks: Any) -> int:
 
 def publish_packet_qos0(topic: str, data: bytes | bytearray, retain: bool) -> bytes:
     """An MQTT 3.1.1 PUBLISH at QoS 0 (§3.3): fixed header, remaining length, topic, payload — no packet id."""
+    return publish_packet_bytes(topic, data, 0, retain, None)
+
+
+def publish_packet_bytes(topic: str, data: bytes | bytearray, qos: int, retain: bool, packet_id: int | None,
+                         dup: bool = False) -> bytes:
+    """An MQTT 3.1.1 PUBLISH (§3.3): fixed header, remaining length, topic, the packet id at QoS 1 and 2, payload."""
     name = topic.encode()
-    remaining = 2 + len(name) + len(data)
-    header = bytearray([0x31 if retain else 0x30])
+    remaining = 2 + len(name) + len(data) + (2 if qos else 0)
+    header = bytearray([0x30 | (0x08 if dup else 0) | (qos << 1) | (0x01 if retain else 0)])
     while True:  # remaining length: 7 bits per byte, high bit = more (§2.2.3)
         byte, remaining = remaining % 128, remaining // 128
         header.append(byte | 0x80 if remaining else byte)
         if not remaining:
             break
-    return b"".join((header, len(name).to_bytes(2, "big"), name, data))
+    pid = (packet_id or 0).to_bytes(2, "big") if qos else b""
+    return b"".join((header, len(name).to_bytes(2, "big"), name, pid, data))
+
+
+def open_transport(writer: WriterAdapter | None) -> Any:
+    """The transport of a plain TCP (or TLS) connection that is still open, else None (WebSocket writers frame in
+    ``drain()`` and keep amqtt's path)."""
+    if not isinstance(writer, StreamWriterAdapter) or writer.is_closed:
+        return None
+    transport = _transport(writer)
+    if transport is None or transport.is_closing():
+        return None
+    return transport
 
 
 def _write_qos0(writer: WriterAdapter | None, topic: str, data: bytes | bytearray | None, retain: bool) -> bool:
@@ -286,12 +304,10 @@ def _write_qos0(writer: WriterAdapter | None, topic: str, data: bytes | bytearra
     ``write`` (whole packets, in broadcast order), and the outbox bounds that buffer (fix 17). Only for plain TCP
     connections whose transport is open; WebSocket writers frame in ``drain()`` and keep amqtt's path.
     """
-    if data is None or not isinstance(writer, StreamWriterAdapter) or writer.is_closed:
+    transport = open_transport(writer) if data is not None else None
+    if transport is None:
         return False
-    transport = _transport(writer)
-    if transport is None or transport.is_closing():
-        return False
-    transport.write(publish_packet_qos0(topic, data, retain))
+    transport.write(publish_packet_qos0(topic, data or b"", retain))
     return True
 
 
@@ -480,6 +496,30 @@ class HardenedHandler(BrokerProtocolHandler):
         if app_message.pubcomp_packet is not None and self.session is not None:
             self.session.inflight_out.pop(pid, None)
 
+    def write_now(self, data: bytes) -> bool:
+        """Write ``data`` (whole packets) to a TCP/TLS client's transport at once; False: use ``_send_packet``."""
+        transport = open_transport(self.writer)
+        if transport is None:
+            return False
+        transport.write(data)
+        return True
+
+    def deliver_now(self, topic: str, data: bytes | bytearray, qos: int, retain: bool) -> bool:
+        """Fix 32: a QoS 1 or 2 delivery written at once, in the order of every other write to this client, and
+        kept in flight until acknowledged (fix 28: a late PUBACK, PUBREC and PUBCOMP complete it, a resumed session
+        gets it again). No Task and no waiter: this client's own reader reads the acknowledgement. False: the
+        connection is not a plain TCP/TLS one that is open (amqtt's path)."""
+        session = self.session
+        transport = open_transport(self.writer)
+        if transport is None or session is None:
+            return False
+        pid = session.next_packet_id
+        message = OutgoingApplicationMessage(pid, topic, qos, data, retain)
+        self._keep_in_flight(message)
+        message.publish_packet = message.build_publish_packet()  # set: a resend goes with DUP=1
+        transport.write(publish_packet_bytes(topic, data, qos, retain, pid))
+        return True
+
     async def handle_puback(self, puback: Any) -> None:
         pid = puback.variable_header.packet_id if puback.variable_header is not None else None
         if pid in self._puback_waiters or self.session is None:
@@ -491,9 +531,11 @@ class HardenedHandler(BrokerProtocolHandler):
         message = self.session.inflight_out.get(pubrec.packet_id) if self.session is not None else None
         if pubrec.packet_id in self._pubrec_waiters or message is None:
             await super().handle_pubrec(pubrec)
-        else:  # a late PUBREC: the receiver has the message, release it
+        else:  # a late PUBREC (or one of fix 32's deliveries): the receiver has the message, release it
             message.pubrec_packet = pubrec
-            await self._release(message)
+            message.pubrel_packet = PubrelPacket.build(pubrec.packet_id)
+            # its PUBCOMP completes it in handle_pubcomp; waiting for it here would hold this client's reader
+            await self._send_packet(message.pubrel_packet)
 
     async def handle_unsubscribe(self, unsubscribe: Any) -> None:
         """Queued with the SUBSCRIBEs (fix 31): stock keeps two queues that the client loop drains as each is ready,
@@ -1025,6 +1067,10 @@ class HardenedBroker(Broker):
                                       f"{self.limits.slow_consumer_timeout:.0f} s ({outbox.dropped} messages dropped)")
             return None
         if qos == 0 and _write_qos0(handler.writer, topic, data, retain):  # fix 25: no task per delivery
+            outbox.done(size)
+            return None
+        if (qos and self.inline and data is not None and isinstance(handler, HardenedHandler)
+                and handler.deliver_now(topic, data, qos, retain)):  # fix 32: no task, in order with QoS 0
             outbox.done(size)
             return None
         task = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))

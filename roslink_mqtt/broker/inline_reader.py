@@ -163,6 +163,13 @@ class InlineReader:
             if wait > 0:
                 await asyncio.sleep(wait)
 
+    async def _acknowledge(self, kind: Any, head: bytes, packet_id: int | None) -> None:
+        """PUBACK, PUBREC or PUBCOMP (``kind``, amqtt's class): written at once on a TCP/TLS transport, else through
+        amqtt's send."""
+        pid = packet_id or 0
+        if not self.handler.write_now(head + pid.to_bytes(2, "big")):
+            await self.handler._send_packet(kind.build(pid))
+
     async def _handle(self, frame: Frame) -> None:
         kind, handler, session = frame.kind, self.handler, self.session
         if kind == PUBLISH:
@@ -171,21 +178,21 @@ class InlineReader:
                 await self.broker.receive_publish(session, handler, publish)
             elif publish.qos == 1:
                 await self.broker.receive_publish(session, handler, publish)
-                await handler._send_packet(PubackPacket.build(publish.packet_id))
+                await self._acknowledge(PubackPacket, b"\x40\x02", publish.packet_id)
             else:
                 pid = publish.packet_id or 0
                 held: dict[int, Publish] = session.attributes.setdefault(ATTR_QOS2_IN, {})
                 if pid not in held and len(held) >= MAX_QOS2_IN:
                     held.pop(next(iter(held)))
                 held[pid] = publish  # a resent PUBLISH (DUP) replaces it: delivered once, at PUBREL
-                await handler._send_packet(PubrecPacket.build(pid))
+                await self._acknowledge(PubrecPacket, b"\x50\x02", pid)
         elif kind == PUBREL:
             pid = _packet_id(frame)
             waiting: dict[int, Publish] = session.attributes.get(ATTR_QOS2_IN) or {}
             released = waiting.pop(pid, None)
             if released is not None:
                 await self.broker.receive_publish(session, handler, released)
-            await handler._send_packet(PubcompPacket.build(pid))
+            await self._acknowledge(PubcompPacket, b"\x70\x02", pid)
         elif kind == PUBACK:
             await handler.handle_puback(PubackPacket.build(_packet_id(frame)))
         elif kind == PUBREC:

@@ -52,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto",
                    help="event loop: uvloop (libuv, installed with the [broker] extra) or Python's own; auto = "
                         "uvloop when installed (default: %(default)s)")
+    p.add_argument("--reader", choices=("inline", "amqtt"), default="inline",
+                   help="how TCP and TLS connections are read: inline (each packet handled in order as it is read) "
+                        "or amqtt (amqtt's own reader, a Task and queues per packet; slower, kept to compare and "
+                        "to fall back on) (default: %(default)s)")
     p.add_argument("--no-acl", action="store_true", help=argparse.SUPPRESS)  # benchmarks only: no topic checks
     return p
 
@@ -174,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = ServerOptions.from_fleet(
         fleet, host=args.host, port=args.port, ws_port=args.ws_port, connect_timeout=args.connect_timeout,
         sys_interval=args.sys_interval, session_expiry=args.session_expiry, throttle=throttle,
-        acl=not args.no_acl, limits=BrokerLimits.from_mapping(dict(args.limit)))
+        acl=not args.no_acl, limits=BrokerLimits.from_mapping(dict(args.limit)), reader=args.reader)
     server = EmbeddedBroker(args.config, fleet, options)
     try:
         return run_loop(serve(server), args.loop)

@@ -63,6 +63,7 @@ class ServerOptions:
     sys_interval: float = 10.0
     session_expiry: int | None = 3600  # s a disconnected persistent session is kept
     acl: bool = True  # False only for benchmarks: authenticate, but no topic checks
+    reader: str = "inline"  # TCP/TLS packets read inline (hardened fix 32), or "amqtt": amqtt's reader and queues
     throttle: LoginThrottle | None = field(default_factory=LoginThrottle)
     limits: BrokerLimits = field(default_factory=BrokerLimits)
 
@@ -127,7 +128,8 @@ class EmbeddedBroker:
         self._check_tls_files()
         broker = HardenedBroker(amqtt_config(self.options, self.live), connect_timeout=self.options.connect_timeout,
                                 max_payload=self.options.max_payload, limits=self.options.limits,
-                                policy=TopicPolicy(self.live, self.options.limits))
+                                policy=TopicPolicy(self.live, self.options.limits),
+                                inline=self.options.reader == "inline")
         try:
             await broker.start()
         except BrokerError as err:

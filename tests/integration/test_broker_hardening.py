@@ -483,6 +483,50 @@ def test_a_subscription_is_in_force_for_what_the_same_write_sends_after_it(tmp_p
     asyncio.run(scenario())
 
 
+def test_a_qos1_subscriber_gets_a_clients_qos1_message_before_the_qos0_ones_sent_after_it(tmp_path: Path) -> None:
+    """The robot follows its operator's presence at QoS 1 and its twists at QoS 0: the presence sent first must be
+    written to the robot first, or the robot refuses the twist. amqtt delivers QoS 1 through a Task of its own while
+    QoS 0 goes straight to the socket (fix 25); its slow reader hid that, but with the inline reader (fix 32) a twist
+    read in the same turn overtook the presence (this test failed so). QoS 1 and 2 deliveries are now written at
+    once, in order with the rest, and kept in flight until acknowledged."""
+    from roslink_mqtt.broker.frames import FrameParser, read_publish
+    from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
+
+    count = 300
+
+    async def scenario() -> None:
+        async with anonymous_broker() as (broker, port):
+            sub_r, sub_w = await asyncio.open_connection("127.0.0.1", port)
+            sub_w.write(connect_packet("robot", None, None) + subscribe_packet(["op/+"], 1, qos=1))
+            assert (await sub_r.readexactly(4))[3] == 0
+            assert await sub_r.readexactly(5) == b"\x90\x03\x00\x01\x01"  # SUBACK, QoS 1
+            pub_r, pub_w = await asyncio.open_connection("127.0.0.1", port)
+            pub_w.write(connect_packet("operator", None, None))
+            assert (await pub_r.readexactly(4))[3] == 0
+            twists = [publish_packet("op/twist", str(i).encode()) for i in range(count)]
+            pub_w.write(publish_packet("op/presence", b"here", qos=1, packet_id=7) + b"".join(twists))
+            parser, got = FrameParser(lambda _kind: 0, lambda: "test"), []
+            async with asyncio.timeout(10):
+                while len(got) < count + 1:
+                    for frame in parser.feed(await sub_r.read(65536)):
+                        publish = read_publish(frame.flags, frame.body)
+                        got.append((publish.topic, publish.qos, publish.payload))
+                        if publish.qos:
+                            sub_w.write(b"\x40\x02" + (publish.packet_id or 0).to_bytes(2, "big"))
+            assert got[0] == ("op/presence", 1, b"here"), got[:3]
+            assert [payload for _topic, _qos, payload in got[1:]] == [str(i).encode() for i in range(count)]
+            session = next(s for s, _h in broker._sessions.values() if s.client_id.endswith("robot"))
+            for _ in range(100):  # the PUBACK completes the delivery (fix 28's record of it goes)
+                if not session.inflight_out:
+                    break
+                await asyncio.sleep(0.02)
+            assert not session.inflight_out
+            pub_w.close()
+            sub_w.close()
+
+    asyncio.run(scenario())
+
+
 # -- 31: SUBSCRIBE and UNSUBSCRIBE in the order sent ------------------------------------------------------
 
 
