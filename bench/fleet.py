@@ -64,11 +64,12 @@ def operator_name(i: int) -> str:
 
 
 # -- the fleet file ------------------------------------------------------------------------------------------
-def fleet_file(path: Path, robots: int, port: int) -> Path:
-    """``robots`` robots, one operator each, a monitor; one password hashed once (the bench is not about logins)."""
+def fleet_file(path: Path, robots: int, port: int, users: dict[str, str] | None = None) -> Path:
+    """``robots`` robots, one operator each, a monitor; one password hashed once (the bench is not about logins).
+    ``users``: more logins without grants, name -> password hash (bench/login_flood.py's, at the deployed strength)."""
     from roslink_mqtt.config.passwords import hash_password
 
-    hashed = hash_password(PASSWORD, iterations=1000)  # random-strength robot passwords: the bench measures messages
+    hashed = hash_password(PASSWORD, iterations=1000)  # weak on purpose: this bench measures messages
     data: dict[str, Any] = {
         "prefix": PREFIX,
         "broker": {"host": "127.0.0.1", "port": port, "ws_port": 0},
@@ -78,6 +79,8 @@ def fleet_file(path: Path, robots: int, port: int) -> Path:
                                                                      "role": "operator"}]} for i in range(robots)},
     }
     data["users"][MONITOR] = {"password": hashed, "admin": True}
+    for user, password_hash in (users or {}).items():
+        data["users"][user] = {"password": password_hash, "grants": []}
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
 
@@ -113,6 +116,8 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
     window = (start_at, start_at + seconds)
     state, cmd = Tally(), Tally()
     clients: list[Any] = []
+    lost: list[str] = []  # client ids whose connection the broker ended before the run did
+    ending = False
 
     def in_window(ns: int) -> bool:
         return window[0] <= ns / 1e9 < window[1]
@@ -132,6 +137,7 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
         client = gmqtt.Client(client_id, will_message=will, clean_session=True)
         client.set_auth_credentials(login, PASSWORD)
         client.set_config({"reconnect_retries": 0})
+        client.on_disconnect = lambda *_args: None if ending else lost.append(client_id)
         if on_message is not None:
             client.on_message = on_message
         await client.connect("127.0.0.1", ports[node % len(ports)], keepalive=30, version=MQTTv311)
@@ -202,6 +208,7 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
     connect_seconds = time.monotonic() - began
     await asyncio.gather(*tasks)
     await asyncio.sleep(max(0.0, window[1] + SETTLE - time.monotonic()))
+    ending = True
     for client in clients:
         try:
             await asyncio.wait_for(client.disconnect(), 2)
@@ -209,7 +216,8 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
             pass
     return {"connect_s": connect_seconds, "state_sent": state.sent, "cmd_sent": cmd.sent,
             "state_received": state.received, "cmd_received": cmd.received,
-            "state_ms": state.latencies, "cmd_ms": cmd.latencies, "cpu_s": time.process_time()}
+            "state_ms": state.latencies, "cmd_ms": cmd.latencies, "cpu_s": time.process_time(),
+            "lost_connections": len(lost)}
 
 
 def worker_main(args: argparse.Namespace) -> int:
@@ -239,6 +247,8 @@ class Step:
     broker_rss: int = 0
     per_connection: float = float("nan")  # bytes of broker RSS per idle connection
     generator_cpu: float = float("nan")  # % of one core, all generator processes together, whole run
+    lost_connections: int = 0  # robots' and operators' connections the broker ended during the run
+    broker_pids: list[int] = field(default_factory=list)
     note: str = ""
 
     def pct(self, values: list[float], q: int) -> float:
@@ -253,8 +263,11 @@ class Step:
 
 
 def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: float, loop: str = "auto",
-             presence: bool = True, cluster: Any = None, reader: str = "inline") -> Step | None:
-    """One count on one broker; ``cluster`` (kind "rabbitmq"): a running RabbitCluster whose fleet covers it."""
+             presence: bool = True, cluster: Any = None, reader: str = "inline",
+             users: dict[str, str] | None = None, during: Any = None) -> Step | None:
+    """One count on one broker; ``cluster`` (kind "rabbitmq"): a running RabbitCluster whose fleet covers it.
+    ``during(phase, port, start_at, step)``: started once the fleet is connected, before the warm-up (another load
+    beside the fleet's, e.g. bench/login_flood.py's guessers); ``users``: see fleet_file."""
     names = {"embedded": "embedded", "mosquitto": "Mosquitto", "rabbitmq": "RabbitMQ ×3"}
     name = names[kind]
     if kind == "embedded":
@@ -268,7 +281,7 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
             ports = [n.mqtt_port for n in cluster.nodes]
             broker_pids = [n.beam_pid() for n in cluster.nodes]
         else:
-            fleet = fleet_file(work / f"fleet-{kind}-{robots}.yaml", robots, port)
+            fleet = fleet_file(work / f"fleet-{kind}-{robots}.yaml", robots, port, users)
         if kind == "rabbitmq":
             pass
         elif kind == "embedded":
@@ -301,6 +314,9 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
         if (delay := start_at - WARMUP - 0.2 - time.monotonic()) > 0:
             time.sleep(delay)
         rss_connected = sum(map(rss_bytes, broker_pids))
+        step.broker_pids = broker_pids
+        if during is not None:
+            during(phase, port, start_at, step)
         # (an Erlang VM's heap moves by more than a small fleet's connections: not shown when it shrank)
         grown = rss_connected - rss_idle
         step.per_connection = grown / (2 * robots + 1) if grown > 0 else float("nan")
@@ -328,6 +344,7 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
         step.cmd_received += r["cmd_received"]
         step.state_ms += r["state_ms"]
         step.cmd_ms += r["cmd_ms"]
+        step.lost_connections += r.get("lost_connections", 0)
     wall = seconds + WARMUP + SETTLE + connect_budget
     step.generator_cpu = 100 * sum(r["cpu_s"] for r in reports) / wall
     return step

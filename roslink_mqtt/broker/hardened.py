@@ -890,8 +890,7 @@ class HardenedBroker(Broker):
         if self._refused(session, handler, publish.topic, publish.payload, publish.retain):
             return
         if not await self._topic_filtering(session, topic=publish.topic, action=Action.PUBLISH):
-            log.info("%s not allowed to publish to TOPIC %s.", session.client_id, publish.topic)
-            return
+            return  # the ACL plugin logged it, once per topic and session
         await self._fan_out({"session": session, "topic": publish.topic, "data": publish.payload,
                              "pub_qos": publish.qos}, self)
         if publish.retain:
