@@ -52,6 +52,7 @@ BAR_P99_MS = 50.0
 WARMUP = 2.0
 SETTLE = 2.0
 WORKERS = 2
+LOAD_TOPIC = "$SYS/broker/load"
 DEFAULT_COUNTS = {"embedded": (10, 100, 200), "mosquitto": (10, 300, 1000), "rabbitmq": (10, 100, 300)}
 
 
@@ -117,6 +118,7 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
     state, cmd = Tally(), Tally()
     clients: list[Any] = []
     lost: list[str] = []  # client ids whose connection the broker ended before the run did
+    load: dict[str, Any] = {}  # the embedded broker's $SYS/broker/load, as the monitor saw it
     ending = False
 
     def in_window(ns: int) -> bool:
@@ -162,8 +164,19 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
     began = time.monotonic()
     tasks = []
     if role == "monitor":
-        client = await connect(f"{MONITOR}-{os.getpid()}", MONITOR, on_message=timed(state), node=len(ports) - 1)
+        motion = timed(state)
+
+        def on_message(client: Any, topic: str, payload: bytes, qos: int, props: Any) -> int:
+            if topic == LOAD_TOPIC:  # the embedded broker's overload status (others have none)
+                body = orjson.loads(payload)
+                load["overloaded"] = load.get("overloaded", False) or body.get("overloaded", False)
+                load["shed"] = max(load.get("shed", 0), body.get("shed_total", 0))
+                return 0
+            return motion(client, topic, payload, qos, props)
+
+        client = await connect(f"{MONITOR}-{os.getpid()}", MONITOR, on_message=on_message, node=len(ports) - 1)
         client.subscribe(topics.state_filter(name="global_motion"), qos=0)
+        client.subscribe(LOAD_TOPIC, qos=0)
     else:
         connected = []
         for i in range(first, first + count):
@@ -217,7 +230,7 @@ async def generator(role: str, first: int, count: int, ports: list[int], start_a
     return {"connect_s": connect_seconds, "state_sent": state.sent, "cmd_sent": cmd.sent,
             "state_received": state.received, "cmd_received": cmd.received,
             "state_ms": state.latencies, "cmd_ms": cmd.latencies, "cpu_s": time.process_time(),
-            "lost_connections": len(lost)}
+            "lost_connections": len(lost), "load": load}
 
 
 def worker_main(args: argparse.Namespace) -> int:
@@ -248,6 +261,7 @@ class Step:
     per_connection: float = float("nan")  # bytes of broker RSS per idle connection
     generator_cpu: float = float("nan")  # % of one core, all generator processes together, whole run
     lost_connections: int = 0  # robots' and operators' connections the broker ended during the run
+    shed: int | None = None  # superseded state messages the embedded broker shed while overloaded (None: no status)
     broker_pids: list[int] = field(default_factory=list)
     note: str = ""
 
@@ -345,6 +359,8 @@ def run_step(kind: str, robots: int, work: Path, env: dict[str, str], seconds: f
         step.state_ms += r["state_ms"]
         step.cmd_ms += r["cmd_ms"]
         step.lost_connections += r.get("lost_connections", 0)
+        if r.get("load"):
+            step.shed = r["load"].get("shed", 0)
     wall = seconds + WARMUP + SETTLE + connect_budget
     step.generator_cpu = 100 * sum(r["cpu_s"] for r in reports) / wall
     return step
@@ -382,12 +398,13 @@ def fmt(step: Step) -> str:
             f"{share(step.cmd_received, step.cmd_sent):>16} {step.pct(step.cmd_ms, 50):7.1f} "
             f"{step.pct(step.cmd_ms, 99):7.1f} {max(step.cmd_ms, default=float('nan')):7.0f} "
             f"{step.broker_cpu:6.0f} {step.broker_rss / 2**20:7.0f} {step.per_connection / 1024:7.1f} "
-            f"{step.generator_cpu:6.0f}  {'pass' if step.passed else 'MISS'} {step.note}")
+            f"{step.generator_cpu:6.0f} {'—' if step.shed is None else step.shed:>6} {step.lost_connections:>5}  "
+            f"{'pass' if step.passed else 'MISS'} {step.note}")
 
 
 HEADER = (f"{'broker':<10} {'robots':>6} {'connect':>8} {'state recv':>16} {'p50':>7} {'p99':>7} {'max':>7} "
           f"{'cmd recv':>16} {'p50':>7} {'p99':>7} {'max':>7} {'CPU %':>6} {'RSS MB':>7} {'kB/conn':>7} "
-          f"{'gen %':>6}  bar")
+          f"{'gen %':>6} {'shed':>6} {'lost':>5}  bar")
 
 
 def plot(steps: list[Step], path: Path) -> None:

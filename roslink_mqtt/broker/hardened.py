@@ -160,6 +160,7 @@ import ssl
 import time
 from typing import Any
 
+import orjson
 from amqtt.adapters import ReaderAdapter, StreamWriterAdapter, WebSocketsWriter, WriterAdapter
 from amqtt.broker import Broker
 from amqtt.contexts import Action
@@ -174,7 +175,7 @@ from amqtt.session import OUTGOING, OutgoingApplicationMessage, Session
 from amqtt.utils import gen_client_id
 
 from .. import netstat
-from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE
+from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE, sys_topic
 from . import inline_reader
 from .conflate import Conflator
 from .frames import Publish
@@ -191,6 +192,7 @@ from .guard import (
     UnsupportedProtocol,
 )
 from .limits import BrokerLimits, RetainedQuota
+from .load import PROBE, STATE_EVERY, Counter, LoadMonitor, Outgrown, Rates, Shedder
 from .outbox import Outbox, Verdict
 from .subscriptions import RetainedTable, SubscriptionTable
 
@@ -219,6 +221,7 @@ RATE_WINDOW = 0.5  # s over which a backed-up client's delivery rate is measured
 BACKLOG_EVERY = 0.01  # s: a client's backlog is measured at most this often (a system call per look)
 CONFLATE_DELAY = 0.25  # s: a backlog this long at the client's own delivery rate is a backed-up client (a fast,
 # far client holds its bandwidth-delay product in flight and is not slow)
+STATUS_EVERY = 2.0  # s between load samples (and, while overloaded, $SYS/broker/load updates)
 FLUSH_POLL = 0.02  # s between looks at a backed-up client's backlog while state waits for it
 _ATTR_LOGGED = "roslink.logged"
 
@@ -568,6 +571,10 @@ class HardenedBroker(Broker):
                  inline: bool = True) -> None:
         super().__init__(config)
         self.inline = inline  # fix 32: TCP/TLS packets read and handled inline (False: amqtt's reader and queues)
+        # overload (load.py): superseded robot state is shed while the event loop runs late; control never is
+        self.load, self.shedder, self.outgrown = LoadMonitor(), Shedder(), Outgrown()
+        self.counter = Counter(time.monotonic())
+        self._probe: asyncio.Task[None] | None = None
         self._inline_tasks: set[asyncio.Future[Any]] = set()  # QoS 1/2 deliveries started by inline fan-outs
         self.connect_timeout = connect_timeout
         self.max_payload = max_payload
@@ -641,6 +648,65 @@ class HardenedBroker(Broker):
                 await server.close_instance()
             self._servers.clear()
             raise
+        self._probe = asyncio.create_task(self._probe_load())
+        self._publish_load(time.monotonic(), Rates())  # admins see "keeping up" from the start
+
+    # -- overload: shed superseded state, never control (load.py) -------------------------------
+    async def _probe_load(self) -> None:
+        """Every PROBE s: how late the loop ran this probe; the load status every STATUS_EVERY s."""
+        status_at = time.monotonic() + STATUS_EVERY
+        while True:
+            due = time.monotonic() + PROBE
+            await asyncio.sleep(PROBE)
+            now = time.monotonic()
+            if self.load.observe(max(0.0, now - due), now):
+                self._load_changed(now)
+            if now >= status_at:
+                status_at = now + STATUS_EVERY
+                self._load_status(now)
+
+    def _load_changed(self, now: float) -> None:
+        rates = self.counter.rates(now)
+        if self.load.overloaded:
+            log.warning("broker overloaded: its event loop runs %.0f ms late (%.0f messages/s from clients); "
+                        "shedding superseded robot state (each state topic at most every %.1f s, latest wins), "
+                        "never commands, calls, heartbeats, presence, acknowledgements or QoS 1/2",
+                        1000 * self.load.lag, rates.received, STATE_EVERY)
+        else:
+            log.info("broker keeps up again; %d superseded state messages were shed", self.counter.total_shed)
+            self.shedder.clear()
+        self._publish_load(now, rates)
+
+    def _load_status(self, now: float) -> None:
+        share = self.outgrown.sample(now, self.load.overloaded)
+        if share is not None:
+            connected = sum(1 for s, _ in self._sessions.values() if s.transitions.state == "connected")
+            log.warning("the fleet has outgrown one broker process: overloaded %.0f%% of the last minute with %d "
+                        "connections; run it on Mosquitto (roslink-mqtt acl export) or the RabbitMQ cluster "
+                        "(roslink-mqtt fleet apply): docs/scaling.md", 100 * share, connected)
+        if self.load.overloaded:
+            self._publish_load(now, self.counter.rates(now))
+
+    def _publish_load(self, now: float, rates: Rates) -> None:
+        """Retained ``$SYS/broker/load`` (admins read it): overloaded or not, since when, rates, the loop's lag."""
+        body = orjson.dumps({"overloaded": self.load.overloaded, "for_s": round(now - self.load.since, 1),
+                             "lag_ms": round(1000 * self.load.take_worst(), 1),
+                             "received_per_s": round(rates.received), "shed_per_s": round(rates.shed),
+                             "shed_total": self.counter.total_shed})
+        task = asyncio.get_running_loop().create_task(self.publish_retained(sys_topic("broker", "load"), body, 0))
+        self._control_tasks.add(task)
+        task.add_done_callback(self._control_tasks.discard)
+
+    def _shed(self, topic: str, qos: int, retain: bool) -> bool:
+        """Count a client's message; True when it is superseded state to shed now (overloaded: load.py)."""
+        self.counter.received += 1
+        if not self.load.overloaded or qos or retain or self.policy is None or not self.policy.conflatable(topic):
+            return False
+        if self.shedder.admit(topic, time.monotonic()):
+            return False
+        self.counter.shed += 1
+        self.counter.total_shed += 1
+        return True
 
     async def _client_connected(self, listener_name: str, reader: ReaderAdapter, writer: WriterAdapter) -> None:
         _LISTENER.set(listener_name)  # this task serves one connection: name it in its log lines
@@ -657,6 +723,8 @@ class HardenedBroker(Broker):
     # -- fix 30: a stop does not wait for connections still logging in ---------------------------
     async def shutdown(self) -> None:
         self._stopping = True
+        if self._probe is not None:
+            self._probe.cancel()
         for task in list(self._connecting):
             task.cancel()
         await super().shutdown()
@@ -835,6 +903,8 @@ class HardenedBroker(Broker):
             retained = message.publish_packet is not None and message.publish_packet.retain_flag
             if self._refused(client_session, handler, message.topic, message.data, retained):
                 return True
+            if self._shed(message.topic, message.qos or 0, retained):
+                return True
         token = _PUB_QOS.set(getattr(message, "qos", None))
         try:
             return await super()._handle_message_delivery(client_session, handler, wait_deliver)
@@ -888,6 +958,8 @@ class HardenedBroker(Broker):
     async def receive_publish(self, session: Session, handler: BrokerProtocolHandler, publish: Publish) -> None:
         """A client's PUBLISH, from its reader: checked, fanned out to the subscribers now, retained if asked."""
         if self._refused(session, handler, publish.topic, publish.payload, publish.retain):
+            return
+        if self._shed(publish.topic, publish.qos, publish.retain):
             return
         if not await self._topic_filtering(session, topic=publish.topic, action=Action.PUBLISH):
             return  # the ACL plugin logged it, once per topic and session
