@@ -192,7 +192,7 @@ from .guard import (
     UnsupportedProtocol,
 )
 from .limits import BrokerLimits, RetainedQuota
-from .load import PROBE, STATE_EVERY, Counter, LoadMonitor, Outgrown, Rates, Shedder
+from .load import PROBE, STATE_EVERY, Counter, LoadMonitor, Outgrown, Rates, Shedder, load_status
 from .outbox import Outbox, Verdict
 from .subscriptions import RetainedTable, SubscriptionTable
 
@@ -689,10 +689,8 @@ class HardenedBroker(Broker):
 
     def _publish_load(self, now: float, rates: Rates) -> None:
         """Retained ``$SYS/broker/load`` (admins read it): overloaded or not, since when, rates, the loop's lag."""
-        body = orjson.dumps({"overloaded": self.load.overloaded, "for_s": round(now - self.load.since, 1),
-                             "lag_ms": round(1000 * self.load.take_worst(), 1),
-                             "received_per_s": round(rates.received), "shed_per_s": round(rates.shed),
-                             "shed_total": self.counter.total_shed})
+        body = orjson.dumps(load_status(self.load.overloaded, now - self.load.since, self.load.take_worst(), rates,
+                                        self.counter.total_shed))
         task = asyncio.get_running_loop().create_task(self.publish_retained(sys_topic("broker", "load"), body, 0))
         self._control_tasks.add(task)
         task.add_done_callback(self._control_tasks.discard)

@@ -92,6 +92,23 @@ class Shedder:
         self._last.clear()
 
 
+# The retained ``$SYS/broker/load`` status (administrators only): field -> meaning (docs/protocol.md lists them)
+LOAD_FIELDS = {
+    "overloaded": "true while the broker sheds superseded robot state because its event loop runs late",
+    "for_s": "seconds since it became overloaded, or since it keeps up again",
+    "lag_ms": "the worst lateness of the event loop since the last status, ms",
+    "received_per_s": "PUBLISH packets a second from clients since the last status",
+    "shed_per_s": "superseded state messages shed a second since the last status",
+    "shed_total": "superseded state messages shed since the broker started",
+}
+
+
+def load_status(overloaded: bool, for_s: float, lag: float, rates: Rates, shed_total: int) -> dict[str, object]:
+    """The body of ``$SYS/broker/load`` (:data:`LOAD_FIELDS`)."""
+    return {"overloaded": overloaded, "for_s": round(for_s, 1), "lag_ms": round(1000 * lag, 1),
+            "received_per_s": round(rates.received), "shed_per_s": round(rates.shed), "shed_total": shed_total}
+
+
 @dataclass
 class Rates:
     """Messages a second over the last status period: received from clients, and state shed."""

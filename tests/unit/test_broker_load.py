@@ -11,13 +11,16 @@ from roslink_mqtt.broker.load import (
     LAG_ENTER,
     LAG_LEAVE,
     LATE_PROBES,
+    LOAD_FIELDS,
     OUTGROWN_REPEAT,
     OUTGROWN_WINDOW,
     STATE_EVERY,
     Counter,
     LoadMonitor,
     Outgrown,
+    Rates,
     Shedder,
+    load_status,
 )
 
 pytestmark = pytest.mark.unit
@@ -67,3 +70,16 @@ def test_a_fleet_overloaded_most_of_a_minute_is_told_once_in_ten_minutes() -> No
     assert all(b - a >= OUTGROWN_REPEAT for a, b in zip(said, said[1:], strict=False)) and len(said) == 3
     calm = Outgrown()
     assert all(calm.sample(float(t), overloaded=t % 10 < 4) is None for t in range(0, 300))
+
+
+def test_the_load_status_has_the_documented_fields() -> None:
+    from pathlib import Path
+
+    body = load_status(True, 3.04, 0.0712, Rates(5123.4, 880.2), 2600)
+    assert body == {"overloaded": True, "for_s": 3.0, "lag_ms": 71.2, "received_per_s": 5123, "shed_per_s": 880,
+                    "shed_total": 2600}
+    assert list(body) == list(LOAD_FIELDS)
+    protocol = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
+    section = protocol[protocol.index("## Broker load"):]
+    for name, meaning in LOAD_FIELDS.items():
+        assert f"| `{name}` |" in section and meaning in section, name
