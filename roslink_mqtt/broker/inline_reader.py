@@ -91,10 +91,15 @@ class InlineReader:
                     break
                 frames = self.parser.feed(data)
                 self._charge()
-                if frames:
-                    await self._pace(frames)
-                    for frame in frames:
-                        await self._handle(frame)
+                pacer = self.gate.pacer
+                for frame in frames:
+                    if pacer is not None and frame.kind == PUBLISH:
+                        # fix 23: a paced login's PUBLISH spends its allowance; over it, this connection's next
+                        # packet waits (and nothing more is read), however many one read brought
+                        wait = pacer.wait_for(1, time.monotonic())
+                        if wait > 0:
+                            await asyncio.sleep(wait)
+                    await self._handle(frame)
         except (TimeoutError, asyncio.TimeoutError):
             handler.handle_read_timeout()
         except Malformed as malformed:  # MQTT-4.8.0-1: the stream is mid-packet; the connection is closed below
@@ -151,17 +156,6 @@ class InlineReader:
         if self._charged and self.gate.budget is not None:
             self.gate.budget.give(self._charged)
         self._charged = 0
-
-    async def _pace(self, frames: list[Frame]) -> None:
-        """Fix 23: a paced login's PUBLISHes spend its allowance; over it, this connection is not read for a while."""
-        pacer = self.gate.pacer
-        if pacer is None:
-            return
-        published = sum(1 for f in frames if f.kind == PUBLISH)
-        if published:
-            wait = pacer.wait_for(published, time.monotonic())
-            if wait > 0:
-                await asyncio.sleep(wait)
 
     async def _acknowledge(self, kind: Any, head: bytes, packet_id: int | None) -> None:
         """PUBACK, PUBREC or PUBCOMP (``kind``, amqtt's class): written at once on a TCP/TLS transport, else through
