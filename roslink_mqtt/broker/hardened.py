@@ -213,6 +213,7 @@ ATTR_DENY_CODE = "roslink.deny_code"  # and, when it is not "not authorized", th
 ATTR_LISTENER = "roslink.listener"
 ATTR_CLIENT_ID = "roslink.client_id"  # the client id the client sent (session.client_id is login-scoped)
 ATTR_OUTBOX = "roslink.outbox"  # Outbox: deliveries under way to this client
+ATTR_HELD = "roslink.held"  # packet id -> bytes: fix 32's QoS 1/2 deliveries holding an outbox slot until acknowledged
 ATTR_FILTERS = "roslink.filters"  # set of the filters this session holds (bounded by max_subscriptions)
 ATTR_CONFLATE = "roslink.conflate"  # Conflator: latest-wins state slots while the client is backed up
 ATTR_BACKLOG = "roslink.backlog"  # (monotonic time, bytes, threshold): the client's last measured backlog
@@ -400,6 +401,21 @@ class HardenedHandler(BrokerProtocolHandler):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._resends: set[asyncio.Future[Any]] = set()  # fix 28: resends of a resumed session, under way
+        self._ended: tuple[Any] | None = None  # how the connection ended, once it has: (DISCONNECT or None,)
+
+    async def handle_disconnect(self, disconnect: Any) -> None:
+        """The first word on how the connection ended is kept (fix 32). amqtt hands it over in a future that exists
+        only from the end of ``start()`` until the broker's client loop has read it; the inline reader can handle a
+        DISCONNECT sent right after CONNECT before that, and the clean close was then taken for a lost link: its
+        will was published (MQTT-3.1.2-10 forbids it)."""
+        if self._ended is None:
+            self._ended = (disconnect,)
+        await super().handle_disconnect(disconnect)
+
+    async def wait_disconnect(self) -> Any:
+        if self._ended is not None:
+            return self._ended[0]
+        return await super().wait_disconnect()
 
     def handle_read_timeout(self) -> None:
         session = self.session
@@ -441,12 +457,25 @@ class HardenedHandler(BrokerProtocolHandler):
         if not task.cancelled() and task.exception() is not None:
             log.debug("a resend ended: %s", task.exception())
 
+    def _settled(self, pid: int | None) -> None:
+        """Delivery ``pid`` is acknowledged (or forgotten): out of flight, and a fix-32 delivery's outbox slot is free
+        (it held one until then, as amqtt's delivery task did: a client that never acknowledges fills its outbox)."""
+        session = self.session
+        if session is None or pid is None:
+            return
+        session.inflight_out.pop(pid, None)
+        held = session.attributes.get(ATTR_HELD)
+        if held is not None and (size := held.pop(pid, None)) is not None:
+            outbox: Outbox | None = session.attributes.get(ATTR_OUTBOX)
+            if outbox is not None:
+                outbox.done(size)
+
     def _keep_in_flight(self, app_message: Any) -> None:
         session = self.session
         assert session is not None
         kept = session.inflight_out
         if app_message.packet_id not in kept and len(kept) >= MAX_IN_FLIGHT:
-            kept.pop(next(iter(kept)))
+            self._settled(next(iter(kept)))
             _log_once(session, "in-flight-full", logging.WARNING, "%s keeps %d unacknowledged QoS 1/2 deliveries; "
                       "forgetting the oldest", describe_session(session), MAX_IN_FLIGHT)
         kept[app_message.packet_id] = app_message
@@ -473,7 +502,7 @@ class HardenedHandler(BrokerProtocolHandler):
         app_message.publish_packet = packet
         app_message.puback_packet = await self._await_ack(self._puback_waiters, pid)
         if app_message.puback_packet is not None:
-            self.session.inflight_out.pop(pid, None)
+            self._settled(pid)
 
     async def _handle_qos2_message_flow(self, app_message: Any) -> None:
         if app_message.direction != OUTGOING or self.session is None:
@@ -497,7 +526,7 @@ class HardenedHandler(BrokerProtocolHandler):
         await self._send_packet(app_message.pubrel_packet)
         app_message.pubcomp_packet = await self._await_ack(self._pubcomp_waiters, pid)
         if app_message.pubcomp_packet is not None and self.session is not None:
-            self.session.inflight_out.pop(pid, None)
+            self._settled(pid)
 
     def write_now(self, data: bytes) -> bool:
         """Write ``data`` (whole packets) to a TCP/TLS client's transport at once; False: use ``_send_packet``."""
@@ -519,6 +548,7 @@ class HardenedHandler(BrokerProtocolHandler):
         pid = session.next_packet_id
         message = OutgoingApplicationMessage(pid, topic, qos, data, retain)
         self._keep_in_flight(message)
+        session.attributes.setdefault(ATTR_HELD, {})[pid] = len(data)  # its outbox slot, until acknowledged
         message.publish_packet = message.build_publish_packet()  # set: a resend goes with DUP=1
         transport.write(publish_packet_bytes(topic, data, qos, retain, pid))
         return True
@@ -528,7 +558,7 @@ class HardenedHandler(BrokerProtocolHandler):
         if pid in self._puback_waiters or self.session is None:
             await super().handle_puback(puback)
         else:  # a delivery whose wait ended: acknowledged all the same
-            self.session.inflight_out.pop(pid, None)
+            self._settled(pid)
 
     async def handle_pubrec(self, pubrec: Any) -> None:
         message = self.session.inflight_out.get(pubrec.packet_id) if self.session is not None else None
@@ -554,7 +584,7 @@ class HardenedHandler(BrokerProtocolHandler):
         if pubcomp.packet_id in self._pubcomp_waiters or self.session is None:
             await super().handle_pubcomp(pubcomp)
         else:
-            self.session.inflight_out.pop(pubcomp.packet_id, None)
+            self._settled(pubcomp.packet_id)
 
 
 class HardenedBroker(Broker):
@@ -1140,8 +1170,7 @@ class HardenedBroker(Broker):
             return None
         if (qos and self.inline and data is not None and isinstance(handler, HardenedHandler)
                 and handler.deliver_now(topic, data, qos, retain)):  # fix 32: no task, in order with QoS 0
-            outbox.done(size)
-            return None
+            return None  # its outbox slot is freed when it is acknowledged (HardenedHandler._settled)
         task = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))
         task.add_done_callback(lambda _t: outbox.done(size))
         return task

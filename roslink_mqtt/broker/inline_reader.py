@@ -130,8 +130,8 @@ class InlineReader:
             return await asyncio.wait_for(self.stream.read(READ_SIZE), timeout)
         except (TimeoutError, asyncio.TimeoutError):
             if large and self.gate.piece_timeout > 0 and (keep_alive is None or self.gate.piece_timeout < keep_alive):
-                why = (f"a {self.parser.announced}-byte packet stopped arriving: {self.parser.held} bytes in "
-                       f"{self.gate.piece_timeout:g} s")
+                why = (f"the rest of a {self.parser.announced}-byte packet did not arrive within "
+                       f"{self.gate.piece_timeout:g} s ({self.parser.held} bytes arrived)")
                 log.warning("closing %s: %s", self.gate.describe(), why)
                 raise PacketStalled(why) from None
             raise

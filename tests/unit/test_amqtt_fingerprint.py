@@ -125,6 +125,10 @@ RELIED_ON: dict[str, str] = {
                                                                 "errors (fixes 1, 13, 14)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._send_packet": "called (fixes 28, 32)",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_pingreq": "called by the inline reader (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.wait_disconnect": "wrapped: the first word on how a "
+                                                                                "connection ended is kept (fix 32)",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.start": "creates the disconnect waiter only after the "
+                                                                      "reader runs (why fix 32 keeps the first word)",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_connect": "a second CONNECT: called by the "
                                                                                "inline reader (fix 32)",
     "amqtt.mqtt.protocol.broker_handler:Subscription": "built by the inline reader for _handle_subscription (fix 32)",
