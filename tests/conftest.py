@@ -54,7 +54,8 @@ FOLDER_MARKERS = ("unit", "integration", "security", "browser")
 # after its wait, a bridge missed its broker's answer by 50 ms).
 ALONE = ("tests/security/", "tests/integration/test_weak_link.py", "tests/integration/test_presence_flood.py",
          "tests/integration/test_large_slow_viewer.py", "tests/integration/test_rabbitmq_cluster.py",
-         "tests/integration/test_wss.py")  # the last: how far 1.5 s of twists move the robot (0.13 m once, beside)
+         "tests/integration/test_wss.py",  # how far 1.5 s of twists move the robot (0.13 m once, beside)
+         "tests/integration/test_broker_overload.py")  # floods the broker on purpose
 
 # Two at a time (`pytest -n 2 --dist loadfile -m "alone and not solo"`): a flood beside a flood is to each about
 # what `stress-ng --cpu 1` is to the suite, and their lines (round trips) had 5x to spare under that. Alone in the
