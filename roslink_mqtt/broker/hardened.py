@@ -402,6 +402,17 @@ class HardenedHandler(BrokerProtocolHandler):
         super().__init__(*args, **kwargs)
         self._resends: set[asyncio.Future[Any]] = set()  # fix 28: resends of a resumed session, under way
         self._ended: tuple[Any] | None = None  # how the connection ended, once it has: (DISCONNECT or None,)
+        self.started = asyncio.Event()  # set when start() has finished: the inline reader handles packets from then
+
+    async def start(self) -> None:
+        """amqtt's start, then the inline reader may handle packets (fix 32). amqtt starts the reader first and then,
+        in the same ``start()``, resends what a resumed session had in flight and makes its disconnect waiter: a
+        SUBSCRIBE read inline before that had its retained QoS 1 message sent, then sent again as a resend (one
+        run in 150 under load), and a DISCONNECT read before the waiter existed was taken for a lost link."""
+        try:
+            await super().start()
+        finally:
+            self.started.set()
 
     async def handle_disconnect(self, disconnect: Any) -> None:
         """The first word on how the connection ended is kept (fix 32). amqtt hands it over in a future that exists

@@ -83,6 +83,7 @@ class InlineReader:
         """Read until the connection ends; then as amqtt's loop does: report the close, stop the handler."""
         handler = self.handler
         handler._reader_ready.set()
+        await handler.started.wait()  # amqtt's start() finishes first: its resends, its disconnect waiter
         keep_alive = self.session.keep_alive if self.session.keep_alive and self.session.keep_alive > 0 else None
         try:
             while True:

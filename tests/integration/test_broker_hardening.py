@@ -483,6 +483,41 @@ def test_a_subscription_is_in_force_for_what_the_same_write_sends_after_it(tmp_p
     asyncio.run(scenario())
 
 
+@pytest.mark.parametrize("inline", [True, False], ids=["inline", "amqtt"])
+def test_a_subscribe_sent_with_the_connect_gets_its_retained_message_once(tmp_path: Path, inline: bool) -> None:
+    """CONNECT and SUBSCRIBE in one write: the SUBSCRIBE is there before the connection's handler has started.
+    amqtt starts the reader, then resends what the session had in flight; an inline reader that handled the
+    SUBSCRIBE meanwhile had its retained QoS 1 message in flight already, and it went out twice (a clean-clone
+    run's security test saw it). Exactly one copy, and nothing more."""
+    from roslink_mqtt.broker.frames import FrameParser, read_publish
+    from tests.support.rawmqtt import connect_packet, publish_packet, subscribe_packet
+
+    async def scenario() -> None:
+        async with anonymous_broker(inline) as (_broker, port):
+            _pr, pw = await asyncio.open_connection("127.0.0.1", port)
+            pw.write(connect_packet("keeper", None, None)
+                     + publish_packet("robot/provide/svc", b"offer", qos=1, retain=True, packet_id=1))
+            await _pr.readexactly(4 + 4)  # CONNACK, PUBACK
+            for n in range(5):
+                reader, writer = await asyncio.open_connection("127.0.0.1", port)
+                writer.write(connect_packet(f"late-{n}", None, None) + subscribe_packet(["robot/#"], 1, qos=1))
+                parser, got = FrameParser(lambda _kind: 0, lambda: "test"), []
+                try:
+                    async with asyncio.timeout(0.7):
+                        while True:
+                            for frame in parser.feed(await reader.read(4096)):
+                                if frame.kind == 3:
+                                    publish = read_publish(frame.flags, frame.body)
+                                    got.append((publish.topic, publish.payload, publish.retain, publish.dup))
+                except TimeoutError:
+                    pass
+                assert got == [("robot/provide/svc", b"offer", True, False)], got
+                writer.close()
+            pw.close()
+
+    asyncio.run(scenario())
+
+
 def test_a_qos1_subscriber_gets_a_clients_qos1_message_before_the_qos0_ones_sent_after_it(tmp_path: Path) -> None:
     """The robot follows its operator's presence at QoS 1 and its twists at QoS 0: the presence sent first must be
     written to the robot first, or the robot refuses the twist. amqtt delivers QoS 1 through a Task of its own while

@@ -106,7 +106,8 @@ RELIED_ON: dict[str, str] = {
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.mqtt_acknowledge_subscription": "called (fix 2)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler.__init__": "creates reader, writer, session, _puback_waiters, "
                                                             "_pubrec_waiters, _pubcomp_waiters (fix 28)",
-    "amqtt.mqtt.protocol.handler:ProtocolHandler.start": "calls _retry_deliveries when a handler starts (fix 28)",
+    "amqtt.mqtt.protocol.handler:ProtocolHandler.start": "calls _retry_deliveries when a handler starts (fix 28), "
+                                                         "after starting the reader (fix 32 waits for it)",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._stop_waiters": "cancels the acknowledgement waiters; fix 28 "
                                                                  "keeps the message in inflight_out then",
     "amqtt.mqtt.protocol.handler:ProtocolHandler._retry_deliveries": "replaced: resends inflight_out on resume "
