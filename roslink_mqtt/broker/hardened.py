@@ -112,6 +112,11 @@ behaviour.
     ``await``, wraps each header read in a Task (``wait_for``), runs a Task per packet and passes each PUBLISH through
     two queues and two more loops. The packet gate's checks (14, 23, 27, 29) hold on this path too. WebSocket
     connections, and brokers whose plugins listen to amqtt's per-packet or per-message events, keep amqtt's reader.
+33. **A CONNECT costs little until its login is let in** (:func:`~.connect.read_connect`): stock builds a
+    ``transitions`` state machine for every attempt's Session before the password is checked (about 150 µs and a
+    reference cycle each; a third of the event loop under a guessing flood). The CONNECT gets stock's checks and
+    answers, its session a three-word connection state (:class:`~.connect.LightSession`), and the protocol handler
+    is made only for a login let in.
 
 amqtt internals relied on (re-diff all of them on any amqtt upgrade):
 
@@ -134,7 +139,8 @@ amqtt internals relied on (re-diff all of them on any amqtt upgrade):
   ``MQTTFixedHeader`` (to decode SUBSCRIBE/UNSUBSCRIBE), ``Subscription``/``UnSubscription``, ``handle_pingreq``,
   ``handle_connect``, ``PluginManager._event_plugin_callbacks`` (filled by ``_load_plugins``).
 * ``BrokerProtocolHandler.handle_unsubscribe`` (replaced, fix 31: an ``UnSubscription`` on ``_pending_subscriptions``),
-  ``BrokerProtocolHandler.init_from_connect`` (a classmethod that builds ``cls(...)``),
+  ``BrokerProtocolHandler.init_from_connect`` (replaced by :func:`~.connect.read_connect`, fix 33: the same checks
+  and answers), ``Session._init_states`` and the ``transitions`` calls made on a session (fix 33 answers them),
   ``handle_read_timeout``, ``handle_connection_closed``, ``mqtt_acknowledge_subscription``;
   ``ProtocolHandler._handle_qos1_message_flow``/``_handle_qos2_message_flow`` (replaced for outgoing messages),
   ``handle_puback``/``handle_pubcomp`` (wrapped), ``_send_packet``, ``_puback_waiters``/``_pubrec_waiters``/
@@ -178,6 +184,7 @@ from .. import netstat
 from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE, sys_topic
 from . import inline_reader
 from .conflate import Conflator
+from .connect import read_connect
 from .frames import Publish
 from .guard import (
     CONNECT,
@@ -789,9 +796,8 @@ class HardenedBroker(Broker):
                             remote_port: int) -> tuple[BrokerProtocolHandler, Session]:
         peer = f"{remote_address}:{remote_port}"
         try:
-            handler, session = await asyncio.wait_for(
-                HardenedHandler.init_from_connect(reader, writer, self.plugins_manager),
-                timeout=self.connect_timeout)
+            session = await asyncio.wait_for(read_connect(reader, writer, self.plugins_manager),
+                                             timeout=self.connect_timeout)  # fix 33
         except TimeoutError as exc:
             log.warning("no CONNECT from %s within %.0f s; closing", peer, self.connect_timeout)
             await _close_quietly(writer)
@@ -830,6 +836,7 @@ class HardenedBroker(Broker):
                 await _close_quietly(writer)
             raise MQTTError(f"{peer}: not authorized")
 
+        handler = HardenedHandler(self.plugins_manager)  # only for a login let in (fix 33)
         if not session.client_id:
             session.client_id = gen_client_id()
             session.attributes[ATTR_CLIENT_ID] = session.client_id

@@ -95,8 +95,9 @@ RELIED_ON: dict[str, str] = {
     "amqtt.broker:BrokerContext": "plugins.py reads sessions, subscriptions, retained_messages and calls "
                                   "retain_message, broadcast_message",
     # -- protocol handlers: HardenedHandler overrides, the broker calls
-    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.init_from_connect": "a classmethod that builds "
-                                                                                  "cls(...): our HardenedHandler",
+    "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.init_from_connect": "replaced by connect.py's "
+                                                                                  "read_connect (fix 33): the "
+                                                                                  "same checks and answers",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_read_timeout": "replaced (fix 1: a no-op in "
                                                                                     "stock)",
     "amqtt.mqtt.protocol.broker_handler:BrokerProtocolHandler.handle_connection_closed": "called to end a "
@@ -146,7 +147,10 @@ RELIED_ON: dict[str, str] = {
     # -- sessions and messages
     "amqtt.session:Session.__init__": "creates attributes, keep_alive, inflight_out, retained_messages, will_* "
                                       "(all read or set by hardened.py)",
-    "amqtt.session:Session._init_states": "the 'connected'/'disconnected' states and the disconnect() transition",
+    "amqtt.session:Session._init_states": "replaced by LightSession's (fix 33): connect.py's ConnectionState "
+                                          "answers the calls made on its state machine the same way",
+    "amqtt.session:Session._on_enter_connected": "called by ConnectionState.connect (fix 33)",
+    "amqtt.session:Session._on_enter_disconnected": "called by ConnectionState.disconnect (fix 33)",
     "amqtt.session:Session.next_packet_id": "packet ids skip those still in flight (fix 28 keeps them there)",
     "amqtt.session:ApplicationMessage": "the *_packet slots and build_publish_packet (fix 28)",
     "amqtt.session:OutgoingApplicationMessage": "direction == OUTGOING selects our QoS flows (fix 28)",
