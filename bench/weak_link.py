@@ -1,6 +1,6 @@
 """Benchmark: the demo robot on a thin uplink, the bridge's scheduled uplink next to plain FIFO.
 
-    .venv/bin/python bench/weak_link.py [--seconds 20] [--rates 1000,256,64] [--modes fifo,scheduled,rosbridge]
+    .venv/bin/python bench/weak_link.py [--seconds 20] [--rates 1000,256,64] [--modes fifo,scheduled,rosbridge,zenoh]
         [--models visible,hidden] [--changes lossy,fall,dead]
 
 The robot's bridge reaches the embedded broker through ``roslink_mqtt.shaped_link``: 40 ms each way, an uplink
@@ -16,7 +16,10 @@ again.
 Each row runs once per mode in one run: the fleet file's ``bridge.uplink: fifo`` (every message handed to the
 network at once: the behaviour before the scheduler, and rosbridge's and foxglove_bridge's), ``scheduled``, and
 ``rosbridge``: the peer (``rosbridge-server-rs``, ``make bench-peers``) serving the same sim's odometry and scan to
-WebSocket clients across the same link, throttled to our rates with ``queue_length`` 1. Every row runs on each link
+WebSocket clients across the same link, throttled to our rates with ``queue_length`` 1, and ``zenoh``: the same two
+streams put with Zenoh's priorities (odometry express at ``INTERACTIVE_HIGH``, the scan at ``DATA_LOW``, both dropped
+rather than queued when Zenoh's queue is full) by a client on the robot's side to a Zenoh router across the same
+link (bench/zenoh_peer.py says how that stands for ``zenoh-bridge-ros2dds``). Every row runs on each link
 model (``visible``: a modem whose queue backs up into the robot's socket; ``hidden``: a hop that acknowledges at
 once), and the changing links after them (``--changes``: 2 % loss stalls with jitter, a fall from 1 Mbit/s to
 128 kbit/s, a 4 s dead spot; the time to fresh after each change is in their rows).
@@ -68,6 +71,7 @@ ESTOP_TOPIC = "/emergency_stop"  # where the demo fleet's emergency_stop rule pu
 BROKER_LOG_LEVEL = os.environ.get("WEAK_BROKER_LOG", "WARNING")  # INFO shows every connection (with --keep-logs)
 BRIDGE_LOG_LEVEL = os.environ.get("WEAK_BRIDGE_LOG", "WARNING")  # DEBUG: the uplink's rates every window (--keep-logs)
 STOP_PERIOD = 3.0  # s between alice's emergency stops
+PEERS = ("rosbridge", "zenoh")  # rows of what users would pick instead: odometry and the scan, no bridge of ours
 
 
 CHANGE_AT = 14.0  # s after the link starts: a changing row's change (the robot is online and warmed up by then)
@@ -413,6 +417,51 @@ def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], r
     return run
 
 
+def zenoh_run(case: Case, seconds: float, work: Path, env: dict[str, str], router: Any, router_port: int) -> Run:
+    """The Zenoh row: the same sim's odometry (thinned to 10 Hz) and scan, put with Zenoh's priorities by a client
+    on the robot's side (bench/zenoh_peer.py) across the same link to a Zenoh router on the far side."""
+    run = Run(case, "zenoh")
+    router.clear()
+    with ExitStack() as phase:
+        link_port = lat.free_port()
+        lat.start_child(phase, [sys.executable, "-m", "roslink_mqtt.shaped_link", "--listen",
+                                f"127.0.0.1:{link_port}", "--to", f"127.0.0.1:{router_port}", "--delay-ms",
+                                str(DELAY_MS), *case.link_args(), *(["--hidden-queue"] if case.hidden else [])],
+                        work / f"link-zenoh-{link_port}.log", env, port=link_port, what="shaped link")
+        link_up = time.monotonic()
+        log = work / f"zenoh-robot-{link_port}.log"
+        lat.start_child(phase, [sys.executable, str(Path(__file__).with_name("zenoh_peer.py")), "--robot",
+                                "--connect", f"tcp/127.0.0.1:{link_port}"], log, env)
+        if not router.first.wait(30.0):
+            run.note = f"no odometry came through Zenoh within 30 s: {lat.tail(log, 3)}"
+            return run
+        time.sleep(WARMUP)
+        began = time.monotonic()
+        seconds = window(run, link_up, began, seconds)
+        if run.note:
+            return run
+        time.sleep(seconds)
+        end = time.monotonic()
+        run.seconds = end - began
+        run.motion = router.between("odom", began, end)
+        run.ages["global_motion"] = [age for _, age in run.motion]
+        run.ages["range_finder_data"] = [age for _, age in router.between("scan", began, end)]
+    return run
+
+
+def start_zenoh(stack: ExitStack) -> tuple[Any, int, str]:
+    """The Zenoh router for the Zenoh rows: (it, its port, "") or (None, 0, why it cannot run)."""
+    import zenoh_peer
+
+    try:
+        port = lat.free_port()
+        router = zenoh_peer.ZenohViewer(port)
+    except ImportError as err:
+        return None, 0, f"zenoh could not run: {err} (`make bench-peers` installs eclipse-zenoh)"
+    stack.callback(router.close)
+    return router, port, ""
+
+
 def one_run(case: Case, mode: str, seconds: float, work: Path, env: dict[str, str], port: int, viewer: Viewer,
             current: list[Run | None], watch: StopWatch | None = None) -> Run:
     run = Run(case, mode)
@@ -584,8 +633,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--seconds", type=float, default=12.0, help="measured per row (default: %(default)s)")
     p.add_argument("--rates", default="1000,256,64", help="uplinks in kbit/s (default: %(default)s; 1000 adds the "
                                                           "camera + map row)")
-    p.add_argument("--modes", default="fifo,scheduled,rosbridge", help="bridge.uplink modes, and rosbridge: the peer "
-                   "(rosbridge-server-rs, `make bench-peers`) serving the same sim's odometry across the same link "
+    p.add_argument("--modes", default="fifo,scheduled,rosbridge,zenoh", help="bridge.uplink modes, and the peers "
+                   "(`make bench-peers`): rosbridge (rosbridge-server-rs) serving the same sim's odometry and scan "
+                   "across the same link, zenoh (eclipse-zenoh with priorities, to a router; bench/zenoh_peer.py) "
                    "(default: %(default)s)")
     p.add_argument("--models", default="visible,hidden", help="link models: visible (a modem: the queue backs up "
                    "into the robot's socket), hidden (a hop that acknowledges at once hides it) (default: %(default)s)")
@@ -601,8 +651,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except ValueError:
         p.error(f"--rates: expected kbit/s numbers, got {args.rates!r}")
     args.mode_list = [m.strip() for m in args.modes.split(",") if m.strip()]
-    if not set(args.mode_list) <= {"fifo", "scheduled", "rosbridge"}:
-        p.error("--modes: fifo, scheduled and/or rosbridge")
+    if not set(args.mode_list) <= {"fifo", "scheduled", *PEERS}:
+        p.error("--modes: fifo, scheduled, rosbridge and/or zenoh")
     args.model_list = [m.strip() for m in args.models.split(",") if m.strip()]
     if not args.model_list or not set(args.model_list) <= {"visible", "hidden"}:
         p.error("--models: visible and/or hidden")
@@ -645,12 +695,16 @@ def main(argv: list[str] | None = None) -> int:
         stops.start()
         stack.callback(stop.set)
         rosbridge_port, no_rosbridge = start_peer(stack, work, env) if "rosbridge" in args.mode_list else (0, "")
+        router, router_port, no_zenoh = start_zenoh(stack) if "zenoh" in args.mode_list else (None, 0, "")
         try:
             for case in cases(args.rate_list, args.model_list, args.change_list):
                 for mode in args.mode_list:
-                    if mode == "rosbridge" and case.extras:
-                        continue  # (the peer row carries odometry only)
-                    if mode == "rosbridge":
+                    if mode in PEERS and case.extras:
+                        continue  # (the peer rows carry odometry and the scan only)
+                    if mode == "zenoh":
+                        run = zenoh_run(case, args.seconds, work, env, router, router_port) if not no_zenoh \
+                            else Run(case, mode, note=no_zenoh)
+                    elif mode == "rosbridge":
                         run = rosbridge_run(case, args.seconds, work, env, rosbridge_port) if not no_rosbridge \
                             else Run(case, mode, note=no_rosbridge)
                     else:

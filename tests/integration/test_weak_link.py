@@ -242,6 +242,103 @@ def test_behind_a_hiding_hop_a_fall_to_an_eighth_is_followed(tmp_path) -> None:
     assert link is not None and link.path is not None and link.path.rate_kbit_s < 2 * UPLINK_KBIT, link
 
 
+def test_a_dead_spot_shorter_than_the_keepalive_loses_no_connection_and_no_disk_event(tmp_path) -> None:
+    """Behind a hiding hop, the link goes dead both ways for 3 s (a tunnel, a yard behind a hall: nothing crosses,
+    yet the connections stay open) while an idle robot with the default 5 s keep-alive publishes poses and
+    ``buffer: disk`` events. The bridge keeps every connection (no last will at the viewer, no keep-alive drop in
+    its log), stops nothing (nobody drives: the broker's silence stops a robot only while it moves), every event
+    published before, during and after the dead spot arrives, in order, and poses are fresh again within seconds
+    of the link's return (issue 42)."""
+    from nav_msgs.msg import Odometry
+    from std_msgs.msg import String
+
+    dead_at, dead, after = 9.0, 3.0, 7.0  # s from the link's start
+    rules = ("    rules: &rules\n"
+             "      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,\n"
+             "         mqtt_topic: state/pose, preset: global_motion}\n"
+             "      - {direction: ros_to_mqtt, ros_topic: /wl/events, ros_type: std_msgs/msg/String,\n"
+             "         mqtt_topic: state/events, mqtt_qos: 1, buffer: disk}\n")
+    settings = f"      keepalive: 5\n      uplink: scheduled\n      buffer_dir: {tmp_path / 'spool'}\n"
+    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
+        "      keepalive: 2\n", settings, 1))
+    poses: list[tuple[float, float]] = []  # (arrival, age)
+    events: list[int] = []
+    offline = threading.Event()
+
+    def on_message(_c, _u, m) -> None:
+        now = time.time()
+        leaf = m.topic.rsplit("/", 1)[-1]
+        if leaf == "pose":
+            poses.append((now, now - orjson.loads(m.payload)["payload"]["time_boot_ms"] / 1000))
+        elif leaf == "events":
+            events.append(int(orjson.loads(m.payload)["data"][:8]))
+        elif leaf == "heartbeat" and m.payload and orjson.loads(m.payload)["payload"]["system_status"] == 8:
+            offline.set()  # the bridge's last will: the broker saw a connection of the robot go
+
+    probe = RosProbe()
+    stop = threading.Event()
+    published: list[int] = []
+    try:
+        odom = probe.publisher(Odometry, "/wl/odom")
+        event_pub = probe.publisher(String, "/wl/events")
+
+        def publish() -> None:
+            n = 0
+            while not stop.wait(0.1):  # poses at 10 Hz, an event every 0.2 s
+                msg = Odometry()
+                now = time.time()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+                odom.publish(msg)
+                n += 1
+                if n % 2 == 0 and poses:  # from the first pose on: the bridge is online
+                    event_pub.publish(String(data=f"{len(published):<8}" + "e" * 200))
+                    published.append(len(published))
+
+        with EmbeddedBrokerProcess(tmp_path, fleet) as broker, TestClient(broker.port, "bob", "bob-demo") as bob:
+            assert bob.connect() == 0
+            bob.client.on_message = on_message
+            bob.subscribe("roslink/turtle1/state/#", qos=1)
+            bob.subscribe("roslink/turtle1/heartbeat", qos=1)
+            link_port = free_port()
+            with run(["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{link_port}", "--to",
+                      f"127.0.0.1:{broker.port}", "--delay-ms", "20", "--jitter-ms", "0", "--hidden-queue",
+                      "--phases", f"{dead_at:g}:256,{dead:g}:0,600:256", "--down-phases",
+                      f"{dead_at:g}:1024,{dead:g}:0,600:1024", "--phases-once"], tmp_path / "link.log"), \
+                    run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1", "--url",
+                         f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")):
+                wait_for_port(link_port, 10)
+                link_up = time.time()  # its phases count from here
+                threading.Thread(target=publish, daemon=True).start()
+                deadline = time.monotonic() + 30
+                while not poses and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                log = tmp_path / "bridge.log"
+                assert poses, f"no pose arrived: {log.read_text()[-2000:]}"
+                assert time.time() < link_up + dead_at - 2.0, "the robot came online too late for the dead spot"
+                time.sleep(max(0.0, link_up + dead_at + dead + after - time.time()))
+                stop.set()
+                wanted = list(published)
+                deadline = time.monotonic() + 15
+                while not set(wanted) <= set(events) and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                log_text = log.read_text()
+    finally:
+        stop.set()
+        probe.close()
+    back = link_up + dead_at + dead
+    assert len(wanted) > 5 * (dead + after), f"only {len(wanted)} events were published"
+    assert set(wanted) <= set(events), f"events lost: {sorted(set(wanted) - set(events))[:10]}"
+    first = list(dict.fromkeys(events))  # QoS 1: a resend may repeat one; first arrivals in order
+    assert first == sorted(first), f"events out of order: {first}"
+    assert not offline.is_set(), "a connection of the bridge went (its last will was published)"
+    assert "Keep alive timeout" not in log_text and "failsafe stop" not in log_text, log_text[-3000:]
+    stale = [at for at, age in poses if at > back and age >= 0.8]
+    fresh_at = max(stale, default=back) - back
+    record_measurement("hidden-queue uplink, 3 s dead spot: poses fresh again after the return", fresh_at, 5.0)
+    assert fresh_at < 5.0, f"poses stale until {fresh_at:.1f} s after the link returned"
+    assert [at for at, _ in poses if at > back + fresh_at], "no pose after the link returned"
+
+
 @pytest.mark.parametrize("conflate", [True, False], ids=["conflated", "fifo-control"])
 def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp_path, conflate: bool) -> None:
     """A phone on a 256 kbit/s downlink subscribes to a robot's camera (1.6 Mbit/s) and pose: the embedded broker
