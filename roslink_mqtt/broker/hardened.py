@@ -201,6 +201,7 @@ from .guard import (
 from .limits import BrokerLimits, RetainedQuota
 from .load import PROBE, STATE_EVERY, Counter, LoadMonitor, Outgrown, Rates, Shedder, load_status
 from .outbox import Outbox, Verdict
+from .refusal_log import RefusalLog
 from .subscriptions import RetainedTable, SubscriptionTable
 
 log = logging.getLogger("roslink_mqtt.broker")
@@ -622,6 +623,7 @@ class HardenedBroker(Broker):
         # overload (load.py): superseded robot state is shed while the event loop runs late; control never is
         self.load, self.shedder, self.outgrown = LoadMonitor(), Shedder(), Outgrown()
         self.counter = Counter(time.monotonic())
+        self.refusals = RefusalLog(log)  # refused logins: line by line while few, counted in a flood
         self._probe: asyncio.Task[None] | None = None
         self._inline_tasks: set[asyncio.Future[Any]] = set()  # QoS 1/2 deliveries started by inline fan-outs
         self.connect_timeout = connect_timeout
@@ -709,6 +711,7 @@ class HardenedBroker(Broker):
             now = time.monotonic()
             if self.load.observe(max(0.0, now - due), now):
                 self._load_changed(now)
+            self.refusals.tick()
             if now >= status_at:
                 status_at = now + STATUS_EVERY
                 self._load_status(now)
@@ -825,7 +828,7 @@ class HardenedBroker(Broker):
 
         reason = await self._admit(session)
         if reason is not None:
-            log.warning("refused %s: %s", describe_session(session), reason)
+            self.refusals.refused(lambda: describe_session(session), reason, session.remote_address)
             connack = ConnackPacket.build(0, session.attributes.pop(ATTR_DENY_CODE, NOT_AUTHORIZED))
             try:
                 await connack.to_stream(writer)
