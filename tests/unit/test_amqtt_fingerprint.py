@@ -15,10 +15,7 @@ new sources: ``python -m tests.unit.test_amqtt_fingerprint --write``.
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib
 import importlib.metadata
-import inspect
 import json
 import sys
 import tomllib
@@ -27,12 +24,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.fingerprint import CHANGED, GONE, UNLISTED, differences, digest, fingerprints, report, source_of
+
 pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORD = Path(__file__).with_name("amqtt_fingerprint.json")
 WRITE = "python -m tests.unit.test_amqtt_fingerprint --write"
-CHANGED, GONE, UNRECORDED, UNLISTED = "changed", "gone", "not recorded", "no longer listed"
 
 # ``module:qualified.name`` -> why we depend on it. A name resolves only in the class that defines it itself, so a
 # method that moves to another class counts as gone: whoever calls it may have changed too.
@@ -183,49 +181,9 @@ def installed_version() -> str:
     return importlib.metadata.version("amqtt")
 
 
-def source_of(name: str) -> str | None:
-    """The source text of ``module:qualified.name``, or None when amqtt no longer has it (where we said)."""
-    module_name, _, qualname = name.partition(":")
-    try:
-        obj: object = importlib.import_module(module_name)
-        for attr in qualname.split("."):
-            # a class attribute must be the class's own: inherited or moved elsewhere is "gone"
-            obj = vars(obj)[attr] if inspect.isclass(obj) else getattr(obj, attr)
-        if isinstance(obj, property):
-            obj = obj.fget
-        if isinstance(obj, classmethod | staticmethod):
-            obj = obj.__func__
-        return inspect.getsource(obj)  # type: ignore[arg-type]
-    except (ImportError, AttributeError, KeyError, TypeError, OSError):
-        return None
-
-
-def digest(source: str) -> str:
-    return hashlib.sha256(source.encode("utf-8")).hexdigest()
-
-
 def current_fingerprints(names: Mapping[str, str] = RELIED_ON) -> dict[str, str | None]:
     """name -> sha256 of its source today (None: it cannot be found)."""
-    out: dict[str, str | None] = {}
-    for name in names:
-        source = source_of(name)
-        out[name] = digest(source) if source is not None else None
-    return out
-
-
-def differences(recorded: Mapping[str, str], current: Mapping[str, str | None]) -> list[tuple[str, str]]:
-    """(name, what) for every name whose source changed or disappeared, and for a list and record out of step."""
-    out = []
-    for name in sorted(set(recorded) | set(current)):
-        if name not in current:
-            out.append((name, UNLISTED))
-        elif name not in recorded:
-            out.append((name, UNRECORDED))
-        elif current[name] is None:
-            out.append((name, GONE))
-        elif current[name] != recorded[name]:
-            out.append((name, CHANGED))
-    return out
+    return fingerprints(names)
 
 
 def load_record() -> dict[str, object]:
@@ -233,8 +191,7 @@ def load_record() -> dict[str, object]:
 
 
 def _report(found: list[tuple[str, str]]) -> str:
-    lines = [f"  {what}: {name}" + (f" -- {RELIED_ON[name]}" if name in RELIED_ON else "") for name, what in found]
-    return "\n".join(lines)
+    return report(found, RELIED_ON)
 
 
 def test_the_installed_amqtt_is_the_recorded_version() -> None:

@@ -3,9 +3,9 @@
 pyproject.toml pins paho-mqtt to a minor release (2.2), and the tests that use these internals run against real
 brokers; but a patch release may still change a private method without breaking an import, and the uplink would
 then misjudge its queue, or failover connect to the dead node, silently. So, as for amqtt
-(tests/unit/test_amqtt_fingerprint.py, whose helpers this uses), the source of each internal we rely on is hashed
-and compared with ``paho_fingerprint.json``. After re-reading every reported name against its user below, record
-the new sources: ``python -m tests.unit.test_paho_fingerprint --write``.
+(tests/unit/test_amqtt_fingerprint.py; both use tests/support/fingerprint.py), the source of each internal we
+rely on is hashed and compared with ``paho_fingerprint.json``. After re-reading every reported name against its
+user below, record the new sources: ``python -m tests.unit.test_paho_fingerprint --write``.
 """
 
 from __future__ import annotations
@@ -18,10 +18,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.unit.test_amqtt_fingerprint import ROOT, current_fingerprints, differences, digest, source_of
+from tests.support.fingerprint import differences, digest, source_of
+from tests.support.fingerprint import fingerprints as current_fingerprints
 
 pytestmark = pytest.mark.unit
 
+ROOT = Path(__file__).resolve().parents[2]
 RECORD = Path(__file__).with_name("paho_fingerprint.json")
 WRITE = "python -m tests.unit.test_paho_fingerprint --write"
 
@@ -49,6 +51,9 @@ RELIED_ON: dict[str, str] = {
                                                 "its PINGREQ: MqttLink.heard_while_writing moves that clock while a "
                                                 "paced lane's message leaves",
     "paho.mqtt.client:Client.reconnect": "connects to _host/_port with _client_id, which failover sets before it",
+    "paho.mqtt.client:Client._messages_reconnect_reset_out": "a QoS 1 message still waiting for its PUBACK is sent "
+                                                             "again on reconnect (a heartbeat may arrive twice: "
+                                                             "tests/integration/test_failsafe_faults.py)",
 }
 
 
