@@ -420,6 +420,8 @@ def rosbridge_run(case: Case, seconds: float, work: Path, env: dict[str, str], r
 def zenoh_run(case: Case, seconds: float, work: Path, env: dict[str, str], router: Any, router_port: int) -> Run:
     """The Zenoh row: the same sim's odometry (thinned to 10 Hz) and scan, put with Zenoh's priorities by a client
     on the robot's side (bench/zenoh_peer.py) across the same link to a Zenoh router on the far side."""
+    import zenoh_peer
+
     run = Run(case, "zenoh")
     router.clear()
     with ExitStack() as phase:
@@ -431,7 +433,7 @@ def zenoh_run(case: Case, seconds: float, work: Path, env: dict[str, str], route
         link_up = time.monotonic()
         log = work / f"zenoh-robot-{link_port}.log"
         lat.start_child(phase, [sys.executable, str(Path(__file__).with_name("zenoh_peer.py")), "--robot",
-                                "--connect", f"tcp/127.0.0.1:{link_port}"], log, env)
+                                "--connect", zenoh_peer.locator(link_port)], log, env)
         if not router.first.wait(30.0):
             run.note = f"no odometry came through Zenoh within 30 s: {lat.tail(log, 3)}"
             return run

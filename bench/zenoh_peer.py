@@ -38,6 +38,11 @@ KEY_ODOM, KEY_SCAN = "turtle1/odom", "turtle1/scan"
 ODOM_RATE = 10.0  # Hz: what reaches the far side, like our rows' global_motion
 
 
+def locator(port: int) -> str:
+    """The Zenoh endpoint of a TCP port on loopback (a Zenoh locator, not a URL)."""
+    return f"tcp/127.0.0.1:{port}"
+
+
 def config(mode: str, *, listen: str | None = None, connect: str | None = None) -> Any:
     """A Zenoh configuration on loopback endpoints only, with multicast scouting off."""
     import zenoh
@@ -88,7 +93,7 @@ class ZenohViewer:
         self.timed: dict[str, list[tuple[float, float]]] = {"odom": [], "scan": []}
         self._lock = threading.Lock()
         self.first = threading.Event()
-        self.session = zenoh.open(config("router", listen=f"tcp/127.0.0.1:{port}"))
+        self.session = zenoh.open(config("router", listen=locator(port)))
         self._subs = [self.session.declare_subscriber(KEY_ODOM, lambda s: self._record("odom", s)),
                       self.session.declare_subscriber(KEY_SCAN, lambda s: self._record("scan", s))]
 

@@ -55,6 +55,11 @@ log = logging.getLogger("roslink_mqtt.bridge.actions")
 
 RESULT_GRACE = 5.0  # s a canceled goal may take to send its result before the bridge reports it as failed
 SERVER_WAIT = 2.0  # s a goal waits for its action server to be discovered (a bridge or robot just started)
+# s an action server must have been seen before a goal goes to it: discovery is not symmetric, and Fast DDS (Jazzy)
+# drops a goal response to a client whose reply reader the server has not discovered yet ("failed to send response
+# (timeout)" in the server's log); the goal then waited for an answer that never came (a clean-clone run: a goal
+# sent 0.1 s after the bridge started)
+SERVER_SETTLE = 1.0
 MAX_GOALS_PER_USER = 64  # goals one user may have in flight on one robot
 
 
@@ -101,6 +106,7 @@ class ActionCaller:
                 raise UnknownTypeError(f"actions: {rule.name}: {err}") from None
             self.actions[rule.name] = (rule, cls, ActionClient(node, cls, rule.ros_action, callback_group=group))
         self._goals: dict[tuple[str, str, str], _Goal] = {}
+        self._seen_since: dict[str, float] = {}  # action -> since when its server has been seen (SERVER_SETTLE)
         self._lock = threading.Lock()
         self._inbox: collections.deque[Callable[[], None]] = collections.deque()
 
@@ -159,12 +165,12 @@ class ActionCaller:
         if goal.end_status is not None:  # canceled by the bridge before it was sent
             self._finish(goal, goal.end_status, None, goal.end_reason)
             return
-        _rule, _cls, client = self.actions[goal.action]
-        if not client.server_is_ready():
-            now = time.monotonic()
+        now = time.monotonic()
+        seen = self._server_seen(goal.action, now)
+        if not (seen and now - self._seen_since[goal.action] >= SERVER_SETTLE):
             if goal.waiting_since is None:
                 goal.waiting_since = now  # supervise() tries again until SERVER_WAIT has passed
-            elif now - goal.waiting_since > SERVER_WAIT or goal.cancel_asked:
+            elif (not seen and now - goal.waiting_since > SERVER_WAIT) or goal.cancel_asked:
                 self._status(goal, REJECTED, f"action server not available: {goal.rule.ros_action} "
                                              f"({goal.rule.ros_type})")
                 self._forget(goal)
@@ -178,8 +184,17 @@ class ActionCaller:
             self._status(goal, REJECTED, why)
             self._forget(goal)
             return
+        client = self.actions[goal.action][2]
         future = client.send_goal_async(goal.msg, feedback_callback=lambda fb: self._feedback(goal, fb))
         future.add_done_callback(lambda f: self._responded(goal, f))
+
+    def _server_seen(self, action: str, now: float) -> bool:
+        """Whether ``action``'s server is discovered now; keeps since when (SERVER_SETTLE). Executor."""
+        if not self.actions[action][2].server_is_ready():
+            self._seen_since.pop(action, None)
+            return False
+        self._seen_since.setdefault(action, now)
+        return True
 
     def _servers(self, rule: ActionRule) -> int:
         """How many action servers serve ``rule``'s action (each publishes its goals' status).
@@ -244,6 +259,8 @@ class ActionCaller:
 
     def supervise(self, now: float) -> None:
         """Flush due feedback, cancel goals past their timeout, give up on results that never came (executor)."""
+        for action in self.actions:  # a server seen long enough takes a goal at once (SERVER_SETTLE)
+            self._server_seen(action, now)
         with self._lock:
             goals = list(self._goals.values())
         for goal in goals:

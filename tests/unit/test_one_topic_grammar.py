@@ -63,7 +63,11 @@ def _text(node: ast.AST) -> str | None:
 
 
 def _is_prose(text: str) -> bool:
-    return "\n" in text or " " in text or "://" in text
+    """Text that is no topic: prose, a URL, a Zenoh locator (``tcp/127.0.0.1:7447``: bench/zenoh_peer.py)."""
+    return "\n" in text or " " in text or "://" in text or text.startswith(ZENOH_LOCATOR)
+
+
+ZENOH_LOCATOR = ("tcp/", "udp/", "tls/", "quic/")
 
 
 def _docstrings(tree: ast.AST) -> set[int]:
