@@ -29,6 +29,7 @@ from ..config import verify_password
 from ..config.passwords import DEFAULT_ITERATIONS, VerifiedLogins
 from ..topics import sys_topic
 from .acl import DecisionCache, LiveFleet
+from .admission import Admission
 from .hardened import AMQTT_VERSION, ATTR_DENY_CODE, ATTR_DENY_REASON, describe_session
 from .hashing import HashPool
 from .ratelimit import REFUSE, LoginThrottle
@@ -36,7 +37,6 @@ from .ratelimit import REFUSE, LoginThrottle
 log = logging.getLogger("roslink_mqtt.broker")
 
 ATTR_ACL_CACHE = "roslink.acl"
-ADMISSION_POLL = 0.005  # s between tries for a place among the logins being checked (LoginThrottle.try_begin)
 # Verified against when the login is unknown, so a wrong name costs as long as a wrong password (of a hash made
 # with the default iteration count).
 _DUMMY_HASH = f"$7${DEFAULT_ITERATIONS}$AAAAAAAAAAAAAAAA$" + "A" * 86 + "=="
@@ -66,6 +66,7 @@ class FleetAuthPlugin(BaseAuthPlugin):
         super().__init__(context)
         self.verified = VerifiedLogins()  # a login's PBKDF2 once, not on every reconnect
         self.hashing = HashPool()  # the slow checks: one thread, a bounded wait (broker/hashing.py)
+        self.admission = Admission()  # logins waiting for a place among those being checked (broker/admission.py)
 
     async def authenticate(self, *, session: Session) -> bool | None:
         live: LiveFleet = self.config.fleet
@@ -74,19 +75,16 @@ class FleetAuthPlugin(BaseAuthPlugin):
         username = session.username
         admitted: tuple[tuple[str, str], ...] = ()
         if throttle is not None:
-            login = username or ""
-            deadline = time.monotonic() + throttle.max_wait
-            while (slot := throttle.try_begin(address, login)) is None:  # others of this address/login in check
-                if time.monotonic() > deadline:
-                    session.attributes[ATTR_DENY_REASON] = "too many logins in progress for this login or address"
-                    return False
-                await asyncio.sleep(ADMISSION_POLL)
+            slot = await self.admission.begin(throttle, address, username or "")  # others of it in check: wait
+            if slot is None:
+                session.attributes[ATTR_DENY_REASON] = "too many logins in progress for this login or address"
+                return False
             admitted = slot
         try:
             return await self._check(session, live, throttle, address)
         finally:
             if throttle is not None:
-                throttle.end(admitted)
+                self.admission.end(throttle, admitted)  # the oldest waiting for each place freed goes next
 
     async def _check(self, session: Session, live: LiveFleet, throttle: LoginThrottle | None, address: str) -> bool:
         username, password = session.username, session.password

@@ -177,6 +177,11 @@ class LoginThrottle:
             self._in_flight[key] = self._in_flight.get(key, 0) + 1
         return keys
 
+    def blocked_on(self, address: str, login: str) -> tuple[tuple[str, str], ...]:
+        """The places (keys) an attempt :meth:`try_begin` turned away waits for: those at their cap now."""
+        cap = max(1, self.by_address.free_failures)
+        return tuple(key for key in (("address", address), ("login", login)) if self._in_flight.get(key, 0) >= cap)
+
     def end(self, admitted: tuple[tuple[str, str], ...]) -> None:
         """The attempt :meth:`try_begin` let in has been answered: free its places."""
         for key in admitted:
