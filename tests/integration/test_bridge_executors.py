@@ -16,7 +16,6 @@ from contextlib import ExitStack
 import orjson
 import pytest
 
-from roslink_mqtt.presence import operator_heartbeat
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
@@ -38,14 +37,15 @@ def test_the_events_executor_serves_goals_parameters_motion_and_the_dead_man(tmp
         exits.enter_context(run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"))
         bridge = exits.enter_context(run(bridge_args("turtle1", broker.port), tmp_path / "bridge.log",
                                          {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": "events"}))
-        alice = exits.enter_context(TestClient(broker.port, "alice", "alice-demo", client_id="alice-ev"))
+        # an operator keeps its presence (a heartbeat a second) for as long as it commands: one heartbeat, then a
+        # goal that took longer than the 1.5 s it lasts, was canceled for "operator alice went away"
+        alice = exits.enter_context(TestClient(broker.port, "alice", "alice-demo", client_id="alice-ev",
+                                               operator=True))
         assert alice.connect() == 0
         alice.subscribe(f"{T}/to/alice/#")
         alice.subscribe(f"{T}/heartbeat")
         alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
                        timeout=30)
-        alice.publish("roslink/operators/alice/alice-ev", operator_heartbeat("alice", "alice-ev"), qos=1)
-        time.sleep(0.3)
 
         # a goal through the bridge's ActionClient: feedback and a result
         goal_id = uuid.uuid4().hex[:8]
@@ -55,7 +55,6 @@ def test_the_events_executor_serves_goals_parameters_motion_and_the_dead_man(tmp
         assert result["status"] == "succeeded" and result["result"]["sequence"][-1] == 5, result
 
         # parameters: set, then read back (rclpy service clients on the events executor)
-        alice.publish("roslink/operators/alice/alice-ev", operator_heartbeat("alice", "alice-ev", 1), qos=1)
         alice.publish(f"{T}/from/alice/param/sim_robot", {"id": "s1", "op": "set", "values": {"max_speed": 0.7}})
         set_reply = alice.wait_for(lambda m: "/param_reply/" in m.topic and m.json()["id"] == "s1", timeout=10).json()
         assert set_reply["result"] and set_reply["values"]["max_speed"]["successful"], set_reply
@@ -66,7 +65,6 @@ def test_the_events_executor_serves_goals_parameters_motion_and_the_dead_man(tmp
         # motion, then the dead-man stop (supervision timer on the events executor)
         sent = time.monotonic()
         for seq in range(1, 101):  # until ROS delivers one: the probe must have matched the bridge's publisher
-            alice.publish("roslink/operators/alice/alice-ev", operator_heartbeat("alice", "alice-ev", seq + 1), qos=0)
             alice.publish(f"{T}/from/alice/cmd/twist",
                           orjson.dumps({"message_id": 100, "sequence_number": seq, "payload": {"lx": 0.2}}), qos=0)
             time.sleep(0.1)
