@@ -23,28 +23,28 @@ from .ratelimit import LoginThrottle
 Slot = tuple[tuple[str, str], ...]  # the places an attempt holds (LoginThrottle.try_begin)
 
 
-def _settle(future: asyncio.Future[bool], woken: bool) -> None:
+def _settle(future: asyncio.Future[Hashable | None], key: Hashable | None) -> None:
     if not future.done():
-        future.set_result(woken)
+        future.set_result(key)
 
 
 class Admission:
     """Futures waiting per key, first come first woken (asyncio, one event loop)."""
 
     def __init__(self) -> None:
-        self._waiting: dict[Hashable, deque[asyncio.Future[bool]]] = {}
+        self._waiting: dict[Hashable, deque[asyncio.Future[Hashable | None]]] = {}
 
     def waiting(self) -> int:
         """Waiters not yet woken (a waiter for two keys counts twice): for tests and the log."""
         return sum(1 for queue in self._waiting.values() for future in queue if not future.done())
 
-    async def wait(self, keys: Iterable[Hashable], timeout: float) -> bool:
-        """Sleep until a place of one of ``keys`` frees (True) or ``timeout`` s pass (False)."""
+    async def wait(self, keys: Iterable[Hashable], timeout: float) -> Hashable | None:
+        """Sleep until a place of one of ``keys`` frees (that key) or ``timeout`` s pass (None)."""
         loop = asyncio.get_running_loop()
-        future: asyncio.Future[bool] = loop.create_future()
+        future: asyncio.Future[Hashable | None] = loop.create_future()
         for key in keys:
             self._waiting.setdefault(key, deque()).append(future)
-        timer = loop.call_later(max(0.0, timeout), _settle, future, False)
+        timer = loop.call_later(max(0.0, timeout), _settle, future, None)
         try:
             return await future
         finally:
@@ -59,24 +59,30 @@ class Admission:
             while queue:
                 future = queue.popleft()
                 if not future.done():
-                    future.set_result(True)
+                    future.set_result(key)
                     break
             if queue is not None and not queue:
                 del self._waiting[key]
 
     async def begin(self, throttle: LoginThrottle, address: str, login: str) -> Slot | None:
         """A place for this attempt among those being checked, once there is one (hand it to :meth:`end` when the
-        attempt is answered); None when none came within the throttle's ``max_wait``."""
+        attempt is answered); None when none came within the throttle's ``max_wait``.
+
+        A waiter woken for a place it does not take passes it on to the next in line: it still waits for another
+        place, or it needs none after all (a login known good since it began to wait). Otherwise that place would
+        stay free while the others sleep until their ``max_wait``."""
         deadline = time.monotonic() + throttle.max_wait
-        woken = False
+        woken_for: Hashable | None = None
         while (slot := throttle.try_begin(address, login)) is None:
+            blocked = throttle.blocked_on(address, login)
+            if woken_for is not None and woken_for not in blocked:
+                self.release([woken_for])
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return None
-            blocked = throttle.blocked_on(address, login)
-            if woken:  # woken for a place it cannot use (it waits for another too): the next in line gets it
-                self.release(key for key in (("address", address), ("login", login)) if key not in blocked)
-            woken = await self.wait(blocked, remaining)
+            woken_for = await self.wait(blocked, remaining)
+        if woken_for is not None and woken_for not in slot:
+            self.release([woken_for])
         return slot
 
     def end(self, throttle: LoginThrottle, slot: Slot) -> None:

@@ -144,3 +144,28 @@ def test_a_place_the_woken_cannot_use_goes_to_the_next_in_line() -> None:
         return took
 
     assert asyncio.run(run()) < 0.5
+
+
+def test_a_place_freed_for_a_login_that_needs_none_goes_on() -> None:
+    """One at a time per address: alice's first login holds the address's place, a second alice and then bob wait
+    for it. The first succeeds, which makes (address, alice) known good: the second alice, woken first, needs no
+    place any more, and must hand the one it was woken for to bob (who waited until his max_wait: the test's
+    fleet of six logins six times over, once in a clean-clone run)."""
+    throttle, admission = LoginThrottle(free_failures=1, max_wait=5.0), Admission()
+
+    async def run() -> float:
+        first = await admission.begin(throttle, "gw", "alice")
+        assert first is not None
+        again = asyncio.create_task(admission.begin(throttle, "gw", "alice"))
+        await asyncio.sleep(0.01)
+        bob = asyncio.create_task(admission.begin(throttle, "gw", "bob"))
+        await asyncio.sleep(0.01)
+        started = time.monotonic()
+        throttle.succeeded("gw", "alice")
+        admission.end(throttle, first)
+        assert await asyncio.wait_for(again, 1.0) == ()  # known good: checked without a place
+        slot = await asyncio.wait_for(bob, 2.0)
+        assert slot is not None
+        return time.monotonic() - started
+
+    assert asyncio.run(run()) < 0.5
