@@ -107,7 +107,10 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
     for topic, rate in RATES.items():
         stamps = times[topic]
         span = (stamps[-1] - stamps[0]) / 1e9
-        assert span > LAST - 0.5, (topic, span)  # the whole window asked for
+        # the whole window asked for, less a period at each edge: a message may fall just outside it (a busy
+        # machine delays the sim's timer; a clean-clone run saw the 5 Hz scan span 3.47 s of 4); a window cut
+        # short, the defect this guards against, loses far more
+        assert span > LAST - 0.5 - 2.0 / rate, (topic, span)
         measured = (len(stamps) - 1) / span
         assert abs(measured - rate) <= 0.1 * rate, f"{topic}: {measured:.2f}/s, expected {rate}/s"
     # an independent reader: @mcap/core from npm (node), as for recordings
