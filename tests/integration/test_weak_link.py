@@ -147,6 +147,21 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
     return seen
 
 
+DISK_EVENT_RULES = """    rules: &rules
+      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,
+         mqtt_topic: state/pose, preset: global_motion}
+      - {direction: ros_to_mqtt, ros_topic: /wl/events, ros_type: std_msgs/msg/String,
+         mqtt_topic: state/events, mqtt_qos: 1, buffer: disk}
+"""
+
+
+def _disk_events_fleet(tmp_path, *, keepalive: int, mode: str):
+    """The demo fleet with turtle1's poses and a ``buffer: disk`` event rule (spooled under ``tmp_path``)."""
+    settings = f"      keepalive: {keepalive}\n      uplink: {mode}\n      buffer_dir: {tmp_path / 'spool'}\n"
+    return write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", DISK_EVENT_RULES, 1).replace(
+        "      keepalive: 2\n", settings, 1))
+
+
 def _quantile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
@@ -254,14 +269,7 @@ def test_a_dead_spot_shorter_than_the_keepalive_loses_no_connection_and_no_disk_
     from std_msgs.msg import String
 
     dead_at, dead, after = 9.0, 3.0, 7.0  # s from the link's start
-    rules = ("    rules: &rules\n"
-             "      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,\n"
-             "         mqtt_topic: state/pose, preset: global_motion}\n"
-             "      - {direction: ros_to_mqtt, ros_topic: /wl/events, ros_type: std_msgs/msg/String,\n"
-             "         mqtt_topic: state/events, mqtt_qos: 1, buffer: disk}\n")
-    settings = f"      keepalive: 5\n      uplink: scheduled\n      buffer_dir: {tmp_path / 'spool'}\n"
-    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
-        "      keepalive: 2\n", settings, 1))
+    fleet = _disk_events_fleet(tmp_path, keepalive=5, mode="scheduled")
     poses: list[tuple[float, float]] = []  # (arrival, age)
     events: list[int] = []
     offline = threading.Event()
@@ -548,14 +556,7 @@ def test_a_disk_backlog_drains_behind_live_poses_on_a_thin_uplink(tmp_path, mode
     from std_msgs.msg import String
 
     uplink_kbit, event_bytes, offline_events = 64, 1000, 50  # 50 kB ≈ 6 s of the uplink
-    rules = ("    rules: &rules\n"
-             "      - {direction: ros_to_mqtt, ros_topic: /wl/odom, ros_type: nav_msgs/msg/Odometry,\n"
-             "         mqtt_topic: state/pose, preset: global_motion}\n"
-             "      - {direction: ros_to_mqtt, ros_topic: /wl/events, ros_type: std_msgs/msg/String,\n"
-             "         mqtt_topic: state/events, mqtt_qos: 1, buffer: disk}\n")
-    settings = f"      keepalive: 2\n      uplink: {mode}\n      buffer_dir: {tmp_path / 'spool'}\n"
-    fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
-        "      keepalive: 2\n", settings, 1))
+    fleet = _disk_events_fleet(tmp_path, keepalive=2, mode=mode)
     poses: list[tuple[float, float]] = []  # (arrival, age)
     events: list[tuple[float, int]] = []  # (arrival, index)
     offline = threading.Event()
