@@ -66,7 +66,7 @@ STOP_ACK_INTERVAL = 0.5  # s: a user's emergency stops are acknowledged at most 
 # anything; the refusal says what is missing and who supplies it.
 NO_GRANTS_YET = ("{robot} has no grants from the broker yet, so it obeys nobody: the fleet's administrators "
                  "publish them (`roslink-mqtt fleet apply`; the embedded broker does at start)")
-MAX_QUEUE_ALLOWANCE = 1.0  # s a heartbeat's PUBACK may take beyond link_timeout because of a busy uplink
+MAX_QUEUE_ALLOWANCE = 1.0  # s a heartbeat's PUBACK may take beyond link_timeout because of a busy uplink or downlink
 
 
 class Link(Protocol):
@@ -76,6 +76,10 @@ class Link(Protocol):
 
     def queue_delay(self) -> float:
         """Seconds a message handed over now waits in the network before the broker has it (0: unknown)."""
+        ...
+
+    def heard_at(self) -> float:
+        """``time.monotonic()`` when the broker's last message reached the bridge (0.0: none yet)."""
         ...
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> Any: ...
@@ -519,10 +523,24 @@ class CommandEndpoint:
                 self.failsafe.link_up = True
                 log.info("broker answers again")
         elif now > deadline and self.failsafe.link_up:
+            if self._downlink_busy(now, sent_at):
+                return
             why = self.failsafe.link_lost()
             log.warning("broker silent for %.2f s", now - sent_at)
             if why:
                 self.trigger_stop(f"{why} (no answer for {now - sent_at:.2g} s)")
+
+    def _downlink_busy(self, now: float, sent_at: float) -> bool:
+        """The broker is talking, so its PUBACK is on the way behind what it sends: slow, not silent.
+
+        Why: a broker writes its answers in order on one connection. A viewer flooding requests through a broker
+        that does not pace him (Mosquitto) fills the robot's downlink, and the heartbeat's PUBACK arrives behind
+        his messages (a clean-clone run: 0.47 s behind, against link_timeout 0.5 s, and the robot stopped for
+        "lost the broker" while every message still arrived). A broker heard from within link_timeout is not
+        silent; the cap still stops the robot within link_timeout + MAX_QUEUE_ALLOWANCE of a broker that keeps
+        sending but never answers, and a frozen broker stops being heard at once."""
+        timeout = self.robot.bridge.link_timeout
+        return now - self.link.heard_at() <= timeout and now <= sent_at + timeout + MAX_QUEUE_ALLOWANCE
 
     # -- supervision (executor, SUPERVISION_RATE) ------------------------------------------------
     def supervise(self, now: float) -> None:

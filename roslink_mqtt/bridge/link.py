@@ -98,6 +98,7 @@ class MqttLink:
         self.client.on_connect_fail = self._handle_connect_fail
         self.client.on_subscribe = self._handle_subscribe
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
+        self._heard_at = 0.0  # time.monotonic() of the broker's last message (the link check's "slow, not silent")
         # s a message handed over now waits in the network; the uplink (bridge/uplink_sender.py) replaces it
         self.queue_delay: Callable[[], float] = lambda: 0.0
         # the uplink's end-to-end probe (bridge/path_meter.py): called with time.monotonic() on paho's thread when a
@@ -192,6 +193,10 @@ class MqttLink:
             # set would make paho's keep-alive drop a healthy connection once probing pauses
             self.client._ping_t = 0
         return True
+
+    def heard_at(self) -> float:
+        """``time.monotonic()`` when the broker's last message arrived (0.0: none yet)."""
+        return self._heard_at
 
     def heard_while_writing(self) -> None:
         """Count this moment as hearing from the broker, for paho's keep-alive: the caller knows the broker is
@@ -321,6 +326,7 @@ class MqttLink:
         # Taken first thing: the command path compares it with the time of publication to ROS, so a command
         # that waited too long inside the bridge (lock, backlog) is never executed late.
         arrived = time.monotonic()
+        self._heard_at = arrived
         if trace.TRACE is not None:
             trace.TRACE.mark("mqtt_in", message.topic)
         try:

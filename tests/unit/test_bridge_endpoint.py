@@ -110,6 +110,7 @@ class RecordingLink:
         self.sent: list[Published] = []
         self.acked = True  # the broker acknowledges what is published
         self.delay = 0.0  # what the uplink says a message waits in the network
+        self.heard = 0.0  # when the broker's last message arrived (time.monotonic())
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> Any:
         self.sent.append(Published(topic, payload, qos, retain))
@@ -117,6 +118,9 @@ class RecordingLink:
 
     def queue_delay(self) -> float:
         return self.delay
+
+    def heard_at(self) -> float:
+        return self.heard
 
     def errors(self, user: str) -> list[ErrorReport]:
         return [ErrorReport.from_json(p.payload) for p in self.sent if p.topic == T.error("turtle1", user)]
@@ -215,6 +219,26 @@ def test_a_busy_uplink_gives_the_heartbeat_its_queue_time_but_a_silent_broker_st
     h.endpoint.supervise(sent + timeout + allowed - 0.05)
     assert h.endpoint.failsafe.link_up
     h.endpoint.supervise(time.monotonic() + timeout + allowed + 0.05)
+    assert not h.endpoint.failsafe.link_up
+
+
+@pytest.mark.parametrize("heard_for", [0.3, 5.0])
+def test_a_busy_downlink_is_slow_not_silent_but_a_broker_that_stops_talking_still_counts(
+        h: Harness, heard_for: float) -> None:
+    """A viewer's flood through a broker that does not pace him puts the heartbeat's PUBACK behind his messages:
+    while the broker's messages keep arriving the link is up, for at most link_timeout + MAX_QUEUE_ALLOWANCE;
+    once they stop for link_timeout, the broker is silent."""
+    h.link.acked = False
+    timeout = ROBOT.bridge.link_timeout
+    sent = time.monotonic()
+    h.endpoint.publish_heartbeat()
+    t = sent + timeout + 0.05
+    while t < sent + min(heard_for, timeout + MAX_QUEUE_ALLOWANCE - 0.05):  # messages arrive every 50 ms
+        h.link.heard = t - 0.01
+        h.endpoint.supervise(t)
+        assert h.endpoint.failsafe.link_up, f"stopped {t - sent:.2f} s after the heartbeat while the broker talks"
+        t += 0.05
+    h.endpoint.supervise(max(t, h.link.heard + timeout + 0.05))
     assert not h.endpoint.failsafe.link_up
 
 
