@@ -97,11 +97,13 @@ def resolve_url(args: argparse.Namespace, prog: str, default: str = ...) -> str:
 def resolve_url(args: argparse.Namespace, prog: str, default: str | None) -> str | None: ...
 def resolve_url(args: argparse.Namespace, prog: str, default: str | None = DEFAULT_URL) -> str | None:
     """``--url``, else the old ``--broker`` (warns), else ``ROSLINK_URL``, else ``default`` (may be None)."""
-    if getattr(args, "url", None):
-        return args.url
-    if getattr(args, "old_broker", None):
+    url: str | None = getattr(args, "url", None)
+    if url:
+        return url
+    old_broker: str | None = getattr(args, "old_broker", None)
+    if old_broker:
         warn_deprecated("--broker", "--url", prog)
-        return args.old_broker
+        return old_broker
     return env_url() or default
 
 
@@ -137,9 +139,10 @@ def resolve_password(args: argparse.Namespace, prog: str, *, old_env: str | None
         warn_deprecated("--password-env", f"{ENV_PASSWORD} or --password-file", prog)
         if var in os.environ:
             return os.environ[var]
-    if getattr(args, "old_password", None) is not None:
+    old_password: str | None = getattr(args, "old_password", None)
+    if old_password is not None:
         warn_deprecated("--password (visible to every user in ps)", f"{ENV_PASSWORD} or --password-file", prog)
-        return args.old_password
+        return old_password
     if old_env and os.environ.get(old_env):
         warn_deprecated(old_env, ENV_PASSWORD, prog)
         return os.environ[old_env]

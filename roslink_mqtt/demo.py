@@ -22,7 +22,7 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import orjson
 import paho.mqtt.client as mqtt
@@ -59,8 +59,8 @@ class Scene:
         self.viewer.subscribe([(topics.heartbeat("turtle1"), 1), (topics.all_state("turtle1"), 0)])
         self.operator = self._client("alice", "demo-alice", port)
         self.operator.will_set(topics.operator("alice", "demo-alice"), b"", qos=1, retain=True)
-        self.replies: queue.Queue = queue.Queue()
-        self.operator.on_message = lambda c, u, m: self.replies.put((m.topic, m.payload))
+        self.replies: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self.operator.on_message = lambda c, u, m: self.replies.put((m.topic, bytes(m.payload)))
         self.operator.connect("127.0.0.1", port)
         self.operator.loop_start()
         # errors and service replies only (to/alice/ also carries the retained access report)
@@ -77,10 +77,10 @@ class Scene:
         self.operator.publish(self.topics.operator("alice", "demo-alice"), operator_heartbeat("alice", "demo-alice"),
                               qos=1, retain=True)
 
-    def watch(self, seconds: float, show: set[str], *, until_shown: bool = False) -> dict[str, dict]:
+    def watch(self, seconds: float, show: set[str], *, until_shown: bool = False) -> dict[str, dict[str, Any]]:
         """Print the state messages named in ``show`` for ``seconds`` (or, ``until_shown``, until each has been
         printed once); return the latest of each."""
-        latest: dict[str, dict] = {}
+        latest: dict[str, dict[str, Any]] = {}
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0 and not (until_shown and not show):
             try:
@@ -101,7 +101,7 @@ class Scene:
                 show.discard(name)
         return latest
 
-    def newest(self, name: str, settle: float = 0.5) -> dict:
+    def newest(self, name: str, settle: float = 0.5) -> dict[str, Any]:
         """Print the newest ``name`` message seen within ``settle`` s: the queue still holds older ones."""
         newest = self.watch(settle, set()).get(name) or {}
         if newest:
@@ -119,7 +119,7 @@ class Scene:
             c.loop_stop()
 
 
-def _summary(name: str, p: dict) -> str:
+def _summary(name: str, p: dict[str, Any]) -> str:
     if name == "heartbeat":
         status = {4: "ACTIVE", 6: "EMERGENCY", 8: "OFFLINE"}.get(p["system_status"], p["system_status"])
         return f"{p['name']} {status} session={p['session']}"

@@ -90,7 +90,8 @@ def free_port(host: str = LOOPBACK) -> int:
                 return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
-        return s.getsockname()[1]
+        bound: int = s.getsockname()[1]  # (host, port) of an AF_INET socket
+        return bound
 
 
 def can_listen(port: int, host: str = LOOPBACK) -> bool:
@@ -166,7 +167,7 @@ def tail(path: Path | None, lines: int = 15) -> str:
 
 
 def wait_for_port(port: int, timeout: float = 10.0, host: str = LOOPBACK, *,
-                  proc: subprocess.Popen | LocalProcess | None = None, what: str = "the process",
+                  proc: subprocess.Popen[Any] | LocalProcess | None = None, what: str = "the process",
                   log: Path | None = None) -> None:
     """Block until something accepts connections on ``port``.
 
@@ -191,7 +192,7 @@ def wait_for_port(port: int, timeout: float = 10.0, host: str = LOOPBACK, *,
 
 
 # -- child processes --------------------------------------------------------------------------------
-def _signal_group(popen: subprocess.Popen, sig: int) -> None:
+def _signal_group(popen: subprocess.Popen[Any], sig: int) -> None:
     """``sig`` to the child's process group (its own, see :class:`LocalProcess`), else to the child alone."""
     try:
         os.killpg(popen.pid, sig)
@@ -202,7 +203,7 @@ def _signal_group(popen: subprocess.Popen, sig: int) -> None:
             pass
 
 
-def stop_process(popen: subprocess.Popen, stop_signal: int = signal.SIGINT, timeout: float = 5.0) -> int:
+def stop_process(popen: subprocess.Popen[Any], stop_signal: int = signal.SIGINT, timeout: float = 5.0) -> int:
     """End ``popen`` and its process group; return its exit code.
 
     SIGCONT first (a frozen process handles nothing), then ``stop_signal``; SIGKILL if it has
@@ -232,7 +233,7 @@ class LocalProcess:
     """
 
     stop_signal: int = signal.SIGINT
-    proc: subprocess.Popen | None = None
+    proc: subprocess.Popen[bytes] | None = None
     log: Path
 
     def __init__(self, args: Sequence[str], log: Path, *, env: Mapping[str, str] | None = None,
@@ -251,7 +252,7 @@ class LocalProcess:
         return self._args
 
     # starting
-    def spawn(self, args: Sequence[str] | None = None) -> subprocess.Popen:
+    def spawn(self, args: Sequence[str] | None = None) -> subprocess.Popen[bytes]:
         """Start the child (no readiness check) in a session (so a process group) of its own."""
         mode = "ab" if self.append or self.proc is not None else "wb"
         with open(self.log, mode) as out:
@@ -275,7 +276,7 @@ class LocalProcess:
 
     # running
     @property
-    def popen(self) -> subprocess.Popen:
+    def popen(self) -> subprocess.Popen[bytes]:
         assert self.proc is not None, "not started"
         return self.proc
 

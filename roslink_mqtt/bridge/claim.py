@@ -39,7 +39,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import orjson
 
@@ -86,12 +86,12 @@ class Claim:
         return cls(secrets.token_hex(8), socket.gethostname(), os.getpid(), time.time(), take_over)
 
     @classmethod
-    def of(cls, payload: dict) -> Claim:
+    def of(cls, payload: dict[str, Any]) -> Claim:
         """The claim in a heartbeat's payload (a bridge older than claims: instance '', since 0)."""
         return cls(str(payload.get("instance", "")), str(payload.get("host", "")), int(payload.get("pid", 0)),
                    float(payload.get("since", 0.0)), bool(payload.get("take_over", 0)))
 
-    def fields(self) -> dict:
+    def fields(self) -> dict[str, Any]:
         """The heartbeat fields that carry this claim."""
         return {"instance": self.instance, "host": self.host, "pid": self.pid, "since": self.since,
                 "take_over": int(self.take_over)}
@@ -297,7 +297,9 @@ class ClaimWatch:
 
 
 def paho_connector(urls: Sequence[BrokerUrl], username: str, password: str | None, ca_file: str | None, topic: str,
-                   announce_topic: str, *, wait: float = CONNECT_WAIT) -> tuple[Callable, Callable[[], None]]:
+                   announce_topic: str, *, wait: float = CONNECT_WAIT
+                   ) -> tuple[Callable[[Callable[[bytes, bool], None]], tuple[Publish, float] | None],
+                              Callable[[], None]]:
     """(connect, close) for :func:`check_claim`: a short-lived connection of the robot's login (a random client
     id: a fixed one would knock the live bridge off a broker) that subscribes to the heartbeat ``topic`` and
     publishes on ``announce_topic``."""

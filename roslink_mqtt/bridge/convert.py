@@ -26,7 +26,7 @@ import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import orjson
@@ -34,7 +34,7 @@ from rosidl_parser import definition as d
 
 from ..protocol.validate import describe, show_key
 from ..ros_names import interface_name
-from .refusals import ConversionError
+from .refusals import ConversionError as ConversionError  # the converters raise it: callers name it here
 from .ros_types import load_interface
 
 _pack_f = struct.Struct("<f").pack
@@ -133,7 +133,8 @@ def raw_bytes(data: Any) -> bytes:
     if isinstance(data, bytearray):
         return bytes(data)
     if isinstance(data, array.array) or hasattr(data, "tobytes"):
-        return data.tobytes()
+        raw: bytes = data.tobytes()  # array.array's or numpy's
+        return raw
     return b"".join(x if isinstance(x, bytes) else bytes((x,)) for x in data)
 
 
@@ -206,7 +207,7 @@ def _build_to_dict(cls: type[Any], numpy: bool, cbor: bool = False) -> Callable[
     body = "".join(f"    {stmt}\n" for stmt in pre)
     src = f"def to_dict(m):\n{body}    return {{{', '.join(items)}}}\n"
     exec(compile(src, f"<to_dict {cls.__module__}.{cls.__name__}>", "exec"), env)  # noqa: S102 - our own source
-    return env["to_dict"]
+    return cast("Callable[[Any], dict[str, Any]]", env["to_dict"])
 
 
 def _build_to_cbor(cls: type[Any], env: dict[str, Any]) -> Callable[[Any], dict[str, Any]]:
@@ -239,7 +240,7 @@ def _build_to_cbor(cls: type[Any], env: dict[str, Any]) -> Callable[[Any], dict[
             raise TypeError(f"{cls.__name__}.{name}: unsupported field type {slot!r}")
     src = f"def to_cbor(m):\n    return {{{', '.join(items)}}}\n"
     exec(compile(src, f"<to_cbor {cls.__module__}.{cls.__name__}>", "exec"), env)  # noqa: S102 - our own source
-    return env["to_cbor"]
+    return cast("Callable[[Any], dict[str, Any]]", env["to_cbor"])
 
 
 # -- dict → ROS: strict reader over a field table built once -------------------------------

@@ -82,7 +82,7 @@ VIEWER_LINK_HEAD_START = 3.0  # s the command link waits at start for the viewer
 STOP_DELIVERY_WAIT = 0.5  # s a stopping bridge waits for its last zero velocity's acknowledgement (per output)
 
 
-def _static_part(robot: Robot) -> tuple:
+def _static_part(robot: Robot) -> tuple[object, ...]:
     """What a reload cannot change in a running bridge (rules and settings), ignoring line numbers."""
     return (robot.system_id, robot.type, robot.bridge, tuple(replace(r, line=None) for r in robot.rules),
             tuple(replace(s, line=None) for s in robot.services))

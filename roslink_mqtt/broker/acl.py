@@ -39,12 +39,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntFlag
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ..compat import StrEnum
 from ..config import Fleet, Role
 from ..topics import ANY, FLEET_CONTROL_FILTER, SYS_TOPICS, Kind, Verb, filter_levels
 from ..vda5050 import wire
+
+if TYPE_CHECKING:
+    from .limits import BrokerLimits
 
 
 class Access(IntFlag):
@@ -357,7 +360,7 @@ class TopicPolicy:
     and keeps no per-topic state. ``limits`` is a :class:`~roslink_mqtt.broker.limits.BrokerLimits`.
     """
 
-    def __init__(self, live: LiveFleet, limits: Any) -> None:
+    def __init__(self, live: LiveFleet, limits: BrokerLimits) -> None:
         self.live, self.limits = live, limits
 
     def payload_limit(self, topic: str) -> int:

@@ -31,6 +31,7 @@ import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -119,7 +120,7 @@ def check_passwords(fleet: Fleet, passwords: Mapping[str, str]) -> None:
 
 
 def definitions(fleet: Fleet, passwords: Mapping[str, str], *, vhost: str = VHOST,
-                salt: bytes | None = None) -> dict:
+                salt: bytes | None = None) -> dict[str, Any]:
     """The definitions document (RabbitMQ 3.10's schema) for the fleet: users, vhost, permissions, topic rules."""
     check_passwords(fleet, passwords)
     acl = FleetAcl(fleet)

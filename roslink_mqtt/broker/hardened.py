@@ -329,7 +329,8 @@ def write_buffer_size(writer: WriterAdapter | None) -> int:
     if transport is None:
         return 0
     try:
-        return transport.get_write_buffer_size()
+        size: int = transport.get_write_buffer_size()  # an asyncio transport's
+        return size
     except (AttributeError, RuntimeError):
         return 0
 
@@ -360,7 +361,8 @@ async def _close_quietly(writer: WriterAdapter) -> None:
 
 def client_id_of(session: Session) -> str:
     """The client id as the client sent it (the session table keys it by login, see fix 5)."""
-    return session.attributes.get(ATTR_CLIENT_ID, session.client_id)
+    client_id: str = session.attributes.get(ATTR_CLIENT_ID, session.client_id)
+    return client_id
 
 
 def scoped_client_id(login: str | None, client_id: str) -> str:
@@ -646,7 +648,7 @@ class HardenedBroker(Broker):
 
     def _create_ssl_context(self, listener: Any) -> ssl.SSLContext:
         """amqtt's context for a TLS listener, kept: a reload gives it a new certificate for new handshakes."""
-        context = Broker._create_ssl_context(listener)
+        context: ssl.SSLContext = Broker._create_ssl_context(listener)
         self.ssl_contexts.append(context)
         return context
 
@@ -956,7 +958,8 @@ class HardenedBroker(Broker):
                 return True
         token = _PUB_QOS.set(getattr(message, "qos", None))
         try:
-            return await super()._handle_message_delivery(client_session, handler, wait_deliver)
+            delivered: bool = await super()._handle_message_delivery(client_session, handler, wait_deliver)
+            return delivered
         finally:
             _PUB_QOS.reset(token)
 
@@ -1128,7 +1131,7 @@ class HardenedBroker(Broker):
         sample = netstat.delivered(sock)
         if sample is None:
             return 0.0
-        last = target.attributes.get(ATTR_RATE)
+        last: tuple[float, int, float] | None = target.attributes.get(ATTR_RATE)
         if last is None or sample[0] < last[1]:
             target.attributes[ATTR_RATE] = (now, sample[0], 0.0)
             return 0.0
@@ -1192,7 +1195,7 @@ class HardenedBroker(Broker):
         if (qos and self.inline and data is not None and isinstance(handler, HardenedHandler)
                 and handler.deliver_now(topic, data, qos, retain)):  # fix 32: no task, in order with QoS 0
             return None  # its outbox slot is freed when it is acknowledged (HardenedHandler._settled)
-        task = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))
+        task: asyncio.Future[Any] = asyncio.ensure_future(handler.mqtt_publish(topic, data, qos, retain=retain))
         task.add_done_callback(lambda _t: outbox.done(size))
         return task
 

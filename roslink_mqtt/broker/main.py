@@ -19,7 +19,7 @@ import gc
 import logging
 import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Coroutine, Sequence
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def run_loop(coroutine: Any, choice: str) -> int:
+def run_loop(coroutine: Coroutine[Any, Any, int], choice: str) -> int:
     """Run the broker on uvloop when asked or available: amqtt spends most of a message's cost in the event
     loop itself (a task, a timer and a queue hand-off per delivery), which uvloop does in C."""
     if choice != "asyncio":

@@ -77,7 +77,8 @@ class KeyThrottle:
         over = failures - self.free_failures
         if failures == 0 or over < 0:
             return 0.0
-        return min(self.base_delay * 2 ** over, self.max_delay)
+        growth: int = 2 ** over  # over >= 0 here: an int
+        return min(self.base_delay * growth, self.max_delay)
 
     def reserve(self, address: str, pending: int = 0) -> float:
         """Seconds this attempt must wait before its password is checked, or :data:`REFUSE`.

@@ -11,7 +11,7 @@ from ..config import Fleet, load_fleet
 FORMATS = ("mosquitto", "mosquitto-dynsec", "rabbitmq", "emqx")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("acl", help="export the fleet's logins and ACLs for an external broker",
                        description="Access rules derived from robots.yaml (the ones the embedded broker enforces).")
     acl_sub = p.add_subparsers(dest="acl_command", required=True, metavar="ACTION")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import orjson
 
@@ -19,7 +20,7 @@ CANCEL_WAIT = 5.0  # s to wait for the canceled result after Ctrl-C
 EXIT_INTERRUPTED = 130
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("action", help="send a goal to a robot's ROS action (like ros2 action send_goal)",
                        description="ROS actions on a robot, over MQTT.")
     verbs = p.add_subparsers(dest="action_command", required=True, metavar="VERB")
@@ -36,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     send.set_defaults(run=run)
 
 
-def _line(body: dict) -> None:
+def _line(body: dict[str, Any]) -> None:
     print(orjson.dumps(body).decode(), flush=True)
 
 

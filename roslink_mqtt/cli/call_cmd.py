@@ -10,7 +10,7 @@ from ..client import RoslinkError
 from .connect import add_connection_options, json_object, open_client
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("call", help="call a ROS service on a robot (like ros2 service call)",
                        description="Call SERVICE with the JSON request, e.g. `roslink-mqtt call turtle1 reset`.")
     p.add_argument("robot")

@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 from collections.abc import Iterable
+from typing import Any
 
 import orjson
 
@@ -90,7 +91,7 @@ def stop_on_signals() -> threading.Event:
     return stop
 
 
-def parse_json_object(text: str | bytes, what: str) -> dict:
+def parse_json_object(text: str | bytes, what: str) -> dict[str, Any]:
     """A JSON object (a command line argument, a Foxglove request); ValueError saying what is wrong with it."""
     try:
         value = orjson.loads(text)
@@ -101,7 +102,7 @@ def parse_json_object(text: str | bytes, what: str) -> dict:
     return value
 
 
-def json_object(text: str, what: str) -> dict:
+def json_object(text: str, what: str) -> dict[str, Any]:
     """Parse a JSON object given on the command line, or exit saying what is wrong with it."""
     try:
         return parse_json_object(text, what)

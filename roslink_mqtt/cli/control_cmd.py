@@ -15,7 +15,7 @@ from .connect import add_connection_options, open_client
 ACTIONS = ("claim", "release", "take-over", "status")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("control", help="claim, release or take over control of a robot, or see who holds it",
                        description="A robot takes motion and other state-changing commands from one holder of "
                                    "control at a time. `claim` takes it when nobody holds it, `take-over` takes it "

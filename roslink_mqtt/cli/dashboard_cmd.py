@@ -23,7 +23,7 @@ from ..dashboard.server import (
 )
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("dashboard", help="serve the web dashboard (the browser logs in to the broker itself)",
                        description="Serve the dashboard page on HOST:PORT. The page connects to the broker's "
                                    "WebSocket listener with the user's own login, so the broker's ACL decides "

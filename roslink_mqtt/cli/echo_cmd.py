@@ -52,7 +52,7 @@ EPILOG = (f"exit status: {EXIT_OK} done (or Ctrl-C without --count); {EXIT_TIMEO
           f"{EXIT_INTERRUPTED} Ctrl-C before COUNT messages.")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     every_name = TopicTree().state("ROBOT", "NAME")
     p = sub.add_parser("echo", help="print a robot's state messages (like ros2 topic echo)",
                        description=f"Print each message on {every_name} as one JSON line. NAME may be "

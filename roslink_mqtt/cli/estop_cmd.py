@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from ..client import RobotClient
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("estop", help="emergency-stop robots (--all: every robot you may stop)",
                        description="Send an emergency stop to the robots named, or with --all to every robot whose "
                                    "heartbeat you see and that you may stop (viewers too, unless a robot says "

@@ -21,6 +21,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from ..config import ConfigError, Fleet, load_fleet
 from ..config.grants import grants_of
@@ -34,7 +35,7 @@ PROG = "roslink-mqtt fleet apply"
 KINDS = ("embedded", "mosquitto", "rabbitmq")
 
 
-def register(actions: argparse._SubParsersAction) -> None:
+def register(actions: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = actions.add_parser(
         "apply", help="make a running broker enforce the fleet file now (logins, grants), and tell the robots",
         description="Compare the fleet file with what a running broker enforces, print the plan, and apply it "
@@ -157,7 +158,7 @@ def apply_embedded(channel: AdminChannel, fleet: Fleet, config: Path, *, dry_run
     return len(steps.steps)
 
 
-def _state(response: dict) -> dict:
+def _state(response: dict[str, Any]) -> dict[str, Any]:
     if "error" in response:
         raise AdminError(f"{response.get('command')}: {response['error']}")
     data = response.get("data")

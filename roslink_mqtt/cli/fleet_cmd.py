@@ -10,7 +10,7 @@ from ..config import Fleet, Role, load_fleet
 from ..config.interfaces import interface_table
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("fleet", help="validate robots.yaml and print robots, users and grants",
                        description="Load the fleet file, report the first error with file:line, "
                                    "or print a summary. ROS types are checked without ROS: names and fields "
@@ -46,7 +46,7 @@ EDIT_NOTE = ("Edits the fleet file in place, keeping its comments and layout, af
              "a removed user's connections are closed.")
 
 
-def _register_edits(actions: argparse._SubParsersAction) -> None:
+def _register_edits(actions: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     def editing(name: str, help_text: str) -> argparse.ArgumentParser:
         p = actions.add_parser(name, help=help_text, description=f"{help_text[0].upper()}{help_text[1:]}. "
                                                                  f"{EDIT_NOTE}")

@@ -8,7 +8,7 @@ import argparse
 RELOAD = "then `roslink-mqtt fleet apply` (the broker learns its login)"
 
 
-def register(actions: argparse._SubParsersAction, edited: object) -> None:
+def register(actions: argparse._SubParsersAction[argparse.ArgumentParser], edited: object) -> None:
     robot = actions.add_parser("robot", help="add a robot (and write its provisioning bundle)",
                                description="Add a robot to the fleet file (keeping its comments and layout) with a "
                                            "generated key and password, and write the robot's provisioning bundle: "

@@ -13,7 +13,7 @@ from .connect import PROG, add_connection_options, open_client, stop_on_signals
 ENV_TOKEN = "ROSLINK_FOXGLOVE_TOKEN"  # a token of the user's own (a saved connection keeps working across runs)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("foxglove", help="serve robots to Foxglove or Lichtblick (Foxglove WebSocket protocol)",
                        description="Log in as you and serve the robots you may see on a Foxglove WebSocket "
                                    "(foxglove.websocket.v1): their state as channels with schemas, their services, "

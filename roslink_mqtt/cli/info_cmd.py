@@ -25,7 +25,7 @@ ACCESS_WAIT = 1.0  # s for the retained access report (it follows the SUBACK at 
 LINK_WAIT = 1.0  # s for the retained link report (an older bridge publishes none: info goes on without it)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("info", help="what a robot maps: state, commands, services, actions and their types",
                        description="Print a robot's description (retained by its bridge): every state, command, "
                                    "service and action it maps, who may use each, and with --types the field "

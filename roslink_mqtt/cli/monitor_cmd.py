@@ -28,7 +28,7 @@ PRESENCE_STYLE = {"online": "green", "stale": "yellow", "offline": "red", "unsee
 RIGHT_ALIGNED = {"battery", "voltage", "x", "y", "yaw", "vx", "wz", "lat", "lon", "rate", "age"}
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("monitor", help="live table of your robots: presence, battery, pose, GPS, rates",
                        description="A live table of every robot you may see: presence, battery, pose, GPS, "
                        "motion rate, latest acknowledgement, and the error reports sent to you.")

@@ -23,7 +23,7 @@ def _value(text: str) -> Any:
         return text
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("param", help="get, set, list or describe a ROS node's parameters on a robot",
                        description="The parameters of the ROS nodes a robot exposes (robots.yaml parameters).")
     verbs = p.add_subparsers(dest="param_command", required=True, metavar="VERB")

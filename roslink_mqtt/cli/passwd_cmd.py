@@ -11,7 +11,7 @@ from ..config.passwords import DEFAULT_ITERATIONS, hash_password
 MIN_LENGTH = 8  # characters: a robot's or user's login faces the Internet
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("passwd", help="hash a password for robots.yaml (Mosquitto $7$ format)",
                        description="Print a PBKDF2-SHA512 hash that both robots.yaml and Mosquitto accept. "
                                    "The password is read from the terminal (twice), or from the first line of "

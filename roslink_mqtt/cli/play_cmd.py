@@ -13,7 +13,7 @@ from ..topics import TopicTree, check_name
 from .connect import PROG, add_connection_options, stop_on_signals
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("play", help="publish a recording (roslink-mqtt record) or a ROS 2 bag again, as a robot",
                        description="Publish the heartbeats and state of a recording into a broker at the recorded "
                                    "pace, logged in as a robot (-u ROBOT): dashboards, scripts and tests see that "

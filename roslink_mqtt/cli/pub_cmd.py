@@ -16,7 +16,7 @@ from .control_cmd import claim_if_free
 RECONNECT_WAIT = 3.0  # s: after losing the connection mid-stream, how long we wait to learn why (a revoked grant)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("pub", help="send a command to a robot (twist, go_to_waypoint, arm, …)",
                        description="Send COMMAND with the JSON payload, e.g. "
                                    "`roslink-mqtt pub turtle1 twist '{\"lx\": 0.2}' --rate 10 --duration 2`; "

@@ -10,7 +10,7 @@ from ..topics import check_name, last_level, state_name
 from .connect import PROG, add_connection_options, stop_on_signals
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("record", help="record robots' state, heartbeats and your replies as MCAP (Foxglove)",
                        description="Record what you may read of the robots named: heartbeats, every state topic "
                                    "(or those given with --topic) and what the robots send you, one MCAP channel per "

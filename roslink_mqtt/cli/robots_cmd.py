@@ -11,7 +11,7 @@ from .connect import add_connection_options, open_client
 CONTROL_WAIT = 1.0  # s for a robot's retained control state
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("robots", help="list the robots you may see, with their presence",
                        description="Collect retained heartbeats for a moment and print one line per robot.")
     p.add_argument("names", nargs="*", help="robots to look for (needed on brokers that refuse wildcards)")

@@ -21,7 +21,7 @@ def seconds(text: str) -> float:
     return value
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("snapshot", help="fetch the last seconds of a robot's snapshot topics as MCAP (ros2 bag)",
                        description="Ask the robot for the last seconds of the ROS topics its robot file keeps "
                                    "(snapshot:), as MCAP: the messages as recorded on the robot (CDR, ros2msg "

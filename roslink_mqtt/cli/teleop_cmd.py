@@ -73,7 +73,7 @@ def _clamp(value: float, limit: float) -> float:
     return max(-limit, min(limit, value))
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("teleop", help="drive a robot with the keyboard",
                        description=" ".join(__doc__.split("\n\n")[:2]))
     p.add_argument("robot")

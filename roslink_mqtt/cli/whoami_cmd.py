@@ -22,7 +22,7 @@ ACCESS_WAIT = 2.0  # s for every robot's retained access report after subscribin
 NO_REPORT = "no access report (its bridge has not connected since you were granted it, or is older)"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("whoami", help="your login, and your role, services and actions on every robot you may see",
                        description="Print who you are logged in as and, for every robot whose heartbeat you may "
                                    "read, your role and the services and actions you may use (from the access "

@@ -14,11 +14,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import Future
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from ..protocol.goals import GoalResult
 from .errors import GoalError
 from .goals import GoalHandle
+
+if TYPE_CHECKING:
+    from .action_servers import ServerGoal
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 
 # action_msgs/msg/GoalStatus
 STATUS_UNKNOWN, STATUS_ACCEPTED, STATUS_SUCCEEDED, STATUS_CANCELED, STATUS_ABORTED = 0, 1, 4, 5, 6
@@ -26,11 +32,11 @@ _STATUS = {"succeeded": STATUS_SUCCEEDED, "canceled": STATUS_CANCELED, "aborted"
            "timeout": STATUS_ABORTED, "failed": STATUS_ABORTED}
 
 
-def _chain(source: Future, convert: Callable[[Any], Any]) -> Future:
+def _chain(source: Future[_T], convert: Callable[[_T], _R]) -> Future[_R]:
     """A future of ``convert(source's result)`` (its exception passed on)."""
-    out: Future = Future()
+    out: Future[_R] = Future()
 
-    def done(f: Future) -> None:
+    def done(f: Future[_T]) -> None:
         error = f.exception()
         if error is not None:
             out.set_exception(error)
@@ -59,16 +65,16 @@ class ClientGoalHandle:
     def status(self) -> int:
         return _STATUS.get(self._handle.status, STATUS_ACCEPTED if self.accepted else STATUS_UNKNOWN)
 
-    def get_result_async(self) -> Future:
+    def get_result_async(self) -> Future[SimpleNamespace]:
         """A future of ``SimpleNamespace(status=<GoalStatus number>, result=<dict>)``, as rclpy's result response."""
         def convert(result: GoalResult) -> SimpleNamespace:
             return SimpleNamespace(status=_STATUS.get(result.status, STATUS_ABORTED), result=result.result or {},
                                    error=result.error)
         return _chain(self._handle.result_future, convert)
 
-    def cancel_goal_async(self) -> Future:
+    def cancel_goal_async(self) -> Future[None]:
         self._handle.cancel()
-        done: Future = Future()
+        done: Future[None] = Future()
         done.set_result(None)
         return done
 
@@ -95,7 +101,7 @@ class ActionClient:
         return True
 
     def send_goal_async(self, goal: dict[str, Any], feedback_callback: Callable[[Any], None] | None = None
-                        ) -> Future:
+                        ) -> Future[ClientGoalHandle]:
         """A future of a :class:`ClientGoalHandle` once the goal is answered (rejected: ``accepted`` False)."""
         callback = None
         if feedback_callback is not None:
@@ -103,9 +109,9 @@ class ActionClient:
                 feedback_callback(SimpleNamespace(feedback=feedback))
         handle = self._node.robot_client.send_goal(self._node.robot, self.action_name, goal, callback)
         wrapped = ClientGoalHandle(handle)
-        out: Future = Future()
+        out: Future[ClientGoalHandle] = Future()
 
-        def answered(f: Future) -> None:
+        def answered(f: Future[bool]) -> None:
             error = f.exception()
             if error is not None and not isinstance(error, GoalError):
                 out.set_exception(error)
@@ -128,7 +134,7 @@ class ActionClient:
 class ServerGoalHandle:
     """rclpy's ServerGoalHandle over a served goal: ``request``, feedback, cancel, and how it ends."""
 
-    def __init__(self, goal: Any) -> None:
+    def __init__(self, goal: ServerGoal) -> None:
         self._goal = goal
         self.request = goal.goal
         self.goal_id = goal.id

@@ -27,7 +27,7 @@ from typing import Any
 import orjson
 
 from ..protocol import SPECS, Direction, encode_message, spec_for
-from ..protocol.control import GENERIC_SENDER_KEY
+from ..protocol.codec import GENERIC_SENDER_KEY
 from ..topics import TopicTree, Verb, check_path, join_leaf, split_leaf, trimmed
 from .errors import InvalidArgument
 

@@ -14,6 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import IntEnum
 
 from ..protocol import FlightMode, MessageId, ProtocolError, RobotType, SystemStatus, decode
 
@@ -48,7 +49,7 @@ class RobotInfo:
         return self.system_status == SystemStatus.EMERGENCY
 
 
-def _enum(cls: type, value: int) -> int:
+def _enum(cls: type[IntEnum], value: int) -> int:
     try:
         return cls(value)
     except ValueError:

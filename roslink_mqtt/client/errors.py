@@ -13,7 +13,7 @@ from typing import Any
 
 from ..protocol import ProtocolError
 from ..protocol.control import ErrorReport, Notice
-from ..protocol.errors import RoslinkError
+from ..protocol.errors import RoslinkError as RoslinkError  # the SDK names it here too
 
 
 class InvalidArgument(RoslinkError, ValueError):

@@ -139,5 +139,6 @@ def stamp_of(value: Any, arrived: int) -> int:
     stamp = header.get("stamp") if isinstance(header, dict) else None
     if isinstance(stamp, dict) and isinstance(stamp.get("sec"), int):
         nanos = stamp.get("nanosec", stamp.get("nsec", 0))
-        return stamp["sec"] * NS + (nanos if isinstance(nanos, int) else 0)
+        sec: int = stamp["sec"]  # an int: checked above
+        return sec * NS + (nanos if isinstance(nanos, int) else 0)
     return arrived

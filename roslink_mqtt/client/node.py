@@ -22,7 +22,7 @@ import threading
 import warnings
 from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any
+from typing import Any, TypeVar
 
 from .. import ros_names
 from ..connection_options import env_username
@@ -43,6 +43,7 @@ from .subscriptions import StateItem, StateSubscription
 
 ENV_ROBOT = "ROSLINK_ROBOT"
 MsgType = str | type[RoslinkMessage]
+_Entity = TypeVar("_Entity", bound="Publisher | Subscription | Service | Client | Timer")  # what a node holds
 
 
 def ros_shaped_to_roslink(command: str, msg: dict[str, Any]) -> dict[str, Any]:
@@ -159,8 +160,8 @@ class Service:
     means "the response I filled in"). Raising fails the ROS call with the text.
     """
 
-    def __init__(self, node: Node, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any],
-                 timeout: float) -> None:
+    def __init__(self, node: Node, srv_type: str, srv_name: str,
+                 callback: Callable[[dict[str, Any], dict[str, Any]], Any], timeout: float) -> None:
         self._node, self.srv_type, self.srv_name, self.callback = node, srv_type, ros_names.relative(srv_name), callback
         self._offer = node.robot_client.provide(node.robot, self.srv_name, srv_type, self._handle, timeout=timeout)
 
@@ -334,7 +335,7 @@ class Node:
         """
         return self._add(Subscription(self, msg_type, topic, callback, qos_profile, encoding))
 
-    def create_service(self, srv_type: str, srv_name: str, callback: Callable[[dict, dict], Any], *,
+    def create_service(self, srv_type: str, srv_name: str, callback: Callable[[dict[str, Any], dict[str, Any]], Any], *,
                        timeout: float = 5.0, **_rclpy_options: Any) -> Service:
         """Provide ROS service ``srv_name`` on the robot while this node lives (operators only).
 
@@ -406,7 +407,7 @@ class Node:
         """
         return self._parameters.declare(name, value, descriptor)
 
-    def declare_parameters(self, namespace: str, parameters: list[tuple], ignore_override: bool = False
+    def declare_parameters(self, namespace: str, parameters: list[tuple[Any, ...]], ignore_override: bool = False
                            ) -> list[Parameter]:
         """rclpy's form: ``[(name,), (name, value), (name, value, descriptor)]``, names under ``namespace.``."""
         out = []
@@ -455,7 +456,7 @@ class Node:
         self._parameters.remove_on_set_callback(callback)
 
     # -- internals ------------------------------------------------------------------------
-    def _add(self, entity: Any) -> Any:
+    def _add(self, entity: _Entity) -> _Entity:
         if self._destroyed:
             raise NodeDestroyed(f"node {self._name} was destroyed")
         self._entities.append(entity)

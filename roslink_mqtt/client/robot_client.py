@@ -253,7 +253,8 @@ class RobotClient:
             description = self.description(robot, timeout)
         except RoslinkError:  # WaitTimeout, SubscriptionFailed, ProtocolError, NotConnectedError
             return None
-        return description.unknown_state(name)
+        why: str | None = description.unknown_state(name)  # a RobotDescription's
+        return why
 
     def link(self, robot: str, timeout: float = 2.0) -> Any:
         """What ``robot``'s uplink carries (a :class:`~roslink_mqtt.protocol.link.LinkReport`: its measured rate,

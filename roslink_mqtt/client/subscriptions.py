@@ -176,7 +176,7 @@ class StateSubscription:
         self.close()
 
 
-def _put_latest(q: queue.Queue | asyncio.Queue, item: StateItem) -> None:
+def _put_latest(q: queue.Queue[StateItem] | asyncio.Queue[StateItem], item: StateItem) -> None:
     """Put, dropping the oldest item when the queue is full."""
     while True:
         try:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 from functools import cached_property
+from typing import Any
 
 from ..compat import StrEnum
 from ..protocol.enums import RobotType
@@ -225,7 +226,7 @@ class FailsafeAction:
 
     ros_topic: str
     ros_type: str
-    message: dict = field(default_factory=dict)  # JSON form of the message (generic conversion)
+    message: dict[str, Any] = field(default_factory=dict)  # JSON form of the message (generic conversion)
 
 
 @dataclass(frozen=True, slots=True)

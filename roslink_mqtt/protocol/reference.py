@@ -9,18 +9,18 @@ Run ``python -m roslink_mqtt.protocol.reference --write docs/protocol.md`` to re
 from __future__ import annotations
 
 import base64
-from typing import Protocol
+from typing import Any, Protocol
 
 import orjson
 
 from ..topics import TopicTree, Verb
+from .body import BodyField
 from .codec import _HEADER_BOUNDS, ROSLINK_VERSION, Envelope, encode
 from .control import (
     CONTROL_BODIES,
     MAX_CALL_ID,
     AccessReport,
     Advertisement,
-    BodyField,
     CallReply,
     CallRequest,
     ErrorReport,
@@ -120,7 +120,7 @@ _CONTROL_EXAMPLES: dict[type, _DocumentedBody] = {
     Advertisement: Advertisement("std_msgs/msg/String", "alice-sdk-5f2c9e0a1b3d4c6e"),
 }
 
-_EXAMPLES: dict[str, dict] = {
+_EXAMPLES: dict[str, dict[str, Any]] = {
     "heartbeat": {"type": 1, "name": "turtle1", "system_status": 4, "owner_id": "alice", "mode": 0, "session": 3},
     "robot_status": {"voltage_battery": 12.1, "current_battery": -1.5, "battery_remaining": 87.0},
     "global_motion": {"time_boot_ms": 52100, "x": 1.2, "y": -0.4, "z": 0.0, "vx": 0.2, "vy": 0.0, "vz": 0.0,
@@ -142,7 +142,7 @@ _EXAMPLES: dict[str, dict] = {
 }
 
 
-def example(spec: MessageSpec) -> dict:
+def example(spec: MessageSpec) -> dict[str, Any]:
     return dict(_EXAMPLES.get(spec.name, {}))
 
 

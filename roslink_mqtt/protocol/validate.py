@@ -71,7 +71,7 @@ def _check_int(path: str, value: object, bounds: tuple[int, int] | None) -> int:
     return value
 
 
-def _check_list(path: str, value: Any) -> list:
+def _check_list(path: str, value: Any) -> list[Any]:
     if not isinstance(value, list):
         raise ProtocolError(f"{path}: expected array, got {describe(value)}")
     if len(value) > MAX_LIST_ITEMS:

@@ -28,6 +28,7 @@ from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState, LaserScan, NavSatFix, NavSatStatus
 from std_msgs.msg import Bool, Float64, String
@@ -104,7 +105,7 @@ class SimRobot(Node):
             f"{k}={os.environ.get(k, '(unset)')}" for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION"))
         self.get_logger().info(f"simulated robot ready in a {2 * self.world.half_size:g} m room; DDS: {dds}")
 
-    def on_set_parameters(self, parameters: list) -> SetParametersResult:
+    def on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Apply max_speed when it changes (the descriptor's range has refused values outside 0..5 already)."""
         for parameter in parameters:
             if parameter.name == "max_speed":

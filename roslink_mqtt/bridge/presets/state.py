@@ -28,7 +28,8 @@ def _finite(value: float, unknown: float = 0.0) -> float:
 
 
 def _usec(header: Any) -> int:
-    return header.stamp.sec * 1_000_000 + header.stamp.nanosec // 1000
+    usec: int = header.stamp.sec * 1_000_000 + header.stamp.nanosec // 1000  # builtin_interfaces/Time: ints
+    return usec
 
 
 def _rpy(q: Any) -> tuple[float, float, float]:
