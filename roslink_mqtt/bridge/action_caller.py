@@ -8,7 +8,10 @@ own, so two users' ids never collide and nobody can cancel another user's goal. 
 
 Safety: :meth:`ActionCaller.cancel_goals` cancels a user's goals (their presence ended) or everyone's (the
 broker was lost, an emergency stop); the command endpoint calls it exactly where it stops velocity. A goal
-without a result after its ``timeout`` is canceled and reported as ``timeout``.
+without a result after its ``timeout`` is canceled and reported as ``timeout``. Every goal goes out with an id
+of the bridge's own, so it can be canceled before its answer arrives (an emergency stop right after a goal), and
+a goal whose answer never comes (a DDS reply lost: the server may be running it) is canceled by that id after
+GOAL_ANSWER_WAIT and reported as failed; an answer that comes after that is canceled at once.
 
 Threads: MQTT messages only check and queue; every rclpy action-client call runs on the executor (woken by a
 guard condition), because rclpy's ``ActionClient`` records a request's sequence number only after sending it,
@@ -22,14 +25,17 @@ import logging
 import os
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
 from rclpy.action import ActionClient
+from rclpy.action.client import ClientGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from unique_identifier_msgs.msg import UUID
 
 from .. import ros_names
 from ..config import ActionRule, Robot
@@ -60,6 +66,9 @@ SERVER_WAIT = 2.0  # s a goal waits for its action server to be discovered (a br
 # (timeout)" in the server's log); the goal then waited for an answer that never came (a clean-clone run: a goal
 # sent 0.1 s after the bridge started)
 SERVER_SETTLE = 1.0
+# s a sent goal may wait for the server's answer (accepted or rejected; rclpy answers at once, a slow goal callback
+# takes what it takes): after that, canceled by its id, in case the server took it and only its answer was lost
+GOAL_ANSWER_WAIT = 5.0
 MAX_GOALS_PER_USER = 64  # goals one user may have in flight on one robot
 
 
@@ -81,6 +90,8 @@ class _Goal:
     forget_at: float | None = None  # canceled: give up waiting for the result then
     last_feedback: float = 0.0
     pending_feedback: dict[str, Any] | None = None
+    ros_id: Any = None  # the unique_identifier_msgs/UUID it was sent with (None: not sent yet)
+    sent_at: float | None = None  # monotonic: sent, its answer awaited (GOAL_ANSWER_WAIT)
 
     @property
     def key(self) -> tuple[str, str, str]:
@@ -185,7 +196,9 @@ class ActionCaller:
             self._forget(goal)
             return
         client = self.actions[goal.action][2]
-        future = client.send_goal_async(goal.msg, feedback_callback=lambda fb: self._feedback(goal, fb))
+        goal.ros_id, goal.sent_at = UUID(uuid=list(uuid.uuid4().bytes)), now
+        future = client.send_goal_async(goal.msg, feedback_callback=lambda fb: self._feedback(goal, fb),
+                                        goal_uuid=goal.ros_id)
         future.add_done_callback(lambda f: self._responded(goal, f))
 
     def _server_seen(self, action: str, now: float) -> bool:
@@ -206,6 +219,13 @@ class ActionCaller:
 
     def _responded(self, goal: _Goal, future: Any) -> None:
         handle = future.result() if future.exception() is None else None
+        goal.sent_at = None
+        if not self._live(goal):  # answered after the bridge gave up on it (GOAL_ANSWER_WAIT): nobody owns it
+            if handle is not None and handle.accepted:
+                log.warning("goal %s of %s on %s: accepted after the bridge gave up on its answer (%g s): canceled",
+                            goal.id, goal.user, goal.action, GOAL_ANSWER_WAIT)
+                handle.cancel_goal_async()
+            return
         if handle is None or not handle.accepted:
             why = "the action server rejected the goal" if handle is not None else \
                 f"sending failed: {future.exception()}"
@@ -224,13 +244,23 @@ class ActionCaller:
         if status is not None and goal.end_status is None:
             goal.end_status, goal.end_reason = status, reason
         if goal.handle is None:
-            goal.cancel_asked = True
-            return  # not accepted yet: _responded cancels it as soon as it is
+            goal.cancel_asked = True  # not accepted yet: _responded cancels it as soon as it is, and if it was sent
+            if goal.sent_at is not None:  # the server may have it already (its answer late, or lost): by its id now
+                self._cancel_by_id(goal)
+            return
         if goal.cancel_sent:
             return
         goal.cancel_sent = True
         goal.forget_at = time.monotonic() + RESULT_GRACE
         goal.handle.cancel_goal_async().add_done_callback(lambda f: self._cancel_answered(goal, f))
+
+    def _cancel_by_id(self, goal: _Goal) -> None:
+        """Ask the server to cancel the goal sent with ``goal.ros_id``, without its answer (no handle yet)."""
+        ClientGoalHandle(self.actions[goal.action][2], goal.ros_id, None).cancel_goal_async()
+
+    def _live(self, goal: _Goal) -> bool:
+        with self._lock:
+            return self._goals.get(goal.key) is goal
 
     def _cancel_answered(self, goal: _Goal, future: Any) -> None:
         response = future.result() if future.exception() is None else None
@@ -238,6 +268,8 @@ class ActionCaller:
             self._status(goal, CANCELING)
 
     def _feedback(self, goal: _Goal, message: Any) -> None:
+        if not self._live(goal):
+            return  # a goal the bridge gave up on (being canceled): nobody to tell
         body = converter_for(type(message.feedback)).to_dict(message.feedback)
         now = time.monotonic()
         if now - goal.last_feedback >= 1.0 / goal.rule.feedback_rate:
@@ -266,6 +298,14 @@ class ActionCaller:
         for goal in goals:
             if goal.waiting_since is not None:
                 self._send(goal)
+                continue
+            if goal.sent_at is not None and now - goal.sent_at > GOAL_ANSWER_WAIT:
+                self._cancel_by_id(goal)
+                log.warning("goal %s of %s on %s: no answer from the action server within %g s: canceled by its id",
+                            goal.id, goal.user, goal.action, GOAL_ANSWER_WAIT)
+                self._finish(goal, FAILED, None, f"the action server did not answer within {GOAL_ANSWER_WAIT:g} s "
+                                                 "(accepted or rejected): the bridge canceled the goal in case the "
+                                                 "server took it")
                 continue
             if goal.pending_feedback is not None and now - goal.last_feedback >= 1.0 / goal.rule.feedback_rate:
                 body, goal.pending_feedback, goal.last_feedback = goal.pending_feedback, None, now

@@ -35,7 +35,9 @@ def _viewer_action(text: str) -> str:
     """A second action on the same server that viewers may use (the ACL and the bridge must both allow it)."""
     anchor = "         feedback_rate: 5.0}\n"
     return text.replace(anchor, anchor + "      - {name: fib_public, ros_action: fibonacci, "
-                                         "ros_type: test_msgs/action/Fibonacci, viewers: true, timeout: 1.0}\n", 1)
+                                         "ros_type: test_msgs/action/Fibonacci, viewers: true, timeout: 1.0}\n"
+                                         "      - {name: slow_answer, ros_action: slow_answer, "
+                                         "ros_type: test_msgs/action/Fibonacci, timeout: 60.0}\n", 1)
 
 
 @pytest.fixture(scope="module", params=["embedded", "mosquitto"])
@@ -124,7 +126,8 @@ def test_cancel_and_rejection(stack) -> None:
     ("goal/fibonacci", {"id": "x", "goal": {"order": "many"}}, "goal.order: expected"),
     ("goal/fibonacci", {"goal": {"order": 3}}, "id: missing"),
     ("goal/fibonacci", {"id": "x", "goal": {"ordr": 3}}, "ordr"),
-    ("goal/no_such_action", {"id": "x"}, "unknown action 'no_such_action' (actions: fib_public, fibonacci)"),
+    ("goal/no_such_action", {"id": "x"},
+     "unknown action 'no_such_action' (actions: fib_public, fibonacci, slow_answer)"),
     ("cancel/fibonacci", {"id": "never-sent"}, "no goal 'never-sent' of yours on 'fibonacci' is in flight"),
 ])
 def test_bad_input_is_refused_on_the_error_topic(stack, leaf: str, body: dict, why: str) -> None:
@@ -201,6 +204,70 @@ def test_emergency_stop_cancels_every_goal(stack) -> None:
     time.sleep(0.5)
     again = send_goal(stack.admin, "admin", {"order": 3})
     assert GoalResult.from_json(until_result(stack.admin, "admin", again)[-1].payload).status == "succeeded"
+
+
+# An action server that answers a goal only after ANSWER_AFTER s (its goal callback awaits), then runs it at one
+# term a second; it prints what happened to each goal.
+ANSWER_AFTER = 7.0
+SLOW_ANSWER_SERVER = f"""
+import rclpy
+from action_msgs.msg import GoalStatus
+from rclpy.action import GoalResponse
+from rclpy.executors import MultiThreadedExecutor
+from roslink_mqtt.sim.fibonacci import FibonacciServer
+from roslink_mqtt.sim.wait import executor_sleep
+rclpy.init()
+node = rclpy.create_node('slow_answer')
+server = FibonacciServer(node, 'slow_answer', step_period=1.0)
+run = server.execute
+async def on_goal(goal):
+    await executor_sleep(node, {ANSWER_AFTER})
+    print('accepting', flush=True)
+    return GoalResponse.ACCEPT
+async def execute(handle):
+    result = await run(handle)
+    ended = {{GoalStatus.STATUS_CANCELED: 'canceled', GoalStatus.STATUS_SUCCEEDED: 'succeeded'}}
+    print(ended.get(handle.status, handle.status), flush=True)
+    return result
+server.server.register_goal_callback(on_goal)
+server.server.register_execute_callback(execute)
+print('up', flush=True)
+executor = MultiThreadedExecutor()
+executor.add_node(node)
+executor.spin()
+"""
+
+
+def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_server_takes_it(stack) -> None:
+    """A DDS reply can be lost (Fast DDS drops a goal response to a client it has not discovered yet): the server
+    runs a goal the bridge never heard was accepted, and nobody could stop it. The bridge gives up on the answer
+    after GOAL_ANSWER_WAIT (5 s), tells the user, cancels by the goal's id, and cancels it again the moment a late
+    answer does come. Here the server answers after 7 s; unanswered, the goal would run 5 s more and succeed."""
+    if stack.backend != "embedded":
+        pytest.skip("bridge-side: one broker shows it")
+    server = subprocess.Popen([sys.executable, "-c", SLOW_ANSWER_SERVER], stdout=subprocess.PIPE, text=True,
+                              env=os.environ.copy())
+    try:
+        assert server.stdout is not None and server.stdout.readline().strip() == "up"
+        sent = time.monotonic()
+        goal_id = send_goal(stack.alice, "alice", {"order": 5}, action="slow_answer")
+        seen = until_result(stack.alice, "alice", goal_id, timeout=30, action="slow_answer")
+        gave_up = time.monotonic() - sent
+        result = GoalResult.from_json(seen[-1].payload)
+        assert kinds(seen) == ["result"], kinds(seen)  # no goal status: the bridge never learned one
+        assert result.status == "failed" and "did not answer within 5 s" in (result.error or ""), result
+        record_measurement("goal without an answer: reported failed (server seen 1 s, then 5 s)", gave_up, 15.0)
+        assert server.stdout.readline().strip() == "accepting"
+        assert server.stdout.readline().strip() == "canceled"  # not "succeeded": the late answer was canceled
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+    log = (stack.work / "bridge.log").read_text(errors="replace")
+    assert "accepted after the bridge gave up on its answer" in log, log[-2000:]
 
 
 # -- the SDK ----------------------------------------------------------------------------------------------
