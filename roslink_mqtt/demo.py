@@ -246,7 +246,7 @@ def _domain_id(text: str) -> int:
     return value
 
 
-def _run(argv: list[str] | None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Run the roslink-mqtt demo on this machine.")
     parser.add_argument("--config", help="the fleet (default: config/robots.yaml; with --vda5050 "
                                          "examples/vda5050/robots.yaml)")
@@ -260,7 +260,11 @@ def _run(argv: list[str] | None) -> int:
     parser.add_argument("--ros-domain-id", type=_domain_id, metavar="N",
                         help="the ROS domain of the simulated robot and its bridge (default: one that no ROS process "
                              "on this machine uses)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _run(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
     args.config = args.config or ("examples/vda5050/robots.yaml" if args.vda5050 else "config/robots.yaml")
     fleet = load_fleet(args.config)
     topics = fleet.topics
@@ -309,90 +313,124 @@ def _run(argv: list[str] | None) -> int:
             return code
         scene = Scene(port, topics)
         stack.callback(scene.close)
-        print(f"3. bob (viewer) subscribes to {topics.heartbeat('turtle1')} and {topics.state_filter('turtle1')} :")
-        latest = scene.watch(8.0, {"heartbeat", "global_motion", "robot_status", "range_finder_data",
-                                   "gps_raw_info"}, until_shown=True)
-        if "heartbeat" not in latest:
-            print("  the robot did not come online; see the logs")
-            return 1
-        start_x = latest.get("global_motion", {}).get("x", 0.0)
-        print("4. alice (operator) announces her presence and drives: lx=0.4 m/s, az=0.5 rad/s for 2 s")
-        cmd = topics.command("turtle1", "alice", "twist")
-        for seq in range(1, 21):
-            if seq % 10 == 1:
-                scene.beat()
-            scene.operator.publish(cmd, orjson.dumps({"message_id": int(MessageId.TWIST), "sequence_number": seq,
-                                                      "payload": {"lx": 0.4, "az": 0.5}}))
-            time.sleep(0.1)
-        motion = scene.newest("global_motion")
-        print(f"  the robot moved {abs(motion.get('x', start_x) - start_x):.2f} m in x")
-        print("5. alice sends a malformed twist {\"lx\": \"fast\"}:")
-        scene.beat()
-        scene.operator.publish(cmd, b'{"lx": "fast"}')
-        topic, body = scene.reply()
-        print(f"  {topic}: {ErrorReport.from_json(body).error}")
-        print("6. alice calls the robot's ROS service 'reset' over MQTT:")
-        for attempt in range(10):
-            scene.beat()
-            scene.operator.publish(topics.call("turtle1", "alice", "reset"), CallRequest(id=attempt).to_json())
-            topic, body = scene.reply()
-            if topic == topics.reply("turtle1", "alice", "reset") and CallReply.from_json(body).result:
-                break
-            time.sleep(0.5)
-        print(f"  {topic}: {body.decode()}")
-        print("7. alice sends a goal to the robot's ROS action 'fibonacci' (order 6) and watches it progress:")
-        scene.beat()
-        scene.operator.publish(topics.goal("turtle1", "alice", "fibonacci"),
-                               GoalRequest("demo-goal", {"order": 6}).to_json(), qos=1)
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline:
-            try:
-                topic, body = scene.reply(timeout=deadline - time.monotonic())
-            except queue.Empty:
-                print("  (no result seen)")
-                break
-            parsed = topics.parse(topic)
-            if parsed is None or parsed.name != "fibonacci":
-                continue
-            assert parsed.verb is not None  # a to/<user>/ topic: reply, goal status, feedback, result
-            print(f"  {parsed.verb.value}: {body.decode()}")
-            if parsed.verb is Verb.RESULT:
-                break
-        print("8. alice lowers the robot's top speed: parameter max_speed of ROS node sim_robot := 0.2, over MQTT")
-        scene.beat()
-        set_speed = topics.param("turtle1", "alice", "sim_robot")
-        scene.operator.publish(set_speed, ParamRequest("demo-speed", "set", values={"max_speed": 0.2}).to_json(),
-                               qos=1)
-        try:
-            while (answer := scene.reply(timeout=10))[0] != topics.user_topic("turtle1", "alice", Verb.PARAM_REPLY,
-                                                                            "sim_robot"):
-                pass
-            print(f"  {answer[0]}: {answer[1].decode()}")
-        except queue.Empty:
-            print("  (no parameter reply seen)")
-        print("9. alice drives again at 0.3 m/s (the robot now tops out at 0.2), then goes silent: the dead-man "
-              "stops the robot")
-        for seq in range(21, 36):
-            if seq % 10 == 1:
-                scene.beat()  # presence lasts operator_timeout (1.5 s): keep it up while driving
-            scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,
-                                                      "payload": {"lx": 0.3}}))
-            time.sleep(0.1)
-        motion = scene.newest("global_motion", settle=0.2)
-        if motion:
-            print(f"  the robot drives at vx={motion.get('vx', 0.0):.2f} m/s")
-        scene.beat()
-        latest = scene.watch(2.0, {"ack"}, until_shown=True)
-        if "ack" not in latest:
-            print("  (no failsafe notice seen)")
-        scene.operator.publish(set_speed, ParamRequest("demo-speed-back", "set", values={"max_speed": 1.0}).to_json(),
-                               qos=1)
+        if (code := _play(scene, topics)) != 0:
+            return code
         if dashboard is None:
             print("Web dashboard: run `make dashboard` to keep this scene running and drive turtle1 from a browser.")
         else:
             _wait_for_ctrl_c(dashboard.url)
         print("Done: stopping the bridge (its offline heartbeat is retained), robot and broker.")
     return 0
+
+
+def _play(scene: Scene, topics: TopicTree) -> int:
+    """Steps 3 to 9: bob watches; alice drives, is refused, calls a service, sends a goal, sets a parameter and
+    goes silent."""
+    print(f"3. bob (viewer) subscribes to {topics.heartbeat('turtle1')} and {topics.state_filter('turtle1')} :")
+    latest = scene.watch(8.0, {"heartbeat", "global_motion", "robot_status", "range_finder_data",
+                               "gps_raw_info"}, until_shown=True)
+    if "heartbeat" not in latest:
+        print("  the robot did not come online; see the logs")
+        return 1
+    _drive(scene, topics, latest.get("global_motion", {}).get("x", 0.0))
+    _call_reset(scene, topics)
+    _goal(scene, topics)
+    set_speed = _lower_speed(scene, topics)
+    _dead_man(scene, topics, set_speed)
+    return 0
+
+
+def _drive(scene: Scene, topics: TopicTree, start_x: float) -> None:
+    """Steps 4 and 5: alice drives for 2 s, then sends a malformed twist."""
+    print("4. alice (operator) announces her presence and drives: lx=0.4 m/s, az=0.5 rad/s for 2 s")
+    cmd = topics.command("turtle1", "alice", "twist")
+    for seq in range(1, 21):
+        if seq % 10 == 1:
+            scene.beat()
+        scene.operator.publish(cmd, orjson.dumps({"message_id": int(MessageId.TWIST), "sequence_number": seq,
+                                                  "payload": {"lx": 0.4, "az": 0.5}}))
+        time.sleep(0.1)
+    motion = scene.newest("global_motion")
+    print(f"  the robot moved {abs(motion.get('x', start_x) - start_x):.2f} m in x")
+    print("5. alice sends a malformed twist {\"lx\": \"fast\"}:")
+    scene.beat()
+    scene.operator.publish(cmd, b'{"lx": "fast"}')
+    topic, body = scene.reply()
+    print(f"  {topic}: {ErrorReport.from_json(body).error}")
+
+
+def _call_reset(scene: Scene, topics: TopicTree) -> None:
+    """Step 6: the robot's ROS service over MQTT."""
+    print("6. alice calls the robot's ROS service 'reset' over MQTT:")
+    for attempt in range(10):
+        scene.beat()
+        scene.operator.publish(topics.call("turtle1", "alice", "reset"), CallRequest(id=attempt).to_json())
+        topic, body = scene.reply()
+        if topic == topics.reply("turtle1", "alice", "reset") and CallReply.from_json(body).result:
+            break
+        time.sleep(0.5)
+    print(f"  {topic}: {body.decode()}")
+
+
+def _goal(scene: Scene, topics: TopicTree) -> None:
+    """Step 7: a goal to the robot's ROS action, its progress and result."""
+    print("7. alice sends a goal to the robot's ROS action 'fibonacci' (order 6) and watches it progress:")
+    scene.beat()
+    scene.operator.publish(topics.goal("turtle1", "alice", "fibonacci"),
+                           GoalRequest("demo-goal", {"order": 6}).to_json(), qos=1)
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        try:
+            topic, body = scene.reply(timeout=deadline - time.monotonic())
+        except queue.Empty:
+            print("  (no result seen)")
+            break
+        parsed = topics.parse(topic)
+        if parsed is None or parsed.name != "fibonacci":
+            continue
+        assert parsed.verb is not None  # a to/<user>/ topic: reply, goal status, feedback, result
+        print(f"  {parsed.verb.value}: {body.decode()}")
+        if parsed.verb is Verb.RESULT:
+            break
+
+
+def _lower_speed(scene: Scene, topics: TopicTree) -> str:
+    """Step 8: a ROS parameter set over MQTT; the topic it was set on."""
+    print("8. alice lowers the robot's top speed: parameter max_speed of ROS node sim_robot := 0.2, over MQTT")
+    scene.beat()
+    set_speed = topics.param("turtle1", "alice", "sim_robot")
+    scene.operator.publish(set_speed, ParamRequest("demo-speed", "set", values={"max_speed": 0.2}).to_json(),
+                           qos=1)
+    try:
+        while (answer := scene.reply(timeout=10))[0] != topics.user_topic("turtle1", "alice", Verb.PARAM_REPLY,
+                                                                        "sim_robot"):
+            pass
+        print(f"  {answer[0]}: {answer[1].decode()}")
+    except queue.Empty:
+        print("  (no parameter reply seen)")
+    return set_speed
+
+
+def _dead_man(scene: Scene, topics: TopicTree, set_speed: str) -> None:
+    """Step 9: alice drives again, then goes silent: the dead-man stops the robot; the speed goes back."""
+    cmd = topics.command("turtle1", "alice", "twist")
+    print("9. alice drives again at 0.3 m/s (the robot now tops out at 0.2), then goes silent: the dead-man "
+          "stops the robot")
+    for seq in range(21, 36):
+        if seq % 10 == 1:
+            scene.beat()  # presence lasts operator_timeout (1.5 s): keep it up while driving
+        scene.operator.publish(cmd, orjson.dumps({"message_id": 100, "sequence_number": seq,
+                                                  "payload": {"lx": 0.3}}))
+        time.sleep(0.1)
+    motion = scene.newest("global_motion", settle=0.2)
+    if motion:
+        print(f"  the robot drives at vx={motion.get('vx', 0.0):.2f} m/s")
+    scene.beat()
+    latest = scene.watch(2.0, {"ack"}, until_shown=True)
+    if "ack" not in latest:
+        print("  (no failsafe notice seen)")
+    scene.operator.publish(set_speed, ParamRequest("demo-speed-back", "set", values={"max_speed": 1.0}).to_json(),
+                           qos=1)
 
 
 def _start_dashboard(stack: ExitStack, port: int, ws_port: int, prefix: str) -> DashboardServer:

@@ -250,78 +250,89 @@ async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, sche
     reads the next, so the backlog stays in the sender's socket. Hidden queue: one task reads whatever arrives and
     books it on the shared link at once (the FIFO), another hands each packet on when the link has carried it.
     """
-    queue: asyncio.Queue[tuple[float, bytes] | None] = asyncio.Queue(QUEUED_CHUNKS)
-    loop = asyncio.get_running_loop()
-    held = 0  # bytes of this connection the hidden hop holds: given back to the bound if the connection dies
+    await _Direction(reader, writer, schedule, wire, hidden).run()
 
-    async def read() -> None:
+
+class _Direction:
+    """One connection's one direction: the tasks of :func:`_pump` and what they share."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, schedule: Schedule,
+                 wire: Wire | None, hidden: bool) -> None:
+        self.reader, self.writer, self.schedule, self.wire = reader, writer, schedule, wire
+        self.hidden = hidden and wire is not None
+        self.queue: asyncio.Queue[tuple[float, bytes] | None] = asyncio.Queue(QUEUED_CHUNKS)
+        self.loop = asyncio.get_running_loop()
+        self.held = 0  # bytes of this connection the hidden hop holds: given back to the bound if the connection dies
+
+    async def read(self) -> None:
+        wire = self.wire
         try:
-            while chunk := await reader.read(wire.packet_size if wire is not None else CHUNK):
-                sent = loop.time()
+            while chunk := await self.reader.read(wire.packet_size if wire is not None else CHUNK):
+                sent = self.loop.time()
                 if wire is not None:
                     # the next packet of this connection stays in its sender's socket until this one has left
                     sent = await wire.wait_sent(wire.book(len(chunk), sent))
-                await queue.put((schedule.release_time(sent), chunk))
+                await self.queue.put((self.schedule.release_time(sent), chunk))
         except (ConnectionError, OSError):
             pass
-        await queue.put(None)
+        await self.queue.put(None)
 
-    async def take(wire: Wire, fifo: asyncio.Queue[tuple[float, bytes] | None]) -> None:
-        nonlocal held
+    async def take(self, wire: Wire, fifo: asyncio.Queue[tuple[float, bytes] | None]) -> None:
         try:
             while True:
                 await wire.room()  # a full hop stops reading: the sender's socket fills from here on
-                chunk = await reader.read(max(1, min(CHUNK, wire.room_left())))
+                chunk = await self.reader.read(max(1, min(CHUNK, wire.room_left())))
                 if not chunk:
                     break
-                now, size = loop.time(), wire.packet_size
+                now, size = self.loop.time(), wire.packet_size
                 for i in range(0, len(chunk), size):
                     packet = chunk[i:i + size]
-                    held += len(packet)
+                    self.held += len(packet)
                     wire.held += len(packet)
                     fifo.put_nowait((wire.book(len(packet), now), packet))
         except (ConnectionError, OSError):
             pass
         fifo.put_nowait(None)
 
-    async def carry(wire: Wire, fifo: asyncio.Queue[tuple[float, bytes] | None]) -> None:
+    async def carry(self, wire: Wire, fifo: asyncio.Queue[tuple[float, bytes] | None]) -> None:
         while (item := await fifo.get()) is not None:
             end, packet = item
             sent = await wire.wait_sent(end)
-            await queue.put((schedule.release_time(sent), packet))
-        await queue.put(None)
+            await self.queue.put((self.schedule.release_time(sent), packet))
+        await self.queue.put(None)
 
-    async def write() -> None:
-        nonlocal held
-        while (item := await queue.get()) is not None:
+    async def write(self) -> None:
+        while (item := await self.queue.get()) is not None:
             release, chunk = item
-            if (wait := release - loop.time()) > 0:
+            if (wait := release - self.loop.time()) > 0:
                 await asyncio.sleep(wait)
-            writer.write(chunk)
-            if hidden and wire is not None:
-                held -= len(chunk)
-                wire.release(len(chunk))
-            await writer.drain()
+            self.writer.write(chunk)
+            if self.hidden and self.wire is not None:
+                self.held -= len(chunk)
+                self.wire.release(len(chunk))
+            await self.writer.drain()
         with contextlib.suppress(OSError):
-            writer.write_eof()
+            self.writer.write_eof()
 
-    if hidden and wire is not None:
-        fifo: asyncio.Queue[tuple[float, bytes] | None] = asyncio.Queue()  # bounded by the wire's limit
-        tasks = [asyncio.create_task(take(wire, fifo)), asyncio.create_task(carry(wire, fifo))]
-    else:
-        tasks = [asyncio.create_task(read())]
-    try:
-        await write()
-    except (ConnectionError, OSError):
-        pass
-    finally:
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        if wire is not None and held:
-            wire.release(held)
+    async def run(self) -> None:
+        wire = self.wire
+        if self.hidden and wire is not None:
+            fifo: asyncio.Queue[tuple[float, bytes] | None] = asyncio.Queue()  # bounded by the wire's limit
+            tasks = [asyncio.create_task(self.take(wire, fifo)), asyncio.create_task(self.carry(wire, fifo))]
+        else:
+            tasks = [asyncio.create_task(self.read())]
+        try:
+            await self.write()
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+            if wire is not None and self.held:
+                wire.release(self.held)
 
 
 def _rcvbuf(sock: socket.socket, size: int) -> None:

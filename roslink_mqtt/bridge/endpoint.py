@@ -374,21 +374,29 @@ class CommandEndpoint:
                     self.failsafe.velocity_command(user, time.monotonic(), standstill=standstill)
                 else:
                     self.failsafe.goal_command(user)
-            if behaviour.blocks_motion:
-                self.block_motion(f"{behaviour.blocks_motion} by {user}")
-            elif behaviour.resumes_motion and not route.is_service:
-                self._set_blocked(None)  # a service-backed arm resumes only when its service succeeds
-            if route.is_service:
-                why = self.actuators.call_service(route, msg, message_id, sequence)
-                if why:
-                    self.refuse(user, topic, why, message_id, sequence, client_id=sender)
-            else:
-                self.actuators.publish(user, route, msg)
-                if route.is_velocity and self.clamp_notices.tell((user, sender or "", route.name), time.monotonic(),
-                                                                 clamped=clamped is not None, standstill=standstill):
-                    self.notify(user, Notice(topic, clamped or "", message_id, sequence, sender))
-            if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
-                self._acknowledge_stop(user, message_id, sequence, behaviour.blocks_motion or "stop")
+            self._carry_out(user, topic, route, msg, Notice(topic, clamped or "", message_id, sequence, sender),
+                            clamped=clamped is not None, standstill=standstill)
+
+    def _carry_out(self, user: str, topic: str, route: Inbound, msg: Any, told: Notice, *, clamped: bool,
+                   standstill: bool) -> None:
+        """A command that passed every check: block or resume motion, publish it or call its service, tell the
+        sender what the limits cut (``told``: its ids, and the cut), acknowledge a stop. Under the lock."""
+        behaviour, message_id, sequence, sender = route.behaviour, told.message_id, told.sequence_number, told.client_id
+        if behaviour.blocks_motion:
+            self.block_motion(f"{behaviour.blocks_motion} by {user}")
+        elif behaviour.resumes_motion and not route.is_service:
+            self._set_blocked(None)  # a service-backed arm resumes only when its service succeeds
+        if route.is_service:
+            why = self.actuators.call_service(route, msg, message_id, sequence)
+            if why:
+                self.refuse(user, topic, why, message_id, sequence, client_id=sender)
+        else:
+            self.actuators.publish(user, route, msg)
+            if route.is_velocity and self.clamp_notices.tell((user, sender or "", route.name), time.monotonic(),
+                                                             clamped=clamped, standstill=standstill):
+                self.notify(user, told)
+        if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
+            self._acknowledge_stop(user, message_id, sequence, behaviour.blocks_motion or "stop")
 
     def _acknowledge_stop(self, user: str, message_id: int | None, sequence: int | None, what: str) -> None:
         """Acknowledge a stop on ``state/ack``, at most once per :data:`STOP_ACK_INTERVAL` per user: any granted

@@ -26,7 +26,8 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -42,7 +43,11 @@ from ..connection_options import (
 from ..connection_options import resolve_password as resolve_login_password
 
 if TYPE_CHECKING:
+    from rclpy.node import Node
+
+    from ..config import Fleet, Robot
     from ..mqtt import BrokerUrl
+    from .node import Bridge
 
 PROG = "roslink-mqtt-bridge"
 ENV_EXECUTOR = "ROSLINK_EXECUTOR"
@@ -172,25 +177,23 @@ def without_ros_args(argv: list[str]) -> list[str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv if argv is None else argv
+@dataclass
+class _Start:
+    """What the command line and the fleet file say the bridge is to run."""
+
+    fleet: Fleet
+    robot: Robot
+    urls: tuple[BrokerUrl, ...]
+    password: str
+    executor: str  # EXECUTORS
+
+
+def _read_start(args: argparse.Namespace) -> _Start | int:
+    """The robot, its brokers, password and executor; an exit code (the reason printed) when one is missing."""
+    import importlib.util
+
     from ..config import ConfigError, load_fleet
     from ..mqtt import parse_broker_urls
-
-    args = parse_args(without_ros_args(argv)[1:])
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    # Ctrl-C or SIGTERM while the bridge starts (loading ROS takes seconds on a busy machine) ends the start
-    # cleanly, once nothing half-made is left: no traceback from inside rclpy. From the main loop on, the same
-    # flag makes the clean shutdown (zero velocity, offline heartbeat).
-    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
-
-    def on_signal(flag: threading.Event) -> None:
-        flag.set()
-        wake.set()
-
-    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
-    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
-    import importlib.util
 
     if importlib.util.find_spec("rclpy") is None:
         print(f"{PROG}: rclpy is not importable in this Python ({sys.executable}): install the ROS 2 Jazzy wheels "
@@ -215,48 +218,52 @@ def main(argv: list[str] | None = None) -> int:
               f"(robots: {', '.join(fleet.robots)})", file=sys.stderr)
         return 2
     try:
-        url = parse_broker_urls(resolve_url(args, PROG, default=robot.bridge.broker_url))
+        urls = parse_broker_urls(resolve_url(args, PROG, default=robot.bridge.broker_url))
     except ValueError as err:
         print(f"roslink-mqtt-bridge: {err}", file=sys.stderr)
         return 2
     password = resolve_password(args, robot.bridge.password, robot.bridge.password_file,
                                 Path(args.config).resolve().parent)
-    from .claim import ANNOUNCE, EXIT_DUPLICATE, EXIT_FENCED, EXIT_LOGIN_REFUSED, Verdict
-
-    if stopping.is_set():
-        return 0  # stopped before anything was made
-    check = StartCheck(robot, url, password, resolve_ca_file(args), args.take_over,
-                       fleet.topics.heartbeat(robot.name), fleet.topics.state(robot.name, ANNOUNCE))
-    check.start()  # meanwhile, rclpy loads and ROS starts
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
-
-    from .node import Bridge
-    from .rules import RuleError
-
-    # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
-    # could publish the final zero velocity and the offline heartbeat.
     kind = args.executor or os.environ.get(ENV_EXECUTOR) or robot.bridge.executor
     if kind not in EXECUTORS:
         print(f"roslink-mqtt-bridge: ${ENV_EXECUTOR}={kind!r} is not one of {', '.join(EXECUTORS)}", file=sys.stderr)
         return 2
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    return _Start(fleet, robot, urls, password, kind)
+
+
+def _make_bridge(args: argparse.Namespace, start: _Start, check: StartCheck,
+                 stop: Callable[[], None]) -> tuple[Node, Node | None, Bridge]:
+    """The bridge's nodes and the bridge itself (rclpy initialised); a bad rule ends the process (exit 2)."""
+    import rclpy
+
+    from .node import Bridge
+    from .rules import RuleError
+
+    robot = start.robot
     try:
         node = rclpy.create_node("roslink_mqtt_bridge")
         # Under the EventsExecutor, actions provided by MQTT clients get a node and a single-threaded executor
         # of their own (Bridge says why); the main node keeps the cheap one.
-        action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if kind == "events" else None
-        bridge = Bridge(fleet, robot, node, password=password, broker_url=url,
+        action_node = rclpy.create_node("roslink_mqtt_bridge_actions") if start.executor == "events" else None
+        bridge = Bridge(start.fleet, robot, node, password=start.password, broker_url=start.urls,
                         ca_file=resolve_ca_file(args), action_node=action_node, claim=check.claim,
-                        on_fenced=lambda: on_signal(stopping), on_login_refused=lambda: on_signal(stopping))
+                        on_fenced=stop, on_login_refused=stop)
     except RuleError as err:
         line = f":{err.rule.line}" if err.rule is not None and err.rule.line else ""
         print(f"roslink-mqtt-bridge: {args.config}{line} robots.{robot.name}.{err}", file=sys.stderr)
         rclpy.shutdown()
         _leave_before_start(2)
-    # Only now, with ROS set up meanwhile, does the bridge need the start check's answer: nothing has reached the
-    # broker or ROS's actuators yet.
+    return node, action_node, bridge
+
+
+def _settle_start_check(check: StartCheck, stopping: threading.Event, robot: Robot, nodes: Sequence[Node | None],
+                        bridge: Bridge) -> None:
+    """Only now, with ROS set up meanwhile, does the bridge need the start check's answer: nothing has reached the
+    broker or ROS's actuators yet. Another live bridge (or a stop meanwhile) ends the process here."""
+    import rclpy
+
+    from .claim import EXIT_DUPLICATE, Verdict
+
     while check.is_alive() and not stopping.is_set():  # a Ctrl-C need not wait for the check (a daemon thread)
         check.join(0.1)
     log = logging.getLogger("roslink_mqtt.bridge")
@@ -265,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             log.info("stopped while starting: nothing was connected yet")
         else:
             print(f"roslink-mqtt-bridge: {check.result.refusal(robot.name)}", file=sys.stderr)
-        for created in (node, action_node):
+        for created in nodes:
             if created is not None:
                 created.destroy_node()
         rclpy.shutdown()
@@ -275,13 +282,14 @@ def main(argv: list[str] | None = None) -> int:
         bridge.take_over_claim()
     elif check.result.note:
         log.info("%s", check.result.note)
-    spun = [(make_executor(kind), node, bridge.on_executor)]
-    if action_node is not None:
-        spun.append((make_executor("single"), action_node, bridge.action_on_executor))
-    for executor, spun_node, handoff in spun:
-        executor.add_node(spun_node)
-        handoff.executor = executor
-    signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
+
+
+def _serve(args: argparse.Namespace, start: _Start, bridge: Bridge, spun: list[tuple[Any, Node, Any]],
+           stopping: threading.Event, wake: threading.Event, reload_asked: threading.Event) -> None:
+    """Spin the executors and run the bridge until a signal (SIGHUP: reload); then the clean shutdown: zero
+    velocity and the offline heartbeat while ROS and MQTT still work, then ROS."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
 
     def spin(executor: Any) -> None:
         # spin_once in a loop, not spin(): rclpy 7.1's EventsExecutor.spin() busy-waits (a full core with
@@ -299,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     for spinner in spinners:
         spinner.start()
     bridge.start()
+    password = start.password
     try:
         while not stopping.is_set():
             wake.wait(0.5)
@@ -306,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
             if reload_asked.is_set() and not stopping.is_set():
                 reload_asked.clear()
                 reload_grants(bridge, args.config)
-                password = reload_password(args, robot, password, bridge)
+                password = reload_password(args, start.robot, password, bridge)
     finally:
         bridge.stop()  # zero velocity and the offline heartbeat while ROS and MQTT still work
         for executor, _, handoff in spun:
@@ -319,6 +328,50 @@ def main(argv: list[str] | None = None) -> int:
         if rclpy.ok():
             rclpy.shutdown()
         _ignore_executor_teardown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    args = parse_args(without_ros_args(argv)[1:])
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # Ctrl-C or SIGTERM while the bridge starts (loading ROS takes seconds on a busy machine) ends the start
+    # cleanly, once nothing half-made is left: no traceback from inside rclpy. From the main loop on, the same
+    # flag makes the clean shutdown (zero velocity, offline heartbeat).
+    stopping, wake, reload_asked = threading.Event(), threading.Event(), threading.Event()
+
+    def on_signal(flag: threading.Event) -> None:
+        flag.set()
+        wake.set()
+
+    signal.signal(signal.SIGINT, lambda *_: on_signal(stopping))
+    signal.signal(signal.SIGTERM, lambda *_: on_signal(stopping))
+    start = _read_start(args)
+    if isinstance(start, int):
+        return start
+    from .claim import ANNOUNCE, EXIT_FENCED, EXIT_LOGIN_REFUSED
+
+    if stopping.is_set():
+        return 0  # stopped before anything was made
+    robot, topics = start.robot, start.fleet.topics
+    check = StartCheck(robot, start.urls, start.password, resolve_ca_file(args), args.take_over,
+                       topics.heartbeat(robot.name), topics.state(robot.name, ANNOUNCE))
+    check.start()  # meanwhile, rclpy loads and ROS starts
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    # We handle SIGINT/SIGTERM ourselves: rclpy's handler would invalidate the context before we
+    # could publish the final zero velocity and the offline heartbeat.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node, action_node, bridge = _make_bridge(args, start, check, lambda: on_signal(stopping))
+    _settle_start_check(check, stopping, robot, (node, action_node), bridge)
+    spun = [(make_executor(start.executor), node, bridge.on_executor)]
+    if action_node is not None:
+        spun.append((make_executor("single"), action_node, bridge.action_on_executor))
+    for executor, spun_node, handoff in spun:
+        executor.add_node(spun_node)
+        handoff.executor = executor
+    signal.signal(signal.SIGHUP, lambda *_: on_signal(reload_asked))
+    _serve(args, start, bridge, spun, stopping, wake, reload_asked)
     if bridge.login_refused is not None:
         return EXIT_LOGIN_REFUSED
     return EXIT_FENCED if bridge.fenced_by is not None else 0

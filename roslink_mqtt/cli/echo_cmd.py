@@ -226,7 +226,8 @@ def _unknown(client: RobotClient, robot: str, name: str) -> str | None:
     return None if described is None else described.unknown_state(name)
 
 
-def run(args: argparse.Namespace) -> int:
+def _checked(args: argparse.Namespace) -> tuple[str, bool] | int:
+    """(the state name or heartbeat, whether it is a pattern), or the usage error's exit code (printed)."""
     try:
         name, pattern = (HEARTBEAT, False) if trimmed(args.name) == HEARTBEAT else check_state_name(args.name)
         check_name(args.robot, "robot")
@@ -237,6 +238,32 @@ def run(args: argparse.Namespace) -> int:
     if args.field is not None and (args.hz or pattern or not all(args.field.split("."))):
         return _fail(EXIT_USAGE, "--field needs one state name (not a pattern), no --hz, and a path such as "
                                  "x or pose.position.x")
+    return name, pattern
+
+
+def _outcome(args: argparse.Namespace, client: RobotClient, name: str, seen: int, times: list[float],
+             waited: float) -> int:
+    """The exit code once the messages asked for came, or the wait ended (the reason printed)."""
+    if args.hz:
+        if len(times) >= 2:
+            _print(rate_report(times))
+        elif seen:
+            return _fail(EXIT_TIMEOUT, f"only 1 message on {_what(args.robot, name)} within "
+                                       f"{args.timeout:g} s: no rate")
+    if seen and (not args.count or seen >= args.count):
+        return EXIT_OK  # COUNT messages, or "print what comes for --timeout seconds" and some came
+    if seen:
+        return _fail(EXIT_TIMEOUT, f"timeout: {seen} of {args.count} messages on {_what(args.robot, name)} "
+                                   f"within {args.timeout:g} s")
+    code, reason = _nothing_reason(client, args.robot, name, waited)
+    return _fail(code, f"nothing on {_what(args.robot, name)} within {args.timeout:g} s: {reason}")
+
+
+def run(args: argparse.Namespace) -> int:
+    checked = _checked(args)
+    if isinstance(checked, int):
+        return checked
+    name, pattern = checked
     client = open_client(args, robots=[args.robot], presence=False)
     if name != HEARTBEAT and not pattern and (why := _unknown(client, args.robot, name)) is not None:
         client.close()
@@ -286,19 +313,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 _print(orjson.dumps(line).decode())
             seen += 1
-        if args.hz:
-            if len(times) >= 2:
-                _print(rate_report(times))
-            elif seen:
-                return _fail(EXIT_TIMEOUT, f"only 1 message on {_what(args.robot, name)} within "
-                                           f"{args.timeout:g} s: no rate")
-        if seen and (not args.count or seen >= args.count):
-            return EXIT_OK  # COUNT messages, or "print what comes for --timeout seconds" and some came
-        if seen:
-            return _fail(EXIT_TIMEOUT, f"timeout: {seen} of {args.count} messages on {_what(args.robot, name)} "
-                                       f"within {args.timeout:g} s")
-        code, reason = _nothing_reason(client, args.robot, name, time.monotonic() - start)
-        return _fail(code, f"nothing on {_what(args.robot, name)} within {args.timeout:g} s: {reason}")
+        return _outcome(args, client, name, seen, times, time.monotonic() - start)
     except KeyboardInterrupt:
         if args.hz and len(times) >= 2:
             _print(rate_report(times))
