@@ -541,12 +541,14 @@ class CommandEndpoint:
     def _downlink_busy(self, now: float, sent_at: float) -> bool:
         """The broker is talking, so its PUBACK is on the way behind what it sends: slow, not silent.
 
-        Why: a broker writes its answers in order on one connection. A viewer flooding requests through a broker
-        that does not pace him (Mosquitto) fills the robot's downlink, and the heartbeat's PUBACK arrives behind
-        his messages (a clean-clone run: 0.47 s behind, against link_timeout 0.5 s, and the robot stopped for
-        "lost the broker" while every message still arrived). A broker heard from within link_timeout is not
-        silent; the cap still stops the robot within link_timeout + MAX_QUEUE_ALLOWANCE of a broker that keeps
-        sending but never answers, and a frozen broker stops being heard at once."""
+        Why: a broker writes its answers in order on one connection, and the bridge reads them in order on one
+        thread. A viewer flooding parameter reads through a broker that does not pace him (Mosquitto) keeps the
+        bridge busy (his requests on the viewer link, thousands of replies and refusals going out on the command
+        link, their PUBACKs coming back on it): a clean-clone run read the heartbeat's PUBACK 0.5 s late, with
+        alice's twists still arriving (p99 421 ms), and the robot stopped for "lost the broker". A broker heard
+        from within link_timeout is not silent; the cap still stops the robot within link_timeout +
+        MAX_QUEUE_ALLOWANCE of a broker that keeps sending but never answers, and a frozen broker stops being
+        heard at once."""
         timeout = self.robot.bridge.link_timeout
         return now - self.link.heard_at() <= timeout and now <= sent_at + timeout + MAX_QUEUE_ALLOWANCE
 
