@@ -28,6 +28,7 @@ from ..mqtt import (
     parse_broker_urls,
 )
 from . import trace
+from .intake import Intake
 from .ping_ledger import PingLedger
 
 log = logging.getLogger("roslink_mqtt.bridge.link")
@@ -68,12 +69,14 @@ class MqttLink:
                  on_message: Callable[[str, bytes, bool, float], None],
                  on_up: Callable[[], None] = lambda: None, on_down: Callable[[str], None] = lambda reason: None,
                  ca_file: str | None = None, max_reconnect_delay: float = 2.0, max_payload: int = 0,
-                 report: bool = False, on_refused: Callable[[str], None] = lambda reason: None) -> None:
+                 report: bool = False, on_refused: Callable[[str], None] = lambda reason: None,
+                 intake: Intake | None = None) -> None:
         """``url``: one broker or a cluster's nodes (failover: a failed or lost connection moves to the next).
         ``max_payload``: the broker's message size limit (robots.yaml ``broker.max_payload``; 0 = none).
         ``report``: this link says in the log why it is not connected (unreachable, refused login), at WARNING and
         ERROR; the bridge's other links, dialling the same broker with the same login, say it at DEBUG only.
-        ``on_refused(reason)``: called (on the network thread) at every refused login."""
+        ``on_refused(reason)``: called (on the network thread) at every refused login.
+        ``intake``: the most messages a second this link reads (bridge/intake.py; None: as fast as they come)."""
         urls = parse_broker_urls(url)
         self.username, self.report, self._on_refused = username, report, on_refused
         self.max_reconnect_delay = max_reconnect_delay
@@ -99,6 +102,7 @@ class MqttLink:
         self.client.on_subscribe = self._handle_subscribe
         self.closing = False  # stop() asked for the disconnect: it is a shutdown, not a lost broker
         self._heard_at = 0.0  # time.monotonic() of the broker's last message (the link check's "slow, not silent")
+        self._intake, self._intake_told = intake, False
         # s a message handed over now waits in the network; the uplink (bridge/uplink_sender.py) replaces it
         self.queue_delay: Callable[[], float] = lambda: 0.0
         # the uplink's end-to-end probe (bridge/path_meter.py): called with time.monotonic() on paho's thread when a
@@ -322,9 +326,25 @@ class MqttLink:
         """Failover: the next connection attempt goes to the next broker of the list (None: only one)."""
         return None if self.closing else self.brokers.advance()
 
+    def _pace_intake(self) -> None:
+        """Wait for this message's turn (bridge/intake.py): paho's thread sleeps, so this connection's socket fills
+        and the broker holds the rest; said once per link."""
+        assert self._intake is not None
+        delay = self._intake.wait(time.monotonic())
+        if delay <= 0.0:
+            return
+        if not self._intake_told:
+            self._intake_told = True
+            log.warning("more than %g messages a second of %s: the bridge reads them at that rate, the rest waits at "
+                        "the broker (a backlog longer than keepalive %d s resets this connection, dropping it)",
+                        self._intake.rate, self._intake.what, self.keepalive)
+        time.sleep(delay)
+
     def _handle_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
         # Taken first thing: the command path compares it with the time of publication to ROS, so a command
         # that waited too long inside the bridge (lock, backlog) is never executed late.
+        if self._intake is not None:
+            self._pace_intake()
         arrived = time.monotonic()
         self._heard_at = arrived
         if trace.TRACE is not None:

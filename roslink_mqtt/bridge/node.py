@@ -53,6 +53,7 @@ from .claim import ANNOUNCE, EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
 from .endpoint import SUPERVISION_RATE, CommandEndpoint
 from .graph_check import GRAPH_CHECK_DELAY, GRAPH_CHECK_PERIOD, SERVICE, TOPIC, Expected, changes, check
+from .intake import Intake
 from .link import MqttLink, bridge_client_id
 from .on_demand import OnDemandPublishers
 from .on_executor import OnExecutor
@@ -270,14 +271,17 @@ class Bridge:
         self.snapshot_buffer = RosSnapshotBuffer(node, robot.snapshot) if robot.snapshot is not None else None
         # Viewers' traffic (their requests and presence) arrives on a connection of its own: however much of it
         # a viewer sends, it queues behind nothing of the operators', whose commands and stops keep their own
-        # TCP stream and paho thread. Everything the bridge publishes goes out on the command link.
+        # TCP stream and paho thread, and it is read at most viewer_message_rate messages a second, so it cannot
+        # take the bridge's time either. Everything the bridge publishes goes out on the command link.
         self.viewer_link = MqttLink(
             client_id=bridge_client_id(robot.name, "viewers"), username=robot.name, password=password,
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.viewer_subscriptions,
             on_message=self._on_mqtt, ca_file=ca_file,
             # the first link to dial (start()): it says why the bridge is not connected (the others, dialling the
             # same broker with the same login, say it at DEBUG)
-            report=True, on_refused=self._refused)
+            report=True, on_refused=self._refused,
+            # read at a bounded rate: a viewer's flood waits at the broker, not in the bridge's time (bridge/intake.py)
+            intake=Intake(settings.viewer_message_rate, "viewers' requests and presence"))
         # Operators' emergency stops also arrive on a connection that carries nothing else: on a thin downlink they
         # never wait behind a large request, response or log line in the broker's queue or the socket. Each stop
         # then arrives twice (this link and the command link); the second copy is dropped (bridge/stops.py). Only

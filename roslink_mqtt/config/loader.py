@@ -494,8 +494,8 @@ class _FleetReader:
         self.mapping(path, ("broker", "password", "password_file", "keepalive", "heartbeat_period",
                             "operator_timeout", "command_timeout", "link_timeout", "stop_hold", "limits",
                             "on_failsafe", "provided_queue_depth", "provided_max_calls",
-                            "max_requests_per_user", "executor", "retained_refresh", "uplink",
-                            "uplink_target_delay", "buffer_dir", "buffer_max_bytes", "buffer_max_age",
+                            "max_requests_per_user", "viewer_message_rate", "executor", "retained_refresh",
+                            "uplink", "uplink_target_delay", "buffer_dir", "buffer_max_bytes", "buffer_max_age",
                             "exit_on_refused_login"))
         d = BridgeSettings()
         positive = self.number(0, 3600, open_low=True)
@@ -529,6 +529,8 @@ class _FleetReader:
             provided_max_calls=self.value(path, "provided_max_calls", self.integer(1, 10000), d.provided_max_calls),
             max_requests_per_user=self.value(path, "max_requests_per_user", self.integer(1, 10000),
                                              d.max_requests_per_user),
+            viewer_message_rate=self.value(path, "viewer_message_rate", self.number(1, 1_000_000),
+                                           d.viewer_message_rate),
             executor=self.value(path, "executor", self.choice(EXECUTORS), d.executor),
             retained_refresh=self.value(path, "retained_refresh", self.number(0, 3600), d.retained_refresh),
             uplink=self.value(path, "uplink", self.choice(UPLINK_MODES), d.uplink),

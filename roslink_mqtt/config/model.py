@@ -322,6 +322,9 @@ class BridgeSettings:
     # Service calls and parameter requests one user may have unanswered at once (goals have their own bound):
     # a flood of requests never queues unbounded work on the robot's ROS nodes.
     max_requests_per_user: int = 16
+    # Messages a second the bridge reads from viewers (their requests and presence, all of them together, on a
+    # connection of their own): a viewer's flood waits at the broker instead of taking the bridge's time.
+    viewer_message_rate: float = 500.0
     # The rclpy executor: "events" (rclpy.experimental.EventsExecutor: about a third of the CPU of the other at
     # the demo's rates; actions provided by MQTT clients then get a small single-threaded executor of their own)
     # or "single" (SingleThreadedExecutor for everything).
