@@ -73,7 +73,7 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
             seen["link_up"] = time.time()  # its phases (--phases) count from here
             probe = RosProbe()
             probe.node.create_service(Trigger, "/status", lambda _req, resp: setattr(resp, "success", True) or resp)
-            recording = threading.Event()
+            recording, ended = threading.Event(), threading.Event()
 
             def on_message(_c, _u, m) -> None:
                 now = time.time()
@@ -81,8 +81,8 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                 if leaf == "pose":
                     body = orjson.loads(m.payload)["payload"]
                     seen["poses"].append((now, body["x"], now - body["time_boot_ms"] / 1000))
-                if leaf == "link" and m.payload:
-                    seen["link"] = LinkReport.from_json(m.payload)
+                if leaf == "link" and m.payload and not ended.is_set():  # a report after the flood shows an idle
+                    seen["link"] = LinkReport.from_json(m.payload)  # link (a loaded clean-clone run: measured False)
                     if seen["poses"]:  # every report from the flood's first pose on (one every 2 s)
                         seen["links"].append(seen["link"])
                 if not recording.is_set() or m.retain:
@@ -139,6 +139,7 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                             print(f"call failed: {err}", file=sys.stderr)
                         time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
                 recording.clear()
+                ended.set()
                 seen["poses"] = seen["poses"][began:]
                 stop.set()
                 flooder.join(2)
