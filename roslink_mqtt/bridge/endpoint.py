@@ -111,10 +111,13 @@ class CommandEndpoint:
 
     def __init__(self, fleet: Fleet, robot: Robot, link: Link, actuators: Actuators,
                  routes: Mapping[str, Inbound], *, claim: Claim | None = None,
-                 capabilities: Iterable[Capability[Any]] = ()) -> None:
+                 capabilities: Iterable[Capability[Any]] = (),
+                 clock: Callable[[], float] = time.monotonic) -> None:
         """``routes``: compiled mqtt_to_ros rules by leaf (``cmd/twist``); ``capabilities``: every other verb a user
         sends (bridge/capabilities/; the lease verbs are the endpoint's own); ``claim``: this bridge's, carried by
-        every heartbeat (bridge/claim.py)."""
+        every heartbeat (bridge/claim.py); ``clock``: the monotonic clock of every timer here and of the links'
+        arrival times (a test's own, to step time instead of sleeping)."""
+        self.clock = clock
         self.fleet, self.robot, self.topics = fleet, robot, TopicTree(fleet.prefix)
         self.link, self.actuators, self.routes = link, actuators, dict(routes)
         # every verb but cmd/* runs through _dispatch: parse, gate, run (bridge/capabilities/)
@@ -352,7 +355,7 @@ class CommandEndpoint:
                     self.refuse(user, topic, f"{self.motion_blocked}: send cmd/arm to resume", message_id, sequence,
                                 client_id=sender)
                     return
-                late = late_motion(arrived, time.monotonic(), self.robot.bridge.command_timeout,
+                late = late_motion(arrived, self.clock(), self.robot.bridge.command_timeout,
                                    stop=standstill)
                 if late:
                     self.refuse(user, topic, late, message_id, sequence, client_id=sender)
@@ -371,7 +374,7 @@ class CommandEndpoint:
             if route.moves_robot:
                 self._stop_repeats_left = 0  # a live operator commands again: the stop hold ends
                 if route.is_velocity:
-                    self.failsafe.velocity_command(user, time.monotonic(), standstill=standstill)
+                    self.failsafe.velocity_command(user, self.clock(), standstill=standstill)
                 else:
                     self.failsafe.goal_command(user)
             self._carry_out(user, topic, route, msg, Notice(topic, clamped or "", message_id, sequence, sender),
@@ -392,7 +395,7 @@ class CommandEndpoint:
                 self.refuse(user, topic, why, message_id, sequence, client_id=sender)
         else:
             self.actuators.publish(user, route, msg)
-            if route.is_velocity and self.clamp_notices.tell((user, sender or "", route.name), time.monotonic(),
+            if route.is_velocity and self.clamp_notices.tell((user, sender or "", route.name), self.clock(),
                                                              clamped=clamped, standstill=standstill):
                 self.notify(user, told)
         if behaviour.never_stale:  # a stop is acknowledged: `estop --all` reports which robots heard it
@@ -402,7 +405,7 @@ class CommandEndpoint:
         """Acknowledge a stop on ``state/ack``, at most once per :data:`STOP_ACK_INTERVAL` per user: any granted
         user, viewers included, may send stops, and a flood of them must not become a flood of acknowledgements on
         the robot's uplink (control class: they would go out ahead of its state). Every stop is still obeyed."""
-        now = time.monotonic()
+        now = self.clock()
         if now - self._stop_acked.get(user, -STOP_ACK_INTERVAL) < STOP_ACK_INTERVAL:
             return
         self._stop_acked[user] = now  # granted users only reach here: bounded by the fleet file
@@ -415,7 +418,7 @@ class CommandEndpoint:
             self._ignore_oversized_presence(user, client_id, len(payload))
             return
         with self.lock:
-            gone = not self.operators.record(user, client_id, presence, time.monotonic())
+            gone = not self.operators.record(user, client_id, presence, self.clock())
             if gone:
                 if not self.operators.is_live(user):  # the lease is the user's: it ends with their last client
                     self._lease_ends(user, "signed off" if presence is Presence.SIGNED_OFF else "last-will")
@@ -592,7 +595,7 @@ class CommandEndpoint:
                 # A thin uplink may hold the heartbeat behind data already in the network (at most the uplink's
                 # budget, bridge/uplink.py): slow is not silent, so the wait for its PUBACK grows by that time,
                 # capped so that a frozen broker still stops the robot within link_timeout + MAX_QUEUE_ALLOWANCE.
-                now = time.monotonic()
+                now = self.clock()
                 allowance = min(MAX_QUEUE_ALLOWANCE, max(0.0, self.link.queue_delay()))
                 self._pending_heartbeat = (now + self.robot.bridge.link_timeout + allowance, now, info)
 
@@ -622,7 +625,7 @@ class CommandEndpoint:
         every accepted command. A request that names no sender gets a report without one (any program may show it).
         """
         log.debug("refused %s: %s", topic, reason)
-        admitted = self.reports.admit(user, topic, reason, time.monotonic())
+        admitted = self.reports.admit(user, topic, reason, self.clock())
         if admitted is None:
             return  # held back and counted: the next report (or a summary) says how many
         if client_id is None and payload is not None:
