@@ -7,7 +7,9 @@ one declaration come
   fields refused where the bridge reads, ids read first so that every later refusal names its request
   (:meth:`ProtocolError.naming`) and nothing parses a payload twice;
 * the docs table (docs/protocol.md, :mod:`.reference`): the ``type`` column is the spec's own wording;
-* the dashboard's readers (:mod:`.bodies_js`): the same declarations as data, read by the same rules.
+* the dashboard's readers (:mod:`.bodies_js`): the same declarations as data, read by the same rules;
+* the writer (:func:`write`): a body's ``to_json`` writes the declared fields, so a field added to a body is
+  written without a second list of names that could miss it.
 
 A body type adds only what no single field can say (``op: set`` needs ``values``; a type name must be a
 service type) after :func:`read` returns.
@@ -364,12 +366,56 @@ def _bad(field: BodyField, value: Any) -> ProtocolError:
     return ProtocolError(f"{field.name}: expected {field.spec.words()}, got {describe(value)}")
 
 
+_CLIENT_ID: Final = "client_id"  # the field :func:`dump` appends last
+
+
 def dump(body: dict[str, Any], client_id: str | None) -> bytes:
     """Encode a control body (``read``'s counterpart); ``client_id`` goes last and only when set (bodies without it
     stay as before)."""
     if client_id is not None:
-        body["client_id"] = client_id
+        body[_CLIENT_ID] = client_id
     return orjson.dumps(body)
+
+
+class NestedBody:
+    """A body written inside another body's field (a description's entries, a link report's streams and path, a
+    declared parameter): :func:`body_of` writes it as its own :meth:`to_body`."""
+
+    __slots__ = ()
+
+    def to_body(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+
+def _as_written(value: Any) -> Any:
+    """A field's value as the body holds it: a nested body as its :meth:`~NestedBody.to_body`, a tuple as an array
+    (of those), a name → nested body map as a map of their bodies; anything else as it is (orjson writes it)."""
+    if isinstance(value, NestedBody):
+        return value.to_body()
+    if isinstance(value, tuple):
+        return [v.to_body() if isinstance(v, NestedBody) else v for v in value]
+    if isinstance(value, dict) and any(isinstance(v, NestedBody) for v in value.values()):
+        return {k: v.to_body() if isinstance(v, NestedBody) else v for k, v in value.items()}
+    return value
+
+
+def body_of(fields: tuple[BodyField, ...], obj: Any) -> dict[str, Any]:
+    """``obj``'s declared fields as a body, in declaration order: a required field always (null too), an optional
+    one only when it is not None; ``client_id`` left out (:func:`write` appends it last, as :func:`dump` does)."""
+    body: dict[str, Any] = {}
+    for field in fields:
+        value = getattr(obj, field.name)
+        if field.name != _CLIENT_ID and (field.required or value is not None):
+            body[field.name] = _as_written(value)
+    return body
+
+
+def write(fields: tuple[BodyField, ...], obj: Any) -> bytes:
+    """Encode ``obj`` as its ``fields`` declare it (:func:`read`'s counterpart, so a body's fields are listed once,
+    not again in a hand-written ``to_json`` that could miss one): :func:`body_of`, then ``client_id`` last when
+    set — whether it names the sender or echoes a request's."""
+    sender = next((getattr(obj, f.name) for f in fields if f.name == _CLIENT_ID), None)
+    return dump(body_of(fields, obj), sender)
 
 
 def read(fields: tuple[BodyField, ...], data: Any, *, shape: str, strict: bool = True,

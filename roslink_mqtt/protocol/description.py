@@ -23,10 +23,22 @@ import difflib
 from dataclasses import dataclass, field
 from typing import Any
 
-import orjson
-
 from ..topics import TopicTree, Verb, join_leaf
-from .body import BodyField, Boolean, Choice, Integer, Nullable, Number, Obj, Objects, Text, TextMap, read
+from .body import (
+    BodyField,
+    Boolean,
+    Choice,
+    Integer,
+    NestedBody,
+    Nullable,
+    Number,
+    Obj,
+    Objects,
+    Text,
+    TextMap,
+    read,
+    write,
+)
 from .codec import ROS_VERSION, ROSLINK_VERSION
 from .errors import ProtocolError
 from .validate import describe
@@ -82,7 +94,7 @@ def _who(default: str) -> BodyField:
 
 
 @dataclass(frozen=True, slots=True)
-class StateEntry:
+class StateEntry(NestedBody):
     """A state stream, ``state/<name>``: a ROSLink message (``message``) or a ROS message as JSON (``ros_type``)."""
 
     name: str
@@ -110,7 +122,7 @@ class StateEntry:
                                  "(did you mean /odom?)`)"),
     )
 
-    def to_body(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: False and {} are left out too, not only None
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
                             "who": self.who, "encoding": self.encoding, "warning": self.warning})
@@ -122,7 +134,7 @@ class StateEntry:
 
 
 @dataclass(frozen=True, slots=True)
-class CommandEntry:
+class CommandEntry(NestedBody):
     """A command input, ``from/<user>/<name>`` (``cmd/twist``; a generic rule's ``lights``)."""
 
     name: str  # the topic leaf under from/<user>/
@@ -147,7 +159,7 @@ class CommandEntry:
         _text_or_null("warning", "while the ROS service a command calls has no server"),
     )
 
-    def to_body(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: False and {} are left out too, not only None
         return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
                             "on_demand": self.on_demand, "fields": self.fields, "limits": self.limits,
                             "who": self.who, "warning": self.warning})
@@ -158,7 +170,7 @@ class CommandEntry:
 
 
 @dataclass(frozen=True, slots=True)
-class ServiceEntry:
+class ServiceEntry(NestedBody):
     """A ROS service users may call: ``from/<user>/call/<name>`` → ``to/<user>/reply/<name>``."""
 
     name: str
@@ -177,7 +189,7 @@ class ServiceEntry:
         _text_or_null("warning", "while the ROS service has no server"),
     )
 
-    def to_body(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: a null timeout is written, a None warning left out
         body = {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
                 "who": self.who}
         return body if self.warning is None else {**body, "warning": self.warning}
@@ -188,7 +200,7 @@ class ServiceEntry:
 
 
 @dataclass(frozen=True, slots=True)
-class ActionEntry:
+class ActionEntry(NestedBody):
     """A ROS action users may send goals to: ``from/<user>/goal/<name>``, ``cancel/<name>``."""
 
     name: str
@@ -207,7 +219,7 @@ class ActionEntry:
         BodyField("who", Choice(WHO), False, "`viewers` when open to viewers, else `operators`", OPERATORS),
     )
 
-    def to_body(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: null timeout and feedback_rate are written, not left out
         return {"name": self.name, "ros_type": self.ros_type, "viewers": self.viewers, "timeout": self.timeout,
                 "feedback_rate": self.feedback_rate, "who": self.who}
 
@@ -217,7 +229,7 @@ class ActionEntry:
 
 
 @dataclass(frozen=True, slots=True)
-class ParameterEntry:
+class ParameterEntry(NestedBody):
     """A ROS node whose parameters users may read (``param/<name>``, get/list/describe) and set."""
 
     name: str  # the MQTT name: from/<user>/param/<name>
@@ -235,7 +247,7 @@ class ParameterEntry:
         BodyField("who", Choice(WHO), False, "who may read them: `viewers`", VIEWERS),
     )
 
-    def to_body(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: a null timeout is written, not left out
         return {"name": self.name, "node": self.node, "set_by": self.set_by, "timeout": self.timeout,
                 "who": self.who}
 
@@ -316,13 +328,7 @@ class RobotDescription:
         return next((e for e in self.state if e.name == name), None)
 
     def to_json(self) -> bytes:
-        return orjson.dumps({
-            "robot": self.robot, "system_id": self.system_id, "type": self.type,
-            "protocol_version": self.protocol_version, "ros_version": self.ros_version, "limits": self.limits,
-            "state": [e.to_body() for e in self.state], "commands": [e.to_body() for e in self.commands],
-            "services": [e.to_body() for e in self.services], "actions": [e.to_body() for e in self.actions],
-            "parameters": [e.to_body() for e in self.parameters], "types": self.types,
-        })
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> RobotDescription:

@@ -32,7 +32,7 @@ class ControlRequest:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: an absent id is written as null, not left out
         return orjson.dumps({"commands": list(self.commands), "id": self.id})
 
     @classmethod
@@ -61,7 +61,7 @@ class ControlResponse:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: an absent id is written as null, not left out
         return orjson.dumps({"responses": list(self.responses), "id": self.id})
 
     @classmethod

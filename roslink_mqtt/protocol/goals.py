@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Choice, Id, Obj, Text, dump, read
+from .body import SENDER, BodyField, Choice, Id, Obj, Text, read, write
 
 MAX_GOAL_ID = 128  # characters
 _DOC, _R, _U = TopicTree(), "<robot>", "<user>"
@@ -50,7 +50,7 @@ class GoalRequest:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return dump({"id": self.id, "goal": self.goal}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalRequest:
@@ -70,7 +70,7 @@ class GoalCancel:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return dump({"id": self.id}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalCancel:
@@ -98,10 +98,7 @@ class GoalStatus:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        body: dict[str, Any] = {"id": self.id, "status": self.status}
-        if self.error is not None:
-            body["error"] = self.error
-        return dump(body, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalStatus:
@@ -122,7 +119,7 @@ class GoalFeedback:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return dump({"id": self.id, "feedback": self.feedback}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalFeedback:
@@ -153,12 +150,7 @@ class GoalResult:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        body: dict[str, Any] = {"id": self.id, "status": self.status}
-        if self.result is not None:
-            body["result"] = self.result
-        if self.error is not None:
-            body["error"] = self.error
-        return dump(body, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> GoalResult:

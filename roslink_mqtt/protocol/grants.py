@@ -55,7 +55,7 @@ class RobotGrants:
     QOS = 1
     RETAINED = True
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: users sorted by name (one fleet file, one message)
         return orjson.dumps({"robot": self.robot, "users": dict(sorted(self.users.items())), "issued": self.issued,
                              "by": self.by})
 

@@ -18,7 +18,7 @@ from enum import Enum
 import orjson
 
 from ..topics import TopicTree, Verb, join_leaf
-from .body import SENDER, BodyField, Boolean, Choice, Nullable, Number, Strings, Text, read
+from .body import SENDER, BodyField, Boolean, Choice, Nullable, Number, Strings, Text, read, write
 from .errors import ProtocolError
 
 CONTROL = "control"  # the state name (roslink/<robot>/state/control) and the verb (from/<user>/control/<op>)
@@ -78,9 +78,7 @@ class ControlState:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return orjson.dumps({"holder": self.holder, "since": self.since, "supervisor": self.supervisor,
-                             "mode": self.mode, "supervisors": list(self.supervisors), "estop": self.estop,
-                             "event": self.event, "blocked": self.blocked})
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ControlState:

@@ -11,10 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import orjson
-
 from ..topics import TopicTree
-from .body import BodyField, Boolean, Choice, Integer, Nullable, Number, Obj, read
+from .body import BodyField, Boolean, Choice, Integer, NestedBody, Nullable, Number, Obj, body_of, read, write
 
 LINK = "link"  # the state name: roslink/<robot>/state/link
 LINK_REPORT_PERIOD = 2.0  # s between reports
@@ -24,7 +22,7 @@ _DOC = TopicTree()
 
 
 @dataclass(frozen=True, slots=True)
-class StreamReport:
+class StreamReport(NestedBody):
     """One state stream over the last period."""
 
     priority: str
@@ -43,26 +41,21 @@ class StreamReport:
         BodyField("sent_hz", Number(), True, "what left"),
         BodyField("superseded", Integer(0), False, "replaced by a newer one in the period", 0),
         BodyField("dropped", Integer(0), False, "dropped in the period", 0),
-        BodyField("max_rate", Nullable(Number()), False, "the rule's max_rate", None),
         BodyField("kbit_s", Number(), False, "sent", 0.0),
+        BodyField("max_rate", Nullable(Number()), False, "the rule's max_rate", None),
     )
 
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"priority": self.priority, "latest_only": self.latest_only,
-                               "offered_hz": self.offered_hz, "sent_hz": self.sent_hz, "superseded": self.superseded,
-                               "dropped": self.dropped, "kbit_s": self.kbit_s}
-        if self.max_rate is not None:
-            out["max_rate"] = self.max_rate
-        return out
+    def to_body(self) -> dict[str, Any]:
+        return body_of(self.FIELDS, self)
 
     @classmethod
-    def from_dict(cls, name: str, body: Any) -> StreamReport:
+    def from_body(cls, name: str, body: Any) -> StreamReport:
         return cls(**read(cls.FIELDS, body, shape=f"streams.{name}: expected an object", strict=False,
                           what=f"streams.{name}"))
 
 
 @dataclass(frozen=True, slots=True)
-class PathReport:
+class PathReport(NestedBody):
     """The uplink end to end (bridge/path_meter.py): round trips of probes answered through the broker."""
 
     base_ms: float  # the least round trip lately: the path with empty queues
@@ -82,12 +75,11 @@ class PathReport:
                   "the path's rate limits the uplink", False),
     )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"base_ms": self.base_ms, "rtt_ms": self.rtt_ms, "queue_ms": self.queue_ms,
-                "rate_kbit_s": self.rate_kbit_s, "cuts": self.cuts, "steering": self.steering}
+    def to_body(self) -> dict[str, Any]:
+        return body_of(self.FIELDS, self)
 
     @classmethod
-    def from_dict(cls, body: Any) -> PathReport:
+    def from_body(cls, body: Any) -> PathReport:
         return cls(**read(cls.FIELDS, body, shape="path: expected an object", strict=False, what="path"))
 
 
@@ -130,20 +122,15 @@ class LinkReport:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        out: dict[str, Any] = {"mode": self.mode, "rate_kbit_s": self.rate_kbit_s, "measured": self.measured,
-                               "budget_bytes": self.budget_bytes, "rtt_ms": self.rtt_ms, "period": self.period,
-                               "streams": {n: s.to_dict() for n, s in self.streams.items()}}
-        if self.path is not None:
-            out["path"] = self.path.to_dict()
-        return orjson.dumps(out)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LinkReport:
         got = read(cls.FIELDS, data, shape='expected a JSON object {"mode": "scheduled", "rate_kbit_s": 240, …}',
                    strict=False, what="link report")
-        got["streams"] = {str(n): StreamReport.from_dict(str(n), s) for n, s in got["streams"].items()}
+        got["streams"] = {str(n): StreamReport.from_body(str(n), s) for n, s in got["streams"].items()}
         if got.get("path") is not None:
-            got["path"] = PathReport.from_dict(got["path"])
+            got["path"] = PathReport.from_body(got["path"])
         return cls(**got)
 
     def summary(self) -> str:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree
-from .body import SENDER, BodyField, Boolean, Id, Obj, Text, dump, read, refuse
+from .body import SENDER, BodyField, Boolean, Id, NestedBody, Obj, Text, dump, read, refuse, write
 from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .params import TYPE_CODES, check_value
@@ -54,7 +54,7 @@ def check_parameter_name(name: str) -> str:
 
 
 @dataclass(frozen=True, slots=True)
-class DeclaredParameter:
+class DeclaredParameter(NestedBody):
     """One declared parameter: its value (None: not set yet), ROS type name, description, read-only flag."""
 
     value: Any
@@ -62,7 +62,7 @@ class DeclaredParameter:
     description: str = ""
     read_only: bool = False
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_body(self) -> dict[str, Any]:  # hand-written: not a declared body; empty description, false flag left out
         out: dict[str, Any] = {"value": self.value, "type": self.type}
         if self.description:
             out["description"] = self.description
@@ -71,7 +71,7 @@ class DeclaredParameter:
         return out
 
     @classmethod
-    def from_dict(cls, name: str, body: Any) -> DeclaredParameter:
+    def from_body(cls, name: str, body: Any) -> DeclaredParameter:
         where = f"parameters.{name}"
         if not isinstance(body, dict):
             raise ProtocolError(f'{where}: expected an object {{"value": …, "type": "double"}}')
@@ -116,7 +116,7 @@ class ParamDeclaration:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return dump({"parameters": {n: p.to_dict() for n, p in self.parameters.items()}}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamDeclaration:
@@ -125,7 +125,7 @@ class ParamDeclaration:
         for name, spec in got["parameters"].items():
             try:
                 check_parameter_name(name)
-                out[name] = DeclaredParameter.from_dict(name, spec)
+                out[name] = DeclaredParameter.from_body(name, spec)
             except ProtocolError as err:
                 why = f"parameters: {err}" if not str(err).startswith("parameters.") else str(err)
                 raise refuse(why, got, cls.FIELDS) from None
@@ -152,7 +152,7 @@ class ParamSetRequest:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return dump({"id": self.id, "parameters": self.parameters}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetRequest:
@@ -179,7 +179,7 @@ class ParamSetResult:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: an empty reason is left out (the rule leaves out None only)
         body: dict[str, Any] = {"id": self.id, "successful": self.successful}
         if self.reason:
             body["reason"] = self.reason

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, dump, read, refuse
+from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, dump, read, refuse, write
 from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .validate import show_key
@@ -101,7 +101,7 @@ class ParamRequest:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: empty names and values are left out (the rule leaves out None only)
         body: dict[str, Any] = {"id": self.id, "op": self.op}
         if self.names:
             body["names"] = list(self.names)
@@ -147,7 +147,7 @@ class ParamReply:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: `values` or `error` by `result` (an error null when there is none)
         body: dict[str, Any] = {"id": self.id, "result": self.result}
         if self.result:
             body["values"] = self.values or {}
@@ -180,8 +180,7 @@ class ParamEvent:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        return dump({"node": self.node, "new": self.new, "changed": self.changed, "deleted": list(self.deleted)},
-                     None)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamEvent:

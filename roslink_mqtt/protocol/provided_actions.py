@@ -14,7 +14,7 @@ from typing import Any
 
 from ..ros_names import is_interface
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, dump, read, refuse
+from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, dump, read, refuse, write
 
 DEFAULT_ACCEPT_TIMEOUT = 5.0  # s for the provider to accept or reject a goal
 DEFAULT_RESULT_TIMEOUT = 600.0  # s from acceptance to the final update
@@ -51,8 +51,7 @@ class ActionOffer:
     RETAINED = True
 
     def to_json(self) -> bytes:
-        return dump({"type": self.type, "accept_timeout": self.accept_timeout,
-                      "result_timeout": self.result_timeout}, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionOffer:
@@ -83,7 +82,7 @@ class ActionRequest:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: `goal` only with op goal (a cancel carries none)
         body: dict[str, Any] = {"id": self.id, "op": self.op}
         if self.op == "goal":
             body["goal"] = self.goal
@@ -123,14 +122,7 @@ class ActionUpdate:
     RETAINED = False
 
     def to_json(self) -> bytes:
-        body: dict[str, Any] = {"id": self.id, "status": self.status}
-        if self.feedback is not None:
-            body["feedback"] = self.feedback
-        if self.result is not None:
-            body["result"] = self.result
-        if self.error is not None:
-            body["error"] = self.error
-        return dump(body, self.client_id)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionUpdate:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Integer, Number, Text, dump, read
+from .body import SENDER, BodyField, Integer, Number, Text, dump, read, write
 from .errors import ProtocolError
 
 MAX_LAST = 3600.0  # s: more than any ring buffer holds
@@ -42,7 +42,7 @@ class SnapshotRequest:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:
+    def to_json(self) -> bytes:  # hand-written: resume_from 0 (from the start) is left out
         body: dict[str, Any] = {"last": self.last}
         if self.resume_from:
             body["resume_from"] = self.resume_from
@@ -82,9 +82,7 @@ class SnapshotChunk:
 
     def to_json(self) -> bytes:
         """The header line (the bytes follow it: :meth:`to_bytes`)."""
-        header = {"index": self.index, "count": self.count, "size": self.size, "sha256": self.sha256,
-                  "start": self.start, "end": self.end, "messages": self.messages}
-        return dump(header, self.client_id)
+        return write(self.FIELDS, self)
 
     def to_bytes(self) -> bytes:
         return self.to_json() + b"\n" + self.data
