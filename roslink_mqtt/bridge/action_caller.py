@@ -303,9 +303,10 @@ class ActionCaller:
                 self._cancel_by_id(goal)
                 log.warning("goal %s of %s on %s: no answer from the action server within %g s: canceled by its id",
                             goal.id, goal.user, goal.action, GOAL_ANSWER_WAIT)
-                self._finish(goal, FAILED, None, f"the action server did not answer within {GOAL_ANSWER_WAIT:g} s "
-                                                 "(accepted or rejected): the bridge canceled the goal in case the "
-                                                 "server took it")
+                unanswered = (f"the action server did not answer within {GOAL_ANSWER_WAIT:g} s (accepted or "
+                              "rejected): the bridge canceled the goal in case the server took it")
+                # a goal the bridge ended meanwhile (a stop, its operator gone) says so, as an answered one would
+                self._finish(goal, goal.end_status or FAILED, None, goal.end_reason or unanswered)
                 continue
             if goal.pending_feedback is not None and now - goal.last_feedback >= 1.0 / goal.rule.feedback_rate:
                 body, goal.pending_feedback, goal.last_feedback = goal.pending_feedback, None, now

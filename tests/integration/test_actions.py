@@ -9,12 +9,17 @@ SIGKILL cancels its goal within the failsafe bound (printed); an emergency stop 
 from __future__ import annotations
 
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import SimpleNamespace
+from typing import Any
 
 import orjson
 import pytest
@@ -221,6 +226,7 @@ node = rclpy.create_node('slow_answer')
 server = FibonacciServer(node, 'slow_answer', step_period=1.0)
 run = server.execute
 async def on_goal(goal):
+    print('received', flush=True)
     await executor_sleep(node, {ANSWER_AFTER})
     print('accepting', flush=True)
     return GoalResponse.ACCEPT
@@ -238,27 +244,47 @@ executor.spin()
 """
 
 
-def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_server_takes_it(stack) -> None:
-    """A DDS reply can be lost (Fast DDS drops a goal response to a client it has not discovered yet): the server
-    runs a goal the bridge never heard was accepted, and nobody could stop it. The bridge gives up on the answer
-    after GOAL_ANSWER_WAIT (5 s), tells the user, cancels by the goal's id, and cancels it again the moment a late
-    answer does come. Here the server answers after 7 s; unanswered, the goal would run 5 s more and succeed."""
-    if stack.backend != "embedded":
-        pytest.skip("bridge-side: one broker shows it")
+class _Told:
+    """The slow server's lines, each waited for with a deadline (a goal the bridge refused never reaches it)."""
+
+    def __init__(self, stream: Any) -> None:
+        self.lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: [self.lines.put(line.strip()) for line in stream], daemon=True).start()
+
+    def next(self, timeout: float = 20.0, why: Callable[[], str] = lambda: "") -> str:
+        try:
+            return self.lines.get(timeout=timeout)
+        except queue.Empty:
+            raise AssertionError(f"the action server said nothing for {timeout:g} s {why()}") from None
+
+
+def _goal_to_slow_server(stack: SimpleNamespace, told: _Told) -> str:
+    """Send alice's goal until the server has it: a server just started may not be discovered within the bridge's
+    wait (2 s) on a busy machine, and the goal is then rejected (`action server not available`)."""
+    deadline = time.monotonic() + 60
+    while True:
+        goal_id = send_goal(stack.alice, "alice", {"order": 5}, action="slow_answer")
+        status = None
+        while status is None and time.monotonic() < deadline:
+            try:
+                line = told.lines.get(timeout=0.2)
+                assert line == "received", line
+                return goal_id
+            except queue.Empty:
+                status = next((GoalStatus.from_json(m.payload) for m in stack.alice.drain(0.0)
+                               if "/goal_status/slow_answer" in m.topic and m.json().get("id") == goal_id), None)
+        assert status is not None and "not available" in (status.error or ""), (status, "goal never reached it")
+
+
+@contextmanager
+def _slow_answer_server() -> Iterator[_Told]:
+    """SLOW_ANSWER_SERVER running (what it says of each goal, line by line); stopped with SIGINT at the end."""
     server = subprocess.Popen([sys.executable, "-c", SLOW_ANSWER_SERVER], stdout=subprocess.PIPE, text=True,
                               env=os.environ.copy())
     try:
-        assert server.stdout is not None and server.stdout.readline().strip() == "up"
-        sent = time.monotonic()
-        goal_id = send_goal(stack.alice, "alice", {"order": 5}, action="slow_answer")
-        seen = until_result(stack.alice, "alice", goal_id, timeout=30, action="slow_answer")
-        gave_up = time.monotonic() - sent
-        result = GoalResult.from_json(seen[-1].payload)
-        assert kinds(seen) == ["result"], kinds(seen)  # no goal status: the bridge never learned one
-        assert result.status == "failed" and "did not answer within 5 s" in (result.error or ""), result
-        record_measurement("goal without an answer: reported failed (server seen 1 s, then 5 s)", gave_up, 15.0)
-        assert server.stdout.readline().strip() == "accepting"
-        assert server.stdout.readline().strip() == "canceled"  # not "succeeded": the late answer was canceled
+        told = _Told(server.stdout)
+        assert told.next(60) == "up"
+        yield told
     finally:
         server.send_signal(signal.SIGINT)
         try:
@@ -266,8 +292,49 @@ def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_serve
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_server_takes_it(stack) -> None:
+    """A DDS reply can be lost (Fast DDS drops a goal response to a client it has not discovered yet): the server
+    runs a goal the bridge never heard was accepted, and nobody could stop it. The bridge gives up on the answer
+    after GOAL_ANSWER_WAIT (5 s), tells the user, cancels by the goal's id, and cancels it again the moment a late
+    answer does come. Here the server answers after 7 s; unanswered, the goal would run 5 s more and succeed."""
+    if stack.backend != "embedded":
+        pytest.skip("bridge-side: one broker shows it")
+    with _slow_answer_server() as told:
+        goal_id = _goal_to_slow_server(stack, told)
+        sent = time.monotonic()
+        seen = until_result(stack.alice, "alice", goal_id, timeout=30, action="slow_answer")
+        gave_up = time.monotonic() - sent
+        result = GoalResult.from_json(seen[-1].payload)
+        assert kinds(seen) == ["result"], kinds(seen)  # no goal status: the bridge never learned one
+        assert result.status == "failed" and "did not answer within 5 s" in (result.error or ""), result
+        record_measurement("goal without an answer: reported failed, from its arrival at the server", gave_up, 15.0)
+        assert told.next() == "accepting"
+        assert told.next() == "canceled"  # not "succeeded": the late answer was canceled
     log = (stack.work / "bridge.log").read_text(errors="replace")
     assert "accepted after the bridge gave up on its answer" in log, log[-2000:]
+
+
+def test_a_stop_before_a_goal_is_answered_cancels_it_and_says_why(stack) -> None:
+    """An emergency stop while a goal's answer is still awaited: the goal's result says the stop canceled it (not
+    that the server did not answer), and the server, once it takes the goal, has it canceled at once."""
+    if stack.backend != "embedded":
+        pytest.skip("bridge-side: one broker shows it")
+    with _slow_answer_server() as told:
+        goal_id = _goal_to_slow_server(stack, told)  # the goal is with the server; its answer comes in 7 s
+        stack.alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop",
+                            {"message_id": 108, "sequence_number": 9, "payload": {}})
+        seen = until_result(stack.alice, "alice", goal_id, timeout=30, action="slow_answer")
+        result = GoalResult.from_json(seen[-1].payload)
+        assert result.status == "canceled" and "emergency stop by alice" in (result.error or ""), result
+        assert told.next() == "accepting"
+        assert told.next() == "canceled"
+    stack.alice.publish("roslink/turtle1/from/alice/cmd/arm", {"message_id": 104, "sequence_number": 9,
+                                                                "payload": {}})
+    # armed again for the module's other tests: the heartbeat says ACTIVE (4), not EMERGENCY, once it is
+    stack.alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
+                         timeout=10)
 
 
 # -- the SDK ----------------------------------------------------------------------------------------------
