@@ -129,6 +129,7 @@ def robot(connect: str) -> int:
     import rclpy
     import zenoh
     from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
     from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import LaserScan
 
@@ -149,7 +150,8 @@ def robot(connect: str) -> int:
             odom.put(raw)
 
     node.create_subscription(Odometry, ODOM_TOPIC, on_odom, 10, raw=True)
-    node.create_subscription(LaserScan, SCAN_TOPIC, scan.put, 10, raw=True)
+    # the sim publishes its scan best-effort (sensor data): a reliable subscription would never match it
+    node.create_subscription(LaserScan, SCAN_TOPIC, scan.put, qos_profile_sensor_data, raw=True)
     print("zenoh peer: forwarding /odom and /scan", flush=True)
     try:
         while not stop.is_set():
