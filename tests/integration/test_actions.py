@@ -316,27 +316,6 @@ def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_serve
     assert "accepted after the bridge gave up on its answer" in log, log[-2000:]
 
 
-def test_a_stop_before_a_goal_is_answered_cancels_it_and_says_why(stack) -> None:
-    """An emergency stop while a goal's answer is still awaited: the goal's result says the stop canceled it (not
-    that the server did not answer), and the server, once it takes the goal, has it canceled at once."""
-    if stack.backend != "embedded":
-        pytest.skip("bridge-side: one broker shows it")
-    with _slow_answer_server() as told:
-        goal_id = _goal_to_slow_server(stack, told)  # the goal is with the server; its answer comes in 7 s
-        stack.alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop",
-                            {"message_id": 108, "sequence_number": 9, "payload": {}})
-        seen = until_result(stack.alice, "alice", goal_id, timeout=30, action="slow_answer")
-        result = GoalResult.from_json(seen[-1].payload)
-        assert result.status == "canceled" and "emergency stop by alice" in (result.error or ""), result
-        assert told.next() == "accepting"
-        assert told.next() == "canceled"
-    stack.alice.publish("roslink/turtle1/from/alice/cmd/arm", {"message_id": 104, "sequence_number": 9,
-                                                                "payload": {}})
-    # armed again for the module's other tests: the heartbeat says ACTIVE (4), not EMERGENCY, once it is
-    stack.alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                         timeout=10)
-
-
 # -- the SDK ----------------------------------------------------------------------------------------------
 def test_sdk_send_goal_feedback_result_and_cancel(stack) -> None:
     from roslink_mqtt.client import GoalError, RobotClient
