@@ -24,6 +24,7 @@ from typing import Any
 import orjson
 import pytest
 
+from roslink_mqtt.localproc import stop_process
 from roslink_mqtt.protocol.goals import GoalResult, GoalStatus
 from tests.support.broker_setup import ExportedMosquitto, write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
@@ -280,18 +281,13 @@ def _goal_to_slow_server(stack: SimpleNamespace, told: _Told) -> str:
 def _slow_answer_server() -> Iterator[_Told]:
     """SLOW_ANSWER_SERVER running (what it says of each goal, line by line); stopped with SIGINT at the end."""
     server = subprocess.Popen([sys.executable, "-c", SLOW_ANSWER_SERVER], stdout=subprocess.PIPE, text=True,
-                              env=os.environ.copy())
+                              env=os.environ.copy(), start_new_session=True)  # a group of its own: stop_process
     try:
         told = _Told(server.stdout)
         assert told.next(60) == "up"
         yield told
     finally:
-        server.send_signal(signal.SIGINT)
-        try:
-            server.wait(10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+        stop_process(server, timeout=10)  # SIGINT: its participant leaves at once; SIGKILL if it hangs
 
 
 def test_a_goal_whose_answer_never_comes_is_reported_and_canceled_when_the_server_takes_it(stack) -> None:
