@@ -1,0 +1,74 @@
+"""The video rate controller: a ladder of rungs, a bitrate that follows the stream's share, frames skipped."""
+
+from __future__ import annotations
+
+import pytest
+
+from roslink_mqtt.video.ladder import MIN_GAP, UP_AFTER, Ladder, RateController, Rung
+
+LADDER = Ladder.for_camera(640, 480, 30)
+
+
+def test_the_default_ladder_goes_down_by_size_and_frame_rate() -> None:
+    assert [str(r) for r in LADDER.rungs] == ["640×480@30", "480×360@20", "320×240@15", "160×120@10"]
+    assert LADDER.rung_for(10e6).width == 640
+    assert LADDER.rung_for(200_000).width == 320  # 256 kbit/s leaves about this to video: ≥ 10 fps at 320×240
+    assert LADDER.rung_for(1_000).width == 160  # below every rung's worth: the smallest
+
+
+@pytest.mark.parametrize("rungs, why", [
+    ((), "at least one rung"),
+    ((Rung(160, 120, 10), Rung(640, 480, 30)), "largest"),
+])
+def test_a_ladder_that_makes_no_sense_is_refused(rungs: tuple[Rung, ...], why: str) -> None:
+    with pytest.raises(ValueError, match=why):
+        Ladder(rungs, 50_000, 1e6)
+
+
+@pytest.mark.parametrize("width, height, fps", [(15, 16, 10), (641, 480, 30), (640, 480, 0), (640, 480, 500)])
+def test_a_rung_that_no_encoder_takes_is_refused(width: int, height: int, fps: float) -> None:
+    with pytest.raises(ValueError):
+        Rung(width, height, fps)
+
+
+def test_a_fall_of_the_share_lowers_the_bitrate_at_once() -> None:
+    control = RateController(LADDER, 1_000_000)
+    assert control.target.rung.width == 640
+    new = control.update(200_000, now=10.0)
+    assert new is not None and new.bitrate == pytest.approx(150_000) and new.rung.width == 320
+    assert control.update(190_000, now=10.1) is None  # within the share's wobble: no new encoder
+
+
+def test_room_raises_the_bitrate_only_after_it_lasts() -> None:
+    control = RateController(LADDER, 200_000)
+    start = control.target.bitrate
+    assert control.update(1_000_000, now=0.0) is None
+    assert control.update(1_000_000, now=UP_AFTER / 2) is None
+    assert control.update(180_000, now=UP_AFTER * 0.75) is None  # the room went: start again
+    assert control.update(1_000_000, now=UP_AFTER) is None
+    new = control.update(1_000_000, now=2 * UP_AFTER + 0.01)
+    assert new is not None and new.bitrate == pytest.approx(700_000) and new.bitrate > start
+
+
+def test_new_encoders_are_at_least_min_gap_apart() -> None:
+    control = RateController(LADDER, 1_000_000)
+    assert control.update(300_000, now=0.0) is not None
+    assert control.update(100_000, now=MIN_GAP / 2) is None
+    assert control.update(100_000, now=MIN_GAP + 0.01) is not None
+
+
+def test_the_bitrate_stays_within_the_ladder_bounds() -> None:
+    ladder = Ladder.for_camera(640, 480, 30, min_bitrate=80_000, max_bitrate=500_000)
+    control = RateController(ladder, 10_000_000)
+    assert control.target.bitrate == 500_000
+    new = control.update(1_000, now=1.0)
+    assert new is not None and new.bitrate == 80_000
+    assert control.update(500, now=5.0) is None  # already at the floor
+
+
+def test_frames_are_encoded_at_the_rung_rate_and_never_faster() -> None:
+    control = RateController(Ladder((Rung(320, 240, 10),), 50_000, 1e6), 200_000)
+    camera = [i / 30 for i in range(90)]  # 30 Hz for 3 s
+    encoded = [t for t in camera if control.frame_due(t)]
+    assert 28 <= len(encoded) <= 31
+    assert min(b - a for a, b in zip(encoded, encoded[1:], strict=False)) >= 0.8 / 10
