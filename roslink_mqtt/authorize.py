@@ -21,8 +21,9 @@ from .config import Role
 from .topics import Verb
 
 # what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true,
-# reading parameters, setting those of a node with viewers_may_set, snapshots with snapshot.who: viewers)
-VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM, Verb.SNAPSHOT})
+# reading parameters, setting those of a node with viewers_may_set, snapshots with snapshot.who: viewers; video
+# streams are always open to viewers: read_only True)
+VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM, Verb.SNAPSHOT, Verb.WATCH})
 
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
@@ -62,6 +63,8 @@ def _action(verb: Verb, name: str, robot: str) -> str:
         return f"{name.replace('_', ' ')} control of {robot}"
     if verb is Verb.SNAPSHOT:
         return f"ask {robot} for snapshots"
+    if verb is Verb.WATCH:
+        return f"watch '{name}'"
     return f"publish on '{name}'"
 
 
@@ -75,6 +78,8 @@ def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, 
     """
     if allowed(role, verb, read_only=read_only):
         return None
+    if verb is Verb.WATCH and role is None:
+        return f"user '{user}' may not {_action(verb, name, robot)} (any granted user may): no grant on {robot}"
     who_may = ("operators only; it is not read-only" if verb is Verb.CALL else
                "operators only; it is not open to viewers" if verb in VIEWER_VERBS else "operators only")
     standing = "a viewer" if role is Role.VIEWER else "no grant"

@@ -129,6 +129,7 @@ class Verb(Enum):
     ACTION_UPDATE = "action_update"  # a provider's accepted/rejected/feedback/end of a goal: action_update/<action>
     CONTROL = "control"  # claim, release or take over control of the robot: control/<claim|release|take_over>
     SNAPSHOT = "snapshot"  # ask for the last seconds of the robot's snapshot topics as MCAP: snapshot/<id>
+    WATCH = "watch"  # keep a video stream coming (renewed while watching), or ask for a keyframe: watch/<stream>
     # sent by robots (to/<user>/…)
     REPLY = "reply"  # the answer to a call: reply/<service>
     REQUEST = "request"  # a ROS call for a provider: request/<service>
@@ -192,11 +193,12 @@ _MEANINGS = {
                   "`control/take_over`); `state/control` says who holds it",
     Verb.SNAPSHOT: "ask for the last seconds of the robot's snapshot topics (ROS messages as MCAP); your id names it",
     Verb.SNAPSHOT_DATA: "a chunk of the snapshot you asked for (a JSON header line, then its bytes)",
+    Verb.WATCH: "watch one of the robot's video streams: renew it while you watch (a viewer may), leave when done",
 }
 
 USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
                         Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE,
-                        Verb.CONTROL, Verb.SNAPSHOT})
+                        Verb.CONTROL, Verb.SNAPSHOT, Verb.WATCH})
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + (STATE,)

@@ -48,6 +48,7 @@ from .capabilities import (
     SendGoal,
     Snapshots,
     UpdateProvidedGoal,
+    Watch,
 )
 from .claim import ANNOUNCE, EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from .convert import ConversionError, converter_for
@@ -75,6 +76,7 @@ from .systemd import SystemdNotifier
 from .throttle import Throttle
 from .uplink_sender import Uplink
 from .vda5050_node import VdaRobot
+from .video_ros import RosVideo
 
 log = logging.getLogger("roslink_mqtt.bridge")
 
@@ -248,12 +250,7 @@ class Bridge:
                             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=list,
                             on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload)
 
-        state_rules = [o for o in outbound if o.rule.priority is Priority.STATE]
-        bulk_rules = [o for o in outbound if o.rule.priority is Priority.BULK]
-        self.state_link = lane("state") if scheduled and state_rules else None
-        self.bulk_links = {o.topic: lane(f"bulk{i}") for i, o in enumerate(bulk_rules)} if scheduled else {}
-        if scheduled and robot.snapshot is not None:  # snapshot chunks: a paced bulk lane of their own
-            self.bulk_links[SNAPSHOT_STREAM] = lane(SNAPSHOT_STREAM)
+        self.state_link, self.bulk_links = self._lanes(outbound, lane) if scheduled else (None, {})
         self.uplink = Uplink(self.link, self.state_link, self.bulk_links, fifo=not scheduled,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
@@ -337,6 +334,9 @@ class Bridge:
         chunks = UplinkChunks(self.uplink) if robot.snapshot is not None else None  # no stream in state/link else
         self.snapshots = Snapshots(robot, self.topics, self.snapshot_buffer, chunks, self._refuse, save=failsafe_files)
         capabilities.append(self.snapshots)
+        # cameras as video, encoded once while anyone watches (bridge/video_ros.py); the port of watch/<stream>
+        self.video = RosVideo(node, robot, self.topics, self.uplink, self._is_live, self.on_executor)
+        capabilities.append(Watch(robot.name, self.video.names, self.video, self._refuse))
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self.endpoint.on_failsafe_stop = self.snapshots.failsafe  # every failsafe stop leaves a record
@@ -369,6 +369,20 @@ class Bridge:
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
         log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs, %d actions", robot.name,
                  len(outbound), len(routes), len(self.actuators.velocity), len(self.actions.actions))
+
+    def _lanes(self, outbound: Sequence[Outbound], lane: Callable[[str], MqttLink]
+               ) -> tuple[MqttLink | None, dict[str, MqttLink]]:
+        """The uplink's connections besides the command link: one for state streams (if any), one per bulk stream,
+        snapshot chunks and video stream (by topic)."""
+        robot = self.robot
+        state_link = lane("state") if any(o.rule.priority is Priority.STATE for o in outbound) else None
+        bulk_rules = [o for o in outbound if o.rule.priority is Priority.BULK]
+        bulk_links = {o.topic: lane(f"bulk{i}") for i, o in enumerate(bulk_rules)}
+        if robot.snapshot is not None:  # snapshot chunks: a paced bulk lane of their own
+            bulk_links[SNAPSHOT_STREAM] = lane(SNAPSHOT_STREAM)
+        for i, video in enumerate(robot.video):  # each video stream too (docs/video.md)
+            bulk_links[self.topics.state(robot.name, video.name)] = lane(f"video{i}")
+        return state_link, bulk_links
 
     # the endpoint's, looked up at call time (the endpoint is built after the helpers that need these)
     def _role_of(self, user: str) -> Any:
@@ -475,6 +489,8 @@ class Bridge:
             self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
             self.provided_actions.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
             self.on_demand.withdraw_user(user)
+        for user in set(old_fleet.users_of(self.robot.name)) - set(after):
+            self.video.forget_user(user)
         self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
         # a user who changes role moves between the links: leave the old one first (a gap of a few ms, never
         # the same command arriving twice), then join the new one
@@ -512,6 +528,7 @@ class Bridge:
                     "viewer link not subscribed after %g s; connecting the command link anyway",
                     VIEWER_LINK_HEAD_START)
         self.uplink.start()
+        self.video.start()
         for lane in self.lanes:
             lane.start()
         if self.stop_link is not None:
@@ -533,6 +550,7 @@ class Bridge:
         if self.vda is not None:  # OFFLINE first: the master sees a clean stop, not a broken connection
             self.vda.stop()
         self.snapshots.close()
+        self.video.stop()
         self.uplink.stop()
         for lane in self.lanes:
             lane.stop()

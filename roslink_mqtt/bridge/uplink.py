@@ -217,6 +217,7 @@ class LinkMeter:
     target_delay: float = TARGET_DELAY  # s (robots.yaml bridge.uplink_target_delay)
     min_rtt: float = 0.0  # s, as the kernel measured it
     measured: bool = False  # a capacity measurement has been made
+    full: bool = True  # the last window found bytes waiting in the network at every look (False: the link had room)
     lane_rates: list[float] = field(default_factory=list)  # bytes/s each lane delivered in the last window
     lane_demand: list[float] = field(default_factory=list)  # bytes/s offered to each lane in the last window
     _since: float | None = None
@@ -262,6 +263,7 @@ class LinkMeter:
         if len(offered) == len(self._offered):
             self.lane_demand = [(a - b) / elapsed for a, b in zip(offered, self._offered, strict=True)]
         delivered = sum(self.lane_rates)
+        self.full = self._limited
         if self._limited:
             self.rate = delivered if not self.measured else 0.5 * self.rate + 0.5 * delivered
             self.rate = max(self.rate, MIN_RATE)

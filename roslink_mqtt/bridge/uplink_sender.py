@@ -344,6 +344,32 @@ class Uplink:
             return "network"
         return "allowance" if lane.credit < 0 else None
 
+    def has_room(self, lane: Lane, stream: Stream) -> bool:
+        """Whether a message of ``stream`` handed over now would leave at once: nothing of it waits, its lane is
+        connected and neither the lane nor the path holds its budget (a video frame is encoded only then)."""
+        if not lane.link.connected.is_set():
+            return False
+        with self.lock:
+            if stream.waiting:
+                return False
+            self._refill(lane, time.monotonic())
+            return self._blocked(lane, 0) is None
+
+    def share_of(self, lane: Lane) -> tuple[float, bool]:
+        """Bytes/s ``lane`` may hand over (what the tiers before it leave), and whether the link had room to spare
+        in the last window (its capacity not found yet: a stream may probe upwards)."""
+        with self.lock:
+            allowance, steering = self._allowance(lane, time.monotonic())
+            return allowance, not steering and not self.meter.full
+
+    def _allowance(self, lane: Lane, now: float) -> tuple[float, bool]:
+        """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held)."""
+        steering = not self.fifo and self.path.steering(now)
+        if steering:
+            return self.meter.allowance(lane.index, self._tiers, probe=1.0,
+                                        rate=min(PROBE * self.meter.rate, self.path.rate)), True
+        return self.meter.allowance(lane.index, self._tiers, rate=self.rate(now)), False
+
     def _refill(self, lane: Lane, now: float) -> None:
         """A paced lane's allowance since its last refill, and while the path steers, the pace of its writes.
 
@@ -354,12 +380,7 @@ class Uplink:
         lanes back over it, and the queue grew until the camera got nothing and poses were seconds old
         (bench/weak_link.py, the camera + map rows)."""
         if lane.paced:
-            steering = not self.fifo and self.path.steering(now)
-            if steering:
-                allowance = self.meter.allowance(lane.index, self._tiers, probe=1.0,
-                                                 rate=min(PROBE * self.meter.rate, self.path.rate))
-            else:
-                allowance = self.meter.allowance(lane.index, self._tiers, rate=self.rate(now))
+            allowance, steering = self._allowance(lane, now)
             lane.credit = min(float(self.budget()), lane.credit + allowance * max(0.0, now - lane.refilled))
             lane.refilled = now
             self._pace(lane, allowance if steering else None)

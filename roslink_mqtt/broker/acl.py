@@ -193,6 +193,9 @@ def user_entries(fleet: Fleet, user: str) -> list[AclEntry]:
             snapshot = fleet.robots[robot].snapshot
             if snapshot is not None and snapshot.who == "viewers":
                 entries.append(AclEntry(t.verb_filter(robot, user, Verb.SNAPSHOT), Access.WRITE))
+            # video: every granted user may watch (the frames are state, which they read anyway)
+            if fleet.robots[robot].video:
+                entries.append(AclEntry(t.verb_filter(robot, user, Verb.WATCH), Access.WRITE))
             # any granted user may stop the robot (unless robots.yaml says `estop: operators`)
             if fleet.robots[robot].estop == "viewers":
                 entries += [AclEntry(t.from_user(robot, user, leaf), Access.WRITE)

@@ -24,6 +24,7 @@ from .model import (
     TlsSettings,
     User,
     VelocityLimits,
+    VideoStream,
 )
 from .passwords import PasswordHashError, hash_password, verify_password
 from .yamlsource import ConfigError
@@ -32,6 +33,6 @@ __all__ = [
     "ActionRule", "BridgeSettings", "BrokerSettings", "ConfigError", "Direction", "FailsafeAction", "Fleet", "Grant",
     "ParameterRule", "PasswordHashError", "Priority",
     "Robot", "Role", "RosQos", "Rule", "ServiceRule", "SnapshotSettings", "SnapshotTopic", "TlsSettings", "User",
-    "VelocityLimits",
+    "VelocityLimits", "VideoStream",
     "hash_password", "load_fleet", "parse_fleet", "verify_password",
 ]

@@ -47,6 +47,8 @@ from .model import (
     VDA_CALL_TYPES,
     VDA_CLASSES,
     VDA_KINEMATICS,
+    VIDEO_CODECS,
+    VIDEO_TYPES,
     ActionRule,
     BridgeSettings,
     BrokerSettings,
@@ -68,6 +70,7 @@ from .model import (
     Vda5050Call,
     Vda5050Settings,
     VelocityLimits,
+    VideoStream,
 )
 from .passwords import PasswordHashError, check_hash_format
 from .yamlsource import ConfigError, Path, Source, load_yaml
@@ -356,7 +359,7 @@ class _FleetReader:
     def robot(self, path: Path, name: str) -> Robot:
         self.mapping(path, ("system_id", "key", "password", "previous_password", "type", "bridge", "rules",
                             "services", "actions", "parameters", "control", "supervisors", "estop", "snapshot",
-                            "vda5050"))
+                            "vda5050", "video"))
         types = tuple(t.name.lower() for t in RobotType)
         rtype = self.value(path, "type", self.choice(types), "ground")
         rules = self.rules(path + ("rules",)) if "rules" in self.get(path) else ()
@@ -378,7 +381,55 @@ class _FleetReader:
             snapshot=self.snapshot(path + ("snapshot",), rules) if self.get(path).get("snapshot") is not None
             else None,
             vda5050=self.vda5050(path + ("vda5050",), name) if self.get(path).get("vda5050") is not None else None,
+            video=self.video(path + ("video",), rules) if self.get(path).get("video") is not None else (),
         )
+
+    def video(self, path: Path, rules: tuple[Rule, ...]) -> tuple[VideoStream, ...]:
+        """``video:``: the cameras sent as video, each on ``state/<name>`` (a name no rule's state uses)."""
+        taken = {state_rule_name(r.mqtt_topic) for r in rules if r.direction is Direction.ROS_TO_MQTT}
+        out: list[VideoStream] = []
+        for i in range(len(self.sequence(path))):
+            vp = path + (i,)
+            self.mapping(vp, ("name", "ros_topic", "ros_type", "codec", "fps", "ladder", "min_kbit_s",
+                              "max_kbit_s"))
+            ros_topic = self.value(vp, "ros_topic", self.ros_name)
+            name = self.value(vp, "name", self.topic_name("video stream name"), None) or ros_names.flat(ros_topic)
+            if name in taken or name in BRIDGE_STATE_NAMES:
+                raise self.err(vp + ("name",), f"state/{name} is already used (a rule's or the bridge's own): name "
+                                               "the stream")
+            taken.add(name)
+            d = VideoStream(name, ros_topic, VIDEO_TYPES[0])
+            low = self.value(vp, "min_kbit_s", self.number(8, 100_000), d.min_kbit_s)
+            high = self.value(vp, "max_kbit_s", self.number(8, 100_000), d.max_kbit_s)
+            if low > high:
+                raise self.err(vp + ("min_kbit_s",), f"min_kbit_s {low:g} is above max_kbit_s {high:g}")
+            fps = self.value(vp, "fps", self.number(0, 120, open_low=True), d.fps)
+            out.append(VideoStream(
+                name=name, ros_topic=ros_topic,
+                ros_type=self.value(vp, "ros_type", self.choice(VIDEO_TYPES)),
+                codec=self.value(vp, "codec", self.choice(VIDEO_CODECS), d.codec), fps=fps,
+                ladder=self.video_ladder(vp + ("ladder",)) if self.get(vp).get("ladder") is not None else (),
+                min_kbit_s=low, max_kbit_s=high, line=self.src.line_of(vp)))
+        return tuple(out)
+
+    def video_ladder(self, path: Path) -> tuple[tuple[int, int, float], ...]:
+        """``ladder: [[640, 480, 30], [320, 240, 15]]``: sizes (even, 16..8192) and frame rates, largest first."""
+        rungs: list[tuple[int, int, float]] = []
+        for i in range(len(self.sequence(path))):
+            rp = path + (i,)
+            rung = self.get(rp)
+            ok = isinstance(rung, list) and len(rung) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in rung)
+            if not ok or rung[0] % 2 or rung[1] % 2 or not (16 <= rung[0] <= 8192 and 16 <= rung[1] <= 8192) \
+                    or not 0 < rung[2] <= 120 or rung[0] != int(rung[0]) or rung[1] != int(rung[1]):
+                raise self.err(rp, f"expected [width, height, fps]: even sizes 16..8192 and 0 < fps ≤ 120, got "
+                                   f"{_show(rung)}")
+            if rungs and rung[0] * rung[1] * rung[2] > rungs[-1][0] * rungs[-1][1] * rungs[-1][2]:
+                raise self.err(rp, "rungs go from the largest (pixels a second) to the smallest")
+            rungs.append((int(rung[0]), int(rung[1]), float(rung[2])))
+        if not rungs:
+            raise self.err(path, "a ladder needs at least one [width, height, fps] (or leave `ladder:` out)")
+        return tuple(rungs)
 
     def vda5050(self, path: Path, robot: str) -> Vda5050Settings:
         """``vda5050:``: the robot's VDA 5050 identity (topic levels of the standard's own alphabet), its map, its

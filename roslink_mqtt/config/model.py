@@ -255,6 +255,30 @@ class SnapshotSettings:
     keep: int = 20
 
 
+VIDEO_CODECS = ("h264", "vp8", "vp9", "av1")
+VIDEO_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+@dataclass(frozen=True, slots=True)
+class VideoStream:
+    """A camera the bridge sends as video (docs/video.md): encoded once on the robot while someone watches, at the
+    bitrate the uplink leaves after control and state, on ``state/<name>``. Every granted user may watch (a viewer
+    too: the frames are state, which every granted user reads).
+
+    ``ladder``: (width, height, fps) from the largest to the smallest; () takes the camera's own size at ``fps``,
+    then ¾, ½ and ¼ of it (``roslink_mqtt.video.ladder.Ladder.for_camera``)."""
+
+    name: str
+    ros_topic: str
+    ros_type: str  # VIDEO_TYPES
+    codec: str = "h264"
+    fps: float = 30.0  # the most frames a second it is sent at
+    ladder: tuple[tuple[int, int, float], ...] = ()
+    min_kbit_s: float = 50.0
+    max_kbit_s: float = 2000.0
+    line: int | None = None
+
+
 VDA_KINEMATICS = ("DIFF", "OMNI", "THREEWHEEL")
 VDA_CALL_TYPES = ("std_srvs/srv/Trigger", "std_srvs/srv/Empty")  # what a mapped instant action may call
 VDA_BUILT_IN_ACTIONS = ("startPause", "stopPause", "cancelOrder", "stateRequest", "factsheetRequest")
@@ -374,6 +398,10 @@ class Robot:
     previous_password_hash: str = ""
     snapshot: SnapshotSettings | None = None  # None: the bridge keeps no ring buffer and refuses snapshot requests
     vda5050: Vda5050Settings | None = None  # None: the robot speaks ROSLink only
+    video: tuple[VideoStream, ...] = ()
+
+    def video_stream(self, name: str) -> VideoStream | None:
+        return next((v for v in self.video if v.name == name), None)
 
     @property
     def estop_inputs(self) -> tuple[str, ...]:

@@ -42,6 +42,7 @@ from .params import PARAM_BODIES, ParamEvent, ParamReply, ParamRequest
 from .provided_actions import PROVIDED_ACTION_BODIES, ActionOffer, ActionRequest, ActionUpdate
 from .rosout import ROSOUT_BODIES, LogLine
 from .snapshot import SNAPSHOT_BODIES, SnapshotChunk, SnapshotRequest
+from .video import VIDEO_BODIES, VideoFrame, WatchRequest
 
 BEGIN = "<!-- BEGIN GENERATED: message reference (python -m roslink_mqtt.protocol.reference) -->"
 END = "<!-- END GENERATED: message reference -->"
@@ -52,7 +53,8 @@ END_VERBS = "<!-- END GENERATED: verbs -->"
 
 # in the order docs/protocol.md shows them
 DOCUMENTED_BODIES = (CONTROL_BODIES + GOAL_BODIES + PROVIDED_ACTION_BODIES + PARAM_BODIES + NODE_PARAM_BODIES +
-                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES + GRANTS_BODIES + SNAPSHOT_BODIES)
+                     ROSOUT_BODIES + DESCRIPTION_BODIES + LINK_BODIES + LEASE_BODIES + GRANTS_BODIES + SNAPSHOT_BODIES +
+                     VIDEO_BODIES)
 
 
 
@@ -95,6 +97,9 @@ _CONTROL_EXAMPLES: dict[type, _DocumentedBody] = {
     SnapshotRequest: SnapshotRequest(30.0, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     SnapshotChunk: SnapshotChunk(0, 12, 190_734, "9f2c" * 16, b"", 1_795_700_000_000_000_000,
                                  1_795_700_030_000_000_000, 1_204, client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
+    WatchRequest: WatchRequest("alice-web-5f2c9e0a", key=True),
+    VideoFrame: VideoFrame("h264", True, 1_207, 1_795_700_000.125, 320, 240, "avc1.42c01f", b"",
+                           encoded=1_795_700_000.141, kbit_s=180.0, fps=15.0),
     ParamReply: ParamReply("p-1", True, {"max_speed": {"successful": True, "reason": ""}},
                            client_id="alice-sdk-5f2c9e0a1b3d4c6e"),
     ParamEvent: ParamEvent("/sim_robot", changed={"max_speed": 0.3}),
@@ -238,7 +243,8 @@ def render_verbs() -> str:
                                        Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE, Verb.ACTION_REQUEST) else
                 "<node>" if verb in (Verb.PARAM, Verb.PARAM_REPLY, Verb.LOG, Verb.DECLARE, Verb.PARAM_SET,
                                      Verb.PARAM_RESULT) else
-                "<command>" if verb is Verb.CMD else "<rule>")
+                "<command>" if verb is Verb.CMD else "<id>" if verb in (Verb.SNAPSHOT, Verb.SNAPSHOT_DATA) else
+                "<stream>" if verb is Verb.WATCH else "<rule>")
         topic = doc.user_topic("<robot>", "<user>", verb, name if verb.named else "")
         out.append(f"| `{verb.value}` | `{topic}` | {'yes' if verb.retained_by_sender else 'no'} | {verb.meaning} |")
     out += ["", "A topic under `from/<user>/` whose first level is none of the user's verbs is a generic rule's "

@@ -15,14 +15,46 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from ..topics import TopicTree
-from .body import BodyField, Boolean, Choice, Integer, Number, Text, read, write
+from ..topics import TopicTree, Verb
+from .body import SENDER, BodyField, Boolean, Choice, Integer, Number, Text, read, write
 from .errors import ProtocolError
 
 CODECS = ("h264", "vp8", "vp9", "av1")
 MAX_SIDE = 8192  # pixels: more than any camera a robot streams
 MAX_SEQ = (1 << 53) - 1  # a JSON integer every client reads exactly
+WATCH_LEASE = 10.0  # s a watch lasts after its last renewal (a client that vanished stops costing the uplink)
+WATCH_RENEW = 3.0  # s between a watching client's renewals
 _DOC = TopicTree()
+
+
+@dataclass(frozen=True, slots=True)
+class WatchRequest:
+    """Watch a video stream, on ``from/<user>/watch/<stream>`` (read by the bridge; not retained).
+
+    A lease, not a switch: the robot encodes while any watch is fresh, so a viewer whose program crashed stops
+    costing the robot's uplink :data:`WATCH_LEASE` seconds later (or when its presence ends), and a retained message
+    left behind cannot keep a camera streaming for nobody."""
+
+    client_id: str
+    key: bool = False
+    leave: bool = False
+
+    FIELDS = (
+        BodyField("client_id", SENDER, True, "the watching client's id (its presence id, when it has one: the watch "
+                                             "ends with its presence)", names="sender"),
+        BodyField("key", Boolean(), False, "send a keyframe now (a viewer that just joined, or lost frames)", False),
+        BodyField("leave", Boolean(), False, f"stop watching now; without it a watch lasts {WATCH_LEASE:g} s after "
+                                             f"the last request (renew every {WATCH_RENEW:g} s)", False),
+    )
+    QOS = 0
+    RETAINED = False
+
+    def to_json(self) -> bytes:
+        return write(self.FIELDS, self)
+
+    @classmethod
+    def from_json(cls, data: bytes | bytearray | memoryview | str) -> WatchRequest:
+        return cls(**read(cls.FIELDS, data, shape='expected a JSON object {"client_id": "<your client id>"}'))
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,6 +117,7 @@ class VideoFrame:
 
 
 VIDEO_BODIES: tuple[tuple[str, str, type], ...] = (
+    ("watch request", f"`{_DOC.user_topic('<robot>', '<user>', Verb.WATCH, '<stream>')}`", WatchRequest),
     ("video frame", f"`{_DOC.state('<robot>', '<stream>')}`: this JSON header line, a newline, then the frame's "
                     "bitstream", VideoFrame),
 )

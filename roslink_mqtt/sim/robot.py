@@ -2,7 +2,8 @@
 
 Subscribes ``cmd_vel`` (geometry_msgs/Twist); publishes ``odom``
 (nav_msgs/Odometry), ``battery_state`` (sensor_msgs/BatteryState), ``scan``
-(sensor_msgs/LaserScan) and ``gps/fix`` (sensor_msgs/NavSatFix); offers
+(sensor_msgs/LaserScan), ``gps/fix`` (sensor_msgs/NavSatFix) and, while
+subscribed, ``camera/image_raw`` (sensor_msgs/Image, :mod:`.camera`); offers
 ``reset`` (std_srvs/Trigger). Like a real base it simply obeys the last
 command it got: stopping it when the operator vanishes is the bridge's job.
 
@@ -34,6 +35,7 @@ from sensor_msgs.msg import BatteryState, LaserScan, NavSatFix, NavSatStatus
 from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 
+from .camera import SimCamera
 from .fibonacci import FibonacciServer
 from .navigate import NavigateServer, load_action_type
 from .world import World
@@ -101,6 +103,10 @@ class SimRobot(Node):
         self.create_timer(1.0 / rate["scan"], self.publish_scan)
         self.create_timer(1.0 / rate["gps"], self.publish_gps)
         self.create_timer(1.0 / rate["battery"], self.publish_battery)
+        # a camera (camera/image_raw): rendered only while something subscribes (the bridge, while watched)
+        self.camera = SimCamera(self, self.world, float(self.declare_parameter("camera_rate", 30.0).value),
+                                int(self.declare_parameter("camera_width", 640).value),
+                                int(self.declare_parameter("camera_height", 480).value))
         dds = f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')} " + " ".join(
             f"{k}={os.environ.get(k, '(unset)')}" for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION"))
         self.get_logger().info(f"simulated robot ready in a {2 * self.world.half_size:g} m room; DDS: {dds}")

@@ -24,6 +24,7 @@ DOWN_TO = 0.75  # … to this × the share (room for keyframes and the share's o
 UP_AT = 1.4  # the share has stayed above this × the bitrate …
 UP_AFTER = 2.0  # … for this many seconds: up
 UP_TO = 0.7  # … to this × the share
+PROBE_UP = 1.5  # the link's capacity is not known yet (it had room): up by this much, to find out
 MIN_GAP = 0.5  # s between two new encoders, whichever the direction (each costs a keyframe)
 BITS_PER_PIXEL = 0.06  # bits a pixel needs per frame for a picture worth watching (H.264 at low motion)
 
@@ -111,21 +112,26 @@ class RateController:
         bitrate = min(self.ladder.max_bitrate, max(self.ladder.min_bitrate, bitrate))
         return Target(self.ladder.rung_for(bitrate), bitrate)
 
-    def update(self, share: float, now: float) -> Target | None:
-        """Feed the stream's share (bits/s); a new :class:`Target` when the encoder must change, else None."""
+    def update(self, share: float, now: float, headroom: bool = False) -> Target | None:
+        """Feed the stream's share (bits/s); a new :class:`Target` when the encoder must change, else None.
+
+        ``headroom``: the link had room to spare lately, so its capacity is not known yet and the share is only
+        what was used plus a margin: the stream does not go down for it, and after UP_AFTER seconds of it probes
+        up by PROBE_UP (the uplink's meter then finds out whether the link carries that)."""
         self.share = share
         bitrate = self.target.bitrate
         if self._changed_at is not None and now - self._changed_at < MIN_GAP:
             return None
-        if share < DOWN_AT * bitrate and bitrate > self.ladder.min_bitrate:
+        if share < DOWN_AT * bitrate and bitrate > self.ladder.min_bitrate and not headroom:
             self._room_since = None
             return self._change(self._target_for(share * DOWN_TO), now)
-        if share > UP_AT * bitrate and bitrate < self.ladder.max_bitrate:
+        if (share > UP_AT * bitrate or headroom) and bitrate < self.ladder.max_bitrate:
             if self._room_since is None:
                 self._room_since = now
             elif now - self._room_since >= UP_AFTER:
                 self._room_since = None
-                return self._change(self._target_for(share * UP_TO), now)
+                up = max(share * UP_TO, bitrate * PROBE_UP) if headroom else share * UP_TO
+                return self._change(self._target_for(up), now)
         else:
             self._room_since = None
         return None

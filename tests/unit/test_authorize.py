@@ -19,7 +19,7 @@ NAMES = {Verb.CMD: "cmd/twist", Verb.CALL: "reset", Verb.PROVIDE: "plan", Verb.R
          Verb.ADVERTISE: "lights", Verb.GOAL: "fibonacci", Verb.CANCEL: "fibonacci",
          Verb.PARAM: "sim_robot", Verb.LOG: "legacy_arm", Verb.PROVIDE_ACTION: "plan", Verb.ACTION_UPDATE: "plan",
          Verb.DECLARE: "legacy_arm", Verb.PARAM_RESULT: "legacy_arm", Verb.CONTROL: "claim",
-         Verb.SNAPSHOT: "incident-1"}
+         Verb.SNAPSHOT: "incident-1", Verb.WATCH: "camera"}
 USER_VERBS = sorted(USER_VERBS, key=lambda v: v.value)  # what users send; the robot's verbs are not asked about
 
 

@@ -72,3 +72,12 @@ def test_frames_are_encoded_at_the_rung_rate_and_never_faster() -> None:
     encoded = [t for t in camera if control.frame_due(t)]
     assert 28 <= len(encoded) <= 31
     assert min(b - a for a, b in zip(encoded, encoded[1:], strict=False)) >= 0.8 / 10
+
+
+def test_a_link_with_room_to_spare_is_probed_upwards_and_never_a_reason_to_go_down() -> None:
+    control = RateController(LADDER, 200_000)  # 150 kbit/s
+    # the share is what the uplink saw used, plus a margin: below the bitrate, but the link was never full
+    assert control.update(160_000, now=0.0, headroom=True) is None
+    new = control.update(160_000, now=UP_AFTER, headroom=True)
+    assert new is not None and new.bitrate == pytest.approx(225_000)  # 1.5 × 150 kbit/s
+    assert control.update(100_000, now=UP_AFTER + MIN_GAP + 0.1) is not None  # full now: down at once

@@ -18,11 +18,12 @@ from .provide import ProviderPort, ProvideService, RespondToCall
 from .provide_action import ActionProviderPort, ProvideAction, UpdateProvidedGoal
 from .sdk_params import DeclareParameters, ParameterSetResult, SdkParameterPort
 from .snapshot import ChunkLink, SnapshotPort, Snapshots
+from .watch import Watch, WatchPort
 
 __all__ = [
     "ActionPort", "ActionProviderPort", "Advertise", "AdvertisePort", "CallService", "CancelGoal", "Capability",
     "Control", "DeclareParameters", "Gates", "LeaseDesk", "LogLines", "ParameterPort", "ParameterSetResult",
     "Parameters", "ProvideAction", "ProvideService", "ProviderPort", "Refusal", "Report", "Request", "RespondToCall",
     "RosoutPort", "SdkParameterPort", "SendGoal", "ServicePort", "UpdateProvidedGoal", "Withdrawal", "ChunkLink",
-    "SnapshotPort", "Snapshots",
+    "SnapshotPort", "Snapshots", "Watch", "WatchPort",
 ]

@@ -1846,6 +1846,134 @@ export const ROSLINK = {
           "min": 1
         }
       }
+    ],
+    "video_frame": [
+      {
+        "name": "codec",
+        "required": true,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "h264",
+            "vp8",
+            "vp9",
+            "av1"
+          ]
+        }
+      },
+      {
+        "name": "key",
+        "required": true,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "name": "seq",
+        "required": true,
+        "spec": {
+          "high": 9007199254740991,
+          "kind": "integer",
+          "low": 0
+        }
+      },
+      {
+        "name": "stamp",
+        "required": true,
+        "spec": {
+          "high": null,
+          "kind": "number",
+          "low": null,
+          "low_open": false
+        }
+      },
+      {
+        "name": "width",
+        "required": true,
+        "spec": {
+          "high": 8192,
+          "kind": "integer",
+          "low": 1
+        }
+      },
+      {
+        "name": "height",
+        "required": true,
+        "spec": {
+          "high": 8192,
+          "kind": "integer",
+          "low": 1
+        }
+      },
+      {
+        "name": "profile",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": 64,
+          "min": 1
+        }
+      },
+      {
+        "default": null,
+        "name": "encoded",
+        "required": false,
+        "spec": {
+          "high": null,
+          "kind": "number",
+          "low": null,
+          "low_open": false
+        }
+      },
+      {
+        "default": null,
+        "name": "kbit_s",
+        "required": false,
+        "spec": {
+          "high": 1000000.0,
+          "kind": "number",
+          "low": 0,
+          "low_open": false
+        }
+      },
+      {
+        "default": null,
+        "name": "fps",
+        "required": false,
+        "spec": {
+          "high": 1000,
+          "kind": "number",
+          "low": 0,
+          "low_open": false
+        }
+      }
+    ],
+    "watch_request": [
+      {
+        "name": "client_id",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": 128,
+          "min": 1
+        }
+      },
+      {
+        "default": false,
+        "name": "key",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      },
+      {
+        "default": false,
+        "name": "leave",
+        "required": false,
+        "spec": {
+          "kind": "boolean"
+        }
+      }
     ]
   },
   "constants": {
@@ -2737,6 +2865,10 @@ export const ROSLINK = {
       "snapshot_data": {
         "named": true,
         "sent_by_user": false
+      },
+      "watch": {
+        "named": true,
+        "sent_by_user": true
       }
     }
   }
