@@ -36,6 +36,7 @@ from ..protocol.description import (
     RobotDescription,
     ServiceEntry,
     StateEntry,
+    VideoEntry,
 )
 from ..protocol.enums import RobotType
 from ..ros_names import interface_name
@@ -96,7 +97,9 @@ def build_description(robot: Robot, fields_of: FieldsOf, warnings: Mapping[str, 
     kind = RobotType(robot.type).name.lower()
     return RobotDescription(robot.name, robot.system_id, kind, limits=asdict(robot.bridge.limits),
                             state=tuple(state), commands=tuple(commands), services=tuple(services),
-                            actions=tuple(actions), types=types, parameters=tuple(parameters))
+                            actions=tuple(actions), types=types, parameters=tuple(parameters),
+                            video=tuple(VideoEntry(v.name, v.ros_type, v.codec, v.fps, v.max_kbit_s)
+                                        for v in robot.video))
 
 
 def description_message(robot: Robot, topics: TopicTree, fields_of: FieldsOf | None = None,

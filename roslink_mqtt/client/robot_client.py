@@ -50,6 +50,7 @@ from ..protocol import ProtocolError, SystemStatus
 from ..protocol.control import AccessReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
+from ..protocol.video import VideoFrame
 from ..topics import DEFAULT_PREFIX, Kind, TopicTree, Verb, check_name, state_name
 from .action_servers import ActionServers, Execute, GoalCallback, ServedAction
 from .advertisements import Advertisements
@@ -78,6 +79,7 @@ from .params import ParameterRequests
 from .providers import Handler, ProvidedService, ServiceProviders
 from .snapshots import Snapshot, SnapshotTransfers
 from .subscriptions import StateItem, StateSubscription
+from .video import VideoSubscription
 
 log = logging.getLogger("roslink_mqtt.client")
 
@@ -475,6 +477,22 @@ class RobotClient:
             sub.fail(self.connection.failure)
         self.connection.subscribe(topic, sub.deliver)
         return sub
+
+    def video(self, robot: str, stream: str, callback: Callable[[VideoFrame], None] | None = None, *,
+              maxsize: int = 60) -> VideoSubscription:
+        """Watch ``robot``'s video ``stream`` (its robot file's ``video:``; docs/video.md): frames as
+        :class:`~roslink_mqtt.protocol.video.VideoFrame` (header and bitstream) until ``close()``.
+
+        The robot encodes only while someone watches: the subscription renews its watch every few seconds and
+        leaves when closed. With ``callback`` frames run in the dispatcher thread; without, iterate it or
+        ``get(timeout)``. Decode with :class:`roslink_mqtt.video.decoder.VideoDecoder` (needs PyAV:
+        ``pip install roslink-mqtt[video]``)."""
+        self.connection.require(f"video of {robot}")
+        self.watch(robot)
+        if (why := self._unknown_state(robot, stream)) is not None:
+            raise InvalidArgument(why)
+        return VideoSubscription(self.connection, self._scheduler, self.callbacks, self.topics, self.username,
+                                 self.client_id, robot, stream, callback, maxsize).start()
 
     def _unsubscribe_state(self, sub: StateSubscription) -> None:
         with self._watch_lock:

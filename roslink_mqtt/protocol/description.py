@@ -36,6 +36,7 @@ from .body import (
     Objects,
     Text,
     TextMap,
+    body_of,
     read,
     write,
 )
@@ -256,11 +257,41 @@ class ParameterEntry(NestedBody):
         return cls(**_read_entry(cls.FIELDS, body, path))
 
 
+@dataclass(frozen=True, slots=True)
+class VideoEntry(NestedBody):
+    """A camera sent as video (docs/video.md): frames on ``state/<name>`` while someone watches ``watch/<name>``."""
+
+    name: str
+    ros_type: str  # sensor_msgs/msg/Image or CompressedImage
+    codec: str  # h264, vp8, vp9, av1
+    fps: float  # the most frames a second it is sent at
+    max_kbit_s: float  # the most it takes of the uplink
+    who: str = VIEWERS  # every granted user may watch
+
+    FIELDS = (
+        BodyField("name", Text(1), True, "its frames come on `state/<name>` while a watch on `watch/<name>` is "
+                                         "fresh"),
+        BodyField("ros_type", Text(1), True, "the ROS image type it is encoded from"),
+        BodyField("codec", Text(1), True, "`h264`, `vp8`, `vp9` or `av1`"),
+        BodyField("fps", Number(), True, "the most frames a second it is sent at"),
+        BodyField("max_kbit_s", Number(), True, "the most of the uplink it takes, kbit/s (it takes less when "
+                                                "control and state leave less)"),
+        BodyField("who", Choice(WHO), False, "who may watch: `viewers`", VIEWERS),
+    )
+
+    def to_body(self) -> dict[str, Any]:
+        return body_of(self.FIELDS, self)
+
+    @classmethod
+    def from_body(cls, body: Any, path: str) -> VideoEntry:
+        return cls(**_read_entry(cls.FIELDS, body, path))
+
+
 # the description's lists of entries: key → entry type (docs/protocol.md renders a table of each)
 DESCRIPTION_ENTRIES: tuple[tuple[str, type[StateEntry | CommandEntry | ServiceEntry | ActionEntry |
-                                          ParameterEntry]], ...] = (
+                                          ParameterEntry | VideoEntry]], ...] = (
     ("state", StateEntry), ("commands", CommandEntry), ("services", ServiceEntry), ("actions", ActionEntry),
-    ("parameters", ParameterEntry))
+    ("parameters", ParameterEntry), ("video", VideoEntry))
 
 
 @dataclass(frozen=True, slots=True)
@@ -279,6 +310,7 @@ class RobotDescription:
     actions: tuple[ActionEntry, ...] = ()
     types: dict[str, Layout] = field(default_factory=dict)  # ROS type name → field layout
     parameters: tuple[ParameterEntry, ...] = ()
+    video: tuple[VideoEntry, ...] = ()
 
     FIELDS = (
         BodyField("robot", Text(1), True, "the robot's name"),
@@ -299,6 +331,8 @@ class RobotDescription:
         BodyField("actions", Objects(), True, "ROS actions to send `goal/<name>` (entries below)", ()),
         BodyField("parameters", Objects(), True, "ROS nodes whose parameters `param/<name>` reads and sets "
                                                  "(entries below)", ()),
+        BodyField("video", Objects(), False, "cameras sent as video on `state/<name>` while watched (entries "
+                                             "below; docs/video.md)", ()),
         BodyField("types", Obj(), True, "every ROS type named above → its field layout: field → primitive "
                                            "type as a .msg file spells it (`float64`, `string`, `float64[36]`, "
                                            "`int32[]`, `string<=10`) or, "
@@ -311,7 +345,7 @@ class RobotDescription:
 
     def state_names(self) -> tuple[str, ...]:
         """Every ``state/<name>`` the robot's bridge publishes: its rules' streams and the bridge's own."""
-        return (*(e.name for e in self.state), *BRIDGE_STATES)
+        return (*(e.name for e in self.state), *(v.name for v in self.video), *BRIDGE_STATES)
 
     def unknown_state(self, name: str) -> str | None:
         """None when the robot publishes ``state/<name>``; else why not, with the closest names it has."""
@@ -340,9 +374,10 @@ class RobotDescription:
         return cls(**{**got, "type": got["type"] or "generic"})
 
     # -- reading it --------------------------------------------------------------------------------------
-    def entry(self, name: str) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | ParameterEntry | None:
-        """The first entry called ``name`` (state, then commands, services, actions, parameters)."""
-        for entries in (self.state, self.commands, self.services, self.actions, self.parameters):
+    def entry(self, name: str
+              ) -> StateEntry | CommandEntry | ServiceEntry | ActionEntry | ParameterEntry | VideoEntry | None:
+        """The first entry called ``name`` (state, then commands, services, actions, parameters, video)."""
+        for entries in (self.state, self.commands, self.services, self.actions, self.parameters, self.video):
             for e in entries:
                 if e.name == name:
                     return e
@@ -365,6 +400,7 @@ EXAMPLE = RobotDescription(
     services=(ServiceEntry("reset", "std_srvs/srv/Trigger", False, 5.0),),
     actions=(ActionEntry("fibonacci", "test_msgs/action/Fibonacci", False, 30.0, 5.0),),
     parameters=(ParameterEntry("sim_robot", "sim_robot", OPERATORS, 5.0),),
+    video=(VideoEntry("front_camera", "sensor_msgs/msg/Image", "h264", 30.0, 2000.0),),
     types={"std_msgs/msg/Float32": {"data": "float32"},
            "sensor_msgs/msg/CompressedImage": {
                "header": {"type": "std_msgs/msg/Header",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import paho.mqtt.client as mqtt
 
-from roslink_mqtt.topics import TopicTree
+from roslink_mqtt.topics import TopicTree, Verb
 from tests.support.procs import DEMO_PASSWORDS
 
 BACKENDS = ("embedded", "mosquitto", "mosquitto-dynsec")  # the last: its dynamic-security plugin
@@ -23,7 +23,7 @@ LOGINS: dict[str, tuple[str | None, str | None]] = {
 SELF = {**{p: p for p in DEMO_PASSWORDS}, "wrong-password": "alice", "anonymous": "nobody"}
 
 ROBOT_CLASSES = ("heartbeat", "state", "from/self/cmd", "from/other/cmd", "from/self/estop", "to/self", "to/other",
-                 "call/read-only", "call/read-write", "grants")
+                 "call/read-only", "call/read-write", "grants", "watch")
 CLASSES = tuple(f"{c}@{r}" for r in ROBOTS for c in ROBOT_CLASSES) + ("operators/self", "operators/other", "$SYS")
 ACTIONS = ("publish", "subscribe", "receive", "retained")
 WILDCARDS = ("#", "roslink/#", "roslink/+/heartbeat", "roslink/turtle1/#", "roslink/turtle2/#",
@@ -36,22 +36,22 @@ EXPECTED: dict[str, dict[str, str]] = {
     "turtle1": {"heartbeat@turtle1": "rw", "state@turtle1": "w", "grants@turtle1": "r",
                 "to/self@turtle1": "w", "to/other@turtle1": "w",
                 "from/self/cmd@turtle1": "r", "from/other/cmd@turtle1": "r", "from/self/estop@turtle1": "r",
-                "call/read-only@turtle1": "r", "call/read-write@turtle1": "r",
+                "call/read-only@turtle1": "r", "call/read-write@turtle1": "r", "watch@turtle1": "r",
                 "operators/other": "r"},  # bob is granted turtle1
     "turtle2": {"heartbeat@turtle2": "rw", "state@turtle2": "w", "grants@turtle2": "r",
                 "to/self@turtle2": "w", "to/other@turtle2": "w",
                 "from/self/cmd@turtle2": "r", "from/other/cmd@turtle2": "r", "from/self/estop@turtle2": "r",
-                "call/read-only@turtle2": "r",
+                "call/read-only@turtle2": "r", "watch@turtle2": "r",
                 "call/read-write@turtle2": "r"},  # bob is not granted turtle2: his presence is not for turtle2
     "alice": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "from/self/cmd@turtle1": "w",
               "from/self/estop@turtle1": "w", "call/read-only@turtle1": "w", "call/read-write@turtle1": "w",
-              "operators/self": "w"},
+              "watch@turtle1": "w", "operators/self": "w"},
     "bob": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "call/read-only@turtle1": "w",
-            "from/self/estop@turtle1": "w",
+            "from/self/estop@turtle1": "w", "watch@turtle1": "w",  # turtle1's camera (the demo fleet's video:)
             "operators/self": "w"},  # viewer: no commands but the emergency stop, only read-only service calls
     "carol": {"heartbeat@turtle2": "r", "state@turtle2": "r", "to/self@turtle2": "r", "from/self/cmd@turtle2": "w",
               "from/self/estop@turtle2": "w", "call/read-only@turtle2": "w", "call/read-write@turtle2": "w",
-              "operators/self": "w"},
+              "watch@turtle2": "w", "operators/self": "w"},
     "admin": {**{c: "rw" for c in CLASSES}, "$SYS": "r"},  # nobody publishes into $SYS
     "wrong-password": {},
     "anonymous": {},
@@ -67,6 +67,7 @@ GRANTED = {"turtle1": {"alice", "bob", "admin"}, "turtle2": {"carol", "admin"}}
 OPERATORS = {"alice": {"turtle1"}, "carol": {"turtle2"}, "admin": {"turtle1", "turtle2"}}
 VIEWERS = {"bob": {"turtle1"}}
 READ_ONLY_SERVICES = {"status"}
+VIDEO_STREAMS = {"turtle1": {"camera"}}  # the demo fleet's video: every granted user may watch
 
 
 def other_of(me: str) -> str:
@@ -87,7 +88,7 @@ def topic_of(cls: str, me: str, *, publish: bool = False) -> str:
         "from/self/estop": TREE.command(robot, me, "emergency_stop"),
         "to/self": TREE.reply(robot, me, "reset"), "to/other": TREE.reply(robot, other_of(me), "reset"),
         "call/read-only": TREE.call(robot, me, "status"), "call/read-write": TREE.call(robot, me, "reset"),
-        "grants": TREE.grants(robot),
+        "grants": TREE.grants(robot), "watch": TREE.user_topic(robot, me, Verb.WATCH, "camera"),
     }[kind]
 
 
@@ -161,7 +162,8 @@ def may_write(login: str, topic: str) -> bool:
     if t["robot"] not in VIEWERS.get(login, set()):
         return False
     return (t["verb"] == "call" and t["name"] in READ_ONLY_SERVICES) \
-        or (t["verb"] == "cmd" and t["name"] == "emergency_stop")
+        or (t["verb"] == "cmd" and t["name"] == "emergency_stop") \
+        or (t["verb"] == "watch" and t["name"] in VIDEO_STREAMS.get(t["robot"], set()))
 
 
 def matches(flt: str, topic: str) -> bool:

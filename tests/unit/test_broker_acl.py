@@ -85,7 +85,8 @@ def test_rules_per_login_follow_design() -> None:
         ("roslink/operators/bob/#", Access.WRITE), ("roslink/turtle1/heartbeat", Access.READ),
         ("roslink/turtle1/state/#", Access.READ), ("roslink/turtle1/to/bob/#", Access.READ),
         ("roslink/turtle1/from/bob/param/sim_robot", Access.WRITE),
-        ("roslink/turtle1/from/bob/cmd/emergency_stop", Access.WRITE)}  # any granted user may stop the robot
+        ("roslink/turtle1/from/bob/cmd/emergency_stop", Access.WRITE),  # any granted user may stop the robot
+        ("roslink/turtle1/from/bob/watch/#", Access.WRITE)}  # and watch its video (the demo fleet's camera)
     assert table("admin") == {("#", Access.READWRITE), ("$SYS/#", Access.READ),
                               ("$CONTROL/roslink/#", Access.READWRITE)}
     assert ACL.entries("nobody") == () and ACL.entries(None) == ()

@@ -243,7 +243,7 @@ EXAMPLES: list[tuple[Any, bytes]] = [
      b'"messages":1204,"client_id":"alice-1"}'),
     (description.RobotDescription("r", 1),
      b'{"robot":"r","system_id":1,"type":"ground","protocol_version":2,"ros_version":24,"limits":{},"state":[],'
-     b'"commands":[],"services":[],"actions":[],"parameters":[],"types":{}}'),
+     b'"commands":[],"services":[],"actions":[],"parameters":[],"video":[],"types":{}}'),
     (description.RobotDescription(
         "turtle1", 1, "ground", 1, 2, {"linear": 0.5},
         (description.StateEntry("battery", None, "std_msgs/msg/Float32", max_rate=1.0),
@@ -259,7 +259,7 @@ EXAMPLES: list[tuple[Any, bytes]] = [
      b'"ros_type":"std_srvs/srv/Trigger","read_only":true,"timeout":null,"who":"viewers","warning":"no server"}],'
      b'"actions":[{"name":"fib","ros_type":"t/action/F","viewers":false,"timeout":30.0,"feedback_rate":null,'
      b'"who":"operators"}],"parameters":[{"name":"sim","node":"sim","set_by":"operators","timeout":null,'
-     b'"who":"viewers"}],"types":{"std_msgs/msg/Bool":{"data":"bool"}}}'),
+     b'"who":"viewers"}],"video":[],"types":{"std_msgs/msg/Bool":{"data":"bool"}}}'),
 ]
 
 

@@ -19,6 +19,7 @@ from roslink_mqtt.video.watchers import Watchers
 
 pytestmark = pytest.mark.unit
 
+LEASE = 2.5  # s: short, so a lapse is seen soon; long enough for a busy machine to renew in time
 SETTINGS = VideoStream("camera", "camera/image_raw", "sensor_msgs/msg/Image", ladder=((320, 240, 30.0),))
 
 
@@ -32,7 +33,7 @@ class Lane:
         return not self.full.is_set()
 
     def share(self) -> tuple[float, bool]:
-        return 40_000.0, False  # 320 kbit/s
+        return 31_250.0, False  # 250 kbit/s: the controller starts there and has no reason to change
 
     def send(self, payload: bytes) -> bool:
         if self.down.is_set():
@@ -78,7 +79,7 @@ def _until(what: str, check, timeout: float = 10.0, renew: Watchers | None = Non
 @pytest.fixture
 def rig():
     lane, watched = Lane(), []
-    watchers = Watchers(lambda user, client: False, lease=1.0)
+    watchers = Watchers(lambda user, client: False, lease=LEASE)
     streamer = VideoStreamer(SETTINGS, lane, watchers, on_watched=watched.append)
     streamer.start()
     camera = Camera(streamer)
@@ -100,8 +101,8 @@ def test_nothing_is_encoded_for_nobody_and_a_joining_viewer_starts_at_a_keyframe
     assert all(p is not None for p in pictures)
     stamps = [read_stamp(p.to_ndarray(format="rgb24")) for p in pictures if p is not None]
     assert sum(s is not None and abs(s - f.stamp) < 0.002 for s, f in zip(stamps, lane.frames, strict=False)) >= 8
-    # the lease lapses (1 s here): the stream goes idle, the camera's subscription may go
-    _until("the stream to go idle", lambda: watched == [True, False], timeout=5.0)
+    # the lease lapses (LEASE here): the stream goes idle, the camera's subscription may go
+    _until("the stream to go idle", lambda: watched == [True, False], timeout=LEASE + 5.0)
     sent = len(lane.frames)
     time.sleep(0.3)
     assert len(lane.frames) == sent

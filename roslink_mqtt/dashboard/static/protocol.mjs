@@ -788,6 +788,67 @@ export const ROSLINK = {
         }
       }
     ],
+    "description_video_entry": [
+      {
+        "name": "name",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "ros_type",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "codec",
+        "required": true,
+        "spec": {
+          "kind": "string",
+          "max": null,
+          "min": 1
+        }
+      },
+      {
+        "name": "fps",
+        "required": true,
+        "spec": {
+          "high": null,
+          "kind": "number",
+          "low": null,
+          "low_open": false
+        }
+      },
+      {
+        "name": "max_kbit_s",
+        "required": true,
+        "spec": {
+          "high": null,
+          "kind": "number",
+          "low": null,
+          "low_open": false
+        }
+      },
+      {
+        "default": "viewers",
+        "name": "who",
+        "required": false,
+        "spec": {
+          "kind": "choice",
+          "values": [
+            "operators",
+            "viewers"
+          ]
+        }
+      }
+    ],
     "error_report": [
       {
         "name": "topic",
@@ -1567,6 +1628,14 @@ export const ROSLINK = {
         }
       },
       {
+        "default": [],
+        "name": "video",
+        "required": false,
+        "spec": {
+          "kind": "objects"
+        }
+      },
+      {
         "default": {},
         "name": "types",
         "required": true,
@@ -1989,7 +2058,8 @@ export const ROSLINK = {
       "commands": "description_commands_entry",
       "parameters": "description_parameters_entry",
       "services": "description_services_entry",
-      "state": "description_state_entry"
+      "state": "description_state_entry",
+      "video": "description_video_entry"
     },
     "LOGIN_WAIT_MS": 12000,
     "MODES": [

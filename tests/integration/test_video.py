@@ -1,0 +1,133 @@
+"""Video from turtle1's camera (the demo fleet's ``video:``) with real parts: the sim renders, the bridge encodes
+H.264 with PyAV, the embedded broker fans it out, the SDK watches and PyAV decodes.
+
+bob (a viewer) watches: the first frame is a keyframe, every frame decodes, each picture's capture time (written in
+its pixels by the sim) matches its header; carol (granted turtle2 only) neither starts the camera nor sees a frame;
+a flood of watch requests from made-up clients asking for keyframes keeps one stream: frame numbers never restart,
+keyframes come at most about once a second, and bob is told he watches from too many clients. When bob leaves,
+the frames stop.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from roslink_mqtt.client import RobotClient
+from roslink_mqtt.protocol.video import VideoFrame, WatchRequest
+from roslink_mqtt.topics import TopicTree, Verb
+from roslink_mqtt.video.decoder import VideoDecoder
+from roslink_mqtt.video.scene import read_stamp
+from roslink_mqtt.video.watchers import MAX_CLIENTS_PER_USER
+from tests.support.measure import record_measurement
+from tests.support.mqtt_client import TestClient
+from tests.support.robot_stack import turtle1_online
+
+pytestmark = pytest.mark.timeout(180)
+
+T = TopicTree()
+CAMERA = T.state("turtle1", "camera")
+
+
+@pytest.fixture(scope="module")
+def port(tmp_path_factory) -> Iterator[int]:
+    with turtle1_online(tmp_path_factory.mktemp("video")) as port:
+        yield port
+
+
+def _frames(sub, count: int, timeout: float) -> list[VideoFrame]:
+    out, deadline = [], time.monotonic() + timeout
+    while len(out) < count:
+        out.append(sub.get(timeout=max(0.1, deadline - time.monotonic())))
+    return out
+
+
+def test_a_viewer_watches_and_every_picture_says_when_it_was_captured(port: int) -> None:
+    with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}") as bob:
+        bob.wait_for_robot("turtle1")
+        asked = time.monotonic()
+        with bob.video("turtle1", "camera") as sub:
+            frames = _frames(sub, 20, timeout=30)
+            first_after = time.monotonic() - asked
+        record_measurement("video: watch request → first frame at the viewer (loopback)", first_after, 30.0)
+    assert frames[0].key and frames[0].codec == "h264" and frames[0].profile.startswith("avc1.42")
+    seqs = [f.seq for f in frames]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), seqs  # nothing lost on loopback
+    decoder = VideoDecoder()
+    readable = 0
+    for frame in frames:
+        picture = decoder.decode(frame)
+        assert picture is not None and (picture.width, picture.height) == (frame.width, frame.height)
+        stamp = read_stamp(picture.to_ndarray(format="rgb24"))
+        readable += stamp is not None and abs(stamp - frame.stamp) < 0.002
+    assert readable >= 15, f"only {readable} of 20 pictures carried their capture time readably"
+    ages = sorted(f.encoded - f.stamp for f in frames if f.encoded is not None)
+    record_measurement("video: capture → encoded on the robot, median", ages[len(ages) // 2], 1.0)
+
+
+def test_carol_granted_turtle2_only_neither_starts_the_camera_nor_sees_a_frame(port: int) -> None:
+    with TestClient(port, "carol", "carol-demo") as carol, TestClient(port, "alice", "alice-demo") as alice:
+        assert carol.connect() == 0 and alice.connect() == 0
+        alice.subscribe(CAMERA)
+        carol.subscribe(CAMERA)
+        for _ in range(3):  # as a watching client would, renewing
+            carol.publish(T.user_topic("turtle1", "carol", Verb.WATCH, "camera"),
+                          WatchRequest("carol-web", key=True).to_json(), qos=0)
+            time.sleep(0.5)
+        # nobody granted watches: alice (who could read them) sees no frame either, so the camera never started
+        assert not [m for m in alice.drain(2.0) if m.topic == CAMERA]
+        assert not [m for m in carol.drain(0.1) if m.topic == CAMERA]
+
+
+def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
+    with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}") as bob, \
+            TestClient(port, "bob", "bob-demo", client_id="bob-flood") as flood:
+        assert flood.connect() == 0
+        flood.subscribe(T.error("turtle1", "bob"))
+        bob.wait_for_robot("turtle1")
+        with bob.video("turtle1", "camera") as sub:
+            _frames(sub, 5, timeout=30)
+            stop = threading.Event()
+
+            def spam() -> None:  # 40 made-up clients, each asking for a keyframe, for 4 s
+                i = 0
+                while not stop.is_set() and i < 4000:
+                    flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, "camera"),
+                                  WatchRequest(f"bob-fake-{i % 40}", key=True).to_json(), qos=0)
+                    i += 1
+                    time.sleep(0.001)
+
+            spammer = threading.Thread(target=spam, daemon=True)
+            started = time.monotonic()
+            spammer.start()
+            during = []
+            while time.monotonic() - started < 4.0:
+                during.append(sub.get(timeout=10))
+            stop.set()
+            spammer.join(5)
+            for i in range(40):  # the made-up clients leave (or their watches would last their lease)
+                flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, "camera"),
+                              WatchRequest(f"bob-fake-{i}", leave=True).to_json(), qos=0)
+        errors = [m.json()["error"] for m in flood.drain(1.0) if m.topic == T.error("turtle1", "bob")]
+    seqs = [f.seq for f in during]
+    assert seqs == sorted(seqs) and len(during) >= 10, seqs  # one stream: its numbers go on
+    keys = sum(f.key for f in during)
+    assert keys <= 4.0 + 2, f"{keys} keyframes in 4 s of a keyframe flood"
+    assert any(f"already watches from {MAX_CLIENTS_PER_USER} clients" in e for e in errors), errors[:3]
+
+
+def test_when_the_last_viewer_leaves_the_frames_stop(port: int) -> None:
+    with TestClient(port, "alice", "alice-demo") as alice:
+        assert alice.connect() == 0
+        alice.subscribe(CAMERA)
+        with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}") as bob:
+            bob.wait_for_robot("turtle1")
+            with bob.video("turtle1", "camera") as sub:
+                _frames(sub, 3, timeout=30)
+            left = time.monotonic()
+        alice.drain(1.0)  # what was on its way
+        late = [m for m in alice.drain(2.0) if m.topic == CAMERA]
+        assert not late, f"{len(late)} frames more than {time.monotonic() - left:.1f} s after the viewer left"
