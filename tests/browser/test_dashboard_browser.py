@@ -603,6 +603,46 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
                               " '', {retain: true, qos: 1})")
 
 
+def _canvas_floor(driver: Any) -> list[int]:
+    """The video canvas's pixels along a row of the floor (the lower quarter), as RGB values."""
+    return driver.execute_script("""
+        const c = document.getElementById('video-canvas');
+        const row = Math.floor(c.height * 0.8);
+        return Array.from(c.getContext('2d').getImageData(0, row, c.width, 1).data)
+            .filter((_, i) => i % 4 !== 3);""")
+
+
+def test_bob_watches_turtle1s_camera_decoded_by_the_browser(stack, tmp_path) -> None:
+    """bob (a viewer) clicks Watch: the robot's H.264 frames are decoded by Chromium's WebCodecs onto the canvas,
+    the floor on it moves as alice turns the robot, and Stop watching ends the stream (the robot stops sending)."""
+    from roslink_mqtt.client import RobotClient
+
+    with browser(tmp_path, "video") as driver:
+        login(driver, stack["url"], "bob", "bob-demo")
+        logged_in(driver, "bob")
+        wait_until("the video panel", lambda: visible(driver, "video-box"), timeout=30)
+        asked = time.monotonic()
+        driver.find_element("id", "video-watch").click()
+        wait_until("ten pictures on the canvas", lambda: int(driver.execute_script(
+            "return document.getElementById('video-canvas').dataset.frames || '0'")) >= 10, timeout=60)
+        record_measurement("dashboard video: Watch → ten pictures decoded by the browser", time.monotonic() - asked,
+                           60.0)
+        age = int(driver.execute_script("return document.getElementById('video-canvas').dataset.age"))
+        record_measurement("dashboard video: a picture's age when drawn (loopback)", age / 1000, 5.0)
+        before = _canvas_floor(driver)
+        with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{stack['broker'].port}") as alice:
+            alice.wait_for_robot("turtle1")
+            for _ in range(10):  # turn in place for a second: the tiles slide across the picture
+                alice.twist("turtle1", az=1.0)
+                time.sleep(0.1)
+            alice.twist("turtle1")
+        wait_until("the floor to move on the canvas", lambda: _canvas_floor(driver) != before, timeout=10)
+        assert "fps" in driver.find_element("id", "video-stats").text
+        driver.find_element("id", "video-watch").click()  # stop watching
+        wait_until("the watch ended", lambda: driver.execute_script("return window.dashboard.video === null"))
+        no_console_errors(driver)
+
+
 def test_a_snapshot_from_the_page_is_the_robots_own_mcap_file(stack, tmp_path) -> None:
     """alice's "Save the last 30 s" (her access report says she may): the chunks are joined, the SHA-256 checked,
     the file offered as a download; it is the robot's MCAP (ros2 profile, odom and scan as CDR). bob gets no

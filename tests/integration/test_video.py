@@ -29,7 +29,8 @@ from tests.support.robot_stack import turtle1_online
 pytestmark = pytest.mark.timeout(180)
 
 T = TopicTree()
-CAMERA = T.state("turtle1", "camera")
+STREAM = "front_camera"  # the demo fleet's video stream of turtle1
+CAMERA = T.state("turtle1", STREAM)
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def test_a_viewer_watches_and_every_picture_says_when_it_was_captured(port: int)
     with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}") as bob:
         bob.wait_for_robot("turtle1")
         asked = time.monotonic()
-        with bob.video("turtle1", "camera") as sub:
+        with bob.video("turtle1", STREAM) as sub:
             frames = _frames(sub, 20, timeout=30)
             first_after = time.monotonic() - asked
         record_measurement("video: watch request → first frame at the viewer (loopback)", first_after, 30.0)
@@ -74,7 +75,7 @@ def test_carol_granted_turtle2_only_neither_starts_the_camera_nor_sees_a_frame(p
         alice.subscribe(CAMERA)
         carol.subscribe(CAMERA)
         for _ in range(3):  # as a watching client would, renewing
-            carol.publish(T.user_topic("turtle1", "carol", Verb.WATCH, "camera"),
+            carol.publish(T.user_topic("turtle1", "carol", Verb.WATCH, STREAM),
                           WatchRequest("carol-web", key=True).to_json(), qos=0)
             time.sleep(0.5)
         # nobody granted watches: alice (who could read them) sees no frame either, so the camera never started
@@ -88,14 +89,14 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
         assert flood.connect() == 0
         flood.subscribe(T.error("turtle1", "bob"))
         bob.wait_for_robot("turtle1")
-        with bob.video("turtle1", "camera") as sub:
+        with bob.video("turtle1", STREAM) as sub:
             _frames(sub, 5, timeout=30)
             stop = threading.Event()
 
             def spam() -> None:  # 40 made-up clients, each asking for a keyframe, for 4 s
                 i = 0
                 while not stop.is_set() and i < 4000:
-                    flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, "camera"),
+                    flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, STREAM),
                                   WatchRequest(f"bob-fake-{i % 40}", key=True).to_json(), qos=0)
                     i += 1
                     time.sleep(0.001)
@@ -109,7 +110,7 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
             stop.set()
             spammer.join(5)
             for i in range(40):  # the made-up clients leave (or their watches would last their lease)
-                flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, "camera"),
+                flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, STREAM),
                               WatchRequest(f"bob-fake-{i}", leave=True).to_json(), qos=0)
         errors = [m.json()["error"] for m in flood.drain(1.0) if m.topic == T.error("turtle1", "bob")]
     seqs = [f.seq for f in during]
@@ -125,7 +126,7 @@ def test_when_the_last_viewer_leaves_the_frames_stop(port: int) -> None:
         alice.subscribe(CAMERA)
         with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}") as bob:
             bob.wait_for_robot("turtle1")
-            with bob.video("turtle1", "camera") as sub:
+            with bob.video("turtle1", STREAM) as sub:
                 _frames(sub, 3, timeout=30)
             left = time.monotonic()
         alice.drain(1.0)  # what was on its way

@@ -47,7 +47,7 @@ EXPECTED: dict[str, dict[str, str]] = {
               "from/self/estop@turtle1": "w", "call/read-only@turtle1": "w", "call/read-write@turtle1": "w",
               "watch@turtle1": "w", "operators/self": "w"},
     "bob": {"heartbeat@turtle1": "r", "state@turtle1": "r", "to/self@turtle1": "r", "call/read-only@turtle1": "w",
-            "from/self/estop@turtle1": "w", "watch@turtle1": "w",  # turtle1's camera (the demo fleet's video:)
+            "from/self/estop@turtle1": "w", "watch@turtle1": "w",  # turtle1's front_camera (the demo fleet's video:)
             "operators/self": "w"},  # viewer: no commands but the emergency stop, only read-only service calls
     "carol": {"heartbeat@turtle2": "r", "state@turtle2": "r", "to/self@turtle2": "r", "from/self/cmd@turtle2": "w",
               "from/self/estop@turtle2": "w", "call/read-only@turtle2": "w", "call/read-write@turtle2": "w",
@@ -60,14 +60,15 @@ MOSQUITTO_GRANTS_EVERY_FILTER = True  # Mosquitto 2.0.11 (acl_file, or dynsec's 
 # read checked per delivery
 # The embedded broker drops retained commands and calls (a retained copy would run again on every
 # bridge reconnect), whoever sends them -- admin included. Mosquitto cannot: docs/safety.md says so.
-NEVER_RETAINED_EMBEDDED = ("from/self/cmd", "from/other/cmd", "from/self/estop", "call/read-only", "call/read-write")
+NEVER_RETAINED_EMBEDDED = ("from/self/cmd", "from/other/cmd", "from/self/estop", "call/read-only", "call/read-write",
+                           "watch")
 
 TREE = TopicTree("roslink")
 GRANTED = {"turtle1": {"alice", "bob", "admin"}, "turtle2": {"carol", "admin"}}
 OPERATORS = {"alice": {"turtle1"}, "carol": {"turtle2"}, "admin": {"turtle1", "turtle2"}}
 VIEWERS = {"bob": {"turtle1"}}
 READ_ONLY_SERVICES = {"status"}
-VIDEO_STREAMS = {"turtle1": {"camera"}}  # the demo fleet's video: every granted user may watch
+VIDEO_STREAMS = {"turtle1": {"front_camera"}}  # the demo fleet's video: every granted user may watch
 
 
 def other_of(me: str) -> str:
@@ -88,7 +89,7 @@ def topic_of(cls: str, me: str, *, publish: bool = False) -> str:
         "from/self/estop": TREE.command(robot, me, "emergency_stop"),
         "to/self": TREE.reply(robot, me, "reset"), "to/other": TREE.reply(robot, other_of(me), "reset"),
         "call/read-only": TREE.call(robot, me, "status"), "call/read-write": TREE.call(robot, me, "reset"),
-        "grants": TREE.grants(robot), "watch": TREE.user_topic(robot, me, Verb.WATCH, "camera"),
+        "grants": TREE.grants(robot), "watch": TREE.user_topic(robot, me, Verb.WATCH, "front_camera"),
     }[kind]
 
 

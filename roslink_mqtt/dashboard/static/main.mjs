@@ -14,6 +14,7 @@ import { installCharts, updateCharts } from "./views/charts.mjs";
 import { evaluateAlerts, installAlerts } from "./views/alerts.mjs";
 import { takeSnapshot } from "./views/snapshot.mjs";
 import { renderTabs, showPage } from "./views/pages.mjs";
+import { toggleWatch } from "./views/video.mjs";
 
 installDrive();
 installPlot();
@@ -22,6 +23,7 @@ installCharts();
 installAlerts();
 ui.estop.addEventListener("click", emergencyStop);
 ui.snapshot.addEventListener("click", takeSnapshot);
+ui.videoWatch.addEventListener("click", toggleWatch);
 ui.stopAll.addEventListener("click", stopAll);
 ui.takeOver.addEventListener("click", takeOver);
 ui.claim.addEventListener("click", claimSelected);

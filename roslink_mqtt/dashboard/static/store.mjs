@@ -14,6 +14,7 @@ export const dash = {
   heldKeys: new Set(), pendingCalls: new Map(), callCounter: 0, waypoint: null,
   goals: new Map(), pendingParams: new Map(), builtFor: null,
   snapshots: new Map(),  // id → a snapshot being received (chunks by index); the finished one stays as .done
+  video: null,  // the video stream being watched (views/video.mjs): robot, stream, decoder, recent frames
   cameraUrl: null, undecoded: new Set(),  // the shown raw image's blob URL; states said to be undecodable
   view: new PlotView(),  // the robot view's plot
   alerts: new AlertBook(), rules: null, inspect: null, stopRound: null,

@@ -11,7 +11,8 @@ const IDS = [
   "controls", "speed", "speed-out", "arm", "driving", "viewer-note", "services-box", "services", "service-result",
   "actions-box", "actions", "params-box", "params", "snapshot-box", "snapshot", "snapshot-status", "plot-zoom-in",
   "plot-zoom-out", "plot-follow", "plot-reset", "inspector", "inspector-head", "inspector-body", "inspector-raw", "charts",
-  "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks",
+  "rates", "uplink", "gps-box", "gps", "gps-text", "camera-box", "camera", "errors", "acks", "video-box",
+  "video-stream", "video-watch", "video-stats", "video-canvas",
 ];
 
 export const ui = {};

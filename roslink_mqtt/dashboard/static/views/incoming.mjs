@@ -13,6 +13,7 @@ import { markDirty } from "./plot.mjs";
 import { endGoal, onGoalMessage, renderGoal } from "./actions.mjs";
 import { onParamEvent, onParamReply, refuseParamRequest } from "./params.mjs";
 import { endSnapshot, onSnapshotChunk } from "./snapshot.mjs";
+import { isWatched, onVideoFrame } from "./video.mjs";
 import { onErrorAlert, onFailsafeAlert } from "./alerts.mjs";
 
 const decoder = new TextDecoder();
@@ -125,6 +126,7 @@ function onState(robot, name, payload) {
     }
     return;
   }
+  if (isWatched(robot.name, name)) { onVideoFrame(payload); return; }
   if (dash.selected !== robot.name) return;  // other robots' cameras and scans: counted, not parsed
   const encoding = (entryOf(robot, "state", name) || {}).encoding;
   if (encoding === "raw") { showImageBytes(robot, name, payload); return; }

@@ -11,6 +11,7 @@ import { serviceControl } from "./services.mjs";
 import { buildActions } from "./actions.mjs";
 import { buildParams, clearParams } from "./params.mjs";
 import { showSnapshot } from "./snapshot.mjs";
+import { showVideo } from "./video.mjs";
 import { markDirty } from "./plot.mjs";
 import { showCharts } from "./charts.mjs";
 import { clearFleet, updateRow } from "./fleet.mjs";
@@ -27,7 +28,7 @@ export function selectRobot(name) {
   dash.selected = name;
   const robot = selectedRobot();
   renderTabs();
-  if (!robot) { show(ui.estop, false); return; }
+  if (!robot) { show(ui.estop, false); showVideo(null); return; }
   ui.robotTitle.textContent = `Robot ${name}`;
   ui.rates.tBodies[0].replaceChildren();
   dash.rateRows = new Map();
@@ -108,6 +109,7 @@ export function buildControls(robot) {
   show(ui.controls, op);
   showControl(robot);
   showSnapshot(robot);
+  showVideo(robot);
   show(ui.stopAll, [...dash.robots.values()].some(mayStop));
   show(ui.estop, mayStop(robot));
   ui.estop.textContent = mayStop(robot) ? `EMERGENCY STOP ${robot.name}` : "EMERGENCY STOP";
