@@ -224,7 +224,7 @@ def line(row: Row) -> str:
     first = "-" if row.first_picture is None else f"{row.first_picture:.2f} s"
     cpu = "-" if row.cpu != row.cpu else f"{row.cpu:.0f} %"
     estop = wl.stop_cell(run.stop_acks) if run is not None else "-"
-    return (f"{row.label:<26} {row.mode:<5} {row.decoded / secs:5.1f} fps {'/'.join(sizes) or '-':<16} "
+    return (f"{row.label:<26} {row.mode:<5} {row.decoded / secs:5.1f} fps {', '.join(sizes) or '-':<16} "
             f"{kbit:6.0f} kbit/s  age {pct(ages, 0.5) * 1000:5.0f}/{pct(ages, 0.95) * 1000:5.0f} ms  first {first:>7}"
             f"  cpu {cpu:>5}  motion p99 {pct(motion, 0.99) * 1000:5.0f} ms  hb gap "
             f"{wl.heartbeat_gap(run) if run is not None else float('nan'):.2f} s  e-stop→ack {estop}"
