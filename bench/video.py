@@ -305,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="roslink-video-") as tmp, ExitStack() as stack:
         work = Path(tmp)
         port = lat.free_port()
-        lat.start_embedded_broker(stack, fleet_for(work, port, "jpeg"), port, work / "broker.log", env,
+        lat.start_embedded_broker(stack, fleet_for(work, port, "video"), port, work / "broker.log", env,
                                   log_level=wl.BROKER_LOG_LEVEL)
         lat.start_child(stack, [sys.executable, "-m", "roslink_mqtt.sim"], work / "sim.log", env)
         viewer = wl.Viewer(port, lat.load_fleet(fleet_for(work, port, "video")).prefix)

@@ -12,7 +12,8 @@ Everything is named as in the MQTT topic tree, so a layout made live opens ``ros
 
 * **channels**: each robot's heartbeat and every state topic its description lists, as JSON with a ``jsonschema``
   (:mod:`..client.json_channels`, shared with the recorder). The gateway subscribes to a topic on the broker only
-  while some Foxglove panel does, so a camera nobody watches costs no bandwidth.
+  while some Foxglove panel does, so a camera nobody watches costs no bandwidth; a video stream
+  (``foxglove.CompressedVideo``) is watched while a panel shows it, so the robot encodes it only then.
 * **services**: ``<prefix>/<robot>/call/<service>`` for each service the user may call (JSON request and response,
   schemas from the description's field layouts), and ``<prefix>/<robot>/emergency_stop`` for every granted robot.
 * **parameters**: ``<prefix>/<robot>/param/<node>/<name>`` for the nodes the description exposes.
@@ -41,7 +42,7 @@ import orjson
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener, ServiceRequest
 
 from ..client.errors import CommandRefused, RobotError, RoslinkError
-from ..client.json_channels import JsonChannels
+from ..client.json_channels import VIDEO, JsonChannels, video_message
 from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
 from .connect import parse_json_object
@@ -50,7 +51,9 @@ from .foxglove_front import Admission, ProtocolFront, check_token, loopback_tls,
 
 if TYPE_CHECKING:
     from ..client.robot_client import RobotClient
+    from ..client.video import VideoSubscription
     from ..protocol.description import RobotDescription
+    from ..protocol.video import VideoFrame
 
 log = logging.getLogger("roslink_mqtt.foxglove")
 
@@ -91,6 +94,7 @@ class FoxgloveGateway(ServerListener):
         self.served: dict[str, RobotDescription | None] = {}  # robots whose channels are advertised
         self._channels: dict[str, foxglove.Channel] = {}  # MQTT topic → channel
         self._watchers: Counter[str] = Counter()  # MQTT topic → Foxglove subscriptions to it
+        self._videos: dict[str, VideoSubscription] = {}  # video streams watched for Foxglove panels, by topic
         self._client_channels: dict[tuple[int, int], _Advertised] = {}
         self._lock = threading.Lock()
         self._work: queue.Queue[tuple[str, Any]] = queue.Queue()  # subscribe/unsubscribe, off the server's thread
@@ -142,6 +146,8 @@ class FoxgloveGateway(ServerListener):
         with self._twist_ready:
             self._twist_ready.notify_all()
         self._work.put(("stop", None))
+        for video in list(self._videos.values()):
+            video.close()
         if self.front is not None:
             self.front.stop()
         if self.server is not None:
@@ -174,6 +180,7 @@ class FoxgloveGateway(ServerListener):
             self.routes.use(robot, description)
             topics += [self.client.topics.state(robot, name) for name in STATE_BODIES]  # the bridge's own
             topics += [self.client.topics.state(robot, entry.name) for entry in description.state]
+            topics += [self.client.topics.state(robot, entry.name) for entry in description.video]
         for topic in topics:
             route = self.routes.route(topic)
             if route is None or topic in self._channels:
@@ -223,12 +230,35 @@ class FoxgloveGateway(ServerListener):
                 return
             if what == "subscribe":
                 self._watchers[topic] += 1
-                if self._watchers[topic] == 1 and not self.client.connection.subscribe(topic, self._on_mqtt):
-                    self.status(f"the broker refused {topic} to {self.client.username}", error=True)
+                if self._watchers[topic] == 1:
+                    self._carry(topic)
             elif what == "unsubscribe" and self._watchers[topic] > 0:
                 self._watchers[topic] -= 1
                 if self._watchers[topic] == 0:
-                    self.client.connection.unsubscribe(topic, self._on_mqtt)
+                    video = self._videos.pop(topic, None)
+                    if video is not None:
+                        video.close()  # the robot stops encoding once nobody else watches
+                    else:
+                        self.client.connection.unsubscribe(topic, self._on_mqtt)
+
+    def _carry(self, topic: str) -> None:
+        """Subscribe to ``topic`` on the broker for a Foxglove panel; a video stream is watched (its frames come
+        only while someone does), the others subscribed."""
+        route = self.routes.route(topic)
+        if route is not None and route.encoding == VIDEO:
+            try:
+                self._videos[topic] = self.client.video(route.robot, route.name,
+                                                        functools.partial(self._on_video, topic))
+            except RoslinkError as err:
+                self.status(f"{topic}: {err}", error=True)
+        elif not self.client.connection.subscribe(topic, self._on_mqtt):
+            self.status(f"the broker refused {topic} to {self.client.username}", error=True)
+
+    def _on_video(self, topic: str, frame: VideoFrame) -> None:
+        channel, route = self._channels.get(topic), self.routes.route(topic)
+        if channel is not None and route is not None:
+            data, _stamp = video_message(route.name, frame)
+            channel.log(data, log_time=time.time_ns())
 
     def _on_mqtt(self, topic: str, payload: bytes, _retained: bool) -> None:
         channel, route = self._channels.get(topic), self.routes.route(topic)

@@ -30,12 +30,13 @@ from . import (
     robots_cmd,
     snapshot_cmd,
     teleop_cmd,
+    video_cmd,
     whoami_cmd,
 )
 
 SUBCOMMANDS = (robots_cmd, echo_cmd, pub_cmd, call_cmd, action_cmd, param_cmd, teleop_cmd, control_cmd, estop_cmd,
-               monitor_cmd, record_cmd, play_cmd, snapshot_cmd, foxglove_cmd, passwd_cmd, fleet_cmd, acl_cmd,
-               dashboard_cmd, info_cmd, whoami_cmd)
+               monitor_cmd, record_cmd, play_cmd, snapshot_cmd, video_cmd, foxglove_cmd, passwd_cmd, fleet_cmd,
+               acl_cmd, dashboard_cmd, info_cmd, whoami_cmd)
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a program that SIGPIPE ended
 
 

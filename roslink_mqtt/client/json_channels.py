@@ -7,7 +7,10 @@ recordings too. Each channel has a ``jsonschema`` schema (protocol/schemas.py) s
 * ``encoding: cbor`` state is converted to JSON (byte strings as base64): every MCAP reader and Foxglove decode
   JSON, while a CBOR channel would need a decoder Foxglove does not have;
 * ``encoding: raw`` state (compressed images) becomes ``foxglove.CompressedImage`` in JSON (``data`` base64), the
-  schema Foxglove's Image panel reads.
+  schema Foxglove's Image panel reads;
+* video streams (the description's ``video`` entries) become ``foxglove.CompressedVideo`` in JSON (one frame each,
+  ``data`` base64, stamped with the capture time), which the Image panel decodes too. Their frames flow only while
+  someone watches: the gateway and ``record`` renew a watch while they carry one.
 
 How a topic is carried is worked out once per topic, from its robot's description (:class:`JsonChannels`), so the
 per-message path parses nothing and searches no description.
@@ -26,11 +29,13 @@ import orjson
 from ..protocol.description import RobotDescription
 from ..protocol.errors import ProtocolError
 from ..protocol.schemas import schema_for
+from ..protocol.video import VideoFrame
 from ..topics import Kind, TopicTree
 
 log = logging.getLogger("roslink_mqtt.channels")
 
 NS = 1_000_000_000
+VIDEO = "video"  # a route's encoding for a video stream (the description's `video` entries)
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,7 +45,7 @@ class Route:
     robot: str
     name: str
     schema: dict[str, Any]
-    encoding: str | None  # "cbor", "raw" or None (JSON)
+    encoding: str | None  # "cbor", "raw", VIDEO or None (JSON)
     description: bool  # the robot's description: read (it shapes the other routes), then carried like any state
 
     @property
@@ -67,8 +72,10 @@ class JsonChannels:
             description = self.descriptions.get(parsed.robot or "")
             entry = next((e for e in description.state if e.name == parsed.name), None) \
                 if description is not None and parsed.kind is Kind.STATE else None
+            video = description is not None and parsed.kind is Kind.STATE and any(
+                v.name == parsed.name for v in description.video)
             route = Route(parsed.robot or "", parsed.name or "", schema_for(parsed, topic, description),
-                          entry.encoding if entry is not None else None,
+                          VIDEO if video else entry.encoding if entry is not None else None,
                           parsed.kind is Kind.STATE and parsed.name == "description")
         self._routes[topic] = route
         return route
@@ -84,6 +91,14 @@ class JsonChannels:
         self.use(route.robot, description)
         return description
 
+    def learn_unrouted(self, topic: str, payload: bytes) -> None:
+        """A robot's description that ``wanted`` leaves out of the recording is still read: it says which state
+        names are video streams (and how the wanted topics are carried)."""
+        parsed = self.tree.parse(topic)
+        if parsed is not None and parsed.kind is Kind.STATE and parsed.name == "description" and \
+                parsed.robot in self.robots and payload:
+            self.learn(Route(parsed.robot or "", parsed.name, {}, None, True), payload)
+
     def use(self, robot: str, description: RobotDescription) -> None:
         """Route ``robot``'s topics by ``description`` from now on (routes already used keep their schemas)."""
         self.descriptions[robot] = description
@@ -93,6 +108,8 @@ class JsonChannels:
     def encode(route: Route, payload: bytes, arrived: int) -> tuple[bytes, int]:
         """(JSON for the channel, publish time in ns) of one payload that arrived at ``arrived`` (ns). A malformed
         CBOR payload raises (the caller counts it); text that is not JSON is carried as ``{"text": …}``."""
+        if route.encoding == VIDEO:
+            return video_message(route.name, VideoFrame.from_bytes(payload))
         if route.encoding == "raw":
             image = {"timestamp": {"sec": arrived // NS, "nsec": arrived % NS}, "frame_id": route.name,
                      "data": base64.b64encode(payload).decode(), "format": image_format(payload)}
@@ -107,6 +124,14 @@ class JsonChannels:
         except orjson.JSONDecodeError:
             return orjson.dumps({"text": payload.decode("utf-8", "replace")}), arrived
         return payload, stamp_of(value, arrived)
+
+
+def video_message(name: str, frame: VideoFrame) -> tuple[bytes, int]:
+    """(``foxglove.CompressedVideo`` JSON, the capture time in ns) of one video frame of stream ``name``."""
+    stamp = int(frame.stamp * NS)
+    video = {"timestamp": {"sec": stamp // NS, "nsec": stamp % NS}, "frame_id": name,
+             "data": base64.b64encode(frame.data).decode(), "format": frame.codec}
+    return orjson.dumps(video), stamp
 
 
 def jsonable(value: Any) -> Any:

@@ -24,8 +24,8 @@ class PlainLogin:
         self.url, self.username = url, username
         self._connected = threading.Event()
         self._refused: str | None = None
-        self.client = make_client(f"{username}-{role}-{time.monotonic_ns() % 10**9}", username=username,
-                                  password=password, url=url, ca_file=ca_file)
+        self.client_id = f"{username}-{role}-{time.monotonic_ns() % 10**9}"
+        self.client = make_client(self.client_id, username=username, password=password, url=url, ca_file=ca_file)
         self.client.on_connect = self._on_connect
 
     def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any = None) -> None:

@@ -3,8 +3,9 @@
 It logs in as the user, so the broker's ACL decides what is recorded: each robot's heartbeat, every state topic the
 user may read (acknowledgements, the description, the link report, who drives …) and what the robot sends this
 user (replies, errors, the access report). One MCAP channel per MQTT topic, named by the topic, each with a
-``jsonschema`` schema; payloads as JSON (CBOR converted, raw images as ``foxglove.CompressedImage``):
-:mod:`.json_channels`, which the Foxglove gateway shares.
+``jsonschema`` schema; payloads as JSON (CBOR converted, raw images as ``foxglove.CompressedImage``, video frames as
+``foxglove.CompressedVideo``): :mod:`.json_channels`, which the Foxglove gateway shares. A video stream is recorded
+only when named (``--topic front_camera``): the recorder then watches it (the robot encodes it only while watched).
 
 Log time is the arrival on this machine; publish time is the message's own stamp where it has one (a ROS
 ``header.stamp``), else the arrival. The file is valid after Ctrl-C (the summary is written on the way out), and
@@ -27,7 +28,8 @@ from typing import IO, Any
 import orjson
 import paho.mqtt.client as mqtt
 
-from ..topics import TopicTree
+from ..protocol.video import WATCH_RENEW, WatchRequest
+from ..topics import TopicTree, Verb
 from .json_channels import JsonChannels
 from .plain_login import PlainLogin
 
@@ -137,6 +139,7 @@ class Recorder(PlainLogin):
             self._retained_seen.add(key)
         route = self.channels.route(topic)
         if route is None:
+            self.channels.learn_unrouted(topic, payload)
             return
         if route.description:
             self.channels.learn(route, payload)
@@ -154,6 +157,15 @@ class Recorder(PlainLogin):
         if self.split_size and mcap_file.size() >= self.split_size:
             self.close()
 
+    def _watch_videos(self, leave: bool = False) -> None:
+        """Keep watching the video streams ``topics`` names (``--topic front_camera``): their frames flow only while
+        someone watches, and a recording of telemetry must not pull video over a thin link unasked."""
+        for robot, description in list(self.channels.descriptions.items()):
+            for entry in description.video:
+                if entry.name in self.wanted:
+                    self.client.publish(self.tree.user_topic(robot, self.username, Verb.WATCH, entry.name),
+                                        WatchRequest(self.client_id, leave=leave).to_json(), qos=WatchRequest.QOS)
+
     def close(self) -> None:
         """Finish the file being written (its summary and index): a complete MCAP file."""
         if self._file is not None:
@@ -166,11 +178,15 @@ class Recorder(PlainLogin):
         """Write until ``duration`` s have passed or ``stop`` is set; the file is complete when this returns."""
         started = time.monotonic()
         next_report = started + every
+        renew_at = started
         try:
             while not stop.is_set():
                 now = time.monotonic()
                 if duration is not None and now - started >= duration:
                     break
+                if now >= renew_at:
+                    self._watch_videos()
+                    renew_at = now + WATCH_RENEW
                 try:
                     self.write(*self._inbox.get(timeout=0.1))
                 except queue.Empty:
@@ -179,6 +195,7 @@ class Recorder(PlainLogin):
                     on_progress(self.progress, time.monotonic() - started)
                     next_report += every
         finally:
+            self._watch_videos(leave=True)
             self.disconnect()
             while not self._inbox.empty():  # what arrived before the disconnect
                 self.write(*self._inbox.get_nowait())

@@ -12,7 +12,7 @@ is sent:
 * anything else: an object schema titled by its topic, so no channel is without one.
 
 :func:`compressed_image_schema` is Foxglove's well-known ``foxglove.CompressedImage`` (JSON: ``data`` base64), which
-raw image streams are recorded as.
+raw image streams are recorded as; :func:`compressed_video_schema` its ``foxglove.CompressedVideo``, for video streams.
 """
 
 from __future__ import annotations
@@ -135,6 +135,16 @@ def compressed_image_schema() -> dict[str, Any]:
         "format": {"type": "string", "description": "jpeg, png, webp or avif"}}}, "foxglove.CompressedImage")
 
 
+def compressed_video_schema() -> dict[str, Any]:
+    """Foxglove's ``foxglove.CompressedVideo`` (its JSON form: ``data`` base64, one frame, Annex B for H.264): how
+    video streams are served and kept (Foxglove's Image panel decodes it)."""
+    time = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+    return _doc({"type": "object", "properties": {
+        "timestamp": time, "frame_id": {"type": "string"},
+        "data": {"type": "string", "contentEncoding": "base64"},
+        "format": {"type": "string", "description": "h264, h265, vp9 or av1"}}}, "foxglove.CompressedVideo")
+
+
 def fallback_schema(topic: str) -> dict[str, Any]:
     return _doc({"type": "object"}, topic)
 
@@ -152,6 +162,8 @@ def schema_for(parsed: ParsedTopic, topic: str, description: RobotDescription | 
             return body_schema(STATE_BODIES[name].FIELDS, STATE_BODIES[name].__name__)
         if param_events_node(name) is not None:
             return body_schema(ParamEvent.FIELDS, "ParamEvent")
+        if description is not None and any(v.name == name for v in description.video):
+            return compressed_video_schema()
         entry = next((e for e in description.state if e.name == name), None) if description else None
         if entry is not None and entry.message and entry.message in SPECS_BY_NAME:
             return message_schema(SPECS_BY_NAME[entry.message])

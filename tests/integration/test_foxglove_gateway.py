@@ -82,6 +82,37 @@ def test_channels_services_and_parameters_as_foxglove_sees_them(tmp_path, broker
     assert any(n.startswith("roslink/turtle1/param/sim_robot/") for n in names), names
 
 
+def test_a_video_stream_is_foxglove_compressed_video_that_decodes(tmp_path, broker_port: int) -> None:
+    """turtle1's front_camera (the demo fleet's video): a ``foxglove.CompressedVideo`` channel; a panel's
+    subscription makes the gateway watch it, and the frames Foxglove gets (H.264, one per message, the first a
+    keyframe with its parameter sets) decode with PyAV, each picture carrying the capture time it is stamped with."""
+    import base64
+
+    import av
+
+    from roslink_mqtt.video.scene import read_stamp
+
+    video = "roslink/turtle1/state/front_camera"
+    gateway = start_gateway(tmp_path, broker_port, "bob")
+    try:
+        seen = _probe(printed_url(gateway), {"subscribe": [video], "keep": {video: 15}, "seconds": 6})
+    finally:
+        gateway.stop()
+    assert seen["channels"][video]["schemaName"] == "foxglove.CompressedVideo", seen["channels"][video]
+    frames = seen["kept"].get(video, [])
+    assert len(frames) >= 10, f"{len(frames)} video frames in 6 s"
+    assert {f["format"] for f in frames} == {"h264"} and {f["frame_id"] for f in frames} == {"front_camera"}
+    decoder = av.CodecContext.create("h264", "r")
+    readable = 0
+    for frame in frames:
+        pictures = decoder.decode(av.Packet(base64.b64decode(frame["data"])))
+        assert pictures, "a frame Foxglove got did not decode"
+        stamp = frame["timestamp"]["sec"] + frame["timestamp"]["nsec"] / 1e9
+        found = read_stamp(pictures[-1].to_ndarray(format="rgb24"))
+        readable += found is not None and abs(found - stamp) < 0.002
+    assert readable >= len(frames) // 2, f"{readable} of {len(frames)} pictures carried their capture time"
+
+
 def test_an_operators_twist_moves_the_robot_and_a_viewers_is_refused(tmp_path, broker_port: int) -> None:
     twist = {"topic": "roslink/turtle1/cmd/twist", "linear": 0.3, "angular": 0.0, "hz": 10, "seconds": 2.5}
     with TestClient(broker_port, "bob", "bob-demo") as watcher:

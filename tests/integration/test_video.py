@@ -120,6 +120,64 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
     assert any(f"already watches from {MAX_CLIENTS_PER_USER} clients" in e for e in errors), errors[:3]
 
 
+def test_record_watches_a_named_video_stream_and_its_mcap_channel_decodes(port: int, tmp_path) -> None:
+    """``roslink-mqtt record --topic front_camera``: the recorder watches the stream (nobody else does), and the
+    file's channel is ``foxglove.CompressedVideo`` whose frames decode with PyAV, the first a keyframe."""
+    import base64
+    import os
+    import subprocess
+    import sys
+
+    import av
+    import orjson
+    from mcap.reader import make_reader
+
+    from tests.support.procs import ROOT
+
+    out = tmp_path / "video.mcap"
+    done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "record", "turtle1", "-o", str(out),
+                           "--duration", "6", "--topic", STREAM, "--url", f"mqtt://127.0.0.1:{port}", "-u", "bob"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=60,
+                          env={**os.environ, "ROSLINK_PASSWORD": "bob-demo"}, stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stderr
+    with out.open("rb") as f:
+        reader = make_reader(f)
+        messages = [(schema, channel, message) for schema, channel, message in reader.iter_messages()
+                    if channel.topic == CAMERA]
+    assert len(messages) >= 10, f"{len(messages)} video frames recorded in 6 s: {done.stderr}"
+    assert messages[0][0].name == "foxglove.CompressedVideo"
+    frames = [orjson.loads(message.data) for _schema, _channel, message in messages]
+    # the recording may begin mid-stream (another watcher's frames): a decoder starts at the first keyframe, which
+    # the recorder's own watch asked for
+    first_key = next(i for i, f in enumerate(frames) if base64.b64decode(f["data"])[:64].find(b"\x00\x00\x01\x67") >= 0)
+    assert first_key < 10, f"no keyframe in the first 10 recorded frames ({first_key})"
+    decoder = av.CodecContext.create("h264", "r")
+    for frame in frames[first_key:]:
+        assert decoder.decode(av.Packet(base64.b64decode(frame["data"]))), "a recorded frame did not decode"
+
+
+def test_the_cli_saves_a_clip_that_plays_back(port: int, tmp_path) -> None:
+    """``roslink-mqtt video turtle1 front_camera --out clip.mp4``: the frames as they came, in a file PyAV plays."""
+    import os
+    import subprocess
+    import sys
+
+    import av
+
+    from tests.support.procs import ROOT
+
+    out = tmp_path / "clip.mp4"
+    done = subprocess.run([sys.executable, "-m", "roslink_mqtt.cli.main", "video", "turtle1", STREAM, "--out",
+                           str(out), "--duration", "6", "--url", f"mqtt://127.0.0.1:{port}", "-u", "bob"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=60,
+                          env={**os.environ, "ROSLINK_PASSWORD": "bob-demo"}, stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stderr
+    assert "fps" in done.stderr and f"→ {out}" in done.stderr, done.stderr
+    with av.open(str(out)) as played:
+        pictures = sum(1 for _ in played.decode(video=0))
+    assert pictures >= 10, f"{pictures} pictures in the clip: {done.stderr}"
+
+
 def test_when_the_last_viewer_leaves_the_frames_stop(port: int) -> None:
     with TestClient(port, "alice", "alice-demo") as alice:
         assert alice.connect() == 0

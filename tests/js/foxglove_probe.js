@@ -3,7 +3,7 @@
 //
 //   node foxglove_probe.js ws://127.0.0.1:PORT PLAN_JSON
 //
-// PLAN_JSON: {"subscribe": [topic…], "seconds": S, "call": {"service": name, "request": {…}},
+// PLAN_JSON: {"subscribe": [topic…], "seconds": S, "keep": {topic: N}, "call": {"service": name, "request": {…}},
 //             "parameters": true, "twist": {"topic": name, "linear": x, "angular": z, "hz": H, "seconds": S},
 //             "summary": true (lines for people instead of the JSON)}
 "use strict";
@@ -14,7 +14,7 @@ const WebSocket = require("ws");
 const [url, planText] = process.argv.slice(2);
 const plan = JSON.parse(planText || "{}");
 const seen = { serverInfo: null, channels: {}, services: {}, messages: {}, firstMessage: {}, status: [],
-  callResponse: null, callFailure: null, parameters: null, errors: [] };
+  callResponse: null, callFailure: null, parameters: null, errors: [], kept: {} };
 const SUBPROTOCOL = process.env.FOXGLOVE_SUBPROTOCOL || "foxglove.sdk.v1";
 const decoder = new TextDecoder();
 const encoder = new TextEncoder();
@@ -64,6 +64,11 @@ async function main() {
     const text = decoder.decode(event.data);
     seen.messages[topic] = (seen.messages[topic] || 0) + 1;
     if (!(topic in seen.firstMessage)) seen.firstMessage[topic] = JSON.parse(text);
+    const keep = (plan.keep || {})[topic] || 0;  // every message of this topic, up to this many
+    if (keep) {
+      const kept = (seen.kept[topic] = seen.kept[topic] || []);
+      if (kept.length < keep) kept.push(JSON.parse(text));
+    }
   });
   client.on("serviceCallResponse", (response) => {
     seen.callResponse = JSON.parse(decoder.decode(response.data));

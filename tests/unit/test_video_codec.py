@@ -116,3 +116,30 @@ def test_the_stamp_blocks_reject_a_picture_that_is_not_the_sims() -> None:
     assert read_stamp(np.full((240, 320, 3), 128, np.uint8)) is None
     stamp = T0 + 0.123
     assert read_stamp(render(160, 120, 0, 0, 0, stamp)) == pytest.approx(stamp, abs=0.001)
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".mkv"])
+def test_a_clip_is_saved_as_it_came_and_plays_back(tmp_path, suffix: str) -> None:
+    from roslink_mqtt.video.clip import Clip
+
+    encoder = VideoEncoder("h264")
+    encoder.configure(Target(Rung(320, 240, 15), 200_000))
+    frames = _frames(encoder, 12, keys=(8,))
+    clip = Clip(tmp_path / f"clip{suffix}")
+    assert not clip.add(frames[1])  # no keyframe yet: not saved
+    for frame in frames[:4] + frames[6:]:  # frames 4 and 5 lost: 6 and 7 cannot be shown, 8 is a keyframe
+        clip.add(frame)
+    clip.close()
+    assert (clip.frames, clip.skipped) == (8, 3)
+    import av
+
+    with av.open(str(clip.path)) as played:
+        pictures = list(played.decode(video=0))
+    assert len(pictures) == 8 and (pictures[0].width, pictures[0].height) == (320, 240)
+
+
+def test_a_clip_of_another_kind_of_file_is_refused() -> None:
+    from roslink_mqtt.video.clip import Clip
+
+    with pytest.raises(ValueError, match=r"\.mp4, \.mkv or \.webm"):
+        Clip("clip.avi")
