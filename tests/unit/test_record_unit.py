@@ -101,3 +101,33 @@ def test_play_renames_a_robot_in_its_topics_and_in_the_bodies_that_name_it(tmp_p
     assert json.loads(played[0].payload)["robot"] == "turtle2"
     assert json.loads(played[1].payload)["payload"]["name"] == "turtle2"
     assert played[2].payload == b'{"data": 1.0}'
+
+
+def test_a_video_stream_is_written_as_compressed_video_only_when_named(tmp_path: Path) -> None:
+    """The description's video entry (EXAMPLE's front_camera): ``foxglove.CompressedVideo`` stamped with the capture
+    time; a recorder not asked for it (``--topic``) learns the description all the same and leaves the frames out."""
+    from roslink_mqtt.protocol.video import VideoFrame
+
+    frame = VideoFrame("h264", True, 3, 12.5, 320, 240, "avc1.42c01f", b"\x00\x00\x01\x67\x42")
+    for wanted, expected in ((["front_camera"], 1), ([], 1), (["global_motion"], 0)):
+        out = tmp_path / f"v{len(wanted)}{expected}.mcap"
+        recorder = Recorder(url="mqtt://127.0.0.1:1", username="bob", password="x", robots=["turtle1"], out=out,
+                            topics=wanted)
+        recorder.write(T.state("turtle1", "description"), DESCRIPTION.to_json(), 1_000, retained=True)
+        recorder.write(T.state("turtle1", "front_camera"), frame.to_bytes(), 2_000)
+        recorder.close()
+        assert recorder.channels.descriptions["turtle1"].video[0].name == "front_camera"  # learnt either way
+        if not out.exists():  # nothing was written at all
+            assert expected == 0, wanted
+            continue
+        with out.open("rb") as f:
+            got = [(schema.name, message) for schema, channel, message in make_reader(f).iter_messages()
+                   if channel.topic == T.state("turtle1", "front_camera")]
+        assert len(got) == expected, wanted
+        if got:
+            schema, message = got[0]
+            decoded = json.loads(message.data)
+            assert schema == "foxglove.CompressedVideo" and decoded["format"] == "h264"
+            assert base64.b64decode(decoded["data"]) == frame.data and decoded["timestamp"] == {"sec": 12,
+                                                                                               "nsec": 500_000_000}
+            assert message.publish_time == 12_500_000_000 and message.log_time == 2_000
