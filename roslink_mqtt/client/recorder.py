@@ -4,8 +4,8 @@ It logs in as the user, so the broker's ACL decides what is recorded: each robot
 user may read (acknowledgements, the description, the link report, who drives …) and what the robot sends this
 user (replies, errors, the access report). One MCAP channel per MQTT topic, named by the topic, each with a
 ``jsonschema`` schema; payloads as JSON (CBOR converted, raw images as ``foxglove.CompressedImage``, video frames as
-``foxglove.CompressedVideo``): :mod:`.json_channels`, which the Foxglove gateway shares. A video stream is recorded
-only when named (``--topic front_camera``): the recorder then watches it (the robot encodes it only while watched).
+``foxglove.CompressedVideo``): :mod:`.json_channels`, which the Foxglove gateway shares. The recorder watches a video
+stream (the robot encodes it only while someone does) only when ``--topic`` names it.
 
 Log time is the arrival on this machine; publish time is the message's own stamp where it has one (a ROS
 ``header.stamp``), else the arrival. The file is valid after Ctrl-C (the summary is written on the way out), and
