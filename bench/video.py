@@ -173,8 +173,8 @@ def one_row(row: Row, kbit: int, hidden: bool, fall: bool, seconds: float, work:
         watchers = [Watcher(client, row) for client in clients[:1]] if row.mode == "video" else []
         extra = [client.video(wl.ROBOT, STREAM) for client in clients[1:]] if row.mode == "video" else []
         if fall:
-            row.fall_at = link_up + CHANGE_AT if row.mode == "video" else None
-            seconds = max(seconds, row.fall_at + AFTER_CHANGE - began)
+            seconds = max(seconds, link_up + CHANGE_AT + AFTER_CHANGE - began)
+            row.fall_at = link_up + CHANGE_AT if row.mode == "video" else None  # JPEG rows: ages only
         time.sleep(seconds)
         row.seconds = time.monotonic() - began
         row.cpu = 100 * (cpu_seconds(bridge.proc.pid) - cpu0) / row.seconds
