@@ -250,8 +250,10 @@ class Bridge:
                             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=list,
                             on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload)
 
-        self.state_link, self.bulk_links = self._lanes(outbound, lane) if scheduled else (None, {})
+        self.state_link, self.bulk_links, self.state_links = self._lanes(outbound, lane) if scheduled else \
+            (None, {}, {})
         self.uplink = Uplink(self.link, self.state_link, self.bulk_links, fifo=not scheduled,
+                             state_links=self.state_links,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
         if any(o.rule.buffer == BUFFER_DISK for o in outbound):
@@ -371,18 +373,20 @@ class Bridge:
                  len(outbound), len(routes), len(self.actuators.velocity), len(self.actions.actions))
 
     def _lanes(self, outbound: Sequence[Outbound], lane: Callable[[str], MqttLink]
-               ) -> tuple[MqttLink | None, dict[str, MqttLink]]:
+               ) -> tuple[MqttLink | None, dict[str, MqttLink], dict[str, MqttLink]]:
         """The uplink's connections besides the command link: one for state streams (if any), one per bulk stream,
-        snapshot chunks and video stream (by topic)."""
+        snapshot chunks and video stream (by topic; a video stream of the state class in the third map)."""
         robot = self.robot
         state_link = lane("state") if any(o.rule.priority is Priority.STATE for o in outbound) else None
         bulk_rules = [o for o in outbound if o.rule.priority is Priority.BULK]
         bulk_links = {o.topic: lane(f"bulk{i}") for i, o in enumerate(bulk_rules)}
         if robot.snapshot is not None:  # snapshot chunks: a paced bulk lane of their own
             bulk_links[SNAPSHOT_STREAM] = lane(SNAPSHOT_STREAM)
-        for i, video in enumerate(robot.video):  # each video stream too (docs/video.md)
-            bulk_links[self.topics.state(robot.name, video.name)] = lane(f"video{i}")
-        return state_link, bulk_links
+        state_links: dict[str, MqttLink] = {}
+        for i, video in enumerate(robot.video):  # each video stream too, in its class (docs/video.md)
+            links = state_links if video.priority is Priority.STATE else bulk_links
+            links[self.topics.state(robot.name, video.name)] = lane(f"video{i}")
+        return state_link, bulk_links, state_links
 
     # the endpoint's, looked up at call time (the endpoint is built after the helpers that need these)
     def _role_of(self, user: str) -> Any:
@@ -577,7 +581,8 @@ class Bridge:
     @property
     def lanes(self) -> list[MqttLink]:
         """The uplink's extra connections (state, bulk), started and stopped with the bridge."""
-        return ([self.state_link] if self.state_link is not None else []) + list(self.bulk_links.values())
+        return ([self.state_link] if self.state_link is not None else []) + list(self.bulk_links.values()) + \
+            list(self.state_links.values())
 
     def _link_for(self, role: Role | None) -> MqttLink:
         """Which connection carries a user's traffic: operators' the command link, everyone else's their own."""

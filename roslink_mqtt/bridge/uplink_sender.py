@@ -102,17 +102,23 @@ class Uplink:
 
     def __init__(self, main: MqttLink, state_link: MqttLink | None = None,
                  bulk_links: Mapping[str, MqttLink] | None = None, *, fifo: bool = False,
-                 target_delay: float = TARGET_DELAY, report_topic: str | None = None) -> None:
+                 target_delay: float = TARGET_DELAY, report_topic: str | None = None,
+                 state_links: Mapping[str, MqttLink] | None = None) -> None:
         """``fifo``: hand every message to paho at once, on the main connection (robots.yaml ``uplink: fifo``).
-        ``report_topic``: where the retained :class:`LinkReport` goes every LINK_REPORT_PERIOD (None: nowhere)."""
+        ``report_topic``: where the retained :class:`LinkReport` goes every LINK_REPORT_PERIOD (None: nowhere).
+        ``state_links``: state streams with a connection of their own (a video stream of the state class), by topic:
+        lanes of the state tier, sharing what motion leaves with the state lane."""
         self.fifo, self.report_topic = fifo, report_topic
         self.main = Lane(main, 0, 0, paced=False)
         self.lanes = [self.main]
         self.state_lane = self.main
         self._bulk_lanes: dict[str, Lane] = {}
+        self._state_lanes: dict[str, Lane] = {}
         if not fifo:
             if state_link is not None:
                 self.state_lane = self._add_lane(state_link, 1)
+            for topic, link in (state_links or {}).items():
+                self._state_lanes[topic] = self._add_lane(link, 1)
             for topic, link in (bulk_links or {}).items():
                 self._bulk_lanes[topic] = self._add_lane(link, 2)
         self._tiers = tuple(lane.tier for lane in self.lanes)
@@ -212,7 +218,7 @@ class Uplink:
             return self.main
         if stream.priority is Priority.BULK:
             return self._bulk_lanes.get(stream.name, self.state_lane)
-        return self.state_lane
+        return self._state_lanes.get(stream.name, self.state_lane)
 
     def _watch_socket(self, lane: Lane) -> None:
         """Size a paced lane's send buffer as soon as its socket exists (TCP_NODELAY stays)."""

@@ -36,11 +36,12 @@ log = logging.getLogger("roslink_mqtt.bridge.video")
 
 
 class UplinkVideo:
-    """A stream's :class:`~roslink_mqtt.video.streamer.VideoLane` on the uplink: a bulk stream on a lane of its own."""
+    """A stream's :class:`~roslink_mqtt.video.streamer.VideoLane` on the uplink: a stream of its class (state by
+    default, or bulk) on a lane of its own."""
 
-    def __init__(self, uplink: Uplink, topic: str, label: str) -> None:
+    def __init__(self, uplink: Uplink, topic: str, label: str, priority: Priority) -> None:
         self.uplink, self.topic = uplink, topic
-        self.stream = uplink.stream(topic, Priority.BULK, latest_only=True, label=label)
+        self.stream = uplink.stream(topic, priority, latest_only=True, label=label)
         self.lane = uplink.lane_of(self.stream)
 
     def room(self) -> bool:
@@ -104,7 +105,7 @@ class RosVideo:
         self._settings = {v.name: v for v in robot.video}
         self.watchers = {v.name: Watchers(is_live) for v in robot.video}
         self.streamers = {
-            v.name: VideoStreamer(v, UplinkVideo(uplink, topics.state(robot.name, v.name), v.name),
+            v.name: VideoStreamer(v, UplinkVideo(uplink, topics.state(robot.name, v.name), v.name, v.priority),
                                   self.watchers[v.name], on_watched=partial(self._watched, v.name))
             for v in robot.video}
         self._subscriptions: dict[str, Any] = {}

@@ -48,6 +48,7 @@ from .model import (
     VDA_CLASSES,
     VDA_KINEMATICS,
     VIDEO_CODECS,
+    VIDEO_PRIORITIES,
     VIDEO_TYPES,
     ActionRule,
     BridgeSettings,
@@ -391,7 +392,7 @@ class _FleetReader:
         for i in range(len(self.sequence(path))):
             vp = path + (i,)
             self.mapping(vp, ("name", "ros_topic", "ros_type", "codec", "fps", "ladder", "min_kbit_s",
-                              "max_kbit_s"))
+                              "max_kbit_s", "priority"))
             ros_topic = self.value(vp, "ros_topic", self.ros_name)
             name = self.value(vp, "name", self.topic_name("video stream name"), None) or ros_names.flat(ros_topic)
             if name in taken or name in BRIDGE_STATE_NAMES:
@@ -409,7 +410,8 @@ class _FleetReader:
                 ros_type=self.value(vp, "ros_type", self.choice(VIDEO_TYPES)),
                 codec=self.value(vp, "codec", self.choice(VIDEO_CODECS), d.codec), fps=fps,
                 ladder=self.video_ladder(vp + ("ladder",)) if self.get(vp).get("ladder") is not None else (),
-                min_kbit_s=low, max_kbit_s=high, line=self.src.line_of(vp)))
+                min_kbit_s=low, max_kbit_s=high, line=self.src.line_of(vp),
+                priority=Priority[self.value(vp, "priority", self.choice(VIDEO_PRIORITIES), "state").upper()]))
         return tuple(out)
 
     def video_ladder(self, path: Path) -> tuple[tuple[int, int, float], ...]:

@@ -257,6 +257,7 @@ class SnapshotSettings:
 
 VIDEO_CODECS = ("h264", "vp8", "vp9", "av1")
 VIDEO_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+VIDEO_PRIORITIES = ("state", "bulk")  # a video stream's class on the uplink (VideoStream.priority)
 
 
 @dataclass(frozen=True, slots=True)
@@ -276,6 +277,9 @@ class VideoStream:
     ladder: tuple[tuple[int, int, float], ...] = ()
     min_kbit_s: float = 50.0
     max_kbit_s: float = 2000.0
+    # its class on the uplink: STATE shares what motion leaves with the other state (a camera an operator drives by
+    # is worth as much as a laser scan); BULK takes only what state leaves (a camera watched now and then)
+    priority: Priority = Priority.STATE
     line: int | None = None
 
 

@@ -6,7 +6,7 @@ import textwrap
 
 import pytest
 
-from roslink_mqtt.config import ConfigError, parse_fleet
+from roslink_mqtt.config import ConfigError, Priority, parse_fleet
 
 from .test_config import _with_snapshot
 
@@ -20,12 +20,13 @@ def test_a_camera_with_defaults_and_one_with_its_own_ladder() -> None:
         video:
           - {ros_topic: camera/image_raw, ros_type: sensor_msgs/msg/Image}
           - {name: rear, ros_topic: rear/image/compressed, ros_type: sensor_msgs/msg/CompressedImage, codec: vp8,
-             fps: 15, ladder: [[640, 480, 15], [320, 240, 10]], min_kbit_s: 30, max_kbit_s: 800}
+             fps: 15, ladder: [[640, 480, 15], [320, 240, 10]], min_kbit_s: 30, max_kbit_s: 800, priority: bulk}
         """), "robots.yaml")
     front, rear = fleet.robots["turtle1"].video
-    assert (front.name, front.codec, front.fps, front.ladder) == ("camera_image_raw", "h264", 30.0, ())
-    assert (rear.name, rear.codec, rear.ladder, rear.min_kbit_s, rear.max_kbit_s) == (
-        "rear", "vp8", ((640, 480, 15.0), (320, 240, 10.0)), 30, 800)
+    assert (front.name, front.codec, front.fps, front.ladder, front.priority) == (
+        "camera_image_raw", "h264", 30.0, (), Priority.STATE)
+    assert (rear.name, rear.codec, rear.ladder, rear.min_kbit_s, rear.max_kbit_s, rear.priority) == (
+        "rear", "vp8", ((640, 480, 15.0), (320, 240, 10.0)), 30, 800, Priority.BULK)
     assert fleet.robots["turtle1"].video_stream("rear") is rear
     assert fleet.robots["turtle2"].video == ()
 
@@ -51,6 +52,8 @@ def test_a_camera_with_defaults_and_one_with_its_own_ladder() -> None:
      "robots.turtle1.video[0].min_kbit_s: min_kbit_s 900 is above max_kbit_s 800"),
     ("video:\n  - {ros_topic: cam, ros_type: sensor_msgs/msg/Image, fps: 0}\n",
      "robots.turtle1.video[0].fps: expected a finite number > 0"),
+    ("video:\n  - {ros_topic: cam, ros_type: sensor_msgs/msg/Image, priority: motion}\n",
+     "robots.turtle1.video[0].priority: expected"),
     ("video:\n  - {ros_topic: cam, ros_type: sensor_msgs/msg/Image, bitrate: 5}\n",
      "robots.turtle1.video[0].bitrate: unknown key 'bitrate'"),
 ])
