@@ -88,7 +88,7 @@ STOP_DELIVERY_WAIT = 0.5  # s a stopping bridge waits for its last zero velocity
 def _static_part(robot: Robot) -> tuple[object, ...]:
     """What a reload cannot change in a running bridge (rules and settings), ignoring line numbers."""
     return (robot.system_id, robot.type, robot.bridge, tuple(replace(r, line=None) for r in robot.rules),
-            tuple(replace(s, line=None) for s in robot.services))
+            tuple(replace(s, line=None) for s in robot.services), tuple(replace(v, line=None) for v in robot.video))
 
 
 @dataclass

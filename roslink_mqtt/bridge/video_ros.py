@@ -69,7 +69,8 @@ def image_converter(msg: Any) -> Callable[[], av.VideoFrame]:
         channels = {"mono8": 1, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}.get(msg.encoding)
         if channels is None:
             return frame_from_pixels(np.zeros((2, 2), np.uint8), msg.encoding)  # refused, naming the encoding
-        rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)
+        rows = np.asarray(memoryview(msg.data) if isinstance(msg.data, (bytes, bytearray)) else msg.data,
+                          np.uint8).reshape(msg.height, msg.step)
         pixels = rows[:, :msg.width * channels].reshape(msg.height, msg.width, channels)
         return frame_from_pixels(pixels[..., 0] if channels == 1 else pixels, msg.encoding)
     return convert

@@ -636,7 +636,10 @@ def test_bob_watches_turtle1s_camera_decoded_by_the_browser(stack, tmp_path) -> 
                 alice.twist("turtle1", az=1.0)
                 time.sleep(0.1)
             alice.twist("turtle1")
-        wait_until("the floor to move on the canvas", lambda: _canvas_floor(driver) != before, timeout=10)
+        # the tiles slide past: most of the row changes by far more than an encoder's noise (a few levels)
+        wait_until("the floor to move on the canvas", lambda: sum(
+            abs(a - b) > 40 for a, b in zip(_canvas_floor(driver), before, strict=False)) > len(before) // 10,
+            timeout=10)
         assert "fps" in driver.find_element("id", "video-stats").text
         driver.find_element("id", "video-watch").click()  # stop watching
         wait_until("the watch ended", lambda: driver.execute_script("return window.dashboard.video === null"))
