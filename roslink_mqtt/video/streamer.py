@@ -92,10 +92,12 @@ class VideoStreamer:
         self._thread.start()
 
     def stop(self) -> None:
+        """End the thread (any time: a bridge whose login was refused stops before it started anything)."""
         with self._cond:
             self._stopped = True
             self._cond.notify()
-        self._thread.join(timeout=2.0)
+        if self._thread.ident is not None:
+            self._thread.join(timeout=2.0)
 
     def offer(self, picture: Picture) -> None:
         """The camera's newest picture (the ROS callback's thread): it replaces one not yet taken."""

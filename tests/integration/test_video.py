@@ -95,7 +95,7 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
 
             def spam() -> None:  # 40 made-up clients, each asking for a keyframe, for 4 s
                 i = 0
-                while not stop.is_set() and i < 4000:
+                while not stop.is_set() and i < 1500:
                     flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, STREAM),
                                   WatchRequest(f"bob-fake-{i % 40}", key=True).to_json(), qos=0)
                     i += 1
@@ -111,12 +111,18 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
             spammer.join(5)
             for i in range(40):  # the made-up clients leave (or their watches would last their lease)
                 flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, STREAM),
-                              WatchRequest(f"bob-fake-{i}", leave=True).to_json(), qos=0)
+                              WatchRequest(f"bob-fake-{i}", leave=True).to_json(), qos=1)
         errors = [m.json()["error"] for m in flood.drain(1.0) if m.topic == T.error("turtle1", "bob")]
+        # the bridge reads a viewer's requests at a bounded rate: the leaves come after the flood's backlog; the next
+        # tests need bob's watching clients gone, so wait until the stream has stopped (every watch ended)
+        flood.subscribe(CAMERA, qos=0)
+        deadline = time.monotonic() + 40
+        while [m for m in flood.drain(1.5) if m.topic == CAMERA]:
+            assert time.monotonic() < deadline, "the flood's watches never ended"
     seqs = [f.seq for f in during]
     assert seqs == sorted(seqs) and len(during) >= 10, seqs  # one stream: its numbers go on
     keys = sum(f.key for f in during)
-    assert keys <= 4.0 + 2, f"{keys} keyframes in 4 s of a keyframe flood"
+    assert keys <= 4.0 + 2, f"{keys} keyframes in 4 s of a keyframe flood"  # at most one a second, and the join's
     assert any(f"already watches from {MAX_CLIENTS_PER_USER} clients" in e for e in errors), errors[:3]
 
 

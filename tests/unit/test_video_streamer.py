@@ -142,3 +142,11 @@ def test_a_full_lane_skips_pictures_before_encoding_and_a_lost_frame_brings_a_ke
     _until("a frame after the loss", lambda: len(lane.frames) > before, renew=watchers, clients=alice)
     first_after = lane.frames[before]
     assert first_after.key and first_after.seq > lane.frames[before - 1].seq + 1
+
+
+def test_a_streamer_never_started_stops_cleanly() -> None:
+    """A bridge whose login was refused stops before it started its streamers (it must still exit with its code)."""
+    streamer = VideoStreamer(SETTINGS, Lane(), Watchers(lambda user, client: False))
+    streamer.stop()
+    streamer.start()  # (never after a stop, but harmless)
+    streamer.stop()
