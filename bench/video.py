@@ -163,7 +163,8 @@ def one_row(row: Row, kbit: int, hidden: bool, fall: bool, seconds: float, work:
         time.sleep(wl.WARMUP)
         run = wl.Run(wl.Case(kbit, row.mode == "jpeg", hidden), row.mode)
         viewer.run = current[0] = row.telemetry = run
-        clients = [RobotClient(*wl.VIEWER, client_id=f"bob-video-{i}-{os.getpid()}",
+        logins = (wl.VIEWER, wl.OPERATOR, ("admin", "admin-demo"))  # (a user watches from 8 clients at most)
+        clients = [RobotClient(*logins[i % len(logins)], client_id=f"video-{i}-{os.getpid()}",
                                url=f"mqtt://127.0.0.1:{port}").connect() for i in range(row.viewers)]
         for client in clients:
             phase.callback(client.close)
