@@ -399,6 +399,15 @@ def _as_written(value: Any) -> Any:
     return value
 
 
+def split_header(payload: bytes | bytearray | memoryview, what: str, rest: str) -> tuple[bytes, bytes]:
+    """(header line, bytes after it) of a body sent as a JSON header line, a newline, then raw bytes (snapshot
+    chunks, video frames); ``what`` and ``rest`` word the refusal when there is no newline."""
+    line, newline, data = bytes(payload).partition(b"\n")
+    if not newline:
+        raise ProtocolError(f"{what}: expected a JSON header line, then {rest}")
+    return line, data
+
+
 def body_of(fields: tuple[BodyField, ...], obj: Any) -> dict[str, Any]:
     """``obj``'s declared fields as a body, in declaration order: a required field always (null too), an optional
     one only when it is not None; ``client_id`` left out (:func:`write` appends it last, as :func:`dump` does)."""

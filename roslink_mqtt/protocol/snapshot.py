@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Integer, Number, Text, dump, read, write
+from .body import SENDER, BodyField, Integer, Number, Text, dump, read, split_header, write
 from .errors import ProtocolError
 
 MAX_LAST = 3600.0  # s: more than any ring buffer holds
@@ -99,9 +99,7 @@ class SnapshotChunk:
     @classmethod
     def from_bytes(cls, payload: bytes) -> SnapshotChunk:
         """A chunk as the bridge sends it: the header line, a newline, the bytes."""
-        line, newline, data = bytes(payload).partition(b"\n")
-        if not newline:
-            raise ProtocolError("snapshot chunk: expected a JSON header line, then the data")
+        line, data = split_header(payload, "snapshot chunk", "the data")
         return replace(cls.from_json(line), data=data)
 
 SNAPSHOT_BODIES: tuple[tuple[str, str, type], ...] = (

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Boolean, Choice, Integer, Number, Text, read, write
+from .body import SENDER, BodyField, Boolean, Choice, Integer, Number, Text, read, split_header, write
 from .errors import ProtocolError
 
 CODECS = ("h264", "vp8", "vp9", "av1")
@@ -108,9 +108,7 @@ class VideoFrame:
     @classmethod
     def from_bytes(cls, payload: bytes | bytearray | memoryview) -> VideoFrame:
         """A frame as the bridge sends it: the header line, a newline, the bitstream."""
-        line, newline, data = bytes(payload).partition(b"\n")
-        if not newline:
-            raise ProtocolError("video frame: expected a JSON header line, then the bitstream")
+        line, data = split_header(payload, "video frame", "the bitstream")
         if not data:
             raise ProtocolError("video frame: the bitstream after the header is empty")
         return replace(cls.from_json(line), data=data)
