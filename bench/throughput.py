@@ -154,7 +154,7 @@ def ros_child(mode: str, kind: str, rates: tuple[int, ...], seconds: float, star
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from roslink_mqtt.bridge.ros_types import load_interface
+    from roslink_mqtt.bridge.core.ros_types import load_interface
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f"throughput_{mode}_{kind}")

@@ -1,6 +1,6 @@
 """Who drives a robot, from the SDK: read ``state/control``, claim, release or take over the control lease, and stop
 every robot at once. Used by :class:`~roslink_mqtt.client.robot_client.RobotClient` (its methods of the same names);
-the bridge's side is ``roslink_mqtt/bridge/lease.py`` (docs/protocol.md, "Control").
+the bridge's side is ``roslink_mqtt/bridge/core/lease.py`` (docs/protocol.md, "Control").
 """
 
 from __future__ import annotations
