@@ -61,7 +61,7 @@ EXCHANGES = ("SDK publisher -> ROS subscriber", "ROS publisher -> SDK subscriber
 # -- the SDK program (a child process; commands on stdin, one per line) ----------------------------------
 def sdk_program(url: str) -> int:
     """Hidden ``--sdk`` mode: alice's program without ROS. Commands: ``pub N RATE``, ``calls N``, ``report``."""
-    import roslink_mqtt.client as sdk
+    from roslink_mqtt.client import rclpy as sdk
 
     received: list[tuple[int, int]] = []  # (index, ns) of state/hops_out
     served: list[tuple[int, int]] = []  # (index, ns) the provided service was called

@@ -317,8 +317,8 @@ def ros_to_mqtt(broker: str, kind: str, port: int, pids: dict[str, int | None], 
 def mqtt_to_ros(broker: str, kind: str, port: int, pids: dict[str, int | None], work: Path, env: dict[str, str],
                 seconds: float) -> list[Row]:
     """SDK publisher here -> broker -> bridge -> rclpy counter (child)."""
-    import roslink_mqtt.client as sdk
-    from roslink_mqtt.client.qos import qos_profile_sensor_data
+    from roslink_mqtt.client import rclpy as sdk
+    from roslink_mqtt.client.rclpy.qos import qos_profile_sensor_data
 
     rates = RATES[kind]
     start = time.monotonic() + 5.0

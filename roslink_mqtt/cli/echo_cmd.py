@@ -24,7 +24,8 @@ from typing import Any, cast
 
 import orjson
 
-from ..client import NotGranted, RobotClient, RoslinkError, RoslinkMessage
+from ..client import NotGranted, RobotClient, RoslinkError
+from ..client.messages import RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
 from ..protocol.description import RobotDescription

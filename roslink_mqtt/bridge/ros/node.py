@@ -9,7 +9,6 @@ timers that drive heartbeats and supervision.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
 import time
@@ -19,17 +18,13 @@ from typing import Any
 
 from rclpy.node import Node
 
-from ...config import Fleet, Priority, Robot, Role
-from ...config.grants import with_grants
+from ...config import Fleet, Priority, Robot
 from ...config.model import BUFFER_DISK
 from ...protocol import AckResult, SystemStatus
-from ...protocol.errors import ProtocolError
-from ...protocol.grants import RobotGrants
 from ...protocol.lease import CONTROL
 from ...protocol.link import LINK
-from ...topics import ANY, Verb, join_leaf, state_name
+from ...topics import Verb, join_leaf, state_name
 from ..core import trace
-from ..core.access import access_reports, cleared_reports
 from ..core.budget import RequestBudget
 from ..core.capabilities import (
     Advertise,
@@ -48,9 +43,11 @@ from ..core.capabilities import (
     UpdateProvidedGoal,
     Watch,
 )
-from ..core.claim import ANNOUNCE, EXIT_LOGIN_REFUSED, Claim, ClaimWatch
+from ..core.claim import EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from ..core.endpoint import SUPERVISION_RATE, CommandEndpoint
+from ..core.fleet_follower import FleetFollower, LinkKind
 from ..core.graph_check import GRAPH_CHECK_DELAY, GRAPH_CHECK_PERIOD, SERVICE, TOPIC, Expected, changes, check
+from ..core.inbox import Inbox
 from ..core.intake import Intake
 from ..core.link import MqttLink, bridge_client_id
 from ..core.on_executor import OnExecutor
@@ -59,7 +56,6 @@ from ..core.ros_types import UnknownTypeError, load_interface
 from ..core.routes import Inbound
 from ..core.safety import STANDSTILL, VELOCITY_TYPES, UnsafeCommand, make_safe_twist
 from ..core.spool import Spool, buffer_dir
-from ..core.stops import StopDedup
 from ..core.systemd import SystemdNotifier
 from ..core.throttle import Throttle
 from ..core.uplink_sender import Uplink
@@ -83,12 +79,6 @@ log = logging.getLogger("roslink_mqtt.bridge")
 COMMAND_SERVICE_TIMEOUT = 5.0  # s for preset commands carried out by a ROS service
 VIEWER_LINK_HEAD_START = 3.0  # s the command link waits at start for the viewer link's subscriptions
 STOP_DELIVERY_WAIT = 0.5  # s a stopping bridge waits for its last zero velocity's acknowledgement (per output)
-
-
-def _static_part(robot: Robot) -> tuple[object, ...]:
-    """What a reload cannot change in a running bridge (rules and settings), ignoring line numbers."""
-    return (robot.system_id, robot.type, robot.bridge, tuple(replace(r, line=None) for r in robot.rules),
-            tuple(replace(s, line=None) for s in robot.services), tuple(replace(v, line=None) for v in robot.video))
 
 
 @dataclass
@@ -220,7 +210,7 @@ class Bridge:
         ``action_node``: a second node, spun by a SingleThreadedExecutor of its own, for the action servers of
         actions provided by MQTT clients (when ``node``'s executor is the EventsExecutor, which runs an action
         server's callbacks to completion ahead of everything else); None: they live on ``node``."""
-        self.node, self.fleet, self.robot = node, fleet, robot
+        self.node, self.robot = node, robot
         self.topics = fleet.topics
         settings = robot.bridge
         outbound, routes = compile_rules(robot, self.topics)
@@ -286,17 +276,15 @@ class Bridge:
         # never wait behind a large request, response or log line in the broker's queue or the socket. Each stop
         # then arrives twice (this link and the command link); the second copy is dropped (bridge/core/stops.py). Only
         # operators' (those the endpoint obeys): nothing a viewer sends can queue in front of a stop.
-        self._stop_leaves = tuple(name for name, r in routes.items() if r.behaviour.never_stale)
+        stop_leaves = tuple(name for name, r in routes.items() if r.behaviour.never_stale)
         self.stop_link = MqttLink(
             client_id=bridge_client_id(robot.name, "stop"), username=robot.name, password=password,
             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=self.stop_subscriptions,
-            on_message=self._on_mqtt, ca_file=ca_file) if self._stop_leaves else None
-        self._stops = StopDedup()
+            on_message=self._on_mqtt, ca_file=ca_file) if stop_leaves else None
         budget = RequestBudget(settings.max_requests_per_user)  # calls and parameter requests together
         self.on_executor = OnExecutor()  # main() hands it the executor before start()
         self.action_on_executor = OnExecutor() if action_node is not None else self.on_executor
         self._ticks = 0
-        role_of = self._role_of
         on_demand = {n: r for n, r in routes.items() if r.rule.on_demand}
         self.on_demand = OnDemandPublishers(node, on_demand, self._is_live)
         self.rosout = RosRosout(node)
@@ -315,7 +303,7 @@ class Bridge:
                                          self.on_executor,
                                          max_concurrent=settings.provided_max_calls,
                                          queue_depth=settings.provided_queue_depth)
-        self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, role_of, self._is_live)
+        self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, self._is_live)
         self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
                                                 self._is_live, self.action_on_executor)
         capabilities: list[Capability[Any]] = [
@@ -343,17 +331,24 @@ class Bridge:
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self.endpoint.on_failsafe_stop = self.snapshots.failsafe  # every failsafe stop leaves a record
-        self._heartbeat_topic = self.topics.heartbeat(robot.name)
-        self._announce_topic = self.topics.state(robot.name, ANNOUNCE)
-        self._grants_topic = self.topics.grants(robot.name)
-        self.grants: RobotGrants | None = None  # the broker's latest (protocol/grants.py); None: the file's apply
-        self.grants_arrived = threading.Event()  # start() holds the command link back until they have (briefly)
-        self._reload_lock = threading.Lock()  # SIGHUP (main thread) and a grants message (paho's) both reload
+        # the users and grants obeyed, and what follows when they change: one path for everything a user holds
+        self.follower = FleetFollower(fleet, robot, self.topics, self.endpoint, self._publish_retained,
+                                      stop_leaves=stop_leaves,
+                                      operators_hold=(self.provided, self.provided_actions, self.on_demand,
+                                                      self.sdk_params),
+                                      users_hold=(self.video,))
+        self.follower.use_links({LinkKind.COMMAND: self.link, LinkKind.VIEWER: self.viewer_link,
+                                 **({LinkKind.STOP: self.stop_link} if self.stop_link is not None else {})})
+        self._heartbeat_topic = self.follower.heartbeat_topic
         self.fenced_by: Claim | None = None  # the bridge this one stood down for
         self._on_fenced = on_fenced
         self.login_refused: str | None = None  # why the bridge exits (bridge.exit_on_refused_login)
         self._on_login_refused = on_login_refused
         self.claims = ClaimWatch(self.endpoint.claim, self._fence, self.endpoint.publish_heartbeat)
+        self.inbox = Inbox(robot.name, heartbeat_topic=self.follower.heartbeat_topic,
+                           announce_topic=self.follower.announce_topic, grants_topic=self.follower.grants_topic,
+                           claims=self.claims, on_grants=self.follower.on_grants, stop_leaves=stop_leaves,
+                           endpoint=self.endpoint.on_mqtt)
         self.actuators.endpoint = self.endpoint
         self.link.set_will(self.topics.heartbeat(robot.name), self.endpoint.heartbeat(SystemStatus.OFFLINE))
         self.actuators.actions = self.actions
@@ -390,9 +385,6 @@ class Bridge:
         return state_link, bulk_links, state_links
 
     # the endpoint's, looked up at call time (the endpoint is built after the helpers that need these)
-    def _role_of(self, user: str) -> Any:
-        return self.endpoint.role_of(user)
-
     def _is_live(self, user: str, client_id: str | None = None) -> bool:
         return self.endpoint.operators.is_live(user, client_id)
 
@@ -422,95 +414,33 @@ class Bridge:
             self._on_login_refused()
 
     def _on_mqtt(self, topic: str, payload: bytes, retained: bool = False, arrived: float | None = None) -> None:
-        if topic == self._heartbeat_topic:
-            self.claims.on_heartbeat(self.robot.name, payload, retained)
-            return
-        if topic == self._announce_topic:
-            self.claims.on_announcement(self.robot.name, payload, retained)
-            return
-        if topic == self._grants_topic:
-            self.on_grants(payload)
-            return
-        if self._stop_leaves and topic.endswith(self._stop_leaves) and self._stops.seen(topic, payload):
-            return  # the other copy of an emergency stop (stop link and command link both carry it)
-        self.endpoint.on_mqtt(topic, payload, retained, arrived)
+        """Every link's messages (paho's threads): the inbox routes them (bridge/core/inbox.py). Looked up at call
+        time: the links exist before the inbox."""
+        self.inbox.on_message(topic, payload, retained, arrived)
 
     def _publish_reliable(self, topic: str, payload: bytes) -> None:
         self.link.publish(topic, payload, qos=1)
 
+    def _publish_retained(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
+        self.link.publish(topic, payload, qos=qos, retain=retain)
+
+    @property
+    def fleet(self) -> Fleet:
+        """The users and grants obeyed now (bridge/core/fleet_follower.py)."""
+        return self.follower.fleet
+
+    @property
+    def grants_arrived(self) -> threading.Event:
+        return self.follower.grants_arrived
+
     def on_grants(self, payload: bytes) -> None:
-        """The robot's grants from the broker (``P/<robot>/grants``, written by the fleet's administrators; paho's
-        thread): they replace the users the bridge knows, at once. A malformed message keeps the grants the bridge
-        has; an empty one (the retained message cleared) leaves it none, refusing everyone until new ones arrive."""
-        if not payload:
-            log.warning("the grants of %s were withdrawn on the broker: every command is refused until new ones "
-                        "arrive", self.robot.name)
-            with self._reload_lock:
-                self.grants = None
-                self._reload(dataclasses.replace(self.fleet, users={}, grants_pending=True), "grants withdrawn")
-            return
-        try:
-            grants = RobotGrants.from_json(payload)
-        except ProtocolError as err:
-            log.error("ignored grants on %s, keeping the current ones: %s", self._grants_topic, err)
-            return
-        if grants.robot != self.robot.name:
-            log.error("ignored grants for robot %s on %s, keeping the current ones", grants.robot, self._grants_topic)
-            return
-        with self._reload_lock:
-            self.grants = grants
-            self._reload(with_grants(self.fleet, grants), f"applied grants from {grants.by or 'the broker'}")
-        self.grants_arrived.set()
+        """The robot's grants from the broker (paho's thread): bridge/core/fleet_follower.py."""
+        self.follower.on_grants(payload)
 
     def reload(self, fleet: Fleet) -> None:
-        """Apply a re-read fleet file now (SIGHUP); rule changes need a restart. A fleet file's users and grants
-        apply (until the broker's next grants message: the latest word wins); a robot file has none, so the
-        broker's grants stay.
-
-        The broker applies the same file on its own SIGHUP; the bridge must follow, or a newly granted
-        operator stays refused and a revoked one keeps control until the dead-man stops the robot.
-        Revoking an operator who owns the current motion stops the robot at once.
-        """
-        with self._reload_lock:
-            grants = self.grants
-            if fleet.grants_pending and grants is not None and self.robot.name in fleet.robots:
-                fleet = with_grants(fleet, grants)  # (_reload says why a robot is missing)
-            elif not fleet.grants_pending:
-                self.grants = None  # the file's grants now; the broker's next message replaces them again
-            self._reload(fleet, f"reloaded {fleet.file}")
-
-    def _reload(self, fleet: Fleet, source: str) -> None:
-        robot = fleet.robots.get(self.robot.name)
-        if robot is None:
-            log.error("reload: robot %s is no longer in %s; keeping the current grants", self.robot.name, fleet.file)
-            return
-        if _static_part(robot) != _static_part(self.robot):
-            log.warning("reload: the rules or bridge settings of %s changed; restart the bridge to apply them "
-                        "(users and grants apply now)", self.robot.name)
-        old_fleet = self.fleet
-        after = fleet.users_of(self.robot.name)
-        self.fleet = fleet
-        for user in self.endpoint.set_fleet(fleet):
-            self.provided.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
-            self.provided_actions.withdraw_user(user, f"{user} is no longer an operator of {self.robot.name}")
-            self.on_demand.withdraw_user(user)
-        for user in set(old_fleet.users_of(self.robot.name)) - set(after):
-            self.video.forget_user(user)
-        self.publish_access(cleared=cleared_reports(old_fleet, fleet, self.robot.name, self.topics))
-        # a user who changes role moves between the links: leave the old one first (a gap of a few ms, never
-        # the same command arriving twice), then join the new one
-        links = {link: (self._subscriptions_of(link, old_fleet), self._subscriptions_of(link, fleet))
-                 for link in (self.link, self.viewer_link)}
-        if self.stop_link is not None:
-            links[self.stop_link] = (self.stop_subscriptions(old_fleet), self.stop_subscriptions(fleet))
-        for link, (old, new) in links.items():
-            for topic, _ in set(old) - set(new):
-                link.unsubscribe(topic)
-        for link, (old, new) in links.items():
-            for topic, qos in sorted(set(new) - set(old)):
-                link.subscribe(topic, qos)
-        log.info("%s: %d users may see %s (%s)", source, len(after), self.robot.name,
-                 ", ".join(f"{u}:{r.value}" for u, r in sorted(after.items())) or "none")
+        """Apply a re-read fleet file now (SIGHUP): its users and grants (bridge/core/fleet_follower.py); rule
+        changes need a restart. Revoking an operator who owns the current motion stops the robot at once."""
+        self.follower.reload(fleet)
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self) -> None:
@@ -585,52 +515,15 @@ class Bridge:
         return ([self.state_link] if self.state_link is not None else []) + list(self.bulk_links.values()) + \
             list(self.state_links.values())
 
-    def _link_for(self, role: Role | None) -> MqttLink:
-        """Which connection carries a user's traffic: operators' the command link, everyone else's their own."""
-        return self.link if role is Role.OPERATOR else self.viewer_link
-
-    def _subscriptions_of(self, link: MqttLink, fleet: Fleet | None = None) -> list[tuple[str, int]]:
-        """What ``link`` subscribes to: the inputs of each user it carries, and the presence of those granted.
-
-        Users of the fleet without a grant here are subscribed to as well (on the viewer link): a broker whose
-        ACL is older than the bridge's grants may still let them publish, and they must hear why nothing
-        happens (``not an operator``) instead of silence.
-        """
-        fleet = fleet or self.fleet
-        granted = fleet.users_of(self.robot.name)
-        subs = []
-        if link is self.viewer_link:
-            subs.append((self._grants_topic, 1))
-            if fleet.grants_pending:  # nobody known yet: hear everyone, to refuse with that reason
-                subs.append((self.topics.from_user_filter(self.robot.name, ANY), 1))
-        for user in sorted(fleet.users):
-            role = granted.get(user)
-            if self._link_for(role) is link:
-                subs.append((self.topics.from_user_filter(self.robot.name, user), 1))
-                if role is not None:
-                    subs.append((self.topics.operators_of(user), 1))
-        return subs
-
-    def stop_subscriptions(self, fleet: Fleet | None = None) -> list[tuple[str, int]]:
-        """The stop link's: the emergency-stop input of every user the endpoint obeys there: operators, and viewers
-        unless robots.yaml says ``estop: operators`` (then a viewer's stop comes on the viewer link and is refused
-        there, with the reason)."""
-        fleet = fleet or self.fleet
-        robot = fleet.robots.get(self.robot.name, self.robot)
-        stoppers = sorted(u for u, role in fleet.users_of(self.robot.name).items()
-                          if role is Role.OPERATOR or robot.estop == "viewers")
-        return [(self.topics.from_user(self.robot.name, user, leaf), 1) for user in stoppers
-                for leaf in self._stop_leaves]
-
     def mqtt_subscriptions(self) -> list[tuple[str, int]]:
-        """The command link's: every operator's commands, requests and presence (re-read at each connect), and the
-        robot's own heartbeat topic and ``state/bridge``, where another bridge for this robot would show itself
-        (bridge/core/claim.py)."""
-        return [(self._heartbeat_topic, 1), (self._announce_topic, 1), *self._subscriptions_of(self.link)]
+        """The command link's (re-read at each connect): bridge/core/fleet_follower.py."""
+        return self.follower.subscriptions(LinkKind.COMMAND)
 
     def viewer_subscriptions(self) -> list[tuple[str, int]]:
-        """The viewer link's: every other user's inputs, and viewers' presence."""
-        return self._subscriptions_of(self.viewer_link)
+        return self.follower.subscriptions(LinkKind.VIEWER)
+
+    def stop_subscriptions(self) -> list[tuple[str, int]]:
+        return self.follower.subscriptions(LinkKind.STOP)
 
     def on_link_up(self) -> None:
         self._retained_at = time.monotonic()
@@ -672,12 +565,8 @@ class Bridge:
         if (new or cleared) and self.link.connected.is_set():
             self.publish_description()
 
-    def publish_access(self, cleared: Sequence[str] = ()) -> None:
-        """Retained ``to/<user>/access`` for every granted user (bridge/core/access.py says why); clear ``cleared``."""
-        for topic in cleared:
-            self.link.publish(topic, b"", qos=1, retain=True)
-        for topic, body in access_reports(self.fleet, self.robot.name, self.topics).items():
-            self.link.publish(topic, body, qos=1, retain=True)
+    def publish_access(self) -> None:
+        self.follower.publish_access()
 
     def on_link_down(self, reason: str) -> None:
         closing = self.link.closing  # our own stop() disconnected: a shutdown, not a failure

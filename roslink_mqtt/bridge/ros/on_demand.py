@@ -71,8 +71,9 @@ class OnDemandPublishers:
                      ", ".join(sorted(self._adverts[name])))
         return pub
 
-    def withdraw_user(self, user: str) -> None:
-        """Forget ``user``'s advertisements (e.g. their operator grant was removed)."""
+    def withdraw_user(self, user: str, reason: str = "") -> None:
+        """Forget ``user``'s advertisements (their operator grant was removed; nobody waits on one: ``reason`` is
+        not told anyone)."""
         with self._lock:
             for adverts in self._adverts.values():
                 adverts.pop(user, None)

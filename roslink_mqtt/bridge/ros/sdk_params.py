@@ -32,7 +32,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ...config import Robot, Role
+from ...config import Robot
 from ...protocol.node_params import DeclaredParameter, ParamDeclaration, ParamSetRequest, ParamSetResult
 from ...protocol.params import TYPE_CODES
 from ...topics import TopicTree
@@ -61,7 +61,7 @@ class _Declared:
     name: str
     client_id: str
     parameters: dict[str, DeclaredParameter]
-    live: bool = False  # set by refresh(): the presence client is live and the user still an operator
+    live: bool = False  # set by refresh(): the presence client is live (a demoted user's nodes are withdrawn)
     ros: Any = None  # the proxy rclpy Node while it exists (proxy thread only)
     applied: dict[str, DeclaredParameter] = field(default_factory=dict)  # what the proxy node holds
 
@@ -70,10 +70,10 @@ class SdkParameterNodes:
     """The proxy ROS nodes of SDK nodes' parameters, their executor thread and the sets in flight."""
 
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, publish: Publish,
-                 role_of: Callable[[str], Role | None], is_live: Callable[[str, str | None], bool],
+                 is_live: Callable[[str, str | None], bool],
                  timeout: float = SET_TIMEOUT) -> None:
         self.robot, self.topics, self.publish = robot, topics, publish
-        self.role_of, self.is_live, self.timeout = role_of, is_live, timeout
+        self.is_live, self.timeout = is_live, timeout
         self.context, self.namespace = node.context, node.get_namespace()
         self._lock = threading.RLock()
         self.declared: dict[str, _Declared] = {}  # by node name (one ROS node per name, whoever declares it)
@@ -112,6 +112,14 @@ class SdkParameterNodes:
             self._fail_waiting(name, reason)
         self._wake()
 
+    def withdraw_user(self, user: str, reason: str) -> None:
+        """``user`` is no longer an operator (bridge/core/fleet_follower.py): every node they declared goes, the
+        sets waiting on them failed with ``reason``."""
+        with self._lock:
+            names = [name for name, declared in self.declared.items() if declared.user == user]
+        for name in names:
+            self.withdraw(user, name, reason)
+
     def result(self, user: str, name: str, answer: ParamSetResult) -> str | None:
         """The SDK node's answer (SdkParameterPort): wakes the ROS set waiting for it. Why not, or None."""
         with self._lock:
@@ -128,12 +136,12 @@ class SdkParameterNodes:
 
     # -- supervision (the bridge's executor) ---------------------------------------------------------------
     def refresh(self) -> None:
-        """Mark which declarations are live (their presence client is, and the user is still an operator)."""
+        """Mark which declarations are live (their presence client is; a user no longer an operator has none: their
+        declarations were withdrawn, bridge/core/fleet_follower.py)."""
         changed = False
         with self._lock:
             for declared in self.declared.values():
-                live = (self.is_live(declared.user, declared.client_id) and
-                        self.role_of(declared.user) is Role.OPERATOR)
+                live = self.is_live(declared.user, declared.client_id)
                 if live != declared.live:
                     declared.live, changed = live, True
                     if not live:

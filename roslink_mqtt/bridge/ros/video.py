@@ -134,8 +134,8 @@ class RosVideo:
         self.watchers[stream].leave(user, client_id)
         self.streamers[stream].wake()
 
-    def forget_user(self, user: str) -> None:
-        """``user`` lost their grant (a reload): their watches end."""
+    def withdraw_user(self, user: str, reason: str = "") -> None:
+        """``user`` lost the robot (a reload, new grants): their watches end (the frames simply stop coming)."""
         for name, watchers in self.watchers.items():
             watchers.forget_user(user)
             self.streamers[name].wake()

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, Any
 
-from ..protocol import ProtocolError
-from ..protocol.node_params import (
+from ...protocol import ProtocolError
+from ...protocol.node_params import (
     DeclaredParameter,
     ParamDeclaration,
     ParamSetRequest,
@@ -30,13 +30,13 @@ from ..protocol.node_params import (
     check_node_name,
     check_parameter_name,
 )
-from ..protocol.params import check_value, ros_type_of
-from ..topics import Verb
-from .errors import InvalidArgument, RobotError, RoslinkError
+from ...protocol.params import check_value, ros_type_of
+from ...topics import Verb
+from ..errors import InvalidArgument, RobotError, RoslinkError
 
 if TYPE_CHECKING:
-    from .dispatch import CallbackQueue, Scheduler
-    from .robot_client import RobotClient
+    from ..dispatch import CallbackQueue, Scheduler
+    from ..robot_client import RobotClient
 
 log = logging.getLogger("roslink_mqtt.client")
 
