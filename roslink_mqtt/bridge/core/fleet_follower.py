@@ -9,7 +9,7 @@ A change applies here, in one place and in this order:
 
 1. the endpoint (:meth:`CommandEndpoint.set_fleet`): a demoted motion owner's lease ends (the robot stops if they
    were driving) and their goals are cancelled;
-2. what a user who lost a role holds on the robot is withdrawn, by one path: every :class:`Withdrawal` of
+2. what a user who lost a role holds on the robot is withdrawn, by one path: every :class:`Holdings` of
    ``operators_hold`` (services and actions they provide, topics they advertise, parameter nodes they declared)
    for a user who is no longer an operator, every one of ``users_hold`` (video they watch) for a user who lost the
    robot altogether;
@@ -40,7 +40,7 @@ from .endpoint import CommandEndpoint
 log = logging.getLogger(__name__)
 
 
-class Withdrawal(Protocol):
+class Holdings(Protocol):
     """Something a user holds on the robot while they have a role (a provided service, a watch …)."""
 
     def withdraw_user(self, user: str, reason: str) -> None:
@@ -77,8 +77,8 @@ class FleetFollower:
     """The fleet the bridge obeys (:attr:`fleet`), kept current by grants messages and reloads."""
 
     def __init__(self, fleet: Fleet, robot: Robot, topics: TopicTree, endpoint: CommandEndpoint, publish: Publish,
-                 *, stop_leaves: Sequence[str] = (), operators_hold: Sequence[Withdrawal] = (),
-                 users_hold: Sequence[Withdrawal] = ()) -> None:
+                 *, stop_leaves: Sequence[str] = (), operators_hold: Sequence[Holdings] = (),
+                 users_hold: Sequence[Holdings] = ()) -> None:
         """``publish``: the command link's (retained access reports); ``stop_leaves``: the command leaves that are
         emergency stops (the stop link subscribes to them)."""
         self.fleet, self.robot, self.topics, self.endpoint = fleet, robot, topics, endpoint

@@ -26,23 +26,8 @@ from ...protocol.link import LINK
 from ...topics import Verb, join_leaf, state_name
 from ..core import trace
 from ..core.budget import RequestBudget
-from ..core.capabilities import (
-    Advertise,
-    CallService,
-    CancelGoal,
-    Capability,
-    DeclareParameters,
-    LogLines,
-    Parameters,
-    ParameterSetResult,
-    ProvideAction,
-    ProvideService,
-    RespondToCall,
-    SendGoal,
-    Snapshots,
-    UpdateProvidedGoal,
-    Watch,
-)
+from ..core.capabilities import Snapshots
+from ..core.capabilities.registry import Ports, Wiring, build_all
 from ..core.claim import EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from ..core.endpoint import SUPERVISION_RATE, CommandEndpoint
 from ..core.fleet_follower import FleetFollower, LinkKind
@@ -306,28 +291,18 @@ class Bridge:
         self.sdk_params = SdkParameterNodes(node, robot, self.topics, self.link_publish_qos, self._is_live)
         self.provided_actions = ProvidedActions(action_node or node, robot, self.topics, self._publish_reliable,
                                                 self._is_live, self.action_on_executor)
-        capabilities: list[Capability[Any]] = [
-            CallService(robot, self.topics, self._publish_reliable, self.services, budget, self._refuse),
-            Parameters(robot, self.topics, self.link_publish_qos, self.parameters, budget, self._refuse),
-            SendGoal(robot, self.topics, self.actions, self._refuse),
-            CancelGoal(robot, self.topics, self.actions, self._refuse),
-            LogLines(robot.name, self.rosout, self._refuse),
-            Advertise(robot.name, {n: r.rule.ros_type for n, r in on_demand.items()},
-                      {n for n in routes if n not in on_demand}, self.on_demand, self._refuse),
-            ProvideService(robot.name, self.provided, self._refuse),
-            RespondToCall(self.provided, self._refuse),
-            ProvideAction(robot.name, self.provided_actions, self._refuse),
-            UpdateProvidedGoal(self.provided_actions, self._refuse),
-            DeclareParameters(robot.name, self.sdk_params, self._refuse),
-            ParameterSetResult(robot.name, self.sdk_params, self._refuse)]
-        failsafe_files = FailsafeFiles(snapshot_dir(robot.snapshot.dir), robot.name, robot.snapshot.keep) \
-            if robot.snapshot is not None else None
-        chunks = UplinkChunks(self.uplink) if robot.snapshot is not None else None  # no stream in state/link else
-        self.snapshots = Snapshots(robot, self.topics, self.snapshot_buffer, chunks, self._refuse, save=failsafe_files)
-        capabilities.append(self.snapshots)
-        # cameras as video, encoded once while anyone watches (bridge/ros/video.py); the port of watch/<stream>
+        # cameras as video, encoded once while anyone watches (bridge/ros/video.py)
         self.video = RosVideo(node, robot, self.topics, self.uplink, self._is_live, self.on_executor)
-        capabilities.append(Watch(robot.name, self.video.names, self.video, self._refuse))
+        # the core's operations, each built from the ports the ROS side implements (capabilities/registry.py)
+        kept = robot.snapshot
+        ports = Ports(services=self.services, parameters=self.parameters, actions=self.actions, rosout=self.rosout,
+                      advertise=self.on_demand, provider=self.provided, action_provider=self.provided_actions,
+                      sdk_parameters=self.sdk_params, video=self.video, snapshots=self.snapshot_buffer,
+                      chunks=UplinkChunks(self.uplink) if kept is not None else None,  # (no stream in state/link)
+                      save_failsafe=FailsafeFiles(snapshot_dir(kept.dir), robot.name, kept.keep) if kept else None)
+        capabilities = build_all(Wiring(robot, self.topics, routes, ports, self._refuse, self._publish_reliable,
+                                        self.link_publish_qos, budget))
+        self.snapshots = next(c for c in capabilities if isinstance(c, Snapshots))
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
         self.endpoint.on_failsafe_stop = self.snapshots.failsafe  # every failsafe stop leaves a record

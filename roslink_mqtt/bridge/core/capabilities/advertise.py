@@ -10,12 +10,15 @@ advertiser's presence ending. Publishing on the rule advertises implicitly. The 
 from __future__ import annotations
 
 from collections.abc import Mapping, Set
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....authorize import refusal
 from ....protocol.control import Advertisement
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request, Withdrawal
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 
 class AdvertisePort(Protocol):
@@ -30,6 +33,14 @@ class AdvertisePort(Protocol):
 
 class Advertise:
     verb = Verb.ADVERTISE
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> Advertise:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        routes = wiring.routes
+        on_demand = {name: route.rule.ros_type for name, route in routes.items() if route.rule.on_demand}
+        return cls(wiring.robot.name, on_demand, {name for name in routes if name not in on_demand},
+                   wiring.ports.advertise, wiring.report)
 
     def __init__(self, robot: str, on_demand: Mapping[str, str], always_there: Set[str], port: AdvertisePort,
                  report: Report) -> None:

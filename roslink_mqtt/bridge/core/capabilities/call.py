@@ -10,7 +10,7 @@ the outcome; it never blocks the MQTT thread.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ....authorize import refusal
 from ....config import Robot, Role, ServiceRule
@@ -18,6 +18,9 @@ from ....protocol.control import CallReply, CallRequest
 from ....topics import TopicTree, Verb
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 Publish = Callable[[str, bytes], None]
 # (values, None) when the service answered, (None, why) when it failed or timed out
@@ -42,6 +45,12 @@ def reply(call_id: Any, *, values: dict[str, Any] | None = None, error: str | No
 
 class CallService:
     """The robot's configured services, called on behalf of MQTT users."""
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> CallService:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot, wiring.topics, wiring.publish_reliable, wiring.ports.services, wiring.budget,
+                   wiring.report)
 
     verb = Verb.CALL
 

@@ -9,13 +9,16 @@ and reports their status, feedback and result on the user's topics (docs/protoco
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from ....authorize import refusal
 from ....config import ActionRule, Robot, Role
 from ....protocol.goals import GoalCancel, GoalRequest
 from ....topics import TopicTree, Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 
 class ActionPort(Protocol):
@@ -31,8 +34,16 @@ class ActionPort(Protocol):
         ...
 
 
+G = TypeVar("G", bound="_GoalVerb")
+
+
 class _GoalVerb:
     """What goals and cancels share: the actions, the port, the reports."""
+
+    @classmethod
+    def build(cls: type[G], wiring: Wiring) -> G:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot, wiring.topics, wiring.ports.actions, wiring.report)
 
     def __init__(self, robot: Robot, topics: TopicTree, port: ActionPort, report: Report) -> None:
         self.robot, self.topics, self.port, self.report = robot, topics, port, report

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....authorize import refusal
 from ....protocol.rosout import LogLine
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 RATE, BURST = 100.0, 200  # log lines per second per user, and how many may come at once
 
@@ -29,6 +32,11 @@ class RosoutPort(Protocol):
 
 class LogLines:
     """Log lines from MQTT users' programs, rate-limited per user."""
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> LogLines:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, wiring.ports.rosout, wiring.report)
 
     verb = Verb.LOG
 

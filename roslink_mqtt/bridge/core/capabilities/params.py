@@ -11,7 +11,7 @@ what ROS answers (or does not: not available, timeout) is the reply. The port (:
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ....authorize import refusal
 from ....config import ParameterRule, Robot, Role
@@ -19,6 +19,9 @@ from ....protocol.params import READ_OPS, ParamReply, ParamRequest
 from ....topics import TopicTree, Verb
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 Publish = Callable[[str, bytes, int], None]
 
@@ -42,6 +45,12 @@ class ParameterPort(Protocol):
 
 class Parameters:
     """The exposed nodes' parameters, read and set on behalf of MQTT users."""
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> Parameters:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot, wiring.topics, wiring.publish, wiring.ports.parameters, wiring.budget,
+                   wiring.report)
 
     verb = Verb.PARAM
 

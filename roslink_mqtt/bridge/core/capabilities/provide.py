@@ -9,11 +9,14 @@ forwards each ROS call as ``to/<provider>/request/<name>`` and answers it with t
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....protocol.control import ProviderResponse, ServiceOffer
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 from .offers import Offers
 
 
@@ -34,12 +37,22 @@ class ProviderPort(Protocol):
 class ProvideService(Offers[ServiceOffer]):
     verb = Verb.PROVIDE
 
+    @classmethod
+    def build(cls, wiring: Wiring) -> ProvideService:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, wiring.ports.provider, wiring.report)
+
     def read(self, name: str, payload: bytes) -> ServiceOffer:
         return ServiceOffer.from_json(payload)
 
 
 class RespondToCall:
     verb = Verb.RESPONSE
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> RespondToCall:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.ports.provider, wiring.report)
 
     def __init__(self, port: ProviderPort, report: Report) -> None:
         self.port, self.report = port, report

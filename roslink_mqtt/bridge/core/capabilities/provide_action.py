@@ -10,11 +10,14 @@ acceptance, feedback and result (docs/protocol.md, "Actions provided by MQTT cli
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....protocol.provided_actions import ActionOffer, ActionUpdate
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 from .offers import Offers
 
 
@@ -36,12 +39,22 @@ class ActionProviderPort(Protocol):
 class ProvideAction(Offers[ActionOffer]):
     verb = Verb.PROVIDE_ACTION
 
+    @classmethod
+    def build(cls, wiring: Wiring) -> ProvideAction:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, wiring.ports.action_provider, wiring.report)
+
     def read(self, name: str, payload: bytes) -> ActionOffer:
         return ActionOffer.from_json(payload)
 
 
 class UpdateProvidedGoal:
     verb = Verb.ACTION_UPDATE
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> UpdateProvidedGoal:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.ports.action_provider, wiring.report)
 
     def __init__(self, port: ActionProviderPort, report: Report) -> None:
         self.port, self.report = port, report

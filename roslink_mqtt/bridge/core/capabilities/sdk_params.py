@@ -10,12 +10,15 @@ nodes").
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....authorize import refusal
 from ....protocol.node_params import ParamDeclaration, ParamSetResult, check_node_name
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 from .offers import Offers
 
 
@@ -36,6 +39,11 @@ class SdkParameterPort(Protocol):
 class DeclareParameters(Offers[ParamDeclaration]):
     verb = Verb.DECLARE
 
+    @classmethod
+    def build(cls, wiring: Wiring) -> DeclareParameters:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, wiring.ports.sdk_parameters, wiring.report)
+
     def read(self, name: str, payload: bytes) -> ParamDeclaration:
         check_node_name(name)
         return ParamDeclaration.from_json(payload)
@@ -46,6 +54,11 @@ class DeclareParameters(Offers[ParamDeclaration]):
 
 class ParameterSetResult:
     verb = Verb.PARAM_RESULT
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> ParameterSetResult:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, wiring.ports.sdk_parameters, wiring.report)
 
     def __init__(self, robot: str, port: SdkParameterPort, report: Report) -> None:
         self.robot, self.port, self.report = robot, port, report

@@ -22,7 +22,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....authorize import refusal
 from ....config import Robot
@@ -30,6 +30,9 @@ from ....protocol.snapshot import SnapshotChunk, SnapshotRequest
 from ....topics import TopicTree, Verb
 from ..snapshot_buffer import SnapshotFile
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 log = logging.getLogger("roslink_mqtt.bridge.snapshot")
 
@@ -72,6 +75,12 @@ class _Job:
 
 class Snapshots:
     """Snapshot requests, served one at a time by a worker thread."""
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> Snapshots:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot, wiring.topics, wiring.ports.snapshots, wiring.ports.chunks, wiring.report,
+                   save=wiring.ports.save_failsafe)
 
     verb = Verb.SNAPSHOT
 

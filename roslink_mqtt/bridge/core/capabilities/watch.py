@@ -9,12 +9,15 @@ watcher, and refuses a user who watches from too many clients at once.
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ....authorize import refusal
 from ....protocol.video import WatchRequest
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+
+if TYPE_CHECKING:
+    from .registry import Wiring
 
 
 class WatchPort(Protocol):
@@ -28,6 +31,12 @@ class WatchPort(Protocol):
 
 class Watch:
     verb = Verb.WATCH
+
+    @classmethod
+    def build(cls, wiring: Wiring) -> Watch:
+        """From the bridge's wiring (capabilities/registry.py)."""
+        return cls(wiring.robot.name, [stream.name for stream in wiring.robot.video], wiring.ports.video,
+                   wiring.report)
 
     def __init__(self, robot: str, streams: Collection[str], port: WatchPort, report: Report) -> None:
         self.robot, self.streams, self.port, self.report = robot, tuple(streams), port, report
