@@ -20,7 +20,7 @@ import math
 import queue
 import sys
 import time
-from typing import Any, cast
+from typing import Any
 
 import orjson
 
@@ -215,7 +215,7 @@ def _nothing_reason(client: RobotClient, robot: str, name: str, waited: float) -
 def _description(client: RobotClient, robot: str) -> RobotDescription | None:
     """The robot's retained description, None when there is none to read (a robot never seen, an older bridge)."""
     try:
-        return cast(RobotDescription, client.description(robot, DESCRIPTION_WAIT))
+        return client.description(robot, DESCRIPTION_WAIT)
     except RoslinkError:
         return None
 

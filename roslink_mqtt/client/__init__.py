@@ -21,7 +21,9 @@ from typing import Any
 
 from .._deprecation import moved_name
 from ..protocol.control import AccessReport
-from ..protocol.video import VideoFrame
+from ..protocol.description import RobotDescription
+from ..protocol.lease import ControlState
+from ..protocol.link import LinkReport
 from .action_servers import ServedAction
 from .control import StopReport
 from .directory import RobotInfo
@@ -31,7 +33,6 @@ from .errors import (
     ConnectError,
     GoalError,
     InvalidArgument,
-    InvalidType,
     LoginRefused,
     NotConnectedError,
     NotGranted,
@@ -46,7 +47,6 @@ from .errors import (
     WaitTimeout,
 )
 from .goals import GoalHandle
-from .presence import OperatorPresence
 from .providers import ProvidedService
 from .robot_client import RobotClient
 from .snapshots import Snapshot
@@ -54,11 +54,11 @@ from .subscriptions import StateSubscription
 from .video import VideoSubscription
 
 __all__ = [
-    "AccessReport", "CommandNotConfirmed", "CommandRefused", "ConnectError", "GoalError", "GoalHandle",
-    "InvalidArgument", "InvalidType", "LoginRefused", "NotConnectedError", "NotGranted", "OperatorPresence",
-    "ParameterError", "ProvidedService", "RobotClient", "RobotError", "RobotInfo", "RobotNotice", "RoslinkError",
-    "ServedAction", "ServiceError", "ServiceTimeout", "Snapshot", "SnapshotError", "StateSubscription",
-    "StopReport", "SubscriptionFailed", "VideoFrame", "VideoSubscription", "WaitTimeout",
+    "AccessReport", "CommandNotConfirmed", "CommandRefused", "ConnectError", "ControlState", "GoalError",
+    "GoalHandle", "InvalidArgument", "LinkReport", "LoginRefused", "NotConnectedError", "NotGranted",
+    "ParameterError", "ProvidedService", "RobotClient", "RobotDescription", "RobotError", "RobotInfo",
+    "RobotNotice", "RoslinkError", "ServedAction", "ServiceError", "ServiceTimeout", "Snapshot", "SnapshotError",
+    "StateSubscription", "StopReport", "SubscriptionFailed", "VideoSubscription", "WaitTimeout",
 ]
 
 _RCLPY = "roslink_mqtt.client.rclpy"
@@ -73,6 +73,8 @@ _MOVED: dict[str, str] = {
     **dict.fromkeys(("InvalidParameterValueException", "ParameterAlreadyDeclaredException",
                      "ParameterNotDeclaredException"), f"{_RCLPY}.exceptions"),
     "NodeDestroyed": f"{_RCLPY}.exceptions",
+    "InvalidType": "roslink_mqtt.client.errors",
+    "OperatorPresence": "roslink_mqtt.client.presence",
 }
 
 

@@ -48,6 +48,9 @@ from ..connection_options import (
 from ..mqtt import LOGIN_WAIT, BrokerUrl, acknowledged
 from ..protocol import ProtocolError, SystemStatus
 from ..protocol.control import AccessReport
+from ..protocol.description import DESCRIPTION, RobotDescription
+from ..protocol.lease import ControlState
+from ..protocol.link import LINK, LinkReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
 from ..protocol.video import VideoFrame
@@ -57,6 +60,7 @@ from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
 from .commands import CommandStreams, command_leaf, roslink_command
 from .connection import Connection
+from .control import StopReport
 from .directory import DEFAULT_STALE_AFTER, RobotDirectory, RobotInfo
 from .dispatch import CallbackQueue, DispatchThread, Scheduler
 from .encodings import ENCODINGS
@@ -226,15 +230,13 @@ class RobotClient:
         with self._access_changed:
             return self._access.get(robot)
 
-    def description(self, robot: str, timeout: float = 5.0) -> Any:
+    def description(self, robot: str, timeout: float = 5.0) -> RobotDescription:
         """What ``robot`` maps (a :class:`~roslink_mqtt.protocol.description.RobotDescription`): its state,
         commands, services and actions, each marked with who may use it, and the field layout of every ROS type.
 
         Read from the bridge's retained ``state/description``; WaitTimeout when none comes within ``timeout``
         (robot never connected, or an older bridge), SubscriptionFailed when the broker refuses to let us read it.
         """
-        from ..protocol.description import DESCRIPTION, RobotDescription
-
         payload = self._retained(robot, DESCRIPTION, "description", timeout)
         if payload is None:
             raise WaitTimeout(f"no description of {robot} within {timeout:g} s (is its bridge connected, and "
@@ -258,17 +260,15 @@ class RobotClient:
         why: str | None = description.unknown_state(name)  # a RobotDescription's
         return why
 
-    def link(self, robot: str, timeout: float = 2.0) -> Any:
+    def link(self, robot: str, timeout: float = 2.0) -> LinkReport | None:
         """What ``robot``'s uplink carries (a :class:`~roslink_mqtt.protocol.link.LinkReport`: its measured rate,
         per state stream the rate offered and sent, how many were superseded), from the bridge's retained
         ``state/link``; None when none comes within ``timeout`` (an older bridge, or one not yet connected)."""
-        from ..protocol.link import LINK, LinkReport
-
         payload = self._retained(robot, LINK, "link report", timeout)
         return None if payload is None else LinkReport.from_json(payload)
 
     # -- who drives (docs/protocol.md, "Control") ---------------------------------------------------
-    def control(self, robot: str, timeout: float = 2.0) -> Any:
+    def control(self, robot: str, timeout: float = 2.0) -> ControlState | None:
         """Who holds control of ``robot`` (a :class:`~roslink_mqtt.protocol.lease.ControlState`: ``holder``,
         ``since``, ``summary()`` says "driven by alice since 12:03:05"), from the bridge's retained
         ``state/control``; None when none comes within ``timeout``."""
@@ -276,7 +276,7 @@ class RobotClient:
 
         return read_control(self, robot, timeout)
 
-    def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> Any:
+    def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> ControlState:
         """Hold control of ``robot``: only the holder's commands move it (emergency stops excepted). Returns the new
         control state; CommandRefused says who holds it instead (``take_over=True`` takes it from them: the robot
         stops, and they are told). The lease ends when this client's presence does, or with
@@ -286,7 +286,7 @@ class RobotClient:
 
         return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout)
 
-    def release_control(self, robot: str, *, timeout: float = 2.0) -> Any:
+    def release_control(self, robot: str, *, timeout: float = 2.0) -> ControlState:
         """Give control of ``robot`` back (CommandRefused when we do not hold it)."""
         from ..protocol.lease import ControlOp
         from .control import request_control
@@ -294,7 +294,7 @@ class RobotClient:
         return request_control(self, robot, ControlOp.RELEASE, timeout)
 
     def emergency_stop_all(self, reason: str = "", *, robots: Iterable[str] | None = None,
-                           timeout: float = 1.0) -> dict[str, Any]:
+                           timeout: float = 1.0) -> dict[str, StopReport]:
         """Stop every robot we may stop (``robots``: those named; default: every robot whose heartbeat we see) at
         once, and report per robot whether its bridge acknowledged the stop within ``timeout`` (a
         :class:`~roslink_mqtt.client.control.StopReport`: ``acknowledged``, ``seconds``, ``error``)."""

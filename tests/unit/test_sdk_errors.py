@@ -63,7 +63,8 @@ def test_the_scan_sees_a_bare_builtin(tmp_path: Path) -> None:
 ])
 def test_each_sdk_error_is_also_the_builtin_it_replaced(cls: type[Exception], builtin: type[Exception]) -> None:
     assert issubclass(cls, errors.RoslinkError) and issubclass(cls, builtin)
-    home = rclpy_exceptions if cls is errors.NodeDestroyed else sdk  # raised by the rclpy-shaped node only
+    # NodeDestroyed: raised by the rclpy-shaped node only; InvalidType: caught as the TypeError it is
+    home = rclpy_exceptions if cls is errors.NodeDestroyed else errors if cls is errors.InvalidType else sdk
     assert getattr(home, cls.__name__) is cls
 
 
