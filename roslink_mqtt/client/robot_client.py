@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import paho.mqtt.client as mqtt
 
@@ -81,6 +81,7 @@ from .errors import (
 from .goals import ActionGoals, FeedbackCallback, GoalHandle
 from .params import ParameterRequests
 from .providers import Handler, ProvidedService, ServiceProviders
+from .results import ParameterDescription, ParameterValue, SetResult
 from .snapshots import Snapshot, SnapshotTransfers
 from .subscriptions import StateItem, StateSubscription
 from .video import VideoSubscription
@@ -717,26 +718,28 @@ class RobotClient:
         self.watch(robot)
         return self._params.start(robot, node, op, timeout=timeout, **kwargs).result()
 
-    def get_parameters(self, robot: str, node: str, names: list[str], *, timeout: float = 10.0) -> dict[str, Any]:
+    def get_parameters(self, robot: str, node: str, names: list[str], *,
+                       timeout: float = 10.0) -> dict[str, ParameterValue]:
         """``{name: value}`` of ``node``'s parameters (None: not declared); ParameterError if refused or silent."""
-        return self._param(robot, node, "get", timeout, names=tuple(names))
+        return cast("dict[str, ParameterValue]", self._param(robot, node, "get", timeout, names=tuple(names)))
 
     def set_parameters(self, robot: str, node: str, values: dict[str, Any], *,
-                       timeout: float = 10.0) -> dict[str, dict[str, Any]]:
+                       timeout: float = 10.0) -> dict[str, SetResult]:
         """Set parameters; ``{name: {"successful": bool, "reason": str}}`` as the node's own validation answered.
 
         A value of the wrong type (a string for a double…) raises ParameterError before anything is set.
         """
-        return self._param(robot, node, "set", timeout, values=values)
+        return cast("dict[str, SetResult]", self._param(robot, node, "set", timeout, values=values))
 
     def list_parameters(self, robot: str, node: str, prefixes: list[str] | None = None, *,
                         timeout: float = 10.0) -> list[str]:
         return list(self._param(robot, node, "list", timeout, names=tuple(prefixes or ())).get("names", []))
 
     def describe_parameters(self, robot: str, node: str, names: list[str], *,
-                            timeout: float = 10.0) -> dict[str, dict[str, Any]]:
-        """``{name: {"type", "description", "read_only", ranges…}}``."""
-        return self._param(robot, node, "describe", timeout, names=tuple(names))
+                            timeout: float = 10.0) -> dict[str, ParameterDescription]:
+        """``{name: {"type", "description", "read_only", "dynamic_typing", ranges…}}``."""
+        return cast("dict[str, ParameterDescription]",
+                    self._param(robot, node, "describe", timeout, names=tuple(names)))
 
     def snapshot(self, robot: str, last: float = 30.0, *, path: str | Path | None = None, timeout: float = 300.0,
                  stall: float = 10.0, on_progress: Callable[[int, int], None] | None = None) -> Snapshot:
