@@ -8,7 +8,7 @@ capability module, its line in :data:`OPERATIONS` and, when it needs ROS, its po
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
@@ -82,6 +82,6 @@ OPERATIONS: tuple[Operation[Capability[Any]], ...] = (
 )
 
 
-def build_all(wiring: Wiring) -> list[Capability[Any]]:
-    """Every registered operation, built from ``wiring``."""
-    return [operation.build(wiring) for operation in OPERATIONS]
+def build_all(wiring: Wiring, operations: Sequence[Operation[Capability[Any]]] = OPERATIONS) -> list[Capability[Any]]:
+    """Every registered operation (``operations``: these instead), built from ``wiring``."""
+    return [operation.build(wiring) for operation in operations]
