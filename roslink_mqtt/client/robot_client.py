@@ -29,6 +29,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, cast
 
@@ -85,6 +86,7 @@ from .results import ParameterDescription, ParameterValue, SetResult
 from .snapshots import Snapshot, SnapshotTransfers
 from .subscriptions import StateItem, StateSubscription
 from .video import VideoSubscription
+from .waiters import ErrorWaiters
 
 log = logging.getLogger("roslink_mqtt.client")
 
@@ -148,8 +150,7 @@ class RobotClient:
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
         self._initial_robots = [check_name(r, "robot") for r in robots]
-        self._error_waiters: list[tuple[str, int | None, threading.Event, list[RobotError]]] = []
-        self._waiters_lock = threading.Lock()
+        self._errors = ErrorWaiters()  # callers waiting for a refusal (check=, control requests)
         self._logged_errors: dict[tuple[str, str], float] = {}
         self.wildcard_heartbeats: bool | None = None  # did the broker grant <prefix>/+/heartbeat?
         self._closed = False
@@ -275,7 +276,7 @@ class RobotClient:
         ``state/control``; None when none comes within ``timeout``."""
         from .control import read_control
 
-        return read_control(self, robot, timeout)
+        return read_control(self._retained, robot, timeout)
 
     def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> ControlState:
         """Hold control of ``robot``: only the holder's commands move it (emergency stops excepted). Returns the new
@@ -285,14 +286,16 @@ class RobotClient:
         from ..protocol.lease import ControlOp
         from .control import request_control
 
-        return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout)
+        return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout,
+                               refusal=self._refusal, send=self._send, errors=self._errors)
 
     def release_control(self, robot: str, *, timeout: float = 2.0) -> ControlState:
         """Give control of ``robot`` back (CommandRefused when we do not hold it)."""
         from ..protocol.lease import ControlOp
         from .control import request_control
 
-        return request_control(self, robot, ControlOp.RELEASE, timeout)
+        return request_control(self, robot, ControlOp.RELEASE, timeout, refusal=self._refusal, send=self._send,
+                               errors=self._errors)
 
     def emergency_stop_all(self, reason: str = "", *, robots: Iterable[str] | None = None,
                            timeout: float = 1.0) -> dict[str, StopReport]:
@@ -529,12 +532,8 @@ class RobotClient:
         if qos is None:
             qos = 0 if roslink_command(leaf) == "twist" else 1  # a velocity stream repeats itself
         deadline = None if confirm is None else time.monotonic() + confirm
-        waiter: tuple[str, int | None, threading.Event, list[RobotError]] | None = None
-        if check is not None:
-            waiter = (topic, seq, threading.Event(), [])
-            with self._waiters_lock:
-                self._error_waiters.append(waiter)
-        try:
+        with ExitStack() as waiting:
+            waiter = waiting.enter_context(self._errors.waiting(topic, seq)) if check is not None else None
             if urgent:
                 info = self._send(topic, data, qos, leaf)
                 self.watch(robot, timeout=ACCESS_WAIT)
@@ -545,12 +544,9 @@ class RobotClient:
                 info = self._send(topic, data, qos, leaf)
             if deadline is not None and qos > 0:
                 self._confirm(info, deadline, f"{leaf} to {robot}", confirm)
-            if waiter is not None and waiter[2].wait(check):
-                raise CommandRefused(waiter[3][0])
-        finally:
-            if waiter is not None:
-                with self._waiters_lock:
-                    self._error_waiters.remove(waiter)
+            refused = waiter.wait(check) if waiter is not None and check is not None else None
+            if refused is not None:
+                raise CommandRefused(refused)
         return seq
 
     def _raise_if_refused(self, robot: str, topic: str, leaf: str) -> None:
@@ -932,13 +928,7 @@ class RobotClient:
     def _on_error(self, robot: str, error: RobotError) -> None:
         """A refusal meant for us: wake a ``check=`` waiter, mark an offer, hand it to ``on_error`` or log it."""
         self.recent_errors.append(error)
-        awaited = False
-        with self._waiters_lock:
-            for topic, seq, event, box in self._error_waiters:
-                if error.topic == topic and (seq is None or error.sequence_number in (None, seq)):
-                    box.append(error)
-                    event.set()
-                    awaited = True
+        awaited = self._errors.deliver(error)
         self._providers.on_error(error)
         if self._goals.on_error(error) or self._params.on_error(error) or self._snapshots.on_error(error):
             awaited = True  # the goal's handle (GoalError) or the request (ParameterError) raises it
