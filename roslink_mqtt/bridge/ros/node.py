@@ -294,14 +294,8 @@ class Bridge:
         # cameras as video, encoded once while anyone watches (bridge/ros/video.py)
         self.video = RosVideo(node, robot, self.topics, self.uplink, self._is_live, self.on_executor)
         # the core's operations, each built from the ports the ROS side implements (capabilities/registry.py)
-        kept = robot.snapshot
-        ports = Ports(services=self.services, parameters=self.parameters, actions=self.actions, rosout=self.rosout,
-                      advertise=self.on_demand, provider=self.provided, action_provider=self.provided_actions,
-                      sdk_parameters=self.sdk_params, video=self.video, snapshots=self.snapshot_buffer,
-                      chunks=UplinkChunks(self.uplink) if kept is not None else None,  # (no stream in state/link)
-                      save_failsafe=FailsafeFiles(snapshot_dir(kept.dir), robot.name, kept.keep) if kept else None)
-        capabilities = build_all(Wiring(robot, self.topics, routes, ports, self._refuse, self._publish_reliable,
-                                        self.link_publish_qos, budget))
+        capabilities = build_all(Wiring(robot, self.topics, routes, self._ports(), self._refuse,
+                                        self._publish_reliable, self.link_publish_qos, budget))
         self.snapshots = next(c for c in capabilities if isinstance(c, Snapshots))
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
@@ -342,6 +336,18 @@ class Bridge:
         node.create_timer(1.0 / SUPERVISION_RATE, self.supervise)
         log.info("bridge for %s: %d ROS→MQTT, %d MQTT→ROS rules, %d velocity outputs, %d actions", robot.name,
                  len(outbound), len(routes), len(self.actuators.velocity), len(self.actions.actions))
+
+    def _ports(self) -> Ports:
+        """What the ROS side hands the core's operations (capabilities/registry.py)."""
+        ports = Ports(services=self.services, parameters=self.parameters, actions=self.actions, rosout=self.rosout,
+                      advertise=self.on_demand, provider=self.provided, action_provider=self.provided_actions,
+                      sdk_parameters=self.sdk_params, video=self.video)
+        kept = self.robot.snapshot
+        if kept is None:
+            return ports
+        # snapshots: the ring buffer, the uplink's chunks (a stream in state/link), failsafe snapshots on disk
+        return replace(ports, snapshots=self.snapshot_buffer, chunks=UplinkChunks(self.uplink),
+                       save_failsafe=FailsafeFiles(snapshot_dir(kept.dir), self.robot.name, kept.keep))
 
     def _lanes(self, outbound: Sequence[Outbound], lane: Callable[[str], MqttLink]
                ) -> tuple[MqttLink | None, dict[str, MqttLink], dict[str, MqttLink]]:
