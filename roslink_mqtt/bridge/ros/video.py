@@ -27,7 +27,7 @@ from ...config.model import VIDEO_TYPES
 from ...topics import TopicTree
 from ...video.encoder import frame_from_pixels
 from ...video.streamer import Picture, VideoStreamer
-from ...video.watchers import Watchers
+from ...video.watchers import NEEDS_SCHEDULED_UPLINK, Watchers
 from ..core.on_executor import OnExecutor
 from ..core.ros_types import load_interface
 from ..core.uplink_sender import Uplink
@@ -103,6 +103,11 @@ class RosVideo:
     def __init__(self, node: Node, robot: Robot, topics: TopicTree, uplink: Uplink,
                  is_live: Callable[[str, str], bool], on_executor: OnExecutor) -> None:
         self.node, self.on_executor = node, on_executor
+        # fifo: every message in order on the command connection; frames there would hold stops back: not served
+        self.refusal = NEEDS_SCHEDULED_UPLINK if uplink.fifo else None
+        if self.refusal and robot.video:
+            log.warning("%s: %s; watches of %s are refused", robot.name, self.refusal,
+                        ", ".join(v.name for v in robot.video))
         self._settings = {v.name: v for v in robot.video}
         self.watchers = {v.name: Watchers(is_live) for v in robot.video}
         self.streamers = {
@@ -126,6 +131,8 @@ class RosVideo:
 
     # -- WatchPort (MQTT threads) ------------------------------------------------------------------------------
     def watch(self, stream: str, user: str, client_id: str, key: bool) -> str | None:
+        if self.refusal is not None:
+            return self.refusal
         why = self.watchers[stream].watch(user, client_id, time.monotonic(), key=key)
         self.streamers[stream].wake()
         return why
