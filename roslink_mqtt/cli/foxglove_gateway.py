@@ -204,7 +204,7 @@ class FoxgloveGateway(ServerListener):
                             schema=ServiceSchema("EmergencyStop", request=stop),
                             handler=lambda request: self._emergency_stop(robot, request))]
         for entry in description.services if description is not None else ():
-            if self.client._refusal(robot, Verb.CALL, entry.name) is not None:
+            if self.client.refusal(robot, Verb.CALL, entry.name) is not None:
                 continue  # not ours to call: not offered
             layout = description.types.get(entry.ros_type) if description is not None else None
             parts = layout if isinstance(layout, dict) else {}

@@ -287,14 +287,14 @@ class RobotClient:
         from .control import request_control
 
         return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout,
-                               refusal=self._refusal, send=self._send, errors=self._errors)
+                               refusal=self.refusal, send=self._send, errors=self._errors)
 
     def release_control(self, robot: str, *, timeout: float = 2.0) -> ControlState:
         """Give control of ``robot`` back (CommandRefused when we do not hold it)."""
         from ..protocol.lease import ControlOp
         from .control import request_control
 
-        return request_control(self, robot, ControlOp.RELEASE, timeout, refusal=self._refusal, send=self._send,
+        return request_control(self, robot, ControlOp.RELEASE, timeout, refusal=self.refusal, send=self._send,
                                errors=self._errors)
 
     def emergency_stop_all(self, reason: str = "", *, robots: Iterable[str] | None = None,
@@ -550,7 +550,7 @@ class RobotClient:
         return seq
 
     def _raise_if_refused(self, robot: str, topic: str, leaf: str) -> None:
-        why = self._refusal(robot, Verb.CMD, leaf)
+        why = self.refusal(robot, Verb.CMD, leaf)
         if why is not None:
             raise CommandRefused(RobotError(robot, topic, why, client_id=self.client_id))
 
@@ -622,7 +622,7 @@ class RobotClient:
             if info is not None and not info.online:
                 reason = f"robot {robot} is offline"
             else:
-                reason = self._refusal(robot, Verb.CALL, service)
+                reason = self.refusal(robot, Verb.CALL, service)
         if reason is not None:
             future.set_exception(ServiceError(robot, service, reason))
             return future
@@ -652,7 +652,7 @@ class RobotClient:
         self.connection.require(f"goal for {action}")
         self.watch(robot)
         handle = self._goals.send(robot, action, goal, feedback_callback, goal_id=goal_id)
-        reason = self._refusal(robot, Verb.GOAL, action)
+        reason = self.refusal(robot, Verb.GOAL, action)
         if reason is not None:
             self._goals.on_error(RobotError(robot, self.topics.goal(robot, self.username, action), reason,
                                             client_id=self.client_id, request_id=handle.id))
@@ -701,7 +701,7 @@ class RobotClient:
         """
         self.connection.require(f"serving {action}", now=False)
         self.watch(robot)
-        why = self._refusal(robot, Verb.PROVIDE_ACTION, action)
+        why = self.refusal(robot, Verb.PROVIDE_ACTION, action)
         if why is not None:
             raise CommandRefused(RobotError(robot, self.topics.user_topic(robot, self.username, Verb.PROVIDE_ACTION,
                                                                           action), why, client_id=self.client_id))
@@ -751,7 +751,7 @@ class RobotClient:
             raise InvalidArgument(f"last must be 0 < s <= 3600, not {last!r}")
         self.connection.require(f"snapshot of {robot}")
         self.watch(robot)
-        why = self._refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
+        why = self.refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
         if why is not None:
             raise SnapshotError(robot, "", why)
         got = self._snapshots.fetch(robot, last, timeout=timeout, stall=stall, on_progress=on_progress)
@@ -776,7 +776,7 @@ class RobotClient:
         """
         self.connection.require(f"offer of {service}", now=False)
         self.watch(robot)
-        why = self._refusal(robot, Verb.PROVIDE, service)
+        why = self.refusal(robot, Verb.PROVIDE, service)
         offer = self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout, refused=why)
         if why is not None:
             self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, service), why,
@@ -857,15 +857,16 @@ class RobotClient:
                 self._no_grant.discard(robot)
             self._access_changed.notify_all()
         if report is not None and not report.operator:
-            reason = self._refusal(robot, Verb.PROVIDE, wait=False)
+            reason = self.refusal(robot, Verb.PROVIDE, wait=False)
             for offer in self._providers.refuse_robot(robot, reason or ""):
                 self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, offer.name),
                                                  offer.refused or "", client_id=self.client_id))
 
-    def _refusal(self, robot: str, verb: Verb, name: str = "", *, wait: bool = True) -> str | None:
+    def refusal(self, robot: str, verb: Verb, name: str = "", *, wait: bool = True) -> str | None:
         """Why the broker would drop ``verb`` on ``name`` (a command's leaf, a service, an action, a node) on
         ``robot``, None if it would not: the one authorization rule (:func:`roslink_mqtt.authorize.refusal`) with
-        the role of our access report, worded as the robot words it, plus what a viewer may use instead.
+        the role of our access report, worded as the robot words it, plus what a viewer may use instead. A program
+        asks it to grey out what it may not do (``client.refusal("turtle1", Verb.CALL, "reset")``).
 
         The report is retained and arrives right after our subscription's SUBACK, so a
         command made at once waits up to ACCESS_WAIT for it; a robot whose bridge does not
@@ -924,6 +925,11 @@ class RobotClient:
             self.callbacks.put(lambda: callback(notice))
         else:  # the robot says it once per stream: no flood to hold back
             log.warning("%s: %s: %s", robot, notice.topic, notice.notice)
+
+    def report_refusal(self, error: RobotError) -> None:
+        """Treat ``error`` as a refusal the robot sent: ``on_error``, ``recent_errors`` or the log (the SDK's own
+        parts report this way what they refuse before sending, as the rclpy-shaped node's parameters do)."""
+        self._on_error(error.robot, error)
 
     def _on_error(self, robot: str, error: RobotError) -> None:
         """A refusal meant for us: wake a ``check=`` waiter, mark an offer, hand it to ``on_error`` or log it."""

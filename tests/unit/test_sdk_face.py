@@ -4,6 +4,7 @@ working for one release with a warning that gives its new import."""
 
 from __future__ import annotations
 
+import ast
 import importlib
 import inspect
 import subprocess
@@ -116,3 +117,31 @@ def test_a_robotclient_program_does_not_load_the_rclpy_shaped_api() -> None:
             "assert not loaded, loaded\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
+
+
+def _privates_defined(tree: ast.Module) -> set[str]:
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            names.add(node.attr)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+        elif isinstance(node, ast.Assign):
+            names.update(t.id for t in node.targets if isinstance(t, ast.Name))
+    return {name for name in names if name.startswith("_")}
+
+
+def test_no_module_of_the_sdk_reaches_into_another_ones_privates() -> None:
+    """A private (``x._name``) is used only in the module that defines it: what another module needs is handed to it
+    (control requests get the client's refusal and send) or public (``RobotClient.refusal``)."""
+    reached = []
+    for path in sorted((ROOT / "roslink_mqtt" / "client").rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        own = _privates_defined(tree)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") and \
+                    node.attr not in own and ast.unparse(node) != "sys._getframe":
+                reached.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    assert not reached, reached

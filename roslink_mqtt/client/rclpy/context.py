@@ -96,7 +96,7 @@ def _check_login(node: Node) -> None:
 def spin_once(node: Node, *, executor: Any = None, timeout_sec: float | None = None) -> None:
     """Run at most one callback, waiting up to ``timeout_sec`` (None: until one comes); LoginRefused if refused."""
     _check_login(node)
-    node._callbacks.run_once(timeout_sec)
+    node.callback_queue.run_once(timeout_sec)
 
 
 def spin(node: Node, executor: Any = None) -> None:
@@ -110,7 +110,7 @@ def spin(node: Node, executor: Any = None) -> None:
     try:
         while not node.destroyed and ok():
             _check_login(node)
-            node._callbacks.run_once(0.5)
+            node.callback_queue.run_once(0.5)
     except KeyboardInterrupt:
         node.get_logger().info("interrupted (Ctrl-C)")
 
@@ -118,11 +118,11 @@ def spin(node: Node, executor: Any = None) -> None:
 def spin_until_future_complete(node: Node, future: Future[Any], executor: Any = None,
                                timeout_sec: float | None = None) -> None:
     """Spin until ``future`` is done or ``timeout_sec`` passes."""
-    future.add_done_callback(lambda _f: node._callbacks.wake())  # no polling delay when it completes
+    future.add_done_callback(lambda _f: node.callback_queue.wake())  # no polling delay when it completes
     deadline = None if timeout_sec is None else time.monotonic() + timeout_sec
     while not future.done() and not node.destroyed:
         _check_login(node)
         left = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
         if left <= 0:
             return
-        node._callbacks.run_once(left)
+        node.callback_queue.run_once(left)

@@ -290,6 +290,11 @@ class Node:
             raise
         default_context().add(self)
 
+    @property
+    def callback_queue(self) -> CallbackQueue:
+        """The queue ``spin`` and ``spin_once`` run: this node's callbacks run only there, as in rclpy."""
+        return self._callbacks
+
     # -- identity ---------------------------------------------------------------------
     def get_name(self) -> str:
         return self._name

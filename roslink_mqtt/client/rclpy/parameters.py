@@ -369,7 +369,7 @@ class NodeParameters:
         except ProtocolError as err:
             self._refuse(str(err))
             return
-        why = self.client._refusal(self.robot, Verb.DECLARE, self.node_name)  # waits briefly for the access report
+        why = self.client.refusal(self.robot, Verb.DECLARE, self.node_name)  # waits briefly for the access report
         if why is not None:
             self._refuse(why)
             return
@@ -381,7 +381,7 @@ class NodeParameters:
         if self.refused == why:
             return
         self.refused = why
-        self.client._on_error(self.robot, RobotError(self.robot, self._topic(), why, client_id=self.client.client_id))
+        self.client.report_refusal(RobotError(self.robot, self._topic(), why, client_id=self.client.client_id))
 
     def _topic(self) -> str:
         return self.client.topics.declare(self.robot, self.client.username, self.node_name)
