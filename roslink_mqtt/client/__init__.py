@@ -4,7 +4,8 @@ Two ways in:
 
 * :class:`RobotClient` — one login to the fleet's broker: robots and their presence, typed ROSLink state,
   commands, service calls and actions (sync and asyncio), parameters, snapshots, video, services and actions
-  provided to ROS. Everything it returns or raises is exported here.
+  provided to ROS. Everything it returns is exported here, with the errors a program catches (every error class
+  is in :mod:`roslink_mqtt.client.errors`; typed dict shapes in :mod:`roslink_mqtt.client.results`).
 * :mod:`roslink_mqtt.client.rclpy` — the rclpy-shaped API (``create_node``, ``spin``, publishers, subscriptions,
   services, clients, actions, parameters) with rclpy's names and module layout, so porting code written there to a
   ROS node is mostly a change of imports; but messages are dicts and types are names, which rclpy refuses
