@@ -77,7 +77,7 @@ class Counter:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
-        from roslink_mqtt.bridge.ros_types import load_interface
+        from roslink_mqtt.bridge.core.ros_types import load_interface
 
         rclpy.init()
         self.node = rclpy.create_node("bench_bridge_cpu_counter")

@@ -21,7 +21,7 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import LaserScan
 
-from roslink_mqtt.bridge.convert import converter_for
+from roslink_mqtt.bridge.ros.convert import converter_for
 
 
 def naive_to_dict(msg):

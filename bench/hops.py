@@ -14,7 +14,7 @@ int64 field):
 Each is split into hops with timestamps taken in each process (``time.monotonic_ns()``: one clock for every
 process on the machine): the SDK program (a child process), this process (the ROS side), and the bridge
 itself, which stamps every message at its four doors when ``ROSLINK_BRIDGE_TRACE`` names a file
-(roslink_mqtt/bridge/trace.py). A hop "SDK -> bridge" is therefore the SDK's send, its broker and the
+(roslink_mqtt/bridge/core/trace.py). A hop "SDK -> bridge" is therefore the SDK's send, its broker and the
 bridge's MQTT client; "bridge" is the bridge's own work (parse, authorize, convert, hand to rclpy or paho);
 "bridge -> ROS" is DDS and the receiving executor. Topics run at ``--rate``; calls go one at a time.
 Runs against the embedded broker and Mosquitto (the exported config). Prints a table per broker and writes
@@ -40,7 +40,7 @@ import latency as lat  # (bench/latency.py: brokers and the process helpers shar
 import orjson
 
 from roslink_mqtt import ros_names
-from roslink_mqtt.bridge.trace import ENV as TRACE_ENV
+from roslink_mqtt.bridge.core.trace import ENV as TRACE_ENV
 from roslink_mqtt.topics import TopicTree
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ EXCHANGES = ("SDK publisher -> ROS subscriber", "ROS publisher -> SDK subscriber
 # -- the SDK program (a child process; commands on stdin, one per line) ----------------------------------
 def sdk_program(url: str) -> int:
     """Hidden ``--sdk`` mode: alice's program without ROS. Commands: ``pub N RATE``, ``calls N``, ``report``."""
-    import roslink_mqtt.client as sdk
+    from roslink_mqtt.client import rclpy as sdk
 
     received: list[tuple[int, int]] = []  # (index, ns) of state/hops_out
     served: list[tuple[int, int]] = []  # (index, ns) the provided service was called

@@ -283,7 +283,7 @@ class RosSide:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
-        from roslink_mqtt.bridge.ros_types import load_interface
+        from roslink_mqtt.bridge.core.ros_types import load_interface
 
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self._rclpy = rclpy
@@ -485,7 +485,7 @@ def ros_receiver(stream: str, seconds: float, out: Path) -> int:
     from rclpy.serialization import serialize_message
     from rclpy.signals import SignalHandlerOptions
 
-    from roslink_mqtt.bridge.ros_types import load_interface
+    from roslink_mqtt.bridge.core.ros_types import load_interface
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("large_bench_receiver")

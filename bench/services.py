@@ -103,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     from std_srvs.srv import Trigger
 
     import roslink_mqtt.client as sdk
+    from roslink_mqtt.client import rclpy as sdk_rclpy
 
     budget = Budget(args.max_seconds)
     with ExitStack() as stack, tempfile.TemporaryDirectory(prefix="roslink-bench-") as tmp:
@@ -155,12 +156,12 @@ def main(argv: list[str] | None = None) -> int:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
-        provider = sdk.create_node("bench_provider", robot="turtle1", url=url, username="alice",
+        provider = sdk_rclpy.create_node("bench_provider", robot="turtle1", url=url, username="alice",
                                    password="alice-demo")
         stack.callback(provider.destroy_node)
         provider.create_service("std_srvs/srv/Trigger", "bench_echo",
                                 lambda _req, resp: {**resp, "success": True, "message": "echo"})
-        threading.Thread(target=sdk.spin, args=(provider,), daemon=True).start()
+        threading.Thread(target=sdk_rclpy.spin, args=(provider,), daemon=True).start()
 
         paths = {
             "rclpy client -> reset (direct, DDS)": ros_caller("/reset"),

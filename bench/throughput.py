@@ -154,7 +154,7 @@ def ros_child(mode: str, kind: str, rates: tuple[int, ...], seconds: float, star
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from roslink_mqtt.bridge.ros_types import load_interface
+    from roslink_mqtt.bridge.core.ros_types import load_interface
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f"throughput_{mode}_{kind}")
@@ -317,8 +317,8 @@ def ros_to_mqtt(broker: str, kind: str, port: int, pids: dict[str, int | None], 
 def mqtt_to_ros(broker: str, kind: str, port: int, pids: dict[str, int | None], work: Path, env: dict[str, str],
                 seconds: float) -> list[Row]:
     """SDK publisher here -> broker -> bridge -> rclpy counter (child)."""
-    import roslink_mqtt.client as sdk
-    from roslink_mqtt.client.qos import qos_profile_sensor_data
+    from roslink_mqtt.client import rclpy as sdk
+    from roslink_mqtt.client.rclpy.qos import qos_profile_sensor_data
 
     rates = RATES[kind]
     start = time.monotonic() + 5.0

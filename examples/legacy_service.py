@@ -29,7 +29,7 @@ import argparse
 import signal
 import time
 
-import roslink_mqtt.client as rclpy
+from roslink_mqtt.client import rclpy
 from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 

@@ -29,7 +29,7 @@ import sys
 import threading
 import time
 
-from roslink_mqtt.client import GlobalMotion, RobotClient, RoslinkError
+from roslink_mqtt.client.messages import GlobalMotion, RobotClient, RoslinkError
 from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 

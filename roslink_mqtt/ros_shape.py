@@ -2,8 +2,8 @@
 
 ROSLink flattens a ``geometry_msgs/Twist`` to ``lx … az`` and a waypoint's
 position to ``x, y, z``. The SDK turns ROS-shaped dicts into those fields
-(:mod:`roslink_mqtt.client.node`), the bridge turns them back into ROS messages
-(:mod:`roslink_mqtt.bridge.presets.command`). Both read the mapping here, so a
+(:mod:`roslink_mqtt.client.rclpy.node`), the bridge turns them back into ROS messages
+(:mod:`roslink_mqtt.bridge.core.presets.command`). Both read the mapping here, so a
 field cannot be renamed on one side only; this module imports neither ROS nor
 MQTT, so the SDK (no rclpy) and the bridge can both use it.
 """

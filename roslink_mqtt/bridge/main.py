@@ -11,7 +11,7 @@ would show it. The old ``--broker`` and ``ROSLINK_MQTT_PASSWORD`` still work for
 deprecation line. SIGHUP re-reads the fleet file's users and grants (as the broker does); rule changes need
 a restart.
 
-A robot has one live bridge (bridge/claim.py): a bridge that finds another live one for its robot does not start
+A robot has one live bridge (bridge/core/claim.py): a bridge that finds another live one for its robot does not start
 and exits with 3 (the systemd unit does not restart it); ``--take-over`` stops the other one instead. A bridge that
 another one took over stops its robot and exits with 4. A refused login (wrong username or password) is logged and
 retried slowly (5 s, doubling up to 60 s); with ``bridge.exit_on_refused_login: true`` the bridge exits with 5
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 
     from ..config import Fleet, Robot
     from ..mqtt import BrokerUrl
-    from .node import Bridge
+    from .ros.node import Bridge
 
 PROG = "roslink-mqtt-bridge"
 ENV_EXECUTOR = "ROSLINK_EXECUTOR"
@@ -135,12 +135,12 @@ def reload_password(args: argparse.Namespace, robot: Any, password: str, bridge:
 
 
 class StartCheck(threading.Thread):
-    """The one-bridge check (bridge/claim.py), run while ROS starts: it needs the broker, not ROS."""
+    """The one-bridge check (bridge/core/claim.py), run while ROS starts: it needs the broker, not ROS."""
 
     def __init__(self, robot: Any, urls: Sequence[BrokerUrl], password: str, ca_file: str | None, take_over: bool,
                  topic: str, announce_topic: str) -> None:
         super().__init__(name="claim-check", daemon=True)
-        from .claim import Claim
+        from .core.claim import Claim
 
         self.robot, self.urls, self.password, self.ca_file = robot, urls, password, ca_file
         self.topic, self.announce_topic = topic, announce_topic
@@ -148,8 +148,8 @@ class StartCheck(threading.Thread):
         self.result: Any = None
 
     def run(self) -> None:
-        from .claim import StartCheck as Result
-        from .claim import Verdict, announcement, check_claim, paho_connector
+        from .core.claim import StartCheck as Result
+        from .core.claim import Verdict, announcement, check_claim, paho_connector
 
         robot = self.robot
         connect, close = paho_connector(self.urls, robot.name, self.password, self.ca_file, self.topic,
@@ -236,8 +236,8 @@ def _make_bridge(args: argparse.Namespace, start: _Start, check: StartCheck,
     """The bridge's nodes and the bridge itself (rclpy initialised); a bad rule ends the process (exit 2)."""
     import rclpy
 
-    from .node import Bridge
-    from .rules import RuleError
+    from .ros.node import Bridge
+    from .ros.rules import RuleError
 
     robot = start.robot
     try:
@@ -262,7 +262,7 @@ def _settle_start_check(check: StartCheck, stopping: threading.Event, robot: Rob
     broker or ROS's actuators yet. Another live bridge (or a stop meanwhile) ends the process here."""
     import rclpy
 
-    from .claim import EXIT_DUPLICATE, Verdict
+    from .core.claim import EXIT_DUPLICATE, Verdict
 
     while check.is_alive() and not stopping.is_set():  # a Ctrl-C need not wait for the check (a daemon thread)
         check.join(0.1)
@@ -348,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     start = _read_start(args)
     if isinstance(start, int):
         return start
-    from .claim import ANNOUNCE, EXIT_FENCED, EXIT_LOGIN_REFUSED
+    from .core.claim import ANNOUNCE, EXIT_FENCED, EXIT_LOGIN_REFUSED
 
     if stopping.is_set():
         return 0  # stopped before anything was made

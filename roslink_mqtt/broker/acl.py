@@ -141,7 +141,7 @@ def robot_entries(fleet: Fleet, robot: str) -> list[AclEntry]:
     t = fleet.topics
     entries = [
         AclEntry(t.heartbeat(robot), Access.READWRITE),  # read: another bridge of the robot shows itself there
-        AclEntry(t.state(robot, "bridge"), Access.READ),  # a starting bridge's claim (bridge/claim.py)
+        AclEntry(t.state(robot, "bridge"), Access.READ),  # a starting bridge's claim (bridge/core/claim.py)
         AclEntry(t.grants(robot), Access.READ),  # its users and roles (protocol/grants.py): admins write them
         AclEntry(t.state_filter(robot), Access.WRITE),
         AclEntry(t.to_user_filter(robot, ANY), Access.WRITE),

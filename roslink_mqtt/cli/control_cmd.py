@@ -92,7 +92,7 @@ def _hold(client: RobotClient, robot: str) -> int:
 def claim_if_free(client: RobotClient, robot: str, timeout: float = 2.0) -> str | None:
     """What ``pub``, ``teleop`` and the dashboard's drive pad do before driving: claim control when nobody holds it.
     None when we hold it now (or the robot has no control leases); else why not, naming the holder."""
-    if client._refusal(robot, Verb.CONTROL, ControlOp.CLAIM.value) is not None:
+    if client.refusal(robot, Verb.CONTROL, ControlOp.CLAIM.value) is not None:
         return None  # not an operator: the command itself says so (with the broker's reason), not a claim
     state = client.control(robot, timeout=timeout)
     if state is None or state.holder == client.username:

@@ -20,11 +20,12 @@ import math
 import queue
 import sys
 import time
-from typing import Any, cast
+from typing import Any
 
 import orjson
 
-from ..client import NotGranted, RobotClient, RoslinkError, RoslinkMessage
+from ..client import NotGranted, RobotClient, RoslinkError
+from ..client.messages import RoslinkMessage
 from ..client.subscriptions import parse_state_item
 from ..protocol import SPECS_BY_NAME, MessageId, ProtocolError, decode
 from ..protocol.description import RobotDescription
@@ -214,7 +215,7 @@ def _nothing_reason(client: RobotClient, robot: str, name: str, waited: float) -
 def _description(client: RobotClient, robot: str) -> RobotDescription | None:
     """The robot's retained description, None when there is none to read (a robot never seen, an older bridge)."""
     try:
-        return cast(RobotDescription, client.description(robot, DESCRIPTION_WAIT))
+        return client.description(robot, DESCRIPTION_WAIT)
     except RoslinkError:
         return None
 

@@ -43,6 +43,7 @@ from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, S
 
 from ..client.errors import CommandRefused, RobotError, RoslinkError
 from ..client.json_channels import VIDEO, JsonChannels, video_message
+from ..client.results import ParameterValue
 from ..protocol.schemas import STATE_BODIES, ros_schema
 from ..topics import Verb
 from .connect import parse_json_object
@@ -203,7 +204,7 @@ class FoxgloveGateway(ServerListener):
                             schema=ServiceSchema("EmergencyStop", request=stop),
                             handler=lambda request: self._emergency_stop(robot, request))]
         for entry in description.services if description is not None else ():
-            if self.client._refusal(robot, Verb.CALL, entry.name) is not None:
+            if self.client.refusal(robot, Verb.CALL, entry.name) is not None:
                 continue  # not ours to call: not offered
             layout = description.types.get(entry.ros_type) if description is not None else None
             parts = layout if isinstance(layout, dict) else {}
@@ -310,7 +311,7 @@ class FoxgloveGateway(ServerListener):
                 except RoslinkError as err:
                     self.status(f"parameters of {robot}'s {entry.name}: {err}", error=True)
                     continue
-                out += [Parameter(self._param_name(robot, entry.name, name), value=value)
+                out += [Parameter(self._param_name(robot, entry.name, name), value=_foxglove_value(value))
                         for name, value in values.items() if value is not None]
         return out
 
@@ -337,8 +338,8 @@ class FoxgloveGateway(ServerListener):
             except RoslinkError as err:
                 self.status(f"setting {', '.join(values)} on {robot}'s {node}: {err}", error=True)
                 continue
-            out += [Parameter(self._param_name(robot, node, name), value=value) for name, value in now.items()
-                    if value is not None]
+            out += [Parameter(self._param_name(robot, node, name), value=_foxglove_value(value))
+                    for name, value in now.items() if value is not None]
         return out
 
     def _parse_param(self, full: str) -> tuple[str, str, str] | None:
@@ -475,3 +476,9 @@ def _json_object(payload: bytes, what: str) -> dict[str, Any]:
 
 
 __all__ = ["FoxgloveGateway", "twist_of"]
+
+
+def _foxglove_value(value: ParameterValue) -> Any:
+    """A ROS parameter value as foxglove's Parameter takes it: the same value (its annotation spells arrays as lists
+    of any of its values, and a list[bool] is not one to a type checker: lists are invariant)."""
+    return value

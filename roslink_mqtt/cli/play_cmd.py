@@ -1,5 +1,5 @@
 """``roslink-mqtt play FILE.mcap``: publish a recording again as the robot it shows (client/player.py), or a ROS 2
-bag through a robot's rules (bridge/bag_play.py)."""
+bag through a robot's rules (bridge/ros/bag_play.py)."""
 
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{', '.join(fleet.robots)}); name it with --robot", file=sys.stderr)
             return 2
         try:
-            from ..bridge.bag_play import bag_frames
+            from ..bridge.ros.bag_play import bag_frames
         except ImportError as err:
             print(f"{PROG} play: a ROS 2 bag is converted with the ROS message types, as the bridge does: {err} "
                   "(pip install 'roslink-mqtt[bridge]', or source ROS 2)", file=sys.stderr)

@@ -8,7 +8,7 @@ import time
 
 from ..client import CommandRefused, NotConnectedError, RobotNotice, RoslinkError
 from ..client.commands import command_leaf, roslink_command
-from ..client.node import ros_shaped_to_roslink
+from ..client.rclpy.node import ros_shaped_to_roslink
 from ..protocol import ProtocolError
 from .connect import add_connection_options, json_object, open_client
 from .control_cmd import claim_if_free

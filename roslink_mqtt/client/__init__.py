@@ -2,25 +2,31 @@
 
 Two ways in:
 
-* :class:`RobotClient` — one login to the fleet's broker: robots and their
-  presence, typed ROSLink state, commands, service calls (sync and asyncio),
-  services provided to ROS.
-* the rclpy-shaped API — ``create_node``, ``spin``, publishers,
-  subscriptions, services and clients — with rclpy's names and structure, so
-  porting code written here to a ROS node is mechanical; but messages are dicts
-  and types are names here, which rclpy refuses (docs/sdk.md, *Porting to rclpy*).
+* :class:`RobotClient` — one login to the fleet's broker: robots and their presence, typed ROSLink state,
+  commands, service calls and actions (sync and asyncio), parameters, snapshots, video, services and actions
+  provided to ROS. Everything it returns is exported here, with the errors a program catches (every error class
+  is in :mod:`roslink_mqtt.client.errors`; typed dict shapes in :mod:`roslink_mqtt.client.results`).
+* :mod:`roslink_mqtt.client.rclpy` — the rclpy-shaped API (``create_node``, ``spin``, publishers, subscriptions,
+  services, clients, actions, parameters) with rclpy's names and module layout, so porting code written there to a
+  ROS node is mostly a change of imports; but messages are dicts and types are names, which rclpy refuses
+  (docs/sdk.md, *Porting to rclpy*).
 
+The ROSLink message classes (``GlobalMotion``, ``Twist`` …) are in :mod:`roslink_mqtt.client.messages`.
 See docs/sdk.md.
 
-The rclpy-shaped classes (``Node``, ``Publisher`` …) load on first use
-(:func:`__getattr__` below), so importing the package, or its context module,
-does not load ``node.py``: a RobotClient-only program skips it, and the
-context stays free of an import cycle with the node.
+Names this package exported before (the rclpy-shaped API, the message classes) still work for one release, with a
+``DeprecationWarning`` that gives the new import (:func:`__getattr__` below).
 """
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from .context import create_node, init, ok, shutdown, spin, spin_once, spin_until_future_complete, try_shutdown
+from .._deprecation import moved_name
+from ..protocol.control import AccessReport
+from ..protocol.description import RobotDescription
+from ..protocol.lease import ControlState
+from ..protocol.link import LinkReport
+from .action_servers import ServedAction
+from .control import StopReport
 from .directory import RobotInfo
 from .errors import (
     CommandNotConfirmed,
@@ -28,9 +34,7 @@ from .errors import (
     ConnectError,
     GoalError,
     InvalidArgument,
-    InvalidType,
     LoginRefused,
-    NodeDestroyed,
     NotConnectedError,
     NotGranted,
     ParameterError,
@@ -39,71 +43,42 @@ from .errors import (
     RoslinkError,
     ServiceError,
     ServiceTimeout,
+    SnapshotError,
     SubscriptionFailed,
     WaitTimeout,
 )
 from .goals import GoalHandle
-from .messages import (
-    Ack,
-    Arm,
-    Disarm,
-    EmergencyStop,
-    GeoTaggedImage,
-    GetMap,
-    GlobalMotion,
-    GoToWaypoint,
-    GpsRawInfo,
-    Heartbeat,
-    Image,
-    Land,
-    Map,
-    RangeFinderData,
-    RobotStatus,
-    RoslinkMessage,
-    SetMode,
-    Takeoff,
-    Twist,
-)
-from .node_params import (
-    InvalidParameterValueException,
-    Parameter,
-    ParameterAlreadyDeclaredException,
-    ParameterDescriptor,
-    ParameterNotDeclaredException,
-    SetParametersResult,
-)
-from .presence import OperatorPresence
 from .providers import ProvidedService
 from .robot_client import RobotClient
+from .snapshots import Snapshot
 from .subscriptions import StateSubscription
-
-if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ loads them
-    from .node import Client, Node, Publisher, Service, Subscription, Timer
-
-_FROM_NODE = frozenset({"Client", "Node", "Publisher", "Service", "Subscription", "Timer"})
+from .video import VideoSubscription
 
 __all__ = [
-    "Ack", "Arm", "Client", "CommandNotConfirmed", "CommandRefused", "ConnectError", "Disarm", "EmergencyStop",
-    "GeoTaggedImage", "GetMap", "GlobalMotion", "GoalError", "GoalHandle", "GoToWaypoint", "GpsRawInfo", "Heartbeat",
-    "Image", "InvalidArgument", "InvalidParameterValueException", "InvalidType", "Land", "LoginRefused", "Map",
-    "Node", "NodeDestroyed",
-    "NotConnectedError", "NotGranted", "OperatorPresence", "Parameter", "ParameterAlreadyDeclaredException",
-    "ParameterDescriptor", "ParameterError", "ParameterNotDeclaredException",
-    "ProvidedService", "Publisher", "RangeFinderData", "RobotClient", "RobotError", "RobotInfo",
-    "RobotNotice", "RobotStatus",
-    "RoslinkError", "RoslinkMessage", "Service", "ServiceError", "ServiceTimeout", "SetMode",
-    "SetParametersResult", "StateSubscription",
-    "Subscription", "SubscriptionFailed", "Takeoff", "Timer", "Twist", "WaitTimeout", "create_node", "init", "ok",
-    "shutdown", "spin", "spin_once", "spin_until_future_complete", "try_shutdown",
+    "AccessReport", "CommandNotConfirmed", "CommandRefused", "ConnectError", "ControlState", "GoalError",
+    "GoalHandle", "InvalidArgument", "LinkReport", "LoginRefused", "NotConnectedError", "NotGranted",
+    "ParameterError", "ProvidedService", "RobotClient", "RobotDescription", "RobotError", "RobotInfo",
+    "RobotNotice", "RoslinkError", "ServedAction", "ServiceError", "ServiceTimeout", "Snapshot", "SnapshotError",
+    "StateSubscription", "StopReport", "SubscriptionFailed", "VideoSubscription", "WaitTimeout",
 ]
+
+_RCLPY = "roslink_mqtt.client.rclpy"
+_MOVED: dict[str, str] = {
+    **dict.fromkeys(("Ack", "Arm", "Disarm", "EmergencyStop", "GeoTaggedImage", "GetMap", "GlobalMotion",
+                     "GoToWaypoint", "GpsRawInfo", "Heartbeat", "Image", "Land", "Map", "RangeFinderData",
+                     "RobotStatus", "RoslinkMessage", "SetMode", "Takeoff", "Twist"), "roslink_mqtt.client.messages"),
+    **dict.fromkeys(("create_node", "init", "ok", "shutdown", "spin", "spin_once", "spin_until_future_complete",
+                     "try_shutdown"), _RCLPY),
+    **dict.fromkeys(("Client", "Node", "Publisher", "Service", "Subscription", "Timer"), f"{_RCLPY}.node"),
+    **dict.fromkeys(("Parameter", "ParameterDescriptor", "SetParametersResult"), f"{_RCLPY}.parameter"),
+    **dict.fromkeys(("InvalidParameterValueException", "ParameterAlreadyDeclaredException",
+                     "ParameterNotDeclaredException"), f"{_RCLPY}.exceptions"),
+    "NodeDestroyed": f"{_RCLPY}.exceptions",
+    "InvalidType": "roslink_mqtt.client.errors",
+    "OperatorPresence": "roslink_mqtt.client.presence",
+}
 
 
 def __getattr__(name: str) -> Any:
-    """Load the rclpy-shaped classes from ``node.py`` on first access (PEP 562)."""
-    if name in _FROM_NODE:
-        from . import node
-
-        value = getattr(node, name)
-        globals()[name] = value  # later lookups skip this function
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    """The names that moved (PEP 562): still there for one release, with a warning giving the new import."""
+    return moved_name(__name__, name, _MOVED)

@@ -24,8 +24,9 @@ from .connection import Connection
 from .dispatch import Scheduler
 from .errors import InvalidType, ServiceError, ServiceTimeout
 from .futures import settle
+from .results import JsonObject
 
-Values = dict[str, Any]
+Values = JsonObject  # a response's fields, as the service's ROS type has them
 
 
 @dataclass

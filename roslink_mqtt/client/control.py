@@ -1,6 +1,6 @@
 """Who drives a robot, from the SDK: read ``state/control``, claim, release or take over the control lease, and stop
 every robot at once. Used by :class:`~roslink_mqtt.client.robot_client.RobotClient` (its methods of the same names);
-the bridge's side is ``roslink_mqtt/bridge/lease.py`` (docs/protocol.md, "Control").
+the bridge's side is ``roslink_mqtt/bridge/core/lease.py`` (docs/protocol.md, "Control").
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from .errors import CommandRefused, RobotError, RoslinkError, WaitTimeout
 
 if TYPE_CHECKING:
     from .robot_client import RobotClient
+    from .waiters import ErrorWaiters
 
 STOP_ACK_WAIT = 1.0  # s: a robot that does not acknowledge an emergency stop within this is reported
 
@@ -38,19 +39,23 @@ class StopReport:
         return f"{self.robot:<12} NOT ACKNOWLEDGED: {self.error or 'no answer'} — stop it another way"
 
 
-def read_control(client: RobotClient, robot: str, timeout: float) -> ControlState | None:
+def read_control(retained: Callable[[str, str, str, float], bytes | None], robot: str,
+                 timeout: float) -> ControlState | None:
     """The robot's retained ``state/control``; None when none comes (an older bridge, or one not yet connected)."""
-    payload = client._retained(robot, CONTROL, "control state", timeout)
+    payload = retained(robot, CONTROL, "control state", timeout)
     return None if payload is None else ControlState.from_json(payload)
 
 
-def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: float) -> ControlState:
+def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: float, *,
+                    refusal: Callable[[str, Verb, str], str | None], send: Callable[[str, bytes, int, str], object],
+                    errors: ErrorWaiters) -> ControlState:
     """Send ``control/<op>`` and wait for its outcome: the new ``state/control``, or CommandRefused with the reason
-    (held by someone else, a viewer, no presence); WaitTimeout when the robot says nothing."""
+    (held by someone else, a viewer, no presence); WaitTimeout when the robot says nothing. ``refusal``, ``send``
+    and ``errors``: the client's own (why the access report refuses, how it publishes, who waits for refusals)."""
     client.connection.require(f"control/{op.value} of {robot}")
     client.watch(robot)
     me, topic = client.username, client.topics.control(robot, client.username, op.value)
-    refused = client._refusal(robot, Verb.CONTROL, op.value)
+    refused = refusal(robot, Verb.CONTROL, op.value)
     if refused is not None:  # a viewer: the broker would drop the request without a word
         raise CommandRefused(RobotError(robot, topic, refused, client_id=client.client_id))
     done, box = threading.Event(), []
@@ -68,24 +73,20 @@ def request_control(client: RobotClient, robot: str, op: ControlOp, timeout: flo
             box.append(state)
             done.set()
 
-    waiter: tuple[str, int | None, threading.Event, list[RobotError]] = (topic, None, done, [])
     state_topic = client.topics.state(robot, CONTROL)
-    with client._waiters_lock:
-        client._error_waiters.append(waiter)
-    try:
-        client.connection.subscribe(state_topic, on_state, timeout=timeout)
-        sent[0] = True
-        client._send(topic, control_request(client.client_id), 1, join_leaf(Verb.CONTROL, op.value))
-        if not done.wait(timeout):
-            raise WaitTimeout(f"{robot} did not answer control/{op.value} within {timeout:g} s (is it online, and "
-                              "its bridge recent enough to have control leases?)")
-        if waiter[3]:
-            raise CommandRefused(waiter[3][0])
-        return box[0]
-    finally:
-        with client._waiters_lock:
-            client._error_waiters.remove(waiter)
-        client.connection.unsubscribe(state_topic, on_state)
+    with errors.waiting(topic, done=done) as waiter:  # a refusal and the new state both end the wait
+        try:
+            client.connection.subscribe(state_topic, on_state, timeout=timeout)
+            sent[0] = True
+            send(topic, control_request(client.client_id), 1, join_leaf(Verb.CONTROL, op.value))
+            if not done.wait(timeout):
+                raise WaitTimeout(f"{robot} did not answer control/{op.value} within {timeout:g} s (is it online, "
+                                  "and its bridge recent enough to have control leases?)")
+            if waiter.errors:
+                raise CommandRefused(waiter.errors[0])
+            return box[0]
+        finally:
+            client.connection.unsubscribe(state_topic, on_state)
 
 
 def stop_all(client: RobotClient, robots: list[str], reason: str, timeout: float) -> dict[str, StopReport]:

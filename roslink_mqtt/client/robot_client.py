@@ -29,8 +29,9 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future
+from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import paho.mqtt.client as mqtt
 
@@ -48,6 +49,9 @@ from ..connection_options import (
 from ..mqtt import LOGIN_WAIT, BrokerUrl, acknowledged
 from ..protocol import ProtocolError, SystemStatus
 from ..protocol.control import AccessReport
+from ..protocol.description import DESCRIPTION, RobotDescription
+from ..protocol.lease import ControlState
+from ..protocol.link import LINK, LinkReport
 from ..protocol.rosout import MAX_MSG as MAX_LOG_MSG
 from ..protocol.rosout import LogLine
 from ..protocol.video import VideoFrame
@@ -57,6 +61,7 @@ from .advertisements import Advertisements
 from .calls import ServiceCalls, Values
 from .commands import CommandStreams, command_leaf, roslink_command
 from .connection import Connection
+from .control import StopReport
 from .directory import DEFAULT_STALE_AFTER, RobotDirectory, RobotInfo
 from .dispatch import CallbackQueue, DispatchThread, Scheduler
 from .encodings import ENCODINGS
@@ -77,9 +82,11 @@ from .errors import (
 from .goals import ActionGoals, FeedbackCallback, GoalHandle
 from .params import ParameterRequests
 from .providers import Handler, ProvidedService, ServiceProviders
+from .results import ParameterDescription, ParameterValue, SetResult
 from .snapshots import Snapshot, SnapshotTransfers
 from .subscriptions import StateItem, StateSubscription
 from .video import VideoSubscription
+from .waiters import ErrorWaiters
 
 log = logging.getLogger("roslink_mqtt.client")
 
@@ -143,8 +150,7 @@ class RobotClient:
         self._watched: set[str] = set()
         self._watch_lock = threading.Lock()
         self._initial_robots = [check_name(r, "robot") for r in robots]
-        self._error_waiters: list[tuple[str, int | None, threading.Event, list[RobotError]]] = []
-        self._waiters_lock = threading.Lock()
+        self._errors = ErrorWaiters()  # callers waiting for a refusal (check=, control requests)
         self._logged_errors: dict[tuple[str, str], float] = {}
         self.wildcard_heartbeats: bool | None = None  # did the broker grant <prefix>/+/heartbeat?
         self._closed = False
@@ -226,15 +232,13 @@ class RobotClient:
         with self._access_changed:
             return self._access.get(robot)
 
-    def description(self, robot: str, timeout: float = 5.0) -> Any:
+    def description(self, robot: str, timeout: float = 5.0) -> RobotDescription:
         """What ``robot`` maps (a :class:`~roslink_mqtt.protocol.description.RobotDescription`): its state,
         commands, services and actions, each marked with who may use it, and the field layout of every ROS type.
 
         Read from the bridge's retained ``state/description``; WaitTimeout when none comes within ``timeout``
         (robot never connected, or an older bridge), SubscriptionFailed when the broker refuses to let us read it.
         """
-        from ..protocol.description import DESCRIPTION, RobotDescription
-
         payload = self._retained(robot, DESCRIPTION, "description", timeout)
         if payload is None:
             raise WaitTimeout(f"no description of {robot} within {timeout:g} s (is its bridge connected, and "
@@ -258,25 +262,23 @@ class RobotClient:
         why: str | None = description.unknown_state(name)  # a RobotDescription's
         return why
 
-    def link(self, robot: str, timeout: float = 2.0) -> Any:
+    def link(self, robot: str, timeout: float = 2.0) -> LinkReport | None:
         """What ``robot``'s uplink carries (a :class:`~roslink_mqtt.protocol.link.LinkReport`: its measured rate,
         per state stream the rate offered and sent, how many were superseded), from the bridge's retained
         ``state/link``; None when none comes within ``timeout`` (an older bridge, or one not yet connected)."""
-        from ..protocol.link import LINK, LinkReport
-
         payload = self._retained(robot, LINK, "link report", timeout)
         return None if payload is None else LinkReport.from_json(payload)
 
     # -- who drives (docs/protocol.md, "Control") ---------------------------------------------------
-    def control(self, robot: str, timeout: float = 2.0) -> Any:
+    def control(self, robot: str, timeout: float = 2.0) -> ControlState | None:
         """Who holds control of ``robot`` (a :class:`~roslink_mqtt.protocol.lease.ControlState`: ``holder``,
         ``since``, ``summary()`` says "driven by alice since 12:03:05"), from the bridge's retained
         ``state/control``; None when none comes within ``timeout``."""
         from .control import read_control
 
-        return read_control(self, robot, timeout)
+        return read_control(self._retained, robot, timeout)
 
-    def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> Any:
+    def claim_control(self, robot: str, *, take_over: bool = False, timeout: float = 2.0) -> ControlState:
         """Hold control of ``robot``: only the holder's commands move it (emergency stops excepted). Returns the new
         control state; CommandRefused says who holds it instead (``take_over=True`` takes it from them: the robot
         stops, and they are told). The lease ends when this client's presence does, or with
@@ -284,17 +286,19 @@ class RobotClient:
         from ..protocol.lease import ControlOp
         from .control import request_control
 
-        return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout)
+        return request_control(self, robot, ControlOp.TAKE_OVER if take_over else ControlOp.CLAIM, timeout,
+                               refusal=self.refusal, send=self._send, errors=self._errors)
 
-    def release_control(self, robot: str, *, timeout: float = 2.0) -> Any:
+    def release_control(self, robot: str, *, timeout: float = 2.0) -> ControlState:
         """Give control of ``robot`` back (CommandRefused when we do not hold it)."""
         from ..protocol.lease import ControlOp
         from .control import request_control
 
-        return request_control(self, robot, ControlOp.RELEASE, timeout)
+        return request_control(self, robot, ControlOp.RELEASE, timeout, refusal=self.refusal, send=self._send,
+                               errors=self._errors)
 
     def emergency_stop_all(self, reason: str = "", *, robots: Iterable[str] | None = None,
-                           timeout: float = 1.0) -> dict[str, Any]:
+                           timeout: float = 1.0) -> dict[str, StopReport]:
         """Stop every robot we may stop (``robots``: those named; default: every robot whose heartbeat we see) at
         once, and report per robot whether its bridge acknowledged the stop within ``timeout`` (a
         :class:`~roslink_mqtt.client.control.StopReport`: ``acknowledged``, ``seconds``, ``error``)."""
@@ -528,12 +532,8 @@ class RobotClient:
         if qos is None:
             qos = 0 if roslink_command(leaf) == "twist" else 1  # a velocity stream repeats itself
         deadline = None if confirm is None else time.monotonic() + confirm
-        waiter: tuple[str, int | None, threading.Event, list[RobotError]] | None = None
-        if check is not None:
-            waiter = (topic, seq, threading.Event(), [])
-            with self._waiters_lock:
-                self._error_waiters.append(waiter)
-        try:
+        with ExitStack() as waiting:
+            waiter = waiting.enter_context(self._errors.waiting(topic, seq)) if check is not None else None
             if urgent:
                 info = self._send(topic, data, qos, leaf)
                 self.watch(robot, timeout=ACCESS_WAIT)
@@ -544,16 +544,13 @@ class RobotClient:
                 info = self._send(topic, data, qos, leaf)
             if deadline is not None and qos > 0:
                 self._confirm(info, deadline, f"{leaf} to {robot}", confirm)
-            if waiter is not None and waiter[2].wait(check):
-                raise CommandRefused(waiter[3][0])
-        finally:
-            if waiter is not None:
-                with self._waiters_lock:
-                    self._error_waiters.remove(waiter)
+            refused = waiter.wait(check) if waiter is not None and check is not None else None
+            if refused is not None:
+                raise CommandRefused(refused)
         return seq
 
     def _raise_if_refused(self, robot: str, topic: str, leaf: str) -> None:
-        why = self._refusal(robot, Verb.CMD, leaf)
+        why = self.refusal(robot, Verb.CMD, leaf)
         if why is not None:
             raise CommandRefused(RobotError(robot, topic, why, client_id=self.client_id))
 
@@ -625,7 +622,7 @@ class RobotClient:
             if info is not None and not info.online:
                 reason = f"robot {robot} is offline"
             else:
-                reason = self._refusal(robot, Verb.CALL, service)
+                reason = self.refusal(robot, Verb.CALL, service)
         if reason is not None:
             future.set_exception(ServiceError(robot, service, reason))
             return future
@@ -655,7 +652,7 @@ class RobotClient:
         self.connection.require(f"goal for {action}")
         self.watch(robot)
         handle = self._goals.send(robot, action, goal, feedback_callback, goal_id=goal_id)
-        reason = self._refusal(robot, Verb.GOAL, action)
+        reason = self.refusal(robot, Verb.GOAL, action)
         if reason is not None:
             self._goals.on_error(RobotError(robot, self.topics.goal(robot, self.username, action), reason,
                                             client_id=self.client_id, request_id=handle.id))
@@ -704,7 +701,7 @@ class RobotClient:
         """
         self.connection.require(f"serving {action}", now=False)
         self.watch(robot)
-        why = self._refusal(robot, Verb.PROVIDE_ACTION, action)
+        why = self.refusal(robot, Verb.PROVIDE_ACTION, action)
         if why is not None:
             raise CommandRefused(RobotError(robot, self.topics.user_topic(robot, self.username, Verb.PROVIDE_ACTION,
                                                                           action), why, client_id=self.client_id))
@@ -717,26 +714,28 @@ class RobotClient:
         self.watch(robot)
         return self._params.start(robot, node, op, timeout=timeout, **kwargs).result()
 
-    def get_parameters(self, robot: str, node: str, names: list[str], *, timeout: float = 10.0) -> dict[str, Any]:
+    def get_parameters(self, robot: str, node: str, names: list[str], *,
+                       timeout: float = 10.0) -> dict[str, ParameterValue]:
         """``{name: value}`` of ``node``'s parameters (None: not declared); ParameterError if refused or silent."""
-        return self._param(robot, node, "get", timeout, names=tuple(names))
+        return cast("dict[str, ParameterValue]", self._param(robot, node, "get", timeout, names=tuple(names)))
 
     def set_parameters(self, robot: str, node: str, values: dict[str, Any], *,
-                       timeout: float = 10.0) -> dict[str, dict[str, Any]]:
+                       timeout: float = 10.0) -> dict[str, SetResult]:
         """Set parameters; ``{name: {"successful": bool, "reason": str}}`` as the node's own validation answered.
 
         A value of the wrong type (a string for a double…) raises ParameterError before anything is set.
         """
-        return self._param(robot, node, "set", timeout, values=values)
+        return cast("dict[str, SetResult]", self._param(robot, node, "set", timeout, values=values))
 
     def list_parameters(self, robot: str, node: str, prefixes: list[str] | None = None, *,
                         timeout: float = 10.0) -> list[str]:
         return list(self._param(robot, node, "list", timeout, names=tuple(prefixes or ())).get("names", []))
 
     def describe_parameters(self, robot: str, node: str, names: list[str], *,
-                            timeout: float = 10.0) -> dict[str, dict[str, Any]]:
-        """``{name: {"type", "description", "read_only", ranges…}}``."""
-        return self._param(robot, node, "describe", timeout, names=tuple(names))
+                            timeout: float = 10.0) -> dict[str, ParameterDescription]:
+        """``{name: {"type", "description", "read_only", "dynamic_typing", ranges…}}``."""
+        return cast("dict[str, ParameterDescription]",
+                    self._param(robot, node, "describe", timeout, names=tuple(names)))
 
     def snapshot(self, robot: str, last: float = 30.0, *, path: str | Path | None = None, timeout: float = 300.0,
                  stall: float = 10.0, on_progress: Callable[[int, int], None] | None = None) -> Snapshot:
@@ -752,7 +751,7 @@ class RobotClient:
             raise InvalidArgument(f"last must be 0 < s <= 3600, not {last!r}")
         self.connection.require(f"snapshot of {robot}")
         self.watch(robot)
-        why = self._refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
+        why = self.refusal(robot, Verb.SNAPSHOT, "snapshot")  # the broker would drop it without a word
         if why is not None:
             raise SnapshotError(robot, "", why)
         got = self._snapshots.fetch(robot, last, timeout=timeout, stall=stall, on_progress=on_progress)
@@ -777,7 +776,7 @@ class RobotClient:
         """
         self.connection.require(f"offer of {service}", now=False)
         self.watch(robot)
-        why = self._refusal(robot, Verb.PROVIDE, service)
+        why = self.refusal(robot, Verb.PROVIDE, service)
         offer = self._providers.provide(robot, service, srv_type, handler, self.callbacks, timeout, refused=why)
         if why is not None:
             self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, service), why,
@@ -858,15 +857,16 @@ class RobotClient:
                 self._no_grant.discard(robot)
             self._access_changed.notify_all()
         if report is not None and not report.operator:
-            reason = self._refusal(robot, Verb.PROVIDE, wait=False)
+            reason = self.refusal(robot, Verb.PROVIDE, wait=False)
             for offer in self._providers.refuse_robot(robot, reason or ""):
                 self._on_error(robot, RobotError(robot, self.topics.provide(robot, self.username, offer.name),
                                                  offer.refused or "", client_id=self.client_id))
 
-    def _refusal(self, robot: str, verb: Verb, name: str = "", *, wait: bool = True) -> str | None:
+    def refusal(self, robot: str, verb: Verb, name: str = "", *, wait: bool = True) -> str | None:
         """Why the broker would drop ``verb`` on ``name`` (a command's leaf, a service, an action, a node) on
         ``robot``, None if it would not: the one authorization rule (:func:`roslink_mqtt.authorize.refusal`) with
-        the role of our access report, worded as the robot words it, plus what a viewer may use instead.
+        the role of our access report, worded as the robot words it, plus what a viewer may use instead. A program
+        asks it to grey out what it may not do (``client.refusal("turtle1", Verb.CALL, "reset")``).
 
         The report is retained and arrives right after our subscription's SUBACK, so a
         command made at once waits up to ACCESS_WAIT for it; a robot whose bridge does not
@@ -926,16 +926,15 @@ class RobotClient:
         else:  # the robot says it once per stream: no flood to hold back
             log.warning("%s: %s: %s", robot, notice.topic, notice.notice)
 
+    def report_refusal(self, error: RobotError) -> None:
+        """Treat ``error`` as a refusal the robot sent: ``on_error``, ``recent_errors`` or the log (the SDK's own
+        parts report this way what they refuse before sending, as the rclpy-shaped node's parameters do)."""
+        self._on_error(error.robot, error)
+
     def _on_error(self, robot: str, error: RobotError) -> None:
         """A refusal meant for us: wake a ``check=`` waiter, mark an offer, hand it to ``on_error`` or log it."""
         self.recent_errors.append(error)
-        awaited = False
-        with self._waiters_lock:
-            for topic, seq, event, box in self._error_waiters:
-                if error.topic == topic and (seq is None or error.sequence_number in (None, seq)):
-                    box.append(error)
-                    event.set()
-                    awaited = True
+        awaited = self._errors.deliver(error)
         self._providers.on_error(error)
         if self._goals.on_error(error) or self._params.on_error(error) or self._snapshots.on_error(error):
             awaited = True  # the goal's handle (GoalError) or the request (ParameterError) raises it

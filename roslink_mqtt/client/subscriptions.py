@@ -21,6 +21,7 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Any
 
 from ..protocol import ProtocolError, loads
+from ..protocol.json_value import JsonObject
 from ..protocol.lease import CONTROL, ControlState
 from ..protocol.link import LINK, LinkReport
 from .dispatch import CallbackQueue
@@ -30,7 +31,7 @@ from .messages import RoslinkMessage, state_message
 
 log = logging.getLogger("roslink_mqtt.client")
 
-StateItem = RoslinkMessage | LinkReport | ControlState | dict[str, Any]
+StateItem = RoslinkMessage | LinkReport | ControlState | JsonObject  # a generic rule's payload: its ROS type's fields
 _FAILED: Any = object()  # queued by fail(): wakes a blocked get() or loop
 _CLOSED: Any = object()  # queued by close(): ends an ``async for`` blocked on an empty queue
 

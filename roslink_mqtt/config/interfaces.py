@@ -24,7 +24,7 @@ from typing import TypedDict, cast
 from ..ros_names import interface_name, interface_parts, is_interface, nested_message, package_of
 from .interface_table import TABLE
 
-# What each ROSLink preset accepts as ros_type (bridge/presets/{state,command}.py hold the converters).
+# What each ROSLink preset accepts as ros_type (bridge/core/presets/{state,command}.py hold the converters).
 STATE_PRESET_TYPES: dict[str, tuple[str, ...]] = {
     "robot_status": ("sensor_msgs/msg/BatteryState",),
     "global_motion": ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped",

@@ -487,7 +487,7 @@ class Advertisement:
 
 # (title, topic, type): the rendered reference (docs/protocol.md) lists them in this order. Every type says
 # with which MQTT QoS and retain flag its topic is published (QOS, RETAINED); the SDK's senders publish with
-# those constants (the bridge's error reports too); the bridge retains only access reports (bridge/node.py).
+# those constants (the bridge's error reports too); the bridge retains only access reports (bridge/ros/node.py).
 CONTROL_BODIES: tuple[tuple[str, str, type], ...] = (
     ("call request", f"`{_DOC.call(_R, _U, '<service>')}`", CallRequest),
     ("call reply", f"`{_DOC.reply(_R, _U, '<service>')}`", CallReply),

@@ -42,6 +42,7 @@ from .body import (
 )
 from .codec import ROS_VERSION, ROSLINK_VERSION
 from .errors import ProtocolError
+from .json_value import JsonObject
 from .validate import describe
 
 DESCRIPTION = "description"  # the state name: roslink/<robot>/state/description
@@ -55,7 +56,7 @@ _DOC = TopicTree()
 # ``int32[]``, ``int32[<=5]``, ``string<=10``) or, for a nested message, {"type": "pkg/msg/Type", "fields": {…}}
 # (arrays of messages: the element's fields, and "type" reads ``pkg/msg/Type[]``). A service type's layout is
 # {"request": …, "response": …}, an action type's {"goal": …, "result": …, "feedback": …}.
-Layout = dict[str, Any]
+Layout = JsonObject
 
 
 def _where(path: str, what: str, value: Any) -> ProtocolError:

@@ -56,7 +56,7 @@ class StreamReport(NestedBody):
 
 @dataclass(frozen=True, slots=True)
 class PathReport(NestedBody):
-    """The uplink end to end (bridge/path_meter.py): round trips of probes answered through the broker."""
+    """The uplink end to end (bridge/core/path_meter.py): round trips of probes answered through the broker."""
 
     base_ms: float  # the least round trip lately: the path with empty queues
     rtt_ms: float  # the round trip a message meets now

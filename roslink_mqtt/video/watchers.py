@@ -22,6 +22,9 @@ from ..protocol.video import WATCH_LEASE
 
 MAX_CLIENTS_PER_USER = 8
 KEY_MIN_GAP = 1.0  # s between keyframes that viewers asked for
+# why a watch is refused on a bridge whose uplink is `fifo` (robots.yaml bridge.uplink)
+NEEDS_SCHEDULED_UPLINK = ("video needs bridge.uplink: scheduled (with fifo everything leaves in order on the "
+                          "command connection, where frames would hold emergency stops back)")
 
 
 @dataclass(slots=True)

@@ -14,7 +14,7 @@ from tests.support.one_robot import HASH, one_robot_fleet
 
 pytest.importorskip("rclpy")
 
-from roslink_mqtt.bridge.rules import RuleError, compile_rules  # noqa: E402
+from roslink_mqtt.bridge.ros.rules import RuleError, compile_rules  # noqa: E402
 
 OUT = "{direction: ros_to_mqtt, ros_topic: odom, ros_type: nav_msgs/msg/Odometry, mqtt_topic: state/odom}"
 IN = "{direction: mqtt_to_ros, ros_topic: cmd_vel, ros_type: geometry_msgs/msg/Twist, mqtt_topic: cmd/twist}"

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from roslink_mqtt.bridge.claim import EXIT_LOGIN_REFUSED
+from roslink_mqtt.bridge.core.claim import EXIT_LOGIN_REFUSED
 from roslink_mqtt.protocol import MessageId, SystemStatus, decode
 from tests.support.broker_setup import write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
@@ -73,8 +73,8 @@ def test_refused_login_is_said_and_backed_off_or_ends_the_bridge(tmp_path) -> No
     with EmbeddedBrokerProcess(tmp_path) as broker, \
             run(bridge_args("turtle1", broker.port), tmp_path / "retrying.log", wrong) as retrying, \
             run(bridge_args("turtle1", broker.port, config=exiting), tmp_path / "exiting.log", wrong) as leaving:
-        refused = f"ERROR roslink_mqtt.bridge.link: broker mqtt://127.0.0.1:{broker.port} refused turtle1's login: " \
-                  "wrong username or password"
+        refused = f"ERROR roslink_mqtt.bridge.core.link: broker mqtt://127.0.0.1:{broker.port} refused turtle1's " \
+                  "login: wrong username or password"
         wait_until("the retrying bridge's refusal", lambda: refused in retrying.output())
         first = time.monotonic()
         assert "retrying in 5 s" in retrying.output(), retrying.output()

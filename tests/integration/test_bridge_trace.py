@@ -1,4 +1,4 @@
-"""The bridge's optional message trace (roslink_mqtt/bridge/trace.py), used by bench/hops.py."""
+"""The bridge's optional message trace (roslink_mqtt/bridge/core/trace.py), used by bench/hops.py."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import sys
 
 import orjson
 
-from roslink_mqtt.bridge import trace
+from roslink_mqtt.bridge.core import trace
 
 
 def test_tracing_is_off_unless_the_environment_names_a_file(tmp_path) -> None:

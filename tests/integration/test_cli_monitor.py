@@ -13,7 +13,8 @@ import pytest
 
 from roslink_mqtt.cli import monitor_cmd
 from roslink_mqtt.cli.monitor_view import HEADERS, FleetView, Row, fit_columns, number, presence
-from roslink_mqtt.client import Ack, GlobalMotion, GpsRawInfo, RobotError, RobotInfo, RobotStatus
+from roslink_mqtt.client import RobotError, RobotInfo
+from roslink_mqtt.client.messages import Ack, GlobalMotion, GpsRawInfo, RobotStatus
 from roslink_mqtt.protocol import AckResult, FlightMode, RobotType, SystemStatus
 from roslink_mqtt.protocol.link import LinkReport, StreamReport
 from tests.support.procs import ROOT

@@ -17,8 +17,8 @@ pytest.importorskip("rclpy")
 
 from rosidl_parser import definition as d  # noqa: E402
 
-from roslink_mqtt.bridge.convert import ConversionError, converter_for  # noqa: E402
-from roslink_mqtt.bridge.ros_types import load_interface  # noqa: E402
+from roslink_mqtt.bridge.core.ros_types import load_interface  # noqa: E402
+from roslink_mqtt.bridge.ros.convert import ConversionError, converter_for  # noqa: E402
 
 
 def installed_types() -> list[str]:

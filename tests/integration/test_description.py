@@ -16,7 +16,7 @@ import time
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.description import ros_fields_of
+from roslink_mqtt.bridge.ros.description import ros_fields_of
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.client.errors import InvalidArgument, SubscriptionFailed, WaitTimeout
 from roslink_mqtt.config import Direction, load_fleet

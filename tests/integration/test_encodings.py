@@ -29,9 +29,9 @@ import numpy as np  # noqa: E402
 from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
 from sensor_msgs.msg import CompressedImage, Image, LaserScan, PointCloud2, PointField  # noqa: E402
 
-from roslink_mqtt.bridge.convert import converter_for  # noqa: E402
-from roslink_mqtt.bridge.description import build_description, ros_fields_of  # noqa: E402
-from roslink_mqtt.bridge.rules import RuleError, compile_rules  # noqa: E402
+from roslink_mqtt.bridge.ros.convert import converter_for  # noqa: E402
+from roslink_mqtt.bridge.ros.description import build_description, ros_fields_of  # noqa: E402
+from roslink_mqtt.bridge.ros.rules import RuleError, compile_rules  # noqa: E402
 
 JPEG = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(range(256)) * 4 + b"\xff\xd9"
 PNG = b"\x89PNG\r\n\x1a\n" + bytes(200)

@@ -68,9 +68,9 @@ def test_table_fields_are_the_ros_classes_fields() -> None:
 
 def test_preset_lists_are_the_bridges() -> None:
     pytest.importorskip("rclpy")
-    from roslink_mqtt.bridge.presets import COMMAND_PRESETS, STATE_PRESETS
-    from roslink_mqtt.bridge.rules import SERVICE_TARGETS
-    from roslink_mqtt.bridge.safety import VELOCITY_TYPES
+    from roslink_mqtt.bridge.core.presets import COMMAND_PRESETS, STATE_PRESETS
+    from roslink_mqtt.bridge.core.safety import VELOCITY_TYPES
+    from roslink_mqtt.bridge.ros.rules import SERVICE_TARGETS
 
     assert interfaces.STATE_PRESET_TYPES == {name: p.ros_types for name, p in STATE_PRESETS.items()}
     assert interfaces.COMMAND_PRESET_TYPES == {name: p.ros_types for name, p in COMMAND_PRESETS.items()}

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-import roslink_mqtt.client as sdk
+from roslink_mqtt.client import rclpy as sdk
 from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run

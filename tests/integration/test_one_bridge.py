@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from roslink_mqtt.bridge.claim import EXIT_FENCED
+from roslink_mqtt.bridge.core.claim import EXIT_FENCED
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import Received, TestClient

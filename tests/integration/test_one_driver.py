@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from roslink_mqtt.bridge.claim import EXIT_DUPLICATE, EXIT_FENCED
+from roslink_mqtt.bridge.core.claim import EXIT_DUPLICATE, EXIT_FENCED
 from roslink_mqtt.protocol import encode_message
 from roslink_mqtt.protocol.lease import ControlState
 from tests.support.broker_setup import ExportedMosquitto, write_fleet

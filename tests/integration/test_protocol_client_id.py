@@ -11,7 +11,7 @@ import queue
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.access import access_reports, cleared_reports
+from roslink_mqtt.bridge.core.access import access_reports, cleared_reports
 from roslink_mqtt.client import RobotClient, RobotError
 from roslink_mqtt.client.commands import CommandStreams
 from roslink_mqtt.config import load_fleet

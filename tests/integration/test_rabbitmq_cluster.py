@@ -19,7 +19,7 @@ from contextlib import ExitStack
 import paho.mqtt.client as mqtt
 import pytest
 
-from roslink_mqtt.bridge.claim import EXIT_DUPLICATE
+from roslink_mqtt.bridge.core.claim import EXIT_DUPLICATE
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.config.split import split_fleet
 from roslink_mqtt.rabbit_cluster import RABBIT_BIN, RabbitCluster, rabbitmq_available

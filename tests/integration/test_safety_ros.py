@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from geometry_msgs.msg import Twist, TwistStamped
 
-from roslink_mqtt.bridge.safety import is_standstill
+from roslink_mqtt.bridge.core.safety import is_standstill
 
 
 def test_standstill_is_a_stop_whatever_the_message_type() -> None:

@@ -24,16 +24,10 @@ from types import SimpleNamespace
 import pytest
 
 import roslink_mqtt.client as sdk
-from roslink_mqtt.client import (
-    CommandRefused,
-    GlobalMotion,
-    RangeFinderData,
-    RobotClient,
-    RobotError,
-    ServiceError,
-    ServiceTimeout,
-)
-from roslink_mqtt.client.qos import qos_profile_sensor_data
+from roslink_mqtt.client import CommandRefused, RobotClient, RobotError, ServiceError, ServiceTimeout, rclpy
+from roslink_mqtt.client.messages import GlobalMotion, RangeFinderData
+from roslink_mqtt.client.rclpy.node import Node
+from roslink_mqtt.client.rclpy.qos import qos_profile_sensor_data
 from roslink_mqtt.protocol import Envelope, MessageId, ProtocolError, SystemStatus, encode
 from tests.support.fleet_brokers import fleet_password_file, mosquitto_with_logins
 from tests.support.mosquitto import run_mosquitto
@@ -274,12 +268,12 @@ def test_viewer_is_refused(stack) -> None:
 
 
 # -- the rclpy-shaped Node API ---------------------------------------------------------------------------
-def _spin_in_thread(node: sdk.Node) -> tuple[threading.Thread, threading.Event]:
+def _spin_in_thread(node: Node) -> tuple[threading.Thread, threading.Event]:
     stop = threading.Event()
 
     def loop() -> None:
         while not stop.is_set() and not node.destroyed:
-            sdk.spin_once(node, timeout_sec=0.1)
+            rclpy.spin_once(node, timeout_sec=0.1)
 
     thread = threading.Thread(target=loop, daemon=True)
     thread.start()
@@ -307,7 +301,7 @@ def test_node_services_called_from_rclpy(stack) -> None:
     from std_srvs.srv import SetBool, Trigger
 
     ros = stack.probe.node
-    node = sdk.create_node("sdk_test_provider", robot="turtle1", url=stack.url, username="alice",
+    node = rclpy.create_node("sdk_test_provider", robot="turtle1", url=stack.url, username="alice",
                            password="alice-demo")
     requests: list[dict] = []
     entered, release = threading.Event(), threading.Event()
@@ -371,7 +365,7 @@ def test_node_services_called_from_rclpy(stack) -> None:
 
 
 def test_node_topics_and_client(stack) -> None:
-    node = sdk.create_node("sdk_test_topics", robot="turtle1", url=stack.url, username="alice",
+    node = rclpy.create_node("sdk_test_topics", robot="turtle1", url=stack.url, username="alice",
                            password="alice-demo")
     typed, plain = queue.Queue(), queue.Queue()
     node.create_subscription(GlobalMotion, "global_motion", typed.put, 10)

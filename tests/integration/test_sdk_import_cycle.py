@@ -12,13 +12,12 @@ import sys
 
 _CHECK = """
 import sys
-import roslink_mqtt.client.context
-loaded = sorted(m for m in sys.modules if m == "roslink_mqtt.client.node")
+import roslink_mqtt.client.rclpy
+loaded = sorted(m for m in sys.modules if m == "roslink_mqtt.client.rclpy.node")
 assert not loaded, loaded
-from roslink_mqtt.client import Node, create_node
-from roslink_mqtt.client.node import Node as NodeFromModule
-assert Node is NodeFromModule
-assert "roslink_mqtt.client.node" in sys.modules
+from roslink_mqtt.client.rclpy import create_node
+from roslink_mqtt.client.rclpy.node import Node
+assert "roslink_mqtt.client.rclpy.node" in sys.modules
 """
 
 

@@ -11,7 +11,7 @@ import warnings
 
 import pytest
 
-from roslink_mqtt.client import Client, Node
+from roslink_mqtt.client.rclpy.node import Client, Node
 
 
 def _unconnected_node(robot_client: object) -> Node:

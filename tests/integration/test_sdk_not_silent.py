@@ -107,7 +107,7 @@ def test_commands_while_the_broker_is_away_raise(tmp_path) -> None:
 
 def test_node_publishers_while_the_broker_is_away(tmp_path, caplog) -> None:
     """rclpy's publish does not raise for the network: a warning (throttled) says what was not sent; a stop raises."""
-    import roslink_mqtt.client as rclpy
+    from roslink_mqtt.client import rclpy
 
     broker, _ = _broker(tmp_path)
     broker.start()
@@ -159,7 +159,7 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
     url = f"mqtt://127.0.0.1:{broker.port}"
     errors: queue.Queue[RobotError] = queue.Queue()
     client = RobotClient("alice", "alice-demo", url=url, robots=["turtle1"], on_error=errors.put).connect()
-    import roslink_mqtt.client as rclpy
+    from roslink_mqtt.client import rclpy
 
     node = rclpy.create_node("refused", robot="turtle1", url=url, username="alice", password="alice-demo")
     try:

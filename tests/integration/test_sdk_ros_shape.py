@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 import roslink_mqtt
-from roslink_mqtt.bridge.presets.command import COMMAND_PRESETS
-from roslink_mqtt.client.node import ros_shaped_to_roslink
+from roslink_mqtt.bridge.core.presets.command import COMMAND_PRESETS
+from roslink_mqtt.client.rclpy.node import ros_shaped_to_roslink
 from roslink_mqtt.ros_shape import POINT_FIELDS, TWIST_FIELDS
 
 geometry = pytest.importorskip("geometry_msgs.msg")
@@ -55,7 +55,7 @@ def test_roslink_shaped_dicts_pass_unchanged() -> None:
     assert ros_shaped_to_roslink("go_to_waypoint", WAYPOINT) == WAYPOINT
 
 
-@pytest.mark.parametrize("module", ["client/node.py", "bridge/presets/command.py"])
+@pytest.mark.parametrize("module", ["client/rclpy/node.py", "bridge/core/presets/command.py"])
 def test_neither_side_restates_the_twist_fields(module: str) -> None:
     fields = {field for field, _part, _axis in TWIST_FIELDS}
     tree = ast.parse((PACKAGE / module).read_text())

@@ -196,3 +196,4 @@ def test_when_the_last_viewer_leaves_the_frames_stop(port: int) -> None:
         alice.drain(1.0)  # what was on its way
         late = [m for m in alice.drain(2.0) if m.topic == CAMERA]
         assert not late, f"{len(late)} frames more than {time.monotonic() - left:.1f} s after the viewer left"
+

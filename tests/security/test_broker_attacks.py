@@ -114,7 +114,7 @@ def test_our_programs_use_unguessable_client_ids() -> None:
     assert all(re.fullmatch(r"[0-9a-f]{16,}", s) for s in suffixes), suffixes[:3]
     assert len(set(suffixes)) == len(suffixes), suffixes
     assert all(len({s[i] for s in suffixes}) > 1 for i in range(16)), suffixes[:3]
-    from roslink_mqtt.bridge.link import bridge_client_id
+    from roslink_mqtt.bridge.core.link import bridge_client_id
 
     ids = {bridge_client_id("turtle1") for _ in range(3)}
     assert len(ids) == 3 and all(len(i.rsplit("-", 1)[1]) >= 16 for i in ids), ids

@@ -95,10 +95,10 @@ def test_the_sdk_refuses_in_the_bridges_words(verb: Verb, name: str, report: Acc
     client = RobotClient("bob", "x", url="mqtt://127.0.0.1:1")  # never connected: the report is given
     client._access["turtle1"] = report
     expected = refusal("bob", Role.VIEWER, verb, name, robot="turtle1")
-    assert expected is not None and client._refusal("turtle1", verb, name) == expected + extra
+    assert expected is not None and client.refusal("turtle1", verb, name) == expected + extra
     client._access["turtle1"] = AccessReport("viewer", ("reset",), ("dock",), estop=True)  # what viewers may use
-    assert client._refusal("turtle1", Verb.CALL, "reset") is None
-    assert client._refusal("turtle1", Verb.GOAL, "dock") is None
-    assert client._refusal("turtle1", Verb.CMD, "cmd/emergency_stop") is None
+    assert client.refusal("turtle1", Verb.CALL, "reset") is None
+    assert client.refusal("turtle1", Verb.GOAL, "dock") is None
+    assert client.refusal("turtle1", Verb.CMD, "cmd/emergency_stop") is None
     client._access["turtle1"] = AccessReport("operator", ())
-    assert client._refusal("turtle1", verb, name) is None
+    assert client.refusal("turtle1", verb, name) is None

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from roslink_mqtt.bridge.claim import (
+from roslink_mqtt.bridge.core.claim import (
     Claim,
     ClaimWatch,
     Verdict,

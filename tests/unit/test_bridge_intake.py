@@ -1,10 +1,10 @@
-"""The viewers' connection is read at a bounded rate (bridge/intake.py): bursts pass, a flood is spread out."""
+"""The viewers' connection is read at a bounded rate (bridge/core/intake.py): bursts pass, a flood is spread out."""
 
 from __future__ import annotations
 
 import pytest
 
-from roslink_mqtt.bridge.intake import BURST_TIME, MIN_BURST, Intake
+from roslink_mqtt.bridge.core.intake import BURST_TIME, MIN_BURST, Intake
 
 
 def test_a_few_messages_pass_at_once() -> None:

@@ -1,8 +1,8 @@
-"""The bridge's disk buffer for ``buffer: disk`` rules (roslink_mqtt/bridge/spool.py): order, bounds, restarts."""
+"""The bridge's disk buffer for ``buffer: disk`` rules (roslink_mqtt/bridge/core/spool.py): order, bounds, restarts."""
 
 from __future__ import annotations
 
-from roslink_mqtt.bridge.spool import Spool
+from roslink_mqtt.bridge.core.spool import Spool
 
 
 def _drain(spool: Spool, now: float = 100.0) -> list[bytes]:

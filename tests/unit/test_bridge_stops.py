@@ -1,8 +1,8 @@
-"""Emergency stops arrive on two connections and are obeyed once (roslink_mqtt/bridge/stops.py): pure logic."""
+"""Emergency stops arrive on two connections and are obeyed once (roslink_mqtt/bridge/core/stops.py): pure logic."""
 
 from __future__ import annotations
 
-from roslink_mqtt.bridge.stops import MAX_KEPT, WINDOW, StopDedup
+from roslink_mqtt.bridge.core.stops import MAX_KEPT, WINDOW, StopDedup
 
 TOPIC = "roslink/turtle1/from/alice/cmd/emergency_stop"
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import orjson
 
-from roslink_mqtt.bridge import trace
+from roslink_mqtt.bridge.core import trace
 
 
 def test_marks_are_written_as_json_lines_in_order_and_bounded(tmp_path, monkeypatch) -> None:

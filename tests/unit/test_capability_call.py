@@ -1,4 +1,4 @@
-"""The call capability (bridge/capabilities/call.py) through the command endpoint, with a recording ServicePort.
+"""The call capability (bridge/core/capabilities/call.py) through the command endpoint, with a recording ServicePort.
 
 Every call is answered exactly once on its reply topic, whatever happens to it; only the control lease refuses on
 the error topic; a request slot taken is always given back; a malformed call never claims the control lease.
@@ -13,10 +13,10 @@ from typing import Any
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.budget import RequestBudget
-from roslink_mqtt.bridge.capabilities import CallService
-from roslink_mqtt.bridge.capabilities.call import Outcome
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.budget import RequestBudget
+from roslink_mqtt.bridge.core.capabilities import CallService
+from roslink_mqtt.bridge.core.capabilities.call import Outcome
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.config import ServiceRule
 from roslink_mqtt.protocol.control import CallReply
 from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T

@@ -1,4 +1,4 @@
-"""The goal and cancel capabilities (bridge/capabilities/goals.py) through the command endpoint, with a recording
+"""The goal and cancel capabilities (bridge/core/capabilities/goals.py) through the command endpoint, with a recording
 ActionPort. A goal needs presence, unblocked motion and (unless viewers may send it) the control lease; a cancel
 needs only the grant; every refusal names the goal and its sender. Real actions: tests/integration/test_actions.py.
 """
@@ -10,8 +10,8 @@ from typing import Any
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.capabilities import CancelGoal, SendGoal
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.capabilities import CancelGoal, SendGoal
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.config import ActionRule
 from roslink_mqtt.protocol.goals import GoalRequest
 from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T

@@ -1,4 +1,4 @@
-"""The log and advertise capabilities (bridge/capabilities/logs.py, advertise.py) through the command endpoint,
+"""The log and advertise capabilities (bridge/core/capabilities/logs.py, advertise.py) through the command endpoint,
 with recording ports. Real /rosout and on-demand publishers: tests/integration/test_rosout.py, test_on_demand.py.
 """
 
@@ -9,9 +9,9 @@ from types import SimpleNamespace
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.capabilities import Advertise, LogLines, logs
-from roslink_mqtt.bridge.capabilities.logs import BURST
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.capabilities import Advertise, LogLines, logs
+from roslink_mqtt.bridge.core.capabilities.logs import BURST
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.protocol.rosout import LogLine
 from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T
 
@@ -108,7 +108,7 @@ class RecordingProvider:
 
 
 def test_offers_withdrawals_and_responses_of_provided_services() -> None:
-    from roslink_mqtt.bridge.capabilities import ProvideService, RespondToCall
+    from roslink_mqtt.bridge.core.capabilities import ProvideService, RespondToCall
 
     h = Harness()
     port = RecordingProvider()

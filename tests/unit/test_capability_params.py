@@ -1,4 +1,4 @@
-"""The parameter capability (bridge/capabilities/params.py) through the command endpoint, with a recording port.
+"""The parameter capability (bridge/core/capabilities/params.py) through the command endpoint, with a recording port.
 
 Reads for every granted user, sets only with presence and from the holder of the control lease; every refusal on
 the error topic with the request's id and sender (a malformed body's too, read once by its parser); one reply per
@@ -12,10 +12,10 @@ from typing import Any
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.budget import RequestBudget
-from roslink_mqtt.bridge.capabilities import Parameters
-from roslink_mqtt.bridge.capabilities.params import ParamOutcome
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.budget import RequestBudget
+from roslink_mqtt.bridge.core.capabilities import Parameters
+from roslink_mqtt.bridge.core.capabilities.params import ParamOutcome
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.config import ParameterRule
 from roslink_mqtt.protocol.params import ParamReply, ParamRequest
 from roslink_mqtt.topics import Verb

@@ -1,6 +1,6 @@
-"""Actions provided by MQTT clients and SDK nodes' parameters as capabilities (bridge/capabilities/provide_action.py,
-sdk_params.py) through the command endpoint, with recording ports. Real ones: tests/integration/test_provided_actions.py
-and test_sdk_node_params.py.
+"""Actions provided by MQTT clients and SDK nodes' parameters as capabilities
+(bridge/core/capabilities/provide_action.py, sdk_params.py) through the command endpoint, with recording ports. Real
+ones: tests/integration/test_provided_actions.py and test_sdk_node_params.py.
 """
 
 from __future__ import annotations
@@ -9,13 +9,13 @@ from collections.abc import Callable
 
 import orjson
 
-from roslink_mqtt.bridge.capabilities import (
+from roslink_mqtt.bridge.core.capabilities import (
     DeclareParameters,
     ParameterSetResult,
     ProvideAction,
     UpdateProvidedGoal,
 )
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.protocol.node_params import ParamDeclaration, ParamSetResult
 from roslink_mqtt.protocol.provided_actions import ActionOffer, ActionUpdate
 from roslink_mqtt.topics import Verb

@@ -1,5 +1,5 @@
-"""Snapshots without ROS: the ring buffer (bridge/snapshot_buffer.py) with a clock of the test's own, and the
-capability (bridge/capabilities/snapshot.py) through the command endpoint with a fake port and a recording uplink.
+"""Snapshots without ROS: the ring buffer (bridge/core/snapshot_buffer.py) with a clock of the test's own, and the
+capability (bridge/core/capabilities/snapshot.py) through the command endpoint with a fake port and a recording uplink.
 
 The buffer holds what its seconds and bytes allow, oldest out first, and its file is an MCAP that the ``mcap`` reader
 opens (ros2 profile, a ros2msg schema and a cdr channel per topic). The capability answers an operator with every
@@ -19,10 +19,10 @@ from dataclasses import replace
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.capabilities import Snapshots
-from roslink_mqtt.bridge.capabilities.snapshot import CHUNK
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
-from roslink_mqtt.bridge.snapshot_buffer import SnapshotBuffer, SnapshotFile
+from roslink_mqtt.bridge.core.capabilities import Snapshots
+from roslink_mqtt.bridge.core.capabilities.snapshot import CHUNK
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.snapshot_buffer import SnapshotBuffer, SnapshotFile
 from roslink_mqtt.config import SnapshotSettings, SnapshotTopic
 from roslink_mqtt.protocol.snapshot import SnapshotChunk
 from roslink_mqtt.topics import Verb

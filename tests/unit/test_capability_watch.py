@@ -1,5 +1,5 @@
 """``watch/<stream>`` without ROS: the watchers' leases (roslink_mqtt/video/watchers.py) with a clock of the test's
-own, and the capability (bridge/capabilities/watch.py) through the command endpoint with a recording port.
+own, and the capability (bridge/core/capabilities/watch.py) through the command endpoint with a recording port.
 
 Any granted user may watch, a viewer too; a user without a grant on the robot, a stream the robot does not have
 and a malformed request are refused on the sender's error topic. A watch lapses unless renewed, ends with its
@@ -14,8 +14,8 @@ from dataclasses import replace
 import orjson
 import pytest
 
-from roslink_mqtt.bridge.capabilities import Watch
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.capabilities import Watch
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
 from roslink_mqtt.config import VideoStream
 from roslink_mqtt.topics import Verb
 from roslink_mqtt.video.watchers import KEY_MIN_GAP, MAX_CLIENTS_PER_USER, Watchers

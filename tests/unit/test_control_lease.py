@@ -1,4 +1,4 @@
-"""The control lease: one driver at a time, as pure decisions (bridge/lease.py) and through the command endpoint
+"""The control lease: one driver at a time, as pure decisions (bridge/core/lease.py) and through the command endpoint
 in-process (the harness of tests/unit/test_bridge_endpoint.py). Real processes race in
 tests/integration/test_one_driver.py."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import dataclasses
 import time
 
-from roslink_mqtt.bridge.endpoint import CommandEndpoint
-from roslink_mqtt.bridge.lease import CONTROL_EXPLICIT, ControlLease, Outcome
+from roslink_mqtt.bridge.core.endpoint import CommandEndpoint
+from roslink_mqtt.bridge.core.lease import CONTROL_EXPLICIT, ControlLease, Outcome
 from roslink_mqtt.presence import operator_signoff
 from roslink_mqtt.protocol.lease import ControlOp, ControlState
 from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T

@@ -6,7 +6,7 @@ import orjson
 import pytest
 
 from roslink_mqtt.authorize import allowed
-from roslink_mqtt.bridge.description import ACK_STATE, build_description, description_message
+from roslink_mqtt.bridge.ros.description import ACK_STATE, build_description, description_message
 from roslink_mqtt.config import Role, parse_fleet
 from roslink_mqtt.protocol import ProtocolError
 from roslink_mqtt.protocol.description import (

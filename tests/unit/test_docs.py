@@ -59,7 +59,7 @@ def test_verb_table_is_current() -> None:
 def test_control_operations_and_the_bridge_claim_are_documented_as_coded() -> None:
     """The lease's operations (topic levels) and the fields a starting bridge announces on state/bridge are
     written by hand in protocol.md's Control section: each one the code knows is there, and no other."""
-    from roslink_mqtt.bridge.claim import CLAIM_FIELDS
+    from roslink_mqtt.bridge.core.claim import CLAIM_FIELDS
     from roslink_mqtt.protocol.lease import ControlOp
 
     text = (DOCS / "protocol.md").read_text()

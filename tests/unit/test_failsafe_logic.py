@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from roslink_mqtt.bridge.failsafe import Failsafe
+from roslink_mqtt.bridge.core.failsafe import Failsafe
 from roslink_mqtt.presence import OperatorTracker, is_commanding, operator_heartbeat
 
 

@@ -1,9 +1,9 @@
-"""The bridge's look at the ROS graph (bridge/graph_check.py): which rule has nobody on the other end, and the
+"""The bridge's look at the ROS graph (bridge/core/graph_check.py): which rule has nobody on the other end, and the
 closest name that exists (issue 30 item 9). The live check: tests/integration/test_cli_edges.py."""
 
 from __future__ import annotations
 
-from roslink_mqtt.bridge.graph_check import SERVICE, TOPIC, Expected, changes, check, closest
+from roslink_mqtt.bridge.core.graph_check import SERVICE, TOPIC, Expected, changes, check, closest
 from roslink_mqtt.protocol.description import RobotDescription, ServiceEntry, StateEntry
 
 ODOM = "nav_msgs/msg/Odometry"

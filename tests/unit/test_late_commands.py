@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from roslink_mqtt.bridge.failsafe import late_motion
+from roslink_mqtt.bridge.core.failsafe import late_motion
 from roslink_mqtt.presence import (
     MAX_PRESENCE_BYTES,
     OperatorTracker,
@@ -31,7 +31,7 @@ def test_standstill_is_a_stop_whatever_the_message_type() -> None:
     """Twist and TwistStamped shapes (the real messages are checked in tests/integration/test_safety_ros.py)."""
     from types import SimpleNamespace as Msg
 
-    from roslink_mqtt.bridge.safety import is_standstill
+    from roslink_mqtt.bridge.core.safety import is_standstill
 
     def twist(**set_: float) -> Msg:
         lin = Msg(x=0.0, y=0.0, z=0.0)

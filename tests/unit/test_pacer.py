@@ -1,4 +1,4 @@
-"""A paced lane's writes (bridge/pacer.py): the token bucket, and the wrapper under paho's socket writes."""
+"""A paced lane's writes (bridge/core/pacer.py): the token bucket, and the wrapper under paho's socket writes."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
-from roslink_mqtt.bridge.pacer import MIN_BURST, SLEEP_MAX, ZERO_COPY_FROM, Pacer, install, paced_send
+from roslink_mqtt.bridge.core.pacer import MIN_BURST, SLEEP_MAX, ZERO_COPY_FROM, Pacer, install, paced_send
 
 pytestmark = pytest.mark.unit
 

@@ -36,13 +36,16 @@ RELIED_ON: dict[str, str] = {
                                              "packet is queued as a memoryview",
     "paho.mqtt.client:Client._packet_write": "writes _out_packet's head, lowers to_process, pops what is written: "
                                              "what is left is what paho holds unsent; slices packet[pos:] at "
-                                             "every attempt (a copy, unless the packet is a view: bridge/pacer.py)",
-    "paho.mqtt.client:Client._send_pingreq": "MqttLink.ping: the path meter's probe (bridge/path_meter.py); wrapped "
-                                             "so the keep-alive's PINGREQs enter bridge/ping_ledger.py too; sets "
+                                             "every attempt (a copy, unless the packet is a view: "
+                                             "bridge/core/pacer.py)",
+    "paho.mqtt.client:Client._send_pingreq": "MqttLink.ping: the path meter's probe (bridge/core/path_meter.py); "
+                                             "wrapped so the keep-alive's PINGREQs enter bridge/core/ping_ledger.py "
+                                             "too; sets "
                                              "_ping_t after queuing (MqttLink clears it when the answer came first)",
     "paho.mqtt.client:Client._handle_pingresp": "wrapped by MqttLink: a PINGRESP answers the oldest PINGREQ (the "
                                                 "ledger says if a probe's); sets _ping_t to 0",
-    "paho.mqtt.client:Client._sock_send": "wrapped per paced lane (bridge/pacer.py): writes part of a buffer or raises "
+    "paho.mqtt.client:Client._sock_send": "wrapped per paced lane (bridge/core/pacer.py): writes part of a buffer or "
+                                          "raises "
                                           "BlockingIOError, as a full socket would; only _packet_write calls it",
     "paho.mqtt.client:Client.loop_misc": "drops the connection when _ping_t stays set for keepalive s: why a mark "
                                          "left set after its answer must be cleared",

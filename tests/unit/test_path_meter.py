@@ -1,4 +1,4 @@
-"""The end-to-end path meter (roslink_mqtt/bridge/path_meter.py): its signals on hand-made answers, and the rate it
+"""The end-to-end path meter (roslink_mqtt/bridge/core/path_meter.py): its signals on hand-made answers, and the rate it
 allows in a closed loop with a simulated path that hides its queue (one FIFO behind a hop that acknowledges at once),
 including capacity that falls to an eighth in an instant and a dead spot. Pure: simulated time, no sockets."""
 
@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from roslink_mqtt.bridge.path_meter import (
+from roslink_mqtt.bridge.core.path_meter import (
     FIRST_WAIT,
     FRESH_ANSWER,
     MIN_RATE,

@@ -1,4 +1,4 @@
-"""Which PINGRESP answers the uplink's probe (bridge/ping_ledger.py)."""
+"""Which PINGRESP answers the uplink's probe (bridge/core/ping_ledger.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from roslink_mqtt.bridge.ping_ledger import PingLedger
+from roslink_mqtt.bridge.core.ping_ledger import PingLedger
 
 pytestmark = pytest.mark.unit
 

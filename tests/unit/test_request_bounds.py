@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from roslink_mqtt.bridge.budget import RequestBudget
-from roslink_mqtt.bridge.refusals import RefusalReports
+from roslink_mqtt.bridge.core.budget import RequestBudget
+from roslink_mqtt.bridge.core.refusals import RefusalReports
 from roslink_mqtt.broker.guard import Pacer
 
 
@@ -69,7 +69,7 @@ def test_a_pacer_needs_a_rate_and_a_burst() -> None:
 def test_the_bridge_never_publishes_what_the_broker_would_disconnect_it_for(caplog) -> None:
     """Over the broker's max_payload a message is dropped and logged once per topic (sent, both brokers close
     the connection, and the robot loses its link once per message)."""
-    from roslink_mqtt.bridge.link import MqttLink
+    from roslink_mqtt.bridge.core.link import MqttLink
     from roslink_mqtt.mqtt import parse_broker_url
 
     link = MqttLink(client_id="t", username="turtle1", password="x", url=parse_broker_url("mqtt://127.0.0.1:9"),

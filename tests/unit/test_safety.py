@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from roslink_mqtt.bridge.safety import UnsafeCommand, clamp, clamp_components, clamp_norm
+from roslink_mqtt.bridge.core.safety import UnsafeCommand, clamp, clamp_components, clamp_norm
 from roslink_mqtt.config import VelocityLimits
 
 anything = st.floats(allow_nan=True, allow_infinity=True) | st.integers(-(10**20), 10**20)

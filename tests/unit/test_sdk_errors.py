@@ -17,7 +17,8 @@ import pytest
 
 import roslink_mqtt.client as sdk
 from roslink_mqtt.client import errors
-from roslink_mqtt.client.qos import mqtt_qos
+from roslink_mqtt.client.rclpy import exceptions as rclpy_exceptions
+from roslink_mqtt.client.rclpy.qos import mqtt_qos
 
 CLIENT = Path(sdk.__file__).parent
 # (file, builtin): raises that are Python protocol, not SDK errors
@@ -62,7 +63,9 @@ def test_the_scan_sees_a_bare_builtin(tmp_path: Path) -> None:
 ])
 def test_each_sdk_error_is_also_the_builtin_it_replaced(cls: type[Exception], builtin: type[Exception]) -> None:
     assert issubclass(cls, errors.RoslinkError) and issubclass(cls, builtin)
-    assert getattr(sdk, cls.__name__) is cls
+    # NodeDestroyed: raised by the rclpy-shaped node only; InvalidType: caught as the TypeError it is
+    home = rclpy_exceptions if cls is errors.NodeDestroyed else errors if cls is errors.InvalidType else sdk
+    assert getattr(home, cls.__name__) is cls
 
 
 def test_old_except_clauses_still_catch() -> None:

@@ -10,7 +10,7 @@ import orjson
 import pytest
 
 from roslink_mqtt.client.dispatch import CallbackQueue, Scheduler
-from roslink_mqtt.client.node_params import (
+from roslink_mqtt.client.rclpy.parameters import (
     InvalidParameterValueException,
     NodeParameters,
     Parameter,

@@ -15,23 +15,22 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from roslink_mqtt.client import (
-    ConnectError,
-    GlobalMotion,
-    Image,
-    RangeFinderData,
-    RobotClient,
-    RoslinkMessage,
-    ServiceError,
-    ServiceTimeout,
-)
+from roslink_mqtt.client import ConnectError, RobotClient, ServiceError, ServiceTimeout
 from roslink_mqtt.client.calls import ServiceCalls
 from roslink_mqtt.client.commands import CommandStreams, command_leaf
 from roslink_mqtt.client.directory import RobotDirectory
 from roslink_mqtt.client.dispatch import CallbackQueue, Scheduler
-from roslink_mqtt.client.messages import MESSAGE_CLASSES, message_class, parse_state
-from roslink_mqtt.client.node import ros_shaped_to_roslink
-from roslink_mqtt.client.qos import QoSProfile, ReliabilityPolicy, mqtt_qos, qos_profile_sensor_data
+from roslink_mqtt.client.messages import (
+    MESSAGE_CLASSES,
+    GlobalMotion,
+    Image,
+    RangeFinderData,
+    RoslinkMessage,
+    message_class,
+    parse_state,
+)
+from roslink_mqtt.client.rclpy.node import ros_shaped_to_roslink
+from roslink_mqtt.client.rclpy.qos import QoSProfile, ReliabilityPolicy, mqtt_qos, qos_profile_sensor_data
 from roslink_mqtt.client.subscriptions import parse_state_item
 from roslink_mqtt.presence import operator_heartbeat
 from roslink_mqtt.protocol import (

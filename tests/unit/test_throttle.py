@@ -7,7 +7,7 @@ import random
 from hypothesis import given
 from hypothesis import strategies as st
 
-from roslink_mqtt.bridge.throttle import SLACK, Throttle
+from roslink_mqtt.bridge.core.throttle import SLACK, Throttle
 
 
 def _run(throttle: Throttle, arrivals: list[float], flush_every: float) -> list[tuple[float, int]]:

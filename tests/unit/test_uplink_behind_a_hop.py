@@ -1,4 +1,4 @@
-"""The uplink sender behind a hop that hides the queue (roslink_mqtt/bridge/uplink_sender.py): what a paced lane
+"""The uplink sender behind a hop that hides the queue (roslink_mqtt/bridge/core/uplink_sender.py): what a paced lane
 still holds in paho has not left the robot, and while the path steers the lane writes at its allowance. ROS-free;
 the links are stand-ins with real, never connected paho clients (the sender reads their queues)."""
 
@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from roslink_mqtt.bridge.uplink import PROBE
-from roslink_mqtt.bridge.uplink_sender import Uplink
+from roslink_mqtt.bridge.core.uplink import PROBE
+from roslink_mqtt.bridge.core.uplink_sender import Uplink
 from tests.unit.test_uplink_sender_offline import Link
 
 pytestmark = pytest.mark.unit

@@ -1,4 +1,4 @@
-"""The uplink scheduler and link meter (roslink_mqtt/bridge/uplink.py): pure logic, no sockets, no ROS."""
+"""The uplink scheduler and link meter (roslink_mqtt/bridge/core/uplink.py): pure logic, no sockets, no ROS."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from roslink_mqtt.bridge.uplink import (
+from roslink_mqtt.bridge.core.uplink import (
     INITIAL_RATE,
     MIN_BUDGET,
     MIN_RATE,

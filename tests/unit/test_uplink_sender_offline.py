@@ -1,4 +1,4 @@
-"""The uplink sender when a connection goes (roslink_mqtt/bridge/uplink_sender.py): what waits for it is kept on
+"""The uplink sender when a connection goes (roslink_mqtt/bridge/core/uplink_sender.py): what waits for it is kept on
 disk for ``buffer: disk`` streams, in order, and dropped for live state. ROS-free; the links are stand-ins with
 real, never connected paho clients (the sender reads their queues and sockets)."""
 
@@ -11,9 +11,9 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
-from roslink_mqtt.bridge.spool import Spool
-from roslink_mqtt.bridge.uplink import Outgoing
-from roslink_mqtt.bridge.uplink_sender import Uplink
+from roslink_mqtt.bridge.core.spool import Spool
+from roslink_mqtt.bridge.core.uplink import Outgoing
+from roslink_mqtt.bridge.core.uplink_sender import Uplink
 from roslink_mqtt.config import Priority
 
 
