@@ -29,7 +29,8 @@ import sys
 import threading
 import time
 
-from roslink_mqtt.client.messages import GlobalMotion, RobotClient, RoslinkError
+from roslink_mqtt.client import RobotClient, RoslinkError
+from roslink_mqtt.client.messages import GlobalMotion
 from roslink_mqtt.connection_options import add_connection_options, resolve_login
 
 

@@ -92,7 +92,7 @@ def test_plain_mqtt_publish_is_an_implicit_advertisement(stack) -> None:
 
 def test_publisher_goes_when_its_process_dies(stack) -> None:
     lights = stack["lights"]
-    code = ("import sys, time; import roslink_mqtt.client as sdk\n"
+    code = ("import sys, time; from roslink_mqtt.client import rclpy as sdk\n"
             f"node = sdk.create_node('doomed', robot='turtle1', url='{stack['url']}', username='alice', "
             "password='alice-demo')\n"
             "node.create_publisher('std_msgs/msg/Bool', 'lights', 10)\n"

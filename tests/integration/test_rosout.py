@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from roslink_mqtt import client as sdk
+from roslink_mqtt.client import rclpy as sdk
 from tests.support.robot_stack import BROKERS, turtle1_online
 from tests.support.ros import RosProbe
 

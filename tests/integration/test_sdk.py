@@ -50,7 +50,9 @@ for name in ("rclpy", "amqtt"):
     else:
         raise SystemExit(f"the blocker let {name} through")
 import roslink_mqtt.client as sdk
-from roslink_mqtt.client import RobotClient, create_node, GlobalMotion
+from roslink_mqtt.client import RobotClient
+from roslink_mqtt.client.rclpy import create_node
+from roslink_mqtt.client.messages import GlobalMotion
 from roslink_mqtt.client.commands import CommandStreams
 from roslink_mqtt.topics import TopicTree
 topic, data, seq = CommandStreams(TopicTree(), "alice").build("turtle1", "twist", {"lx": 0.2})

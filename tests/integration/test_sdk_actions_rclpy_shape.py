@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from roslink_mqtt import client as sdk
+from roslink_mqtt.client import rclpy as sdk
 from roslink_mqtt.client.rclpy.action import STATUS_CANCELED, STATUS_SUCCEEDED, ActionClient, ActionServer
 from tests.support.robot_stack import turtle1_online
 from tests.support.ros import RosProbe

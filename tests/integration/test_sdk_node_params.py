@@ -22,7 +22,8 @@ from typing import Any
 
 import pytest
 
-from roslink_mqtt import client as sdk
+from roslink_mqtt.client import rclpy as sdk
+from roslink_mqtt.client.rclpy.parameter import Parameter, ParameterDescriptor, SetParametersResult
 from tests.support.mqtt_client import TestClient
 from tests.support.robot_stack import BROKERS, turtle1_online
 from tests.support.ros import RosProbe
@@ -90,22 +91,22 @@ def test_ros_parameter_client_reaches_the_sdk_node(tmp_path, broker: str) -> Non
         with turtle1_online(tmp_path, broker) as port:
             url = f"mqtt://127.0.0.1:{port}"
             node = _ready_node(url, "legacy_arm")
-            seen: list[list[sdk.Parameter]] = []
+            seen: list[list[Parameter]] = []
 
-            def on_set(params: list[sdk.Parameter]) -> sdk.SetParametersResult:
+            def on_set(params: list[Parameter]) -> SetParametersResult:
                 seen.append(params)
                 for p in params:
                     if p.name == "max_force" and p.value > 5.0:
-                        return sdk.SetParametersResult(successful=False, reason="max_force must be at most 5 N")
-                return sdk.SetParametersResult(successful=True)
+                        return SetParametersResult(successful=False, reason="max_force must be at most 5 N")
+                return SetParametersResult(successful=True)
 
             spinner = threading.Thread(target=sdk.spin, args=(node,), daemon=True)
             try:
                 node.add_on_set_parameters_callback(on_set)
                 assert node.declare_parameter("max_force", 2.5, {"description": "gripper force limit (N)"}).value == 2.5
                 node.declare_parameters("", [("speed", 3), ("port", "/dev/ttyUSB0",
-                                                            sdk.ParameterDescriptor(read_only=True))])
-                assert node.get_parameter("max_force").type_ is sdk.Parameter.Type.DOUBLE
+                                                            ParameterDescriptor(read_only=True))])
+                assert node.get_parameter("max_force").type_ is Parameter.Type.DOUBLE
                 assert node.has_parameter("speed") and not node.has_parameter("nope")
                 spinner.start()
 
@@ -141,7 +142,7 @@ def test_ros_parameter_client_reaches_the_sdk_node(tmp_path, broker: str) -> Non
 
                 # a local set goes through the callbacks too, and reaches ROS
                 assert not node.set_parameters({"max_force": 7.0})[0].successful
-                assert node.set_parameters([sdk.Parameter("max_force", value=4)])[0].successful
+                assert node.set_parameters([Parameter("max_force", value=4)])[0].successful
                 assert node.get_parameter("max_force").value == 4.0  # an integer is a fine double
                 _until(lambda: _wait(ros.get_parameters(["max_force"])).values[0].double_value == 4.0, 5,
                        "the local set on ROS")
@@ -163,7 +164,7 @@ def test_ros_parameter_client_reaches_the_sdk_node(tmp_path, broker: str) -> Non
 
 _KILLED = """
 import sys, time
-from roslink_mqtt import client as sdk
+from roslink_mqtt.client import rclpy as sdk
 node = sdk.create_node(sys.argv[2], robot="turtle1", url=sys.argv[1], username="alice", password="alice-demo",
                        keepalive=2)
 node.declare_parameter("gain", 1.5)
