@@ -22,8 +22,8 @@ from .topics import Verb
 
 # what a viewer may do where the fleet file opens it to viewers (a read_only service, an action with viewers: true,
 # reading parameters, setting those of a node with viewers_may_set, snapshots with snapshot.who: viewers; video
-# streams are always open to viewers: read_only True)
-VIEWER_VERBS = frozenset({Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM, Verb.SNAPSHOT, Verb.WATCH})
+# streams are always open to viewers: read_only True). Declared with each verb (topics.py).
+VIEWER_VERBS = frozenset(verb for verb in Verb if verb.open_to_viewers)
 
 
 def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
@@ -32,40 +32,6 @@ def allowed(role: Role | None, verb: Verb, *, read_only: bool = False) -> bool:
     if role is Role.OPERATOR:
         return True
     return role is Role.VIEWER and verb in VIEWER_VERBS and read_only
-
-
-def _action(verb: Verb, name: str, robot: str) -> str:
-    if verb is Verb.CMD:
-        return f"send '{name}'"
-    if verb is Verb.CALL:
-        return f"call '{name}'"
-    if verb is Verb.PROVIDE:
-        return f"provide services on {robot}"
-    if verb is Verb.RESPONSE:
-        return f"answer calls to '{name}'"
-    if verb is Verb.GOAL:
-        return f"send goals to '{name}'"
-    if verb is Verb.CANCEL:
-        return f"cancel goals of '{name}'"
-    if verb is Verb.PARAM:
-        return f"set parameters of '{name}'"
-    if verb is Verb.PROVIDE_ACTION:
-        return f"provide actions on {robot}"
-    if verb is Verb.ACTION_UPDATE:
-        return f"answer goals of '{name}'"
-    if verb is Verb.DECLARE:
-        return f"declare parameters on {robot} (as node '{name}')"
-    if verb is Verb.PARAM_RESULT:
-        return f"answer parameter changes of '{name}'"
-    if verb is Verb.LOG:
-        return f"write the robot's /rosout (as node '{name}')"
-    if verb is Verb.CONTROL:
-        return f"{name.replace('_', ' ')} control of {robot}"
-    if verb is Verb.SNAPSHOT:
-        return f"ask {robot} for snapshots"
-    if verb is Verb.WATCH:
-        return f"watch '{name}'"
-    return f"publish on '{name}'"
 
 
 def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, read_only: bool = False) -> str | None:
@@ -79,8 +45,8 @@ def refusal(user: str, role: Role | None, verb: Verb, name: str, *, robot: str, 
     if allowed(role, verb, read_only=read_only):
         return None
     if verb is Verb.WATCH and role is None:
-        return f"user '{user}' may not {_action(verb, name, robot)} (any granted user may): no grant on {robot}"
+        return f"user '{user}' may not {verb.refused(name, robot)} (any granted user may): no grant on {robot}"
     who_may = ("operators only; it is not read-only" if verb is Verb.CALL else
                "operators only; it is not open to viewers" if verb in VIEWER_VERBS else "operators only")
     standing = "a viewer" if role is Role.VIEWER else "no grant"
-    return f"user '{user}' may not {_action(verb, name, robot)} ({who_may}): not an operator of {robot} ({standing})"
+    return f"user '{user}' may not {verb.refused(name, robot)} ({who_may}): not an operator of {robot} ({standing})"

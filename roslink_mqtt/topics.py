@@ -110,6 +110,24 @@ def _level_or_any(name: str, what: str) -> str:
     return ANY if name == ANY else check_name(name, what)
 
 
+@dataclass(frozen=True, slots=True)
+class VerbSpec:
+    """One verb's declaration (the table below)."""
+
+    meaning: str  # one line for docs/protocol.md's verb table
+    by_user: bool  # sent by users (``from/<user>/…``), else by robots (``to/<user>/…``)
+    refused: str = ""  # a user's verb: what a refusal says the user may not do
+    viewers: bool = False  # a user's verb the fleet file may open to viewers
+
+    @classmethod
+    def user(cls, meaning: str, *, refused: str, viewers: bool = False) -> VerbSpec:
+        return cls(meaning, True, refused, viewers)
+
+    @classmethod
+    def robot(cls, meaning: str) -> VerbSpec:
+        return cls(meaning, False)
+
+
 class Verb(Enum):
     """What a message under ``from/<user>/`` or ``to/<user>/`` is; its value is the topic level."""
 
@@ -147,11 +165,20 @@ class Verb(Enum):
     @property
     def meaning(self) -> str:
         """One line for docs/protocol.md's verb table (rendered from this enum)."""
-        return _MEANINGS[self]
+        return _DECLARED[self].meaning
 
     @property
     def sent_by_user(self) -> bool:
-        return self in USER_VERBS
+        return _DECLARED[self].by_user
+
+    @property
+    def open_to_viewers(self) -> bool:
+        """Whether the fleet file may open this verb to viewers (a read-only service, ``viewers: true``…)."""
+        return _DECLARED[self].viewers
+
+    def refused(self, name: str, robot: str) -> str:
+        """What a refusal of this verb says the user may not do: ``call 'reset'`` (docs/protocol.md quotes it)."""
+        return _DECLARED[self].refused.format(name=name, name_words=name.replace("_", " "), robot=robot)
 
     @property
     def named(self) -> bool:
@@ -164,41 +191,56 @@ class Verb(Enum):
         return self in (Verb.PROVIDE, Verb.ADVERTISE, Verb.ACCESS, Verb.DECLARE, Verb.PROVIDE_ACTION)
 
 
-_MEANINGS = {
-    Verb.CMD: "a ROSLink command (`cmd/twist`) or a rule named `cmd/…`",
-    Verb.CALL: "call one of the robot's ROS services; answered on `reply/<service>`",
-    Verb.PROVIDE: "offer a service to ROS (an empty retained message withdraws)",
-    Verb.RESPONSE: "a provider's answer to a `request/<service>`",
-    Verb.ADVERTISE: "keep a generic rule's ROS publisher while you are present (empty withdraws)",
-    Verb.REPLY: "the answer to your `call/<service>`",
-    Verb.REQUEST: "a ROS node calls a service you provide",
-    Verb.ERROR: "why something you sent was refused",
-    Verb.NOTICE: "something you sent was carried out, but not as sent (a twist clamped to the robot's limits)",
-    Verb.ACCESS: "what the broker lets you do on this robot",
-    Verb.GOAL: "send a goal to one of the robot's ROS actions (your id names it)",
-    Verb.CANCEL: "cancel one of your goals",
-    Verb.GOAL_STATUS: "your goal was accepted, rejected, or is being canceled",
-    Verb.FEEDBACK: "your goal's progress (rate-limited, newest wins)",
-    Verb.RESULT: "your goal ended: succeeded, aborted, canceled or timed out, with the ROS result",
-    Verb.PARAM: "get, set, list or describe the parameters of one of the robot's ROS nodes",
-    Verb.PARAM_REPLY: "the answer to your `param/<node>` request",
-    Verb.LOG: "a log line of one of your programs, for the robot's `/rosout`",
-    Verb.DECLARE: "the parameters of one of your SDK nodes, held by the robot as a ROS node's (empty withdraws)",
-    Verb.PARAM_SET: "a ROS client sets parameters of your SDK node; answer on `param_result/<node>`",
-    Verb.PARAM_RESULT: "your SDK node's answer to a `param_set/<node>`: accepted, or refused with a reason",
-    Verb.PROVIDE_ACTION: "serve a ROS action from your program (an empty retained message withdraws)",
-    Verb.ACTION_UPDATE: "your answer on a goal you serve: accepted/rejected, feedback, its end and result",
-    Verb.ACTION_REQUEST: "a ROS client sent a goal to (or canceled one of) an action you serve",
-    Verb.CONTROL: "claim, release or take over control of the robot (`control/claim`, `control/release`, "
-                  "`control/take_over`); `state/control` says who holds it",
-    Verb.SNAPSHOT: "ask for the last seconds of the robot's snapshot topics (ROS messages as MCAP); your id names it",
-    Verb.SNAPSHOT_DATA: "a chunk of the snapshot you asked for (a JSON header line, then its bytes)",
-    Verb.WATCH: "watch one of the robot's video streams: renew it while you watch (a viewer may), leave when done",
+# Each verb, declared once: what it means (docs/protocol.md's verb table), who sends it, and for a user's verb what a
+# refusal says the user may not do (``{name}``: the level after the verb, ``{name_words}`` the same with spaces,
+# ``{robot}``) and whether the fleet file may open it to viewers (roslink_mqtt/authorize.py reads both).
+_DECLARED: dict[Verb, VerbSpec] = {
+    Verb.CMD: VerbSpec.user("a ROSLink command (`cmd/twist`) or a rule named `cmd/…`", refused="send '{name}'"),
+    Verb.CALL: VerbSpec.user("call one of the robot's ROS services; answered on `reply/<service>`",
+                             refused="call '{name}'", viewers=True),
+    Verb.PROVIDE: VerbSpec.user("offer a service to ROS (an empty retained message withdraws)",
+                                refused="provide services on {robot}"),
+    Verb.RESPONSE: VerbSpec.user("a provider's answer to a `request/<service>`", refused="answer calls to '{name}'"),
+    Verb.ADVERTISE: VerbSpec.user("keep a generic rule's ROS publisher while you are present (empty withdraws)",
+                                  refused="publish on '{name}'"),
+    Verb.GOAL: VerbSpec.user("send a goal to one of the robot's ROS actions (your id names it)",
+                             refused="send goals to '{name}'", viewers=True),
+    Verb.CANCEL: VerbSpec.user("cancel one of your goals", refused="cancel goals of '{name}'", viewers=True),
+    Verb.PARAM: VerbSpec.user("get, set, list or describe the parameters of one of the robot's ROS nodes",
+                              refused="set parameters of '{name}'", viewers=True),
+    Verb.LOG: VerbSpec.user("a log line of one of your programs, for the robot's `/rosout`",
+                            refused="write the robot's /rosout (as node '{name}')"),
+    Verb.DECLARE: VerbSpec.user("the parameters of one of your SDK nodes, held by the robot as a ROS node's "
+                                "(empty withdraws)", refused="declare parameters on {robot} (as node '{name}')"),
+    Verb.PARAM_RESULT: VerbSpec.user("your SDK node's answer to a `param_set/<node>`: accepted, or refused with a "
+                                     "reason", refused="answer parameter changes of '{name}'"),
+    Verb.PROVIDE_ACTION: VerbSpec.user("serve a ROS action from your program (an empty retained message withdraws)",
+                                       refused="provide actions on {robot}"),
+    Verb.ACTION_UPDATE: VerbSpec.user("your answer on a goal you serve: accepted/rejected, feedback, its end and "
+                                      "result", refused="answer goals of '{name}'"),
+    Verb.CONTROL: VerbSpec.user("claim, release or take over control of the robot (`control/claim`, "
+                                "`control/release`, `control/take_over`); `state/control` says who holds it",
+                                refused="{name_words} control of {robot}"),
+    Verb.SNAPSHOT: VerbSpec.user("ask for the last seconds of the robot's snapshot topics (ROS messages as MCAP); "
+                                 "your id names it", refused="ask {robot} for snapshots", viewers=True),
+    Verb.WATCH: VerbSpec.user("watch one of the robot's video streams: renew it while you watch (a viewer may), "
+                              "leave when done", refused="watch '{name}'", viewers=True),
+    Verb.REPLY: VerbSpec.robot("the answer to your `call/<service>`"),
+    Verb.REQUEST: VerbSpec.robot("a ROS node calls a service you provide"),
+    Verb.ERROR: VerbSpec.robot("why something you sent was refused"),
+    Verb.NOTICE: VerbSpec.robot("something you sent was carried out, but not as sent (a twist clamped to the "
+                                "robot's limits)"),
+    Verb.ACCESS: VerbSpec.robot("what the broker lets you do on this robot"),
+    Verb.GOAL_STATUS: VerbSpec.robot("your goal was accepted, rejected, or is being canceled"),
+    Verb.FEEDBACK: VerbSpec.robot("your goal's progress (rate-limited, newest wins)"),
+    Verb.RESULT: VerbSpec.robot("your goal ended: succeeded, aborted, canceled or timed out, with the ROS result"),
+    Verb.PARAM_REPLY: VerbSpec.robot("the answer to your `param/<node>` request"),
+    Verb.PARAM_SET: VerbSpec.robot("a ROS client sets parameters of your SDK node; answer on `param_result/<node>`"),
+    Verb.ACTION_REQUEST: VerbSpec.robot("a ROS client sent a goal to (or canceled one of) an action you serve"),
+    Verb.SNAPSHOT_DATA: VerbSpec.robot("a chunk of the snapshot you asked for (a JSON header line, then its bytes)"),
 }
 
-USER_VERBS = frozenset({Verb.CMD, Verb.CALL, Verb.PROVIDE, Verb.RESPONSE, Verb.ADVERTISE, Verb.GOAL, Verb.CANCEL,
-                        Verb.PARAM, Verb.LOG, Verb.DECLARE, Verb.PARAM_RESULT, Verb.PROVIDE_ACTION, Verb.ACTION_UPDATE,
-                        Verb.CONTROL, Verb.SNAPSHOT, Verb.WATCH})
+USER_VERBS = frozenset(verb for verb, spec in _DECLARED.items() if spec.by_user)
 ROBOT_VERBS = frozenset(Verb) - USER_VERBS
 # First levels an mqtt_to_ros rule may not use: the verbs with their own meaning (``cmd/`` is how rules are named).
 RESERVED_RULE_LEVELS = tuple(sorted(v.value for v in USER_VERBS if v is not Verb.CMD)) + (STATE,)

@@ -69,6 +69,18 @@ def test_build_and_parse_every_topic(tree: TopicTree) -> None:
     assert op.startswith(tree.operators_prefix())
 
 
+def test_every_verb_is_declared_once_with_what_a_refusal_of_it_says() -> None:
+    """A verb added to the enum without its declaration fails here, not at the first refusal."""
+    for verb in Verb:
+        assert verb.meaning, verb
+        if verb.sent_by_user:
+            assert verb.refused("reset", "turtle1") and "{" not in verb.refused("reset", "turtle1"), verb
+    assert Verb.CALL.refused("reset", "turtle1") == "call 'reset'"
+    assert Verb.CONTROL.refused("take_over", "turtle1") == "take over control of turtle1"
+    assert {v for v in Verb if v.open_to_viewers} == {Verb.CALL, Verb.GOAL, Verb.CANCEL, Verb.PARAM, Verb.SNAPSHOT,
+                                                     Verb.WATCH}
+
+
 def test_verbs_belong_to_one_direction() -> None:
     assert USER_VERBS | ROBOT_VERBS == set(Verb) and not USER_VERBS & ROBOT_VERBS
     assert {v for v in Verb if not v.named} == {Verb.ERROR, Verb.NOTICE, Verb.ACCESS}

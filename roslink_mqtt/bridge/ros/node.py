@@ -26,8 +26,22 @@ from ...protocol.link import LINK
 from ...topics import Verb, join_leaf, state_name
 from ..core import trace
 from ..core.budget import RequestBudget
-from ..core.capabilities import Snapshots
-from ..core.capabilities.registry import Ports, Wiring, build_all
+from ..core.capabilities import (
+    ACTION_PORT,
+    ACTION_PROVIDER_PORT,
+    ADVERTISE_PORT,
+    CHUNK_PORT,
+    FAILSAFE_FILE_PORT,
+    PARAMETER_PORT,
+    PROVIDER_PORT,
+    SDK_PARAMETER_PORT,
+    SERVICE_PORT,
+    SNAPSHOT_PORT,
+    VIDEO_PORT,
+    Snapshots,
+)
+from ..core.capabilities.ports import Ports
+from ..core.capabilities.registry import Wiring, build_all
 from ..core.claim import EXIT_LOGIN_REFUSED, Claim, ClaimWatch
 from ..core.endpoint import SUPERVISION_RATE, CommandEndpoint
 from ..core.fleet_follower import FleetFollower, LinkKind
@@ -49,7 +63,7 @@ from .action_provider import ProvidedActions
 from .convert import ConversionError, converter_for
 from .on_demand import OnDemandPublishers
 from .parameters import RosParameters
-from .rosout import RosRosout
+from .ports import RosSide, Supervised, made_ports
 from .rules import Outbound, RuleError, compile_rules, ros_qos
 from .sdk_params import SdkParameterNodes
 from .service_caller import RosServices
@@ -272,7 +286,6 @@ class Bridge:
         self._ticks = 0
         on_demand = {n: r for n, r in routes.items() if r.rule.on_demand}
         self.on_demand = OnDemandPublishers(node, on_demand, self._is_live)
-        self.rosout = RosRosout(node)
         self.actuators = RosActuators(node, robot, routes, self.on_demand)
         try:
             self.services = RosServices(node, robot)
@@ -293,9 +306,14 @@ class Bridge:
                                                 self._is_live, self.action_on_executor)
         # cameras as video, encoded once while anyone watches (bridge/ros/video.py)
         self.video = RosVideo(node, robot, self.topics, self.uplink, self._is_live, self.on_executor)
-        # the core's operations, each built from the ports the ROS side implements (capabilities/registry.py)
-        capabilities = build_all(Wiring(robot, self.topics, routes, self._ports(), self._refuse,
-                                        self._publish_reliable, self.link_publish_qos, budget))
+        # the core's operations (capabilities/registry.py), each built from the ports the ROS side implements: those
+        # the bridge drives itself, and those the ROS modules declare (bridge/ros/ports.py)
+        ports = self._ports()
+        made = made_ports(RosSide(node, robot, self.topics, routes, self.uplink, self._publish_reliable,
+                                  self.link_publish_qos, self._is_live, self.on_executor), ports)
+        self._supervised = [port for port in made if isinstance(port, Supervised)]
+        capabilities = build_all(Wiring(robot, self.topics, routes, ports, self._refuse, self._publish_reliable,
+                                        self.link_publish_qos, budget))
         self.snapshots = next(c for c in capabilities if isinstance(c, Snapshots))
         self.endpoint = CommandEndpoint(fleet, robot, self.link, self.actuators, routes, claim=claim,
                                         capabilities=capabilities)
@@ -338,16 +356,18 @@ class Bridge:
                  len(outbound), len(routes), len(self.actuators.velocity), len(self.actions.actions))
 
     def _ports(self) -> Ports:
-        """What the ROS side hands the core's operations (capabilities/registry.py)."""
-        ports = Ports(services=self.services, parameters=self.parameters, actions=self.actions, rosout=self.rosout,
-                      advertise=self.on_demand, provider=self.provided, action_provider=self.provided_actions,
-                      sdk_parameters=self.sdk_params, video=self.video)
+        """The ports the bridge drives itself (supervised, starting and stopping with it, withdrawn from a demoted
+        user), for the core's operations; the ROS modules' own (``MAKES``) join them."""
+        ports = (Ports().provide(SERVICE_PORT, self.services).provide(PARAMETER_PORT, self.parameters)
+                 .provide(ACTION_PORT, self.actions).provide(ADVERTISE_PORT, self.on_demand)
+                 .provide(PROVIDER_PORT, self.provided).provide(ACTION_PROVIDER_PORT, self.provided_actions)
+                 .provide(SDK_PARAMETER_PORT, self.sdk_params).provide(VIDEO_PORT, self.video))
         kept = self.robot.snapshot
-        if kept is None:
+        if kept is None or self.snapshot_buffer is None:
             return ports
         # snapshots: the ring buffer, the uplink's chunks (a stream in state/link), failsafe snapshots on disk
-        return replace(ports, snapshots=self.snapshot_buffer, chunks=UplinkChunks(self.uplink),
-                       save_failsafe=FailsafeFiles(snapshot_dir(kept.dir), self.robot.name, kept.keep))
+        return (ports.provide(SNAPSHOT_PORT, self.snapshot_buffer).provide(CHUNK_PORT, UplinkChunks(self.uplink))
+                .provide(FAILSAFE_FILE_PORT, FailsafeFiles(snapshot_dir(kept.dir), self.robot.name, kept.keep)))
 
     def _lanes(self, outbound: Sequence[Outbound], lane: Callable[[str], MqttLink]
                ) -> tuple[MqttLink | None, dict[str, MqttLink], dict[str, MqttLink]]:
@@ -641,3 +661,5 @@ class Bridge:
             flush()
         self.on_demand.refresh()
         self.sdk_params.refresh()
+        for port in self._supervised:  # the ROS modules' own ports (bridge/ros/ports.py)
+            port.supervise(now)

@@ -12,6 +12,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from ...protocol.rosout import LogLine
+from ..core.capabilities.logs import ROSOUT_PORT
+from .ports import PortMaker
 
 # rclpy's own /rosout publisher profile: late joiners (rqt_console) get the recent lines
 ROSOUT_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -28,3 +30,7 @@ class RosRosout:
         now = self.node.get_clock().now().to_msg()
         self.publisher.publish(Log(stamp=now, level=line.level, name=node_name, msg=line.msg, file=line.file,
                                    function=line.function, line=line.line))
+
+
+# the port of log/* (capabilities/logs.py), made from the bridge's node (bridge/ros/ports.py)
+MAKES = (PortMaker(ROSOUT_PORT, lambda side: RosRosout(side.node)),)

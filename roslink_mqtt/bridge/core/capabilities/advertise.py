@@ -16,6 +16,7 @@ from ....authorize import refusal
 from ....protocol.control import Advertisement
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request, Withdrawal
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -31,6 +32,9 @@ class AdvertisePort(Protocol):
         ...
 
 
+ADVERTISE_PORT = PortKey[AdvertisePort]("advertise", "on-demand ROS publishers")
+
+
 class Advertise:
     verb = Verb.ADVERTISE
 
@@ -40,7 +44,7 @@ class Advertise:
         routes = wiring.routes
         on_demand = {name: route.rule.ros_type for name, route in routes.items() if route.rule.on_demand}
         return cls(wiring.robot.name, on_demand, {name for name in routes if name not in on_demand},
-                   wiring.ports.advertise, wiring.report)
+                   wiring.ports.get(ADVERTISE_PORT), wiring.report)
 
     def __init__(self, robot: str, on_demand: Mapping[str, str], always_there: Set[str], port: AdvertisePort,
                  report: Report) -> None:
@@ -83,3 +87,7 @@ class Advertise:
         body = request.body
         client_id = body.client_id if isinstance(body, Advertisement) else refusal.client_id
         self.report(request.user, request.topic, refusal.reason, client_id=client_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (Advertise,)

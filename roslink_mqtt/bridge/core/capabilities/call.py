@@ -18,6 +18,7 @@ from ....protocol.control import CallReply, CallRequest
 from ....topics import TopicTree, Verb
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -37,6 +38,9 @@ class ServicePort(Protocol):
         ...
 
 
+SERVICE_PORT = PortKey[ServicePort]("services", "calls of the robot's ROS services")
+
+
 def reply(call_id: Any, *, values: dict[str, Any] | None = None, error: str | None = None,
           client_id: str | None = None) -> bytes:
     """A reply body; ``client_id`` repeats the caller's (every program of the user reads the reply topic)."""
@@ -49,7 +53,7 @@ class CallService:
     @classmethod
     def build(cls, wiring: Wiring) -> CallService:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot, wiring.topics, wiring.publish_reliable, wiring.ports.services, wiring.budget,
+        return cls(wiring.robot, wiring.topics, wiring.publish_reliable, wiring.ports.get(SERVICE_PORT), wiring.budget,
                    wiring.report)
 
     verb = Verb.CALL
@@ -108,3 +112,7 @@ class CallService:
         call_id, client_id = (call.id, call.client_id) if call is not None else (refusal.request_id, refusal.client_id)
         self.publish(self.topics.reply(self.robot.name, request.user, request.name),
                      reply(call_id, error=refusal.reason, client_id=client_id))
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (CallService,)

@@ -16,6 +16,7 @@ from ....config import ActionRule, Robot, Role
 from ....protocol.goals import GoalCancel, GoalRequest
 from ....topics import TopicTree, Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -34,6 +35,9 @@ class ActionPort(Protocol):
         ...
 
 
+ACTION_PORT = PortKey[ActionPort]("actions", "goals sent to the robot's ROS actions")
+
+
 G = TypeVar("G", bound="_GoalVerb")
 
 
@@ -43,7 +47,7 @@ class _GoalVerb:
     @classmethod
     def build(cls: type[G], wiring: Wiring) -> G:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot, wiring.topics, wiring.ports.actions, wiring.report)
+        return cls(wiring.robot, wiring.topics, wiring.ports.get(ACTION_PORT), wiring.report)
 
     def __init__(self, robot: Robot, topics: TopicTree, port: ActionPort, report: Report) -> None:
         self.robot, self.topics, self.port, self.report = robot, topics, port, report
@@ -110,3 +114,7 @@ class CancelGoal(_GoalVerb):
         why = self.port.cancel_goal(request.user, request.name, request.body.id)
         if why:
             self.refuse(request, Refusal(why))
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (SendGoal, CancelGoal,)

@@ -17,6 +17,7 @@ from ....authorize import refusal
 from ....protocol.rosout import LogLine
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -30,13 +31,16 @@ class RosoutPort(Protocol):
         ...
 
 
+ROSOUT_PORT = PortKey[RosoutPort]("rosout", "log lines onto /rosout")
+
+
 class LogLines:
     """Log lines from MQTT users' programs, rate-limited per user."""
 
     @classmethod
     def build(cls, wiring: Wiring) -> LogLines:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, wiring.ports.rosout, wiring.report)
+        return cls(wiring.robot.name, wiring.ports.get(ROSOUT_PORT), wiring.report)
 
     verb = Verb.LOG
 
@@ -76,3 +80,7 @@ class LogLines:
         body = request.body
         self.report(request.user, request.topic, refusal.reason,
                     client_id=body.client_id if body is not None else refusal.client_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (LogLines,)

@@ -19,6 +19,7 @@ from ....protocol.params import READ_OPS, ParamReply, ParamRequest
 from ....topics import TopicTree, Verb
 from ..budget import RequestBudget
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -43,13 +44,16 @@ class ParameterPort(Protocol):
         ...
 
 
+PARAMETER_PORT = PortKey[ParameterPort]("parameters", "ROS nodes' parameters")
+
+
 class Parameters:
     """The exposed nodes' parameters, read and set on behalf of MQTT users."""
 
     @classmethod
     def build(cls, wiring: Wiring) -> Parameters:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot, wiring.topics, wiring.publish, wiring.ports.parameters, wiring.budget,
+        return cls(wiring.robot, wiring.topics, wiring.publish, wiring.ports.get(PARAMETER_PORT), wiring.budget,
                    wiring.report)
 
     verb = Verb.PARAM
@@ -116,3 +120,7 @@ class Parameters:
                         request_id=refusal.request_id)
         else:
             self.report(request.user, request.topic, refusal.reason, client_id=body.client_id, request_id=body.id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (Parameters,)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Protocol
 from ....protocol.control import ProviderResponse, ServiceOffer
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -34,13 +35,17 @@ class ProviderPort(Protocol):
         ...
 
 
+PROVIDER_PORT = PortKey[ProviderPort]("provider", "services MQTT clients provide to ROS")
+
+
 class ProvideService(Offers[ServiceOffer]):
     verb = Verb.PROVIDE
 
     @classmethod
     def build(cls, wiring: Wiring) -> ProvideService:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, wiring.ports.provider, wiring.report)
+        port: ProviderPort = wiring.ports.get(PROVIDER_PORT)
+        return cls(wiring.robot.name, port, wiring.report)
 
     def read(self, name: str, payload: bytes) -> ServiceOffer:
         return ServiceOffer.from_json(payload)
@@ -52,7 +57,8 @@ class RespondToCall:
     @classmethod
     def build(cls, wiring: Wiring) -> RespondToCall:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.ports.provider, wiring.report)
+        port: ProviderPort = wiring.ports.get(PROVIDER_PORT)
+        return cls(port, wiring.report)
 
     def __init__(self, port: ProviderPort, report: Report) -> None:
         self.port, self.report = port, report
@@ -73,3 +79,7 @@ class RespondToCall:
         body = request.body
         self.report(request.user, request.topic, refusal.reason,
                     client_id=body.client_id if body is not None else refusal.client_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (ProvideService, RespondToCall,)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 from ....protocol.provided_actions import ActionOffer, ActionUpdate
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -36,13 +37,17 @@ class ActionProviderPort(Protocol):
         ...
 
 
+ACTION_PROVIDER_PORT = PortKey[ActionProviderPort]("action_provider", "actions MQTT clients provide to ROS")
+
+
 class ProvideAction(Offers[ActionOffer]):
     verb = Verb.PROVIDE_ACTION
 
     @classmethod
     def build(cls, wiring: Wiring) -> ProvideAction:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, wiring.ports.action_provider, wiring.report)
+        port: ActionProviderPort = wiring.ports.get(ACTION_PROVIDER_PORT)
+        return cls(wiring.robot.name, port, wiring.report)
 
     def read(self, name: str, payload: bytes) -> ActionOffer:
         return ActionOffer.from_json(payload)
@@ -54,7 +59,8 @@ class UpdateProvidedGoal:
     @classmethod
     def build(cls, wiring: Wiring) -> UpdateProvidedGoal:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.ports.action_provider, wiring.report)
+        port: ActionProviderPort = wiring.ports.get(ACTION_PROVIDER_PORT)
+        return cls(port, wiring.report)
 
     def __init__(self, port: ActionProviderPort, report: Report) -> None:
         self.port, self.report = port, report
@@ -75,3 +81,7 @@ class UpdateProvidedGoal:
         request_id, client_id = (body.id, body.client_id) if body is not None else \
             (refusal.request_id, refusal.client_id)
         self.report(request.user, request.topic, refusal.reason, client_id=client_id, request_id=request_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (ProvideAction, UpdateProvidedGoal,)

@@ -1,53 +1,29 @@
-"""Every operation, built the same way: the ROS adapter hands the core its ports once (:class:`Ports`), and each
-capability builds itself from them (``build``, one signature for all). ROS-free.
+"""Every operation, built the same way: the ROS adapter hands the core its ports once (:class:`Ports`, by typed
+key), and each capability builds itself from them (``build``, one signature for all). ROS-free.
 
 Why: with each capability constructed by hand in the bridge, with a constructor shape of its own, adding an
-operation meant editing the bridge's wiring too. Now the bridge wires ports, not operations; a new operation is its
-capability module, its line in :data:`OPERATIONS` and, when it needs ROS, its port (docs/architecture.md).
+operation meant editing the bridge's wiring too; with a list of operations and a dataclass of ports here, it meant
+editing this module as well. Now a capability module declares what it serves (``SERVES``) and its port's key, and
+this module gathers every module of the package: a new operation is its capability module and, when it needs ROS,
+its port's module on the ROS side (docs/architecture.md, "How to add an operation").
 """
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
 
-from .advertise import Advertise, AdvertisePort
 from .base import Capability, Report
-from .call import CallService, ServicePort
-from .goals import ActionPort, CancelGoal, SendGoal
-from .logs import LogLines, RosoutPort
-from .params import ParameterPort, Parameters
-from .provide import ProviderPort, ProvideService, RespondToCall
-from .provide_action import ActionProviderPort, ProvideAction, UpdateProvidedGoal
-from .sdk_params import DeclareParameters, ParameterSetResult, SdkParameterPort
-from .snapshot import ChunkLink, SnapshotPort, Snapshots
-from .watch import Watch, WatchPort
+from .ports import Ports
 
 if TYPE_CHECKING:
     from ....config import Robot
     from ....topics import TopicTree
     from ..budget import RequestBudget
     from ..routes import Inbound
-    from ..snapshot_buffer import SnapshotFile
-
-
-@dataclass(frozen=True, slots=True)
-class Ports:
-    """What the ROS adapter (bridge/ros/) implements for the core: one typed port per kind of operation."""
-
-    services: ServicePort  # call/*: the robot's ROS services
-    parameters: ParameterPort  # param/*: ROS nodes' parameters
-    actions: ActionPort  # goal/*, cancel/*: ROS action servers
-    rosout: RosoutPort  # log/*: lines onto /rosout
-    advertise: AdvertisePort  # advertise/*: on-demand ROS publishers
-    provider: ProviderPort  # provide/*, response/*: services MQTT clients provide to ROS
-    action_provider: ActionProviderPort  # provide_action/*, action_update/*: actions they provide
-    sdk_parameters: SdkParameterPort  # declare/*, param_result/*: SDK nodes' parameters as ROS nodes
-    video: WatchPort  # watch/*: cameras encoded while watched
-    snapshots: SnapshotPort | None = None  # snapshot/*: the ring buffer (None: the robot keeps none)
-    chunks: ChunkLink | None = None  # … and the uplink its chunks leave on
-    save_failsafe: Callable[[SnapshotFile, str], None] | None = None  # a failsafe stop's snapshot, kept on disk
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,12 +50,20 @@ class Operation(Protocol[C]):
     def build(cls, wiring: Wiring) -> C: ...
 
 
-# Every operation the bridge serves besides ``cmd/*`` and ``control/*`` (the endpoint's own: the motion path and the
-# control lease). The order is irrelevant: each has a verb of its own.
-OPERATIONS: tuple[Operation[Capability[Any]], ...] = (
-    CallService, Parameters, SendGoal, CancelGoal, LogLines, Advertise, ProvideService, RespondToCall,
-    ProvideAction, UpdateProvidedGoal, DeclareParameters, ParameterSetResult, Snapshots, Watch,
-)
+def declared_operations(package: str = __package__ or "") -> tuple[Operation[Capability[Any]], ...]:
+    """Every operation the modules of ``package`` declare in their ``SERVES``, by module name.
+
+    Besides these, the endpoint serves ``cmd/*`` and ``control/*`` itself (the motion path and the control lease).
+    The order is irrelevant (each has a verb of its own); sorted, it is the same at every start.
+    """
+    found: list[Operation[Capability[Any]]] = []
+    for info in sorted(pkgutil.iter_modules(importlib.import_module(package).__path__), key=lambda m: m.name):
+        module = importlib.import_module(f"{package}.{info.name}")
+        found += cast("Sequence[Operation[Capability[Any]]]", getattr(module, "SERVES", ()))
+    return tuple(found)
+
+
+OPERATIONS = declared_operations()
 
 
 def build_all(wiring: Wiring, operations: Sequence[Operation[Capability[Any]]] = OPERATIONS) -> list[Capability[Any]]:

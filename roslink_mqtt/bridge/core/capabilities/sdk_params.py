@@ -16,6 +16,7 @@ from ....authorize import refusal
 from ....protocol.node_params import ParamDeclaration, ParamSetResult, check_node_name
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -36,13 +37,17 @@ class SdkParameterPort(Protocol):
         ...
 
 
+SDK_PARAMETER_PORT = PortKey[SdkParameterPort]("sdk_parameters", "SDK nodes' parameters as ROS nodes'")
+
+
 class DeclareParameters(Offers[ParamDeclaration]):
     verb = Verb.DECLARE
 
     @classmethod
     def build(cls, wiring: Wiring) -> DeclareParameters:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, wiring.ports.sdk_parameters, wiring.report)
+        port: SdkParameterPort = wiring.ports.get(SDK_PARAMETER_PORT)
+        return cls(wiring.robot.name, port, wiring.report)
 
     def read(self, name: str, payload: bytes) -> ParamDeclaration:
         check_node_name(name)
@@ -58,7 +63,8 @@ class ParameterSetResult:
     @classmethod
     def build(cls, wiring: Wiring) -> ParameterSetResult:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, wiring.ports.sdk_parameters, wiring.report)
+        port: SdkParameterPort = wiring.ports.get(SDK_PARAMETER_PORT)
+        return cls(wiring.robot.name, port, wiring.report)
 
     def __init__(self, robot: str, port: SdkParameterPort, report: Report) -> None:
         self.robot, self.port, self.report = robot, port, report
@@ -80,3 +86,7 @@ class ParameterSetResult:
         body = request.body
         self.report(request.user, request.topic, refusal.reason,
                     client_id=body.client_id if body is not None else refusal.client_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (DeclareParameters, ParameterSetResult,)

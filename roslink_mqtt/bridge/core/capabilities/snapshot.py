@@ -20,7 +20,6 @@ import queue
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -30,6 +29,7 @@ from ....protocol.snapshot import SnapshotChunk, SnapshotRequest
 from ....topics import TopicTree, Verb
 from ..snapshot_buffer import SnapshotFile
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -63,6 +63,18 @@ class ChunkLink(Protocol):
         ...
 
 
+SNAPSHOT_PORT = PortKey[SnapshotPort]("snapshots", "the ring buffer of the robot's snapshot topics")
+CHUNK_PORT = PortKey[ChunkLink]("chunks", "the uplink snapshot chunks leave on")
+class FailsafeFilePort(Protocol):
+    """Where a failsafe stop's snapshot is kept (the robot's disk)."""
+
+    def __call__(self, built: SnapshotFile, reason: str) -> None: ...
+
+
+FAILSAFE_FILE_PORT = PortKey[FailsafeFilePort](
+    "failsafe_files", "a failsafe stop's snapshot, kept on the robot's disk")
+
+
 @dataclass(frozen=True, slots=True)
 class _Job:
     user: str
@@ -79,13 +91,14 @@ class Snapshots:
     @classmethod
     def build(cls, wiring: Wiring) -> Snapshots:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot, wiring.topics, wiring.ports.snapshots, wiring.ports.chunks, wiring.report,
-                   save=wiring.ports.save_failsafe)
+        ports = wiring.ports  # all three absent on a robot that keeps no ring buffer
+        return cls(wiring.robot, wiring.topics, ports.optional(SNAPSHOT_PORT), ports.optional(CHUNK_PORT),
+                   wiring.report, save=ports.optional(FAILSAFE_FILE_PORT))
 
     verb = Verb.SNAPSHOT
 
     def __init__(self, robot: Robot, topics: TopicTree, port: SnapshotPort | None, link: ChunkLink | None,
-                 report: Report, *, save: Callable[[SnapshotFile, str], None] | None = None) -> None:
+                 report: Report, *, save: FailsafeFilePort | None = None) -> None:
         """``port`` and ``link`` are None on a robot without ``snapshot:`` (every request is refused)."""
         self.robot, self.topics, self.port, self.link, self.report = robot, topics, port, link, report
         self.settings = robot.snapshot
@@ -224,3 +237,7 @@ class Snapshots:
             link.send(topic, SnapshotChunk(index, count, len(built.data), built.sha256, piece, built.start,
                                                 built.end, built.messages, client_id=job.client_id).to_bytes())
             self.sent_chunks += 1
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (Snapshots,)

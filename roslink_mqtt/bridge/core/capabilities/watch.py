@@ -15,6 +15,7 @@ from ....authorize import refusal
 from ....protocol.video import WatchRequest
 from ....topics import Verb
 from .base import Gates, Refusal, Report, Request
+from .ports import PortKey
 
 if TYPE_CHECKING:
     from .registry import Wiring
@@ -29,13 +30,16 @@ class WatchPort(Protocol):
         ...
 
 
+VIDEO_PORT = PortKey[WatchPort]("video", "cameras encoded while watched")
+
+
 class Watch:
     verb = Verb.WATCH
 
     @classmethod
     def build(cls, wiring: Wiring) -> Watch:
         """From the bridge's wiring (capabilities/registry.py)."""
-        return cls(wiring.robot.name, [stream.name for stream in wiring.robot.video], wiring.ports.video,
+        return cls(wiring.robot.name, [stream.name for stream in wiring.robot.video], wiring.ports.get(VIDEO_PORT),
                    wiring.report)
 
     def __init__(self, robot: str, streams: Collection[str], port: WatchPort, report: Report) -> None:
@@ -64,3 +68,7 @@ class Watch:
     def refuse(self, request: Request[WatchRequest], refusal: Refusal) -> None:
         client_id = request.body.client_id if request.body is not None else refusal.client_id
         self.report(request.user, request.topic, refusal.reason, client_id=client_id)
+
+
+# the operations this module serves (capabilities/registry.py gathers them)
+SERVES = (Watch,)
