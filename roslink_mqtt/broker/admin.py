@@ -25,7 +25,7 @@ from typing import Any
 from ..config import Fleet
 from ..config.plan import FleetState
 from ..protocol.errors import ProtocolError
-from ..protocol.fleet_control import ControlRequest, ControlResponse
+from ..protocol.fleet_control import CommandAnswer, ControlRequest, ControlResponse
 from ..topics import FLEET_CONTROL as CONTROL_TOPIC
 
 log = logging.getLogger("roslink_mqtt.broker")
@@ -60,23 +60,18 @@ class FleetControl:
         try:
             request = ControlRequest.from_json(payload)
         except ProtocolError as err:
-            return ControlResponse(({"command": "", "error": str(err)},)).to_json()
+            return ControlResponse((CommandAnswer("", error=str(err)).to_body(),)).to_json()
         responses = []
         for command in request.commands:
-            name = command.get("command")
-            answer: dict[str, Any] = {"command": str(name)}
-            if "correlationData" in command:
-                answer["correlationData"] = command["correlationData"]
+            name, echo = str(command.get("command")), command.get("correlationData")
             if name == "getFleet":
-                answer["data"] = self._state()
+                answer = CommandAnswer(name, echo, data=self._state())
             elif name == "reload":
                 log.info("%s: %s asks to reload %s", CONTROL_TOPIC, login, self.config_path)
-                if await self._reload():
-                    answer["data"] = self._state()
-                else:
-                    answer["error"] = (f"{self.config_path} was refused; the broker still enforces the previous "
-                                       "fleet (its log says why)")
+                answer = CommandAnswer(name, echo, data=self._state()) if await self._reload() else CommandAnswer(
+                    name, echo, error=f"{self.config_path} was refused; the broker still enforces the previous "
+                                      "fleet (its log says why)")
             else:
-                answer["error"] = "unknown command (getFleet, reload)"
-            responses.append(answer)
+                answer = CommandAnswer(name, echo, error="unknown command (getFleet, reload)")
+            responses.append(answer.to_body())
         return ControlResponse(tuple(responses), request.id).to_json()

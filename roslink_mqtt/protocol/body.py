@@ -43,6 +43,14 @@ class _Missing:
 MISSING: Final = _Missing()
 
 
+class _Given:
+    def __repr__(self) -> str:
+        return "GIVEN"
+
+
+GIVEN: Final = _Given()  # BodyField.written_if: the other field is not empty
+
+
 class Spec:
     """What one field's value may be: :meth:`check` returns it (normalised) or raises :class:`_Bad`."""
 
@@ -336,6 +344,12 @@ class BodyField:
     leaves an absent optional field out. ``names``: ``"request"`` or ``"sender"`` — the field that says which
     request this is (an id) or who sent it (a client id): read before the others, so their refusals name it.
     ``docs_type``: the type column's wording where the spec's own is not enough.
+
+    How :func:`write` writes it (a required field: always, null too): ``written`` — ``"set"`` (the default): an
+    optional field unless None; ``"null"``: null too, or its default when it has one (a reply echoes an absent id
+    as null, a successful reply's absent values as ``{}``); ``"nonempty"``: unless empty (``""``, 0, ``[]``, ``{}``).
+    ``written_if``: only when another field has a value (``("result", True)``; :data:`GIVEN`: is not empty) —
+    the outcome's values or its error, a cancel's missing goal.
     """
 
     name: str
@@ -345,6 +359,23 @@ class BodyField:
     default: Any = MISSING
     names: str = ""
     docs_type: str = ""
+    written: str = "set"
+    written_if: tuple[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.written not in ("set", "null", "nonempty"):
+            raise ValueError(f"{self.name}: written must be 'set', 'null' or 'nonempty', not {self.written!r}")
+
+    def writes(self, obj: Any, value: Any) -> bool:
+        """Whether ``value`` (this field's, of body ``obj``) goes into the written body."""
+        if self.written_if is not None:
+            other, wanted = self.written_if
+            got = getattr(obj, other)
+            if not (bool(got) if wanted is GIVEN else got == wanted):
+                return False
+        if self.required or self.written == "null":
+            return True
+        return bool(value) if self.written == "nonempty" else value is not None
 
     @property
     def type(self) -> str:
@@ -409,13 +440,17 @@ def split_header(payload: bytes | bytearray | memoryview, what: str, rest: str) 
 
 
 def body_of(fields: tuple[BodyField, ...], obj: Any) -> dict[str, Any]:
-    """``obj``'s declared fields as a body, in declaration order: a required field always (null too), an optional
-    one only when it is not None; ``client_id`` left out (:func:`write` appends it last, as :func:`dump` does)."""
+    """``obj``'s declared fields as a body, in declaration order, each as it says it is written
+    (:attr:`BodyField.written`: a required field always, an optional one by default only when it is not None);
+    ``client_id`` left out (:func:`write` appends it last, as :func:`dump` does)."""
     body: dict[str, Any] = {}
     for field in fields:
         value = getattr(obj, field.name)
-        if field.name != _CLIENT_ID and (field.required or value is not None):
-            body[field.name] = _as_written(value)
+        if field.name == _CLIENT_ID or not field.writes(obj, value):
+            continue
+        if value is None and field.written == "null" and field.default is not MISSING:
+            value = _fresh(field.default)
+        body[field.name] = _as_written(value)
     return body
 
 

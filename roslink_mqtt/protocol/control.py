@@ -56,7 +56,6 @@ from .body import (
     Obj,
     Strings,
     Text,
-    dump,
     read,
     refuse,
     write,
@@ -275,7 +274,7 @@ class CallRequest:
         BodyField("id", Nullable(Id(MAX_CALL_ID, min_len=0)), False,
                   "chosen by the caller and echoed in the reply, to match replies to calls (they may arrive in any "
                   "order); the bridge does not check uniqueness. Missing: the reply has `\"id\": null`", None,
-                  names="request", docs_type=f"string (≤ {MAX_CALL_ID} characters) or integer"),
+                  names="request", docs_type=f"string (≤ {MAX_CALL_ID} characters) or integer", written="null"),
         BodyField("args", Obj(), False, "the ROS request as JSON (see Generic ROS messages); missing: `{}`", {}),
         BodyField("client_id", SENDER, False,
                   "the caller's id, repeated in the reply (every program of the user reads the reply topic)", None,
@@ -284,9 +283,8 @@ class CallRequest:
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: an absent id is written as null (the reply echoes it), not left out
-        body: dict[str, Any] = {"id": self.id, "args": self.args}
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # an absent id is written as null (the reply echoes it), not left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallRequest:
@@ -315,17 +313,18 @@ class CallReply:
                                                                     "invalid)", None,
                   docs_type="string, integer or null"),
         BodyField("result", Boolean(), True, "true: the service answered; false: see `error`", False),
-        BodyField("values", Obj(), False, "with `result` true: the ROS response as JSON", {}),
+        BodyField("values", Obj(), False, "with `result` true: the ROS response as JSON", {}, written="null",
+                  written_if=("result", True)),
         BodyField("error", Text(), False, "with `result` false: why (unknown service, refusal, bad arguments, "
-                                          "service not available, timeout, service failed)", None),
+                                          "service not available, timeout, service failed)", None, written="null",
+                  written_if=("result", False)),
         BodyField("client_id", Text(), False, "the call's `client_id`, when it had one", None),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: `values` or `error` by `result` (the shape every answer shares)
-        body = _outcome(self.id, self.result, self.values or {}, self.error)
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # `values` or `error` by `result` (the shape every answer shares)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> CallReply:
@@ -428,11 +427,13 @@ class ProviderResponse:
 
     FIELDS = (
         BodyField("id", AnyJson(), True, "the request's `id`, unchanged", docs_type="string"),
-        BodyField("result", Boolean(), False, "false: the call fails with `error`; anything else: success", True),
+        BodyField("result", Boolean(), False, "false: the call fails with `error`; anything else: success", True,
+                  written="null"),
         BodyField("values", AnyJson(), False, "the ROS response as JSON (missing: the type's defaults)", None,
-                  docs_type="object"),
+                  docs_type="object", written="null", written_if=("result", True)),
         BodyField("error", Text(), False, f"with `result` false: why (default `{DEFAULT_PROVIDER_FAILURE}`); "
-                                          "the ROS caller sees it in `message` where the type has one", None),
+                                          "the ROS caller sees it in `message` where the type has one", None,
+                  written="null", written_if=("result", False)),
         BodyField("client_id", Text(), False, "names the provider in an error report about this response", None,
                   names="sender"),
     )
@@ -444,9 +445,8 @@ class ProviderResponse:
         """Why the call failed (``result`` false)."""
         return self.error if self.error is not None else DEFAULT_PROVIDER_FAILURE
 
-    def to_json(self) -> bytes:  # hand-written: `values` or `error` by `result` (the shape every answer shares)
-        body = _outcome(self.id, self.result, self.values, self.error)
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # `values` or `error` by `result` (the shape every answer shares)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ProviderResponse:

@@ -82,7 +82,7 @@ def _drop_empty(body: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in body.items() if v is not None and v is not False and v != {}}
 
 
-_TIMEOUT = BodyField("timeout", Nullable(Number()), False, "s the bridge waits for ROS", None)
+_TIMEOUT = BodyField("timeout", Nullable(Number()), False, "s the bridge waits for ROS", None, written="null")
 _FIELD_MAP = TextMap("object of strings (MQTT field → ROS field path)")
 
 
@@ -124,10 +124,8 @@ class StateEntry(NestedBody):
                                  "(did you mean /odom?)`)"),
     )
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: False and {} are left out too, not only None
-        return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
-                            "retained": self.retained, "max_rate": self.max_rate, "fields": self.fields,
-                            "who": self.who, "encoding": self.encoding, "warning": self.warning})
+    def to_body(self) -> dict[str, Any]:  # False and {} are left out too, not only None
+        return _drop_empty(body_of(self.FIELDS, self))
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> StateEntry:
@@ -161,10 +159,8 @@ class CommandEntry(NestedBody):
         _text_or_null("warning", "while the ROS service a command calls has no server"),
     )
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: False and {} are left out too, not only None
-        return _drop_empty({"name": self.name, "message": self.message, "ros_type": self.ros_type,
-                            "on_demand": self.on_demand, "fields": self.fields, "limits": self.limits,
-                            "who": self.who, "warning": self.warning})
+    def to_body(self) -> dict[str, Any]:  # False and {} are left out too, not only None
+        return _drop_empty(body_of(self.FIELDS, self))
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> CommandEntry:
@@ -191,10 +187,8 @@ class ServiceEntry(NestedBody):
         _text_or_null("warning", "while the ROS service has no server"),
     )
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: a null timeout is written, a None warning left out
-        body = {"name": self.name, "ros_type": self.ros_type, "read_only": self.read_only, "timeout": self.timeout,
-                "who": self.who}
-        return body if self.warning is None else {**body, "warning": self.warning}
+    def to_body(self) -> dict[str, Any]:  # a null timeout is written, a None warning left out
+        return body_of(self.FIELDS, self)
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ServiceEntry:
@@ -216,14 +210,14 @@ class ActionEntry(NestedBody):
         BodyField("name", Text(1), True, "the action's name in `goal/<name>`"),
         BodyField("ros_type", Text(1), True, "its ROS type, `pkg/action/Type`"),
         BodyField("viewers", Boolean(), False, "viewers may send goals too", False),
-        BodyField("timeout", Nullable(Number()), False, "s from acceptance to result", None),
-        BodyField("feedback_rate", Nullable(Number()), False, "Hz of feedback at most, per goal", None),
+        BodyField("timeout", Nullable(Number()), False, "s from acceptance to result", None, written="null"),
+        BodyField("feedback_rate", Nullable(Number()), False, "Hz of feedback at most, per goal", None,
+                  written="null"),
         BodyField("who", Choice(WHO), False, "`viewers` when open to viewers, else `operators`", OPERATORS),
     )
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: null timeout and feedback_rate are written, not left out
-        return {"name": self.name, "ros_type": self.ros_type, "viewers": self.viewers, "timeout": self.timeout,
-                "feedback_rate": self.feedback_rate, "who": self.who}
+    def to_body(self) -> dict[str, Any]:  # null timeout and feedback_rate are written, not left out
+        return body_of(self.FIELDS, self)
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ActionEntry:
@@ -245,13 +239,12 @@ class ParameterEntry(NestedBody):
         BodyField("node", Text(1), True, "the ROS node"),
         BodyField("set_by", Choice(WHO), False, "who may set its parameters (`viewers` where the fleet file opens "
                                                 "it)", OPERATORS),
-        BodyField("timeout", Nullable(Number()), False, "s for the node to answer", None),
+        BodyField("timeout", Nullable(Number()), False, "s for the node to answer", None, written="null"),
         BodyField("who", Choice(WHO), False, "who may read them: `viewers`", VIEWERS),
     )
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: a null timeout is written, not left out
-        return {"name": self.name, "node": self.node, "set_by": self.set_by, "timeout": self.timeout,
-                "who": self.who}
+    def to_body(self) -> dict[str, Any]:  # a null timeout is written, not left out
+        return body_of(self.FIELDS, self)
 
     @classmethod
     def from_body(cls, body: Any, path: str) -> ParameterEntry:

@@ -11,9 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import orjson
-
-from .body import AnyJson, BodyField, Objects, Text, read
+from .body import AnyJson, BodyField, NestedBody, Objects, Text, body_of, read, write
 
 MAX_COMMANDS = 16
 
@@ -27,13 +25,14 @@ class ControlRequest:
 
     FIELDS = (
         BodyField("commands", Objects(), True, "the commands, each `{\"command\": name, …}` (1 to 16)"),
-        BodyField("id", Text(1, 64), False, "echoed in the response: the asker finds its answer", None),
+        BodyField("id", Text(1, 64), False, "echoed in the response: the asker finds its answer", None,
+                  written="null"),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: an absent id is written as null, not left out
-        return orjson.dumps({"commands": list(self.commands), "id": self.id})
+    def to_json(self) -> bytes:  # an absent id is written as null, not left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ControlRequest:
@@ -56,13 +55,13 @@ class ControlResponse:
     FIELDS = (
         BodyField("responses", Objects(), True, "one answer per command, in order: `data`, or an `error` (text)"),
         BodyField("id", AnyJson(), False, "the request's `id` (the embedded broker; Mosquitto echoes each "
-                                          "command's `correlationData` instead)", None),
+                                          "command's `correlationData` instead)", None, written="null"),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: an absent id is written as null, not left out
-        return orjson.dumps({"responses": list(self.responses), "id": self.id})
+    def to_json(self) -> bytes:  # an absent id is written as null, not left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ControlResponse:
@@ -74,3 +73,26 @@ class ControlResponse:
         """Whether this answers the request ``request_id`` (by its id, or its commands' correlationData)."""
         return self.id == request_id or any(str(r.get("correlationData", "")).startswith(f"{request_id}-")
                                             for r in self.responses)
+
+
+@dataclass(frozen=True, slots=True)
+class CommandAnswer(NestedBody):
+    """One answer of the embedded broker's response: the command, its ``correlationData`` echoed, then ``data`` or
+    an ``error``. (Mosquitto's answers have the same keys; a client reads them as dicts, since either broker may
+    answer.)"""
+
+    command: str
+    correlationData: Any = None  # noqa: N815 - the key Mosquitto's dynamic-security plugin names it by
+    data: Any = None
+    error: str | None = None
+
+    FIELDS = (
+        BodyField("command", Text(), True, "the command answered (empty: the request was not understood)"),
+        BodyField("correlationData", AnyJson(), False, "the command's own, echoed", None),
+        BodyField("data", AnyJson(), False, "what it returned (getFleet, reload: the fleet the broker enforces)",
+                  None),
+        BodyField("error", Text(), False, "why it failed", None),
+    )
+
+    def to_body(self) -> dict[str, Any]:
+        return body_of(self.FIELDS, self)

@@ -23,10 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import orjson
-
 from ..topics import FLEET_CONTROL, FLEET_CONTROL_RESPONSE, TopicError, TopicTree, check_name
-from .body import BodyField, Number, Text, TextMap, read
+from .body import BodyField, Number, Text, TextMap, read, write
 from .control import ROLES
 from .errors import ProtocolError
 from .fleet_control import ControlRequest, ControlResponse
@@ -43,6 +41,9 @@ class RobotGrants:
     issued: float = 0.0  # s since the epoch: when the fleet file was read (logs tell versions apart)
     by: str = ""  # who published it: an admin's login, or "broker" (the embedded broker)
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "users", dict(sorted(self.users.items())))  # one fleet file, one message
+
     FIELDS = (
         BodyField("robot", Text(1), True, "the robot these grants are for (a bridge ignores another robot's)"),
         BodyField("users", TextMap(), True, "user → role (`operator` or `viewer`) for every user who may see "
@@ -55,9 +56,8 @@ class RobotGrants:
     QOS = 1
     RETAINED = True
 
-    def to_json(self) -> bytes:  # hand-written: users sorted by name (one fleet file, one message)
-        return orjson.dumps({"robot": self.robot, "users": dict(sorted(self.users.items())), "issued": self.issued,
-                             "by": self.by})
+    def to_json(self) -> bytes:  # users sorted by name (one fleet file, one message: __post_init__)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> RobotGrants:

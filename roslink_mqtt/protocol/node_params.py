@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..topics import TopicTree
-from .body import SENDER, BodyField, Boolean, Id, NestedBody, Obj, Text, dump, read, refuse, write
+from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, NestedBody, Obj, Text, body_of, read, refuse, write
 from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .params import TYPE_CODES, check_value
@@ -62,38 +62,33 @@ class DeclaredParameter(NestedBody):
     description: str = ""
     read_only: bool = False
 
-    def to_body(self) -> dict[str, Any]:  # hand-written: not a declared body; empty description, false flag left out
-        out: dict[str, Any] = {"value": self.value, "type": self.type}
-        if self.description:
-            out["description"] = self.description
-        if self.read_only:
-            out["read_only"] = True
-        return out
+    FIELDS = (
+        BodyField("value", AnyJson(), False, "its value, of `type` (null or left out: declared without one)", None,
+                  written="null"),
+        BodyField("type", Choice(DECLARABLE_TYPES), True, "a ROS parameter type (`not_set`: dynamically typed)"),
+        BodyField("description", Text(0, MAX_DESCRIPTION), False, "what it is for", "", written="nonempty"),
+        BodyField("read_only", Boolean(), False, "ROS clients may not set it", False, written="nonempty"),
+    )
+
+    def to_body(self) -> dict[str, Any]:  # an empty description and a false flag are left out
+        return body_of(self.FIELDS, self)
 
     @classmethod
     def from_body(cls, name: str, body: Any) -> DeclaredParameter:
+        """One entry of a declaration's ``parameters`` (its name says where a refusal points)."""
         where = f"parameters.{name}"
-        if not isinstance(body, dict):
-            raise ProtocolError(f'{where}: expected an object {{"value": …, "type": "double"}}')
-        unknown = sorted(set(body) - {"value", "type", "description", "read_only"})
-        if unknown:
-            raise ProtocolError(f"{where}: unknown field {unknown[0]!r} (fields: value, type, description, "
-                                "read_only)"[:300])
-        kind = body.get("type")
-        if kind not in DECLARABLE_TYPES:
-            raise ProtocolError(f"{where}.type: expected one of {', '.join(DECLARABLE_TYPES)}, got {kind!r}"[:300])
-        value = body.get("value")
-        if value is not None:
+        try:
+            got = read(cls.FIELDS, body, shape='expected an object {"value": …, "type": "double"}')
+        except ProtocolError as err:
+            text = str(err)
+            raise ProtocolError(f"{where}: {text}" if text.startswith(("expected", "unknown")) else
+                                f"{where}.{text}"[:300]) from None
+        if got["value"] is not None:
             try:
-                value = check_value(value, kind)
+                got["value"] = check_value(got["value"], got["type"])
             except ProtocolError as err:
                 raise ProtocolError(f"{where}.value: {err}") from None
-        description, read_only = body.get("description", ""), body.get("read_only", False)
-        if not isinstance(description, str) or len(description) > MAX_DESCRIPTION:
-            raise ProtocolError(f"{where}.description: expected a string of at most {MAX_DESCRIPTION} characters")
-        if not isinstance(read_only, bool):
-            raise ProtocolError(f"{where}.read_only: expected a boolean")
-        return cls(value, kind, description, read_only)
+        return cls(**got)
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,17 +168,15 @@ class ParamSetResult:
         BodyField("id", Id(MAX_CALL_ID), True, "the request's id", docs_type="string or integer"),
         BodyField("successful", Boolean(), True, "true: the node took every value; false: none (see `reason`)"),
         BodyField("reason", Text(0, MAX_REASON), False, f"why it refused (at most {MAX_REASON} characters); the "
-                                                        "ROS client receives it", "", docs_type="string"),
+                                                        "ROS client receives it", "", docs_type="string",
+                  written="nonempty"),
         BodyField("client_id", SENDER, False, "the sender's id", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: an empty reason is left out (the rule leaves out None only)
-        body: dict[str, Any] = {"id": self.id, "successful": self.successful}
-        if self.reason:
-            body["reason"] = self.reason
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # an empty reason is left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamSetResult:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, dump, read, refuse, write
+from .body import SENDER, AnyJson, BodyField, Boolean, Choice, Id, Obj, Strings, Text, read, refuse, write
 from .control import MAX_CALL_ID
 from .errors import ProtocolError
 from .validate import show_key
@@ -93,21 +93,16 @@ class ParamRequest:
         BodyField("op", Choice(OPS), True, "`get` (the `names`), `set` (the `values`), `list` (every name; "
                                            "`names` are prefixes, optional), `describe` (the `names`)"),
         BodyField("names", Strings(MAX_NAMES, non_empty=True), False,
-                  "parameter names, for get and describe (and list prefixes)", ()),
+                  "parameter names, for get and describe (and list prefixes)", (), written="nonempty"),
         BodyField("values", Obj(MAX_NAMES), False, "for set: name → value (boolean, integer, double, string, or "
-                                                   "an array of one of those)", {}),
+                                                   "an array of one of those)", {}, written="nonempty"),
         BodyField("client_id", SENDER, False, "the sender's id, repeated in the reply", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: empty names and values are left out (the rule leaves out None only)
-        body: dict[str, Any] = {"id": self.id, "op": self.op}
-        if self.names:
-            body["names"] = list(self.names)
-        if self.values:
-            body["values"] = self.values
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # empty names and values are left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamRequest:
@@ -140,20 +135,16 @@ class ParamReply:
         BodyField("values", Obj(), False, "get: name → value (null: not set); set: name → `{\"successful\": "
                                           "…, \"reason\": …}` (the node's own validation); list: "
                                           "`{\"names\": […]}`; describe: name → `{\"type\", \"description\", "
-                                          "\"read_only\", …}`", {}),
-        BodyField("error", Text(), False, "with `result` false: why (node not available, timeout)", None),
+                                          "\"read_only\", …}`", {}, written="null", written_if=("result", True)),
+        BodyField("error", Text(), False, "with `result` false: why (node not available, timeout)", None,
+                  written="null", written_if=("result", False)),
         BodyField("client_id", Text(), False, "the request's `client_id`, when it had one", None),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: `values` or `error` by `result` (an error null when there is none)
-        body: dict[str, Any] = {"id": self.id, "result": self.result}
-        if self.result:
-            body["values"] = self.values or {}
-        else:
-            body["error"] = self.error
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # `values` or `error` by `result` (an error null when there is none)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ParamReply:

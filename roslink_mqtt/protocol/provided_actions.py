@@ -14,7 +14,7 @@ from typing import Any
 
 from ..ros_names import is_interface
 from ..topics import TopicTree, Verb
-from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, dump, read, refuse, write
+from .body import SENDER, AnyJson, BodyField, Choice, Nullable, Number, Obj, Text, read, refuse, write
 
 DEFAULT_ACCEPT_TIMEOUT = 5.0  # s for the provider to accept or reject a goal
 DEFAULT_RESULT_TIMEOUT = 600.0  # s from acceptance to the final update
@@ -76,17 +76,15 @@ class ActionRequest:
         BodyField("op", Choice(("goal", "cancel")), True, "`goal` (accept or reject it, then work on it) or "
                                                           "`cancel` (a ROS client asked to cancel it: finish it "
                                                           "with `canceled`)"),
-        BodyField("goal", Obj(), False, "with `goal`: the ROS goal as JSON", {}),
+        BodyField("goal", Obj(), False, "with `goal`: the ROS goal as JSON", {}, written="null",
+                  written_if=("op", "goal")),
         BodyField("client_id", Text(), False, "the offer's `client_id`", None),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: `goal` only with op goal (a cancel carries none)
-        body: dict[str, Any] = {"id": self.id, "op": self.op}
-        if self.op == "goal":
-            body["goal"] = self.goal
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # `goal` only with op goal (a cancel carries none)
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> ActionRequest:

@@ -9,10 +9,9 @@ Python's ``logging`` numbers.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from ..topics import TopicTree
-from .body import SENDER, BodyField, Integer, Levels, Text, dump, read, refuse
+from .body import GIVEN, SENDER, BodyField, Integer, Levels, Text, read, refuse, write
 
 LEVELS = {10: "debug", 20: "info", 30: "warn", 40: "error", 50: "fatal"}
 MAX_MSG = 16 * 1024  # characters of one log line; longer ones are cut (with a mark) by the sender
@@ -35,19 +34,17 @@ class LogLine:
         BodyField("level", Levels(tuple(LEVELS)), True, "10 debug, 20 info, 30 warn, 40 error, 50 fatal",
                   docs_type="integer"),
         BodyField("msg", Text(0, MAX_MSG), True, f"the text (at most {MAX_MSG} characters)", docs_type="string"),
-        BodyField("file", Text(0, MAX_SOURCE), False, "source file of the call", ""),
-        BodyField("function", Text(0, MAX_SOURCE), False, "function of the call", ""),
-        BodyField("line", Integer(0, 2**31 - 1), False, "line of the call", 0, docs_type="integer"),
+        BodyField("file", Text(0, MAX_SOURCE), False, "source file of the call", "", written_if=("file", GIVEN)),
+        BodyField("function", Text(0, MAX_SOURCE), False, "function of the call", "", written_if=("file", GIVEN)),
+        BodyField("line", Integer(0, 2**31 - 1), False, "line of the call", 0, docs_type="integer",
+                  written_if=("file", GIVEN)),
         BodyField("client_id", SENDER, False, "the sender's id", None, names="sender"),
     )
     QOS = 0  # a log stream: a lost line is not worth a retransmission queue
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: file, function and line together, only when there is a file
-        body: dict[str, Any] = {"level": self.level, "msg": self.msg}
-        if self.file:
-            body.update(file=self.file, function=self.function, line=self.line)
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # file, function and line together, only when there is a file
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> LogLine:

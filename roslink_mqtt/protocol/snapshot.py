@@ -13,10 +13,9 @@ receiver its file is the bridge's. A refusal (not allowed, no snapshot topics, a
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
 
 from ..topics import TopicTree, Verb
-from .body import SENDER, BodyField, Integer, Number, Text, dump, read, split_header, write
+from .body import SENDER, BodyField, Integer, Number, Text, read, split_header, write
 from .errors import ProtocolError
 
 MAX_LAST = 3600.0  # s: more than any ring buffer holds
@@ -36,17 +35,15 @@ class SnapshotRequest:
         BodyField("last", Number(0, MAX_LAST, low_open=True), True,
                   "seconds before now to include (the ring buffer holds `snapshot.seconds`; more gives what it has)"),
         BodyField("resume_from", Integer(0, MAX_CHUNKS), False,
-                  "send the chunks from this index on (a resumed transfer: same id, the first index missing)", 0),
+                  "send the chunks from this index on (a resumed transfer: same id, the first index missing)", 0,
+                  written="nonempty"),
         BodyField("client_id", SENDER, False, "the sender's id, repeated in the chunks", None, names="sender"),
     )
     QOS = 1
     RETAINED = False
 
-    def to_json(self) -> bytes:  # hand-written: resume_from 0 (from the start) is left out
-        body: dict[str, Any] = {"last": self.last}
-        if self.resume_from:
-            body["resume_from"] = self.resume_from
-        return dump(body, self.client_id)
+    def to_json(self) -> bytes:  # resume_from 0 (from the start) is left out
+        return write(self.FIELDS, self)
 
     @classmethod
     def from_json(cls, data: bytes | bytearray | memoryview | str) -> SnapshotRequest:

@@ -50,14 +50,14 @@ def test_declaration_round_trip_and_typing() -> None:
      "parameters.a.value: expected double, got string 'x'"),
     ({"client_id": CID, "parameters": {"a": {"value": 1, "type": "float"}}},
      "parameters.a.type: expected one of not_set, bool, integer, double, string, bool_array, integer_array, "
-     "double_array, string_array, got 'float'"),
+     "double_array, string_array, got \"float\""),
     ({"client_id": CID, "parameters": {"a b": {"value": 1, "type": "integer"}}},
      "parameters: parameter name 'a b' is not a ROS parameter name (letters, digits, underscores, dot-separated "
      "tokens, e.g. 'pid.kp')"),
     ({"client_id": CID, "parameters": {"a": {"value": 1, "type": "integer", "min": 0}}},
      "parameters.a: unknown field 'min' (fields: value, type, description, read_only)"),
     ({"client_id": CID, "parameters": {"a": {"value": 1, "type": "integer", "read_only": "yes"}}},
-     "parameters.a.read_only: expected a boolean"),
+     'parameters.a.read_only: expected boolean, got "yes"'),
     ({"client_id": CID, "parameters": {}, "extra": 1}, None),
 ])
 def test_declaration_refusals(body: dict, reason: str | None) -> None:
