@@ -13,7 +13,10 @@ language):
   ``serve=N``: the first N commands are servers (one terminal each in the docs); they are started in
   the background, the rest runs once they are up, then the servers get SIGINT.
 * ```` ```python run ```` -- ``.venv/bin/python`` with the snippet on stdin, against the live fleet;
-  ``serve``: a program that runs until stopped must still be running after 3 s; ``fragment``: a
+  ``serve``: a program that runs until stopped must still be running after 3 s, without a traceback, and end
+  on Ctrl-C (SIGINT) without one; ``serve rclpy``: a program of plain rclpy (the port of an SDK program), checked
+  for a traceback only while it runs, since rclpy's own Ctrl-C can land inside its conversion of a message and end
+  in a ``RuntimeError`` no program can catch (once in a clean-clone run beside a CPU hog); ``fragment``: a
   fragment of docs/sdk.md that uses the ``client`` of its *Connecting* example (and a ``driver`` of
   the reader's own): :data:`FRAGMENT_PRELUDE` makes them, and the client is closed after it.
 * ```` ```sh norun <reason> ```` -- not run; the reason is required (an interactive terminal, a
@@ -278,10 +281,12 @@ def test_with_demo_fleet(snippet: Snippet, demo_fleet, tmp_path: Path) -> None:
             proc = _start(snippet.code, tmp_path / "program.log", python=True)
             time.sleep(SERVE_CHECK)
             alive = proc.poll() is None
+            running = (tmp_path / "program.log").read_text(errors="replace")  # what it wrote before the Ctrl-C
             _stop(proc)
             log = (tmp_path / "program.log").read_text(errors="replace")
             assert alive, f"the program ended early:\n{log[-3000:]}"
-            assert "Traceback (most recent call last)" not in log, log[-3000:]
+            assert "Traceback (most recent call last)" not in (running if "rclpy" in snippet.words else log), \
+                log[-3000:]
             return
         code = FRAGMENT_PRELUDE + snippet.code + FRAGMENT_POSTLUDE if "fragment" in snippet.words else snippet.code
         done = subprocess.run([str(ROOT / ".venv" / "bin" / "python"), "-"], input=code, cwd=ROOT,
