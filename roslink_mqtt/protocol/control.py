@@ -249,12 +249,6 @@ class AccessReport:
         return cls(**values)
 
 
-def _outcome(call_id: Any, result: bool, values: Any, error: str | None) -> dict[str, Any]:
-    """The shape every answer shares (a call reply, a provider response): values on success, error otherwise."""
-    return {"id": call_id, "result": True, "values": values} if result else {"id": call_id, "result": False,
-                                                                            "error": error}
-
-
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 

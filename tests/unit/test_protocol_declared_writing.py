@@ -300,3 +300,59 @@ def test_the_writer_keeps_the_declared_order_leaves_out_none_and_puts_client_id_
     assert write(_Body.FIELDS, _Body("laptop", None, tags=("a",))) == \
         b'{"count":null,"tags":["a"],"client_id":"laptop"}'
     assert write(_Body.FIELDS, _Body(None, 3, "n")) == b'{"count":3,"note":"n","tags":[]}'
+
+
+# Bodies whose writers had their own rules (left out when empty, null written, a field only with another's value)
+# and now declare them (BodyField.written, written_if): the bytes their hand-written writers wrote (stop 61; an
+# action request with op goal and no goal is the one change: `{}`, was `null`).
+def _shaped_examples() -> list[tuple[Any, bytes]]:
+    from roslink_mqtt.protocol.control import CallReply, CallRequest, ProviderResponse
+    from roslink_mqtt.protocol.fleet_control import ControlRequest, ControlResponse
+    from roslink_mqtt.protocol.grants import RobotGrants
+    from roslink_mqtt.protocol.node_params import ParamSetResult
+    from roslink_mqtt.protocol.params import ParamReply, ParamRequest
+    from roslink_mqtt.protocol.provided_actions import ActionRequest
+    from roslink_mqtt.protocol.rosout import LogLine
+    from roslink_mqtt.protocol.snapshot import SnapshotRequest
+
+    return [
+        (CallRequest(), b'{"id":null,"args":{}}'),
+        (CallRequest(5, {"a": 1}, "c1"), b'{"id":5,"args":{"a":1},"client_id":"c1"}'),
+        (CallReply(1, True), b'{"id":1,"result":true,"values":{}}'),
+        (CallReply(None, False, None, "why"), b'{"id":null,"result":false,"error":"why"}'),
+        (CallReply(2, False), b'{"id":2,"result":false,"error":null}'),
+        (ProviderResponse(1), b'{"id":1,"result":true,"values":null}'),
+        (ProviderResponse("z", False, None, "bad", "c"), b'{"id":"z","result":false,"error":"bad","client_id":"c"}'),
+        (ParamRequest("1", "get"), b'{"id":"1","op":"get"}'),
+        (ParamRequest("2", "set", (), {"a": 1}, "c"), b'{"id":"2","op":"set","values":{"a":1},"client_id":"c"}'),
+        (ParamReply(1, True), b'{"id":1,"result":true,"values":{}}'),
+        (ParamReply(1, False), b'{"id":1,"result":false,"error":null}'),
+        (ActionRequest("g1", "goal", {"order": 3}), b'{"id":"g1","op":"goal","goal":{"order":3}}'),
+        (ActionRequest("g1", "cancel"), b'{"id":"g1","op":"cancel"}'),
+        (ActionRequest("g1", "goal", None, "c"), b'{"id":"g1","op":"goal","goal":{},"client_id":"c"}'),
+        (LogLine(20, "hi"), b'{"level":20,"msg":"hi"}'),
+        (LogLine(30, "w", "f.py", "fn", 3, "c"),
+         b'{"level":30,"msg":"w","file":"f.py","function":"fn","line":3,"client_id":"c"}'),
+        (LogLine(20, "x", "", "fn", 0), b'{"level":20,"msg":"x"}'),
+        (ParamSetResult(1, True), b'{"id":1,"successful":true}'),
+        (ParamSetResult(1, False, "no", "c"), b'{"id":1,"successful":false,"reason":"no","client_id":"c"}'),
+        (SnapshotRequest(30), b'{"last":30}'),
+        (SnapshotRequest(5.5, 1024, "c"), b'{"last":5.5,"resume_from":1024,"client_id":"c"}'),
+        (ControlRequest(({"command": "getFleet"},)), b'{"commands":[{"command":"getFleet"}],"id":null}'),
+        (ControlResponse((), 7), b'{"responses":[],"id":7}'),
+        (RobotGrants("t1", {"bob": "viewer", "alice": "operator"}, 1.5),
+         b'{"robot":"t1","users":{"alice":"operator","bob":"viewer"},"issued":1.5,"by":""}'),
+        (DeclaredParameter(None, "not_set"), None),
+        (DeclaredParameter(2.5, "double", "d", True), None),
+    ]
+
+
+@pytest.mark.parametrize(("body", "wire"), _shaped_examples(),
+                         ids=[f"{type(body).__name__}-{i}" for i, (body, _wire) in enumerate(_shaped_examples())])
+def test_a_body_with_its_own_writing_rules_writes_them_from_its_declaration(body: Any, wire: bytes | None) -> None:
+    if wire is None:  # a nested body: its own dict
+        expected = {"value": None, "type": "not_set"} if body.value is None else \
+            {"value": 2.5, "type": "double", "description": "d", "read_only": True}
+        assert body.to_body() == expected
+        return
+    assert body.to_json() == wire
