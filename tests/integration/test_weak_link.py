@@ -428,7 +428,11 @@ def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp
 
 def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) -> None:
     """A ``buffer: disk`` rule: what ROS publishes while the broker is down (across a restart of the bridge,
-    too) reaches the viewer after the broker returns, every message, the buffered ones oldest first."""
+    too) reaches the viewer after the broker returns, every message, the buffered ones oldest first.
+
+    The bridge reaches the broker through a door (a plain TCP proxy) that the test opens again only once the viewer
+    is subscribed: a bridge that reconnected first sent its disk buffer's oldest records to no subscriber (a clean
+    run lost events 1 and 2 that way: the spool held and sent all thirty)."""
     from std_msgs.msg import String
 
     rules = RULES.replace("    rules: &rules\n", "    rules: &rules\n      - {direction: ros_to_mqtt, ros_topic: "
@@ -438,6 +442,9 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
     fleet = write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", rules, 1).replace(
         "      keepalive: 2\n", f"      keepalive: 2\n      buffer_dir: {spool_dir}\n", 1))
     bridge_cmd = ["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1"]
+    door_port = free_port()
+    door = ["-m", "roslink_mqtt.shaped_link", "--listen", f"127.0.0.1:{door_port}", "--to", "", "--delay-ms", "0",
+            "--jitter-ms", "0"]
     received: list[int] = []
     probe = RosProbe()
     try:
@@ -458,8 +465,11 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
             assert events.get_subscription_count() >= 1, "the bridge never subscribed to /wl/events"
 
         with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
-            url = ["--url", f"mqtt://127.0.0.1:{broker.port}"]
-            with run(bridge_cmd + url, tmp_path / "bridge1.log", bridge_env("turtle1")) as bridge:
+            url = ["--url", f"mqtt://127.0.0.1:{door_port}"]
+            door[door.index("--to") + 1] = f"127.0.0.1:{broker.port}"
+            with run(door, tmp_path / "door1.log"), \
+                    run(bridge_cmd + url, tmp_path / "bridge1.log", bridge_env("turtle1")) as bridge:
+                wait_for_port(door_port, 10)
                 with TestClient(broker.port, "bob", "bob-demo") as bob:
                     assert bob.connect() == 0
                     bob.subscribe("roslink/turtle1/state/events", qos=1)
@@ -480,11 +490,12 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
                     bob.client.on_message = lambda _c, _u, m: received.append(int(orjson.loads(m.payload)["data"]))
                     assert bob.connect(timeout=10) == 0
                     bob.subscribe("roslink/turtle1/state/events", qos=1)
-                    deadline = time.monotonic() + 20
-                    while time.monotonic() < deadline and not set(range(first_offline, last_offline + 1)) <= set(
-                            received):
-                        publish(1)  # live events go on meanwhile
-                        time.sleep(0.1)
+                    with run(door, tmp_path / "door2.log"):  # only now may the bridge reach the broker
+                        deadline = time.monotonic() + 20
+                        while time.monotonic() < deadline and not set(range(first_offline, last_offline + 1)) <= set(
+                                received):
+                            publish(1)  # live events go on meanwhile
+                            time.sleep(0.1)
     finally:
         probe.close()
     buffered = [i for i in received if first_offline <= i <= last_offline]
