@@ -6,12 +6,14 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from tests.support.waits import wait_until
 
 CHROMIUM = pytest.mark.skipif(
     not (Path("/usr/bin/chromium").exists() and Path("/usr/bin/chromedriver").exists()),
@@ -58,18 +60,6 @@ def browser(tmp_path: Path, name: str, precise_memory: bool = False) -> Iterator
         except Exception:
             pass  # a test may already have closed it (the page-close test does)
         shutil.rmtree(profile, ignore_errors=True)
-
-
-def wait_until(what: str, check: Callable[[], Any], timeout: float = 10.0, period: float = 0.1) -> Any:
-    """Poll ``check`` until it returns something truthy (bounded in time); fail naming ``what``."""
-    deadline = time.monotonic() + timeout
-    last: Any = None
-    while time.monotonic() < deadline:
-        last = check()
-        if last:
-            return last
-        time.sleep(period)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what} (last: {last!r})")
 
 
 # -- the dashboard page, as the browser tests drive it -------------------------------------------------------
