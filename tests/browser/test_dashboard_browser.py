@@ -27,6 +27,7 @@ import pytest
 
 from roslink_mqtt.dashboard import DashboardServer
 from roslink_mqtt.mqtt import WRONG_LOGIN
+from roslink_mqtt.protocol.lease import ControlState
 from tests.support.browser import (
     CHROMIUM,
     browser,
@@ -43,6 +44,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe, Watch
+from tests.support.waits import never, paced, stays
 
 pytestmark = [pytest.mark.timeout(150), CHROMIUM]
 
@@ -142,12 +144,8 @@ def moving(watch: Watch, since: float) -> list[Any]:
 
 def wait_still(cmd_vel: Watch, quiet: float = 1.2, timeout: float = 15.0) -> None:
     """Until no non-zero twist has reached /cmd_vel for ``quiet`` s: earlier streams and stops are over."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if not moving(cmd_vel, time.monotonic() - quiet):
-            return
-        time.sleep(0.1)
-    raise AssertionError("the robot kept receiving motion commands")
+    wait_until(f"no motion command on /cmd_vel for {quiet:g} s (the robot kept receiving them)",
+               lambda: not moving(cmd_vel, time.monotonic() - quiet), timeout=timeout, period=0.1)
 
 
 def odom_xy(odom: Watch) -> tuple[float, float]:
@@ -184,11 +182,14 @@ def alice_ready(driver: Any, stack: dict[str, Any]) -> None:
 
 
 def arm_if_blocked(stack: dict[str, Any]) -> None:
-    """A test that leaves turtle1 e-stopped must not break the next one: arm it over plain MQTT."""
+    """A test that leaves turtle1 e-stopped must not break the next one: arm it over plain MQTT, until the robot's
+    retained state/control says motion is not blocked (at once when it was not)."""
     with TestClient(stack["broker"].port, "alice", "alice-demo", operator=True) as alice:
         assert alice.connect() == 0
+        alice.subscribe("roslink/turtle1/state/control")
         alice.publish("roslink/turtle1/from/alice/cmd/arm", {"message_id": 104, "payload": {}})
-        time.sleep(0.3)
+        alice.wait_for(lambda m: m.topic.endswith("/state/control") and bool(m.payload)
+                       and not ControlState.from_json(m.payload).blocked, timeout=10)
 
 
 # -- the tests -------------------------------------------------------------------------------------------------
@@ -213,7 +214,11 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             # 10 Hz while held: a stream, more than the page's one first command (waited for, not slept on)
             wait_until("ten twists streamed while held", lambda: len(
                 [m for _, m in cmd_vel.since(t_press) if m.linear.x > 0.1]) >= 10, timeout=5)
-            time.sleep(max(0.0, t_press + 1.5 - time.monotonic()))  # held ~1.5 s in all: the distance checked below
+            # held ~1.5 s in all (the distance checked below), the stream reaching the robot all along (a gap of
+            # command_timeout, 1 s, would stop it)
+            stays("the pad's twists reaching /cmd_vel", lambda: [m for _, m in cmd_vel.since(time.monotonic() - 1.0)
+                                                                 if m.linear.x > 0.1],
+                  seconds=max(0.0, t_press + 1.5 - time.monotonic()))
             page_moved = wait_until("the plot's position to change", lambda: (
                 (p := pose(driver)) and math.hypot(p[0] - first[0], p[1] - first[1]) > 0.2 and p))
         finally:
@@ -223,11 +228,11 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             release(driver, button)
         stopped_at, stop = cmd_vel.wait_for(lambda m: m.linear.x == 0.0 and m.angular.z == 0.0, timeout=2,
                                             after=t_release)
-        time.sleep(0.5)
         # nothing moves the robot after the release's zero reached it (a twist sent just before the release may
         # arrive after the release on a busy machine, but never after the zero)
-        late = [m for at, m in cmd_vel.since(t_release) if at > stopped_at and (m.linear.x or m.angular.z)]
-        assert not late, f"motion after the release's stop: {late[:3]}"
+        never("motion after the release's stop", lambda: [
+            m for at, m in cmd_vel.since(t_release) if at > stopped_at and (m.linear.x or m.angular.z)][:3],
+            seconds=0.5)
         x1, y1 = odom_xy(odom)
         travelled = math.hypot(x1 - x0, y1 - y0)
         assert 0.3 < travelled < 1.5, (x0, y0, x1, y1)  # ~0.3 m/s for ~1.6 s on the ROS side
@@ -247,10 +252,9 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             t_up = time.monotonic()  # before the key-up, as t_release above
             ActionChains(driver).key_up(Keys.ARROW_UP).perform()
         up_stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0, timeout=2, after=t_up)
-        time.sleep(0.5)
         # as for the pad: a twist sent just before the key-up may land after it, never after its zero
-        late = [m for at, m in cmd_vel.since(t_up) if at > up_stopped_at and (m.linear.x or m.angular.z)]
-        assert not late, f"motion after the key-up's stop: {late[:3]}"
+        never("motion after the key-up's stop", lambda: [
+            m for at, m in cmd_vel.since(t_up) if at > up_stopped_at and (m.linear.x or m.angular.z)][:3], seconds=0.5)
 
         # the page's MQTT client object, used from the console, reaches the robot for an operator (the
         # positive control of the viewer test below)
@@ -292,7 +296,11 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
         ActionChains(driver).move_to_element_with_offset(plot, 140, -140).click().perform()  # right of, above centre
         _, goal = goals.wait_for(lambda m: True, timeout=5, after=t_click)
         assert goal.pose.position.x > 1.0 and goal.pose.position.y > 1.0, goal.pose.position
-        time.sleep(0.4)  # the plot shows the marker and the trail
+        # the plot shows the marker (set by the click) and the trail once a frame is drawn after it
+        wait_until("the waypoint on the plot", lambda: driver.execute_script(
+            "return window.dashboard.waypoint !== null"))
+        driver.execute_async_script("const done = arguments[0]; requestAnimationFrame(() => requestAnimationFrame("
+                                    "() => done()))")
         shot = tmp_path / "dashboard-drive.png"
         driver.save_screenshot(str(shot))
         print(f"screenshot: {shot}")
@@ -345,12 +353,11 @@ def test_emergency_stop_latches_until_resume(stack, tmp_path) -> None:
                 "(b.dataset.dir !== 'stop'))"))
             t_try = time.monotonic()
             button = hold(driver, "drive-fwd")
-            time.sleep(0.5)
+            never("motion from the disabled pad", lambda: moving(cmd_vel, t_try)[:3], seconds=0.5)
             release(driver, button)
             assert driver.execute_script("return document.getElementById('driving').dataset.driving") == "no"
             driver.execute_script("window.dashboard.sendTwist('turtle1', 0.3, 0)")
-            time.sleep(0.3)
-            assert not moving(cmd_vel, t_try), "motion after the emergency stop"
+            never("motion after the emergency stop", lambda: moving(cmd_vel, t_try)[:3], seconds=0.3)
             refusal = wait_until("the refusal in the page", lambda: "emergency stop by alice" in errors_text(driver)
                                  and errors_text(driver))
             assert "send cmd/arm to resume" in refusal
@@ -512,7 +519,9 @@ def test_closing_the_page_while_driving_stops_the_robot(stack, tmp_path, how) ->
         t_press = time.monotonic()
         hold(driver, "drive-fwd")
         cmd_vel.wait_for(lambda m: m.linear.x > 0.1, timeout=5, after=t_press)
-        time.sleep(0.5)  # mid-stream: the page keeps sending at 10 Hz while the button is held
+        # mid-stream: the page keeps sending at 10 Hz while the button is held (the first twist and 0.5 s more)
+        wait_until("six twists of the page's stream", lambda: len(
+            [m for _, m in cmd_vel.since(t_press) if m.linear.x > 0.1]) >= 6, timeout=10)
         t_close = time.monotonic()
         if how == "quit":
             driver.quit()  # the whole browser goes, with the button still held
@@ -525,9 +534,7 @@ def test_closing_the_page_while_driving_stops_the_robot(stack, tmp_path, how) ->
     elapsed = at - t_close
     print(f"\npage closed ({how}) while driving: zero twist on /cmd_vel {elapsed * 1000:.0f} ms after closing "
           f"began (closing took {(closed - t_close) * 1000:.0f} ms; failsafe bound {FAILSAFE_BOUND:g} s)")
-    time.sleep(1.0)
-    late = moving(cmd_vel, at + 0.2)
-    assert not late, f"motion after the stop: {late[:3]}"
+    never("motion after the stop", lambda: moving(cmd_vel, at + 0.2)[:3], seconds=1.0)
     assert elapsed <= FAILSAFE_BOUND, f"stopped only after {elapsed:.2f} s"
     from tests.support.measure import record_measurement
 
@@ -576,8 +583,9 @@ def test_bob_sees_turtle1_without_controls_and_cannot_command_it(stack, tmp_path
         # the page shows the stop with turtle1's next heartbeat (once a second): waited for, not slept on
         wait_until("bob's e-stop shown", lambda: (robot_row(driver, "turtle1") or {}).get("status") == "emergency",
                    timeout=5)
-        time.sleep(0.5)  # bob's twists were sent before his stop: had any passed the ACL it would be here by now
-        assert not [m for _, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.37)], "bob's twist reached ROS"
+        # bob's twists were sent before his stop: had any passed the ACL it would be here by now
+        never("bob's twist reaching ROS", lambda: [m for _, m in cmd_vel.since(t0)
+                                                   if m.linear.x == pytest.approx(0.37)], seconds=0.5)
         arm_if_blocked(stack)
         assert driver.execute_script("return document.getElementById('conn').dataset.state") == "connected"
 
@@ -632,9 +640,8 @@ def test_bob_watches_turtle1s_camera_decoded_by_the_browser(stack, tmp_path) -> 
         before = _canvas_floor(driver)
         with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{stack['broker'].port}") as alice:
             alice.wait_for_robot("turtle1")
-            for _ in range(10):  # turn in place for a second: the tiles slide across the picture
+            for _ in paced(0.1, count=10):  # turn in place for a second: the tiles slide across the picture
                 alice.twist("turtle1", az=1.0)
-                time.sleep(0.1)
             alice.twist("turtle1")
         # the tiles slide past: most of the row changes by far more than an encoder's noise (a few levels)
         wait_until("the floor to move on the canvas", lambda: sum(
@@ -735,7 +742,9 @@ def test_carol_does_not_see_turtle1_but_her_turtle2_online_stale_offline(stack, 
     with browser(tmp_path, "carol") as driver:
         login(driver, stack["url"], "carol", "carol-demo")
         logged_in(driver, "carol")
-        time.sleep(1.5)  # retained heartbeats arrive right after SUBACK; live ones every second
+        # retained heartbeats arrive right after SUBACK; live ones every second
+        never("a robot shown to carol", lambda: robot_row(driver, "turtle1") or driver.execute_script(
+            "return [...window.dashboard.robots.keys()]"), seconds=1.5)
         assert robot_row(driver, "turtle1") is None
         assert visible(driver, "fleet-empty")
         seen = driver.execute_script("return [...window.dashboard.robots.keys()]")
@@ -779,8 +788,9 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
         print(f"\nwrong password: {message!r}")
         assert message == f"login refused: {WRONG_LOGIN}", message  # the words of the CLI and the SDK
         assert visible(driver, "login") and not visible(driver, "main")
-        time.sleep(2.5)  # no retry loop: the refusal is final until the user submits again
-        assert WRONG_LOGIN in driver.find_element(By.ID, "login-error").text
+        # no retry loop: the refusal is final until the user submits again
+        stays("the login refusal", lambda: WRONG_LOGIN in driver.find_element(By.ID, "login-error").text,
+              seconds=2.5)
 
         # an unknown user reads exactly the same (the broker never says which logins exist)
         driver.execute_script("document.getElementById('login-error').hidden = true")
@@ -830,14 +840,20 @@ def test_a_slow_login_answer_is_waited_for(tmp_path) -> None:
             slow.signal(signal.SIGSTOP)
             try:
                 driver.find_element(By.ID, "connect").click()
-                clicked, waiting = time.monotonic(), ""
+                clicked, said = time.monotonic(), []
                 # the page says it waits after 3 s; that it waits LOGIN_WAIT (12 s, past the throttle's longest hold;
                 # the page's old 8 s was not) is the generated constant's, checked in tests/unit/test_broker_urls.py
-                while time.monotonic() - clicked < 4.0:
-                    assert not visible(driver, "login-error"), driver.find_element(By.ID, "login-error").text
-                    waiting = waiting or ("check the login" in (text := driver.find_element(By.ID, "conn").text)
-                                          and text)
-                    time.sleep(0.2)
+
+                def login_error() -> str | bool:
+                    if visible(driver, "login-error"):
+                        return driver.find_element(By.ID, "login-error").text or True
+                    if "check the login" in (text := driver.find_element(By.ID, "conn").text):
+                        said.append(text)
+                    return False
+
+                never("a login error while the broker holds its answer", login_error,
+                      seconds=max(0.0, clicked + 4.0 - time.monotonic()), period=0.2)
+                waiting = said[0] if said else ""
                 print(f"\nwhile the broker holds its answer: {waiting!r}")
                 assert waiting, "the page did not say that it waits for the broker's answer"
             finally:
@@ -869,13 +885,10 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
             with TestClient(stack["broker"].port, "alice", "alice-demo", operator=True) as op:
                 assert op.connect() == 0
                 seq = int(time.time() * 1000) % 2**32
-                for _ in range(300):  # bounded: at most 30 s at 10 Hz
-                    if stop.is_set():
-                        break
+                for _ in paced(0.1, count=300, stop=stop.is_set):  # bounded: at most 30 s at 10 Hz
                     seq += 1
                     op.publish("roslink/turtle1/from/alice/cmd/twist",
                                {"message_id": 100, "sequence_number": seq, "payload": {"lx": 0.3, "az": 0.6}}, qos=0)
-                    time.sleep(0.1)
                 op.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.0}, qos=1)
 
         driver_thread = threading.Thread(target=drive, name="circle-driver", daemon=True)
@@ -883,8 +896,9 @@ def test_page_memory_stays_flat_while_the_robot_streams(stack, tmp_path) -> None
         samples: list[tuple[float, float, int, int, int]] = []
         t0 = time.monotonic()
         try:
-            for i in range(5):  # every 1.4 s for 7 s
-                time.sleep(max(0.0, t0 + 1.4 * (i + 1) - time.monotonic()) if i else 1.4)
+            for i in paced(1.4, count=6):  # every 1.4 s for 7 s, the first sample 1.4 s in
+                if not i:
+                    continue
                 driver.execute_cdp_cmd("HeapProfiler.collectGarbage", {})
                 heap = driver.execute_script("return performance.memory.usedJSHeapSize")
                 dom = driver.execute_script("return document.getElementsByTagName('*').length")
@@ -1027,9 +1041,8 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
                                lambda: error.is_displayed() and error.text)
             assert why in shown and shown.startswith("not sent:"), shown
             assert form.get_attribute("data-state") == "invalid"
-        time.sleep(0.5)
-        calls = [m for m in wire.drain(0.3) if "/call/" in m.topic]
-        assert calls == [], f"an invalid form was published: {[(m.topic, m.payload) for m in calls]}"
+        never("an invalid form published", lambda: [(m.topic, m.payload) for m in wire.drain(0.01)
+                                                     if "/call/" in m.topic], seconds=0.8)
         print(f"\nservice form: refused on the page: {error.text!r}")
         # the same form, valid: the call carries the typed arguments and the reply is shown
         depth.clear()
@@ -1076,8 +1089,8 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
         send_goal(driver, "3000000000", sent=False)
         assert "out of range for int32" in driver.find_element(
             By.CSS_SELECTOR, 'form[data-action="fibonacci"] .form-error').text
-        time.sleep(0.3)
-        assert not [m for m in wire.drain(0.2) if "/goal/" in m.topic], "an out-of-range goal was published"
+        never("an out-of-range goal published", lambda: [(m.topic, m.payload) for m in wire.drain(0.01)
+                                                         if "/goal/" in m.topic], seconds=0.5)
 
         # -- a long goal (order 40: ~3.9 s at 0.1 s a term) canceled from the page
         long_id = send_goal(driver, "40")
@@ -1122,8 +1135,9 @@ def test_alice_uses_the_service_form_action_panel_and_parameter_panel(stack, tmp
             edit.send_keys("fast")  # not a double: said on the page, nothing sent
             click(driver, set_button)
             assert param_result(driver)[0] == "invalid" and "not a number" in param_result(driver)[1]
-            time.sleep(0.3)
-            assert not [m for m in wire.drain(0.2) if "/param/" in m.topic and b'"set"' in m.payload]
+            never("an invalid parameter set published", lambda: [
+                (m.topic, m.payload) for m in wire.drain(0.01) if "/param/" in m.topic and b'"set"' in m.payload],
+                seconds=0.5)
             edit.clear()
             edit.send_keys("0.35")
             t_set = time.monotonic()

@@ -30,6 +30,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, stays, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -88,10 +89,8 @@ def _pose(odom, at: float) -> tuple[float, float]:
 
 def _quiet(cmd_vel, quiet: float = 1.2, timeout: float = 10.0) -> None:
     """Until nothing reached /cmd_vel for ``quiet`` s (an earlier test's stop is republished for 0.5 s)."""
-    deadline = time.monotonic() + timeout
-    while cmd_vel.since(time.monotonic() - quiet):
-        assert time.monotonic() < deadline, "/cmd_vel never went quiet"
-        time.sleep(0.1)
+    wait_until(f"/cmd_vel to go quiet for {quiet:g} s", lambda: not cmd_vel.since(time.monotonic() - quiet),
+               timeout=timeout, period=0.1)
 
 
 def test_script_drives_forward_then_stops_and_prints_state(stack) -> None:
@@ -116,9 +115,9 @@ def test_script_drives_forward_then_stops_and_prints_state(stack) -> None:
     forward = [(t, m) for t, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.3) and m.angular.z == 0]
     assert len(forward) >= 15, f"{len(forward)} forward twists reached /cmd_vel"
     last_forward = forward[-1][0]
-    cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=last_forward, timeout=3)
+    stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=last_forward, timeout=3)
     # It moved ~0.6 m (0.3 m/s for 2 s) and stands still now.
-    time.sleep(0.3)
+    odom.wait_for(lambda m: m.twist.twist.linear.x == 0.0, after=stopped_at, timeout=10)
     x1, y1 = _pose(odom, time.monotonic())
     moved = math.dist((x0, y0), (x1, y1))
     print(f"turtle1 moved {moved:.2f} m on /odom ({t1 - t0:.1f} s run)")
@@ -138,7 +137,7 @@ def test_killed_script_stops_robot_by_last_will(stack, tmp_path) -> None:
                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, process_group=0)
     try:
         cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.25), after=t0, timeout=15)
-        time.sleep(0.5)
+        stays("the script running (mid-drive)", lambda: proc.poll() is None, seconds=0.5)
         assert proc.poll() is None, log.read_text()
         killed = time.monotonic()
         os.killpg(proc.pid, signal.SIGKILL)
@@ -152,9 +151,10 @@ def test_killed_script_stops_robot_by_last_will(stack, tmp_path) -> None:
     print(f"MQTT.js starter SIGKILLed mid-drive: zero twist on /cmd_vel after {took * 1000:.0f} ms")
     # The last-will (empty retained presence) stops it at once; the dead-man (1 s) would be slower.
     assert took < 0.5, took
-    time.sleep(0.6)  # the failsafe's zero twists are republished for 0.5 s; then nothing may move it
-    # A twist the script sent just before the kill may still land after `killed`; none may follow the stop.
-    assert not [m for _, m in cmd_vel.since(at) if m.linear.x != 0], "a twist reached /cmd_vel after the stop"
+    # the failsafe's zero twists are republished for 0.5 s; then nothing may move it. A twist the script sent just
+    # before the kill may still land after `killed`; none may follow the stop.
+    never("a twist reaching /cmd_vel after the stop", lambda: [m for _, m in cmd_vel.since(at) if m.linear.x != 0],
+          seconds=0.6)
 
 
 def test_viewer_and_wrong_password_are_refused(stack) -> None:
@@ -207,16 +207,6 @@ def _chromium(profile: Path) -> Iterator[object]:
         driver.quit()
 
 
-def _until(what: str, check, timeout: float = 10.0):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
-
-
 def test_page_drives_with_hold_and_stops_on_release_and_close(stack, tmp_path) -> None:
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
@@ -227,12 +217,12 @@ def test_page_drives_with_hold_and_stops_on_release_and_close(stack, tmp_path) -
         driver.get(f"http://127.0.0.1:{http_port}/examples/mqttjs/index.html"
                    f"?url=ws://127.0.0.1:{stack['ws_port']}/mqtt&user=alice")
         text = lambda element_id: driver.find_element(By.ID, element_id).text  # noqa: E731
-        _until("MQTT.js to load", lambda: driver.execute_script("return !!window.mqtt"))
+        wait_until("MQTT.js to load", lambda: driver.execute_script("return !!window.mqtt"))
         driver.find_element(By.ID, "password").send_keys("alice-demo")
         driver.find_element(By.ID, "connect").click()
-        _until("turtle1 online", lambda: text("robot-state").startswith("online: active"))
-        _until("the access report", lambda: text("access").startswith("operator"))
-        first = _until("a position", lambda: text("position"))
+        wait_until("turtle1 online", lambda: text("robot-state").startswith("online: active"))
+        wait_until("the access report", lambda: text("access").startswith("operator"))
+        first = wait_until("a position", lambda: text("position"))
         forward = driver.find_element(By.ID, "forward")
         assert forward.is_enabled()
 
@@ -240,19 +230,22 @@ def test_page_drives_with_hold_and_stops_on_release_and_close(stack, tmp_path) -
         t0 = time.monotonic()
         ActionChains(driver).click_and_hold(forward).perform()
         # a 10 Hz stream while held: ten twists waited for (not slept on), then held to ~1.5 s in all
-        _until("ten forward twists", lambda: len([m for _, m in cmd_vel.since(t0)
-                                                  if m.linear.x == pytest.approx(0.3)]) >= 10)
-        time.sleep(max(0.0, t0 + 1.5 - time.monotonic()))
+        wait_until("ten forward twists", lambda: len([m for _, m in cmd_vel.since(t0)
+                                                      if m.linear.x == pytest.approx(0.3)]) >= 10)
+        # the stream reaching the robot all along (a gap of command_timeout, 1 s, would stop it)
+        stays("forward twists reaching /cmd_vel", lambda: [m for _, m in cmd_vel.since(time.monotonic() - 1.0)
+                                                           if m.linear.x == pytest.approx(0.3)],
+              seconds=max(0.0, t0 + 1.5 - time.monotonic()))
         released = time.monotonic()
         ActionChains(driver).release().perform()
         at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=released, timeout=2)
         print(f"page: released forward -> zero twist on /cmd_vel after {(at - released) * 1000:.0f} ms")
         record_measurement("MQTT.js starter: release → zero twist", at - released, 0.5)
         assert at - released < 1.0  # the goal (0.5 s) is reported; this includes WebDriver's round trip (issue 47)
-        assert _until("a new position", lambda: text("position") != first and text("position"))
-        time.sleep(0.3)
+        assert wait_until("a new position", lambda: text("position") != first and text("position"))
         # a twist sent just before the release may land after it, never after its zero
-        assert not [m for t, m in cmd_vel.since(at) if t > at and m.linear.x != 0], "moved after release"
+        never("motion after the release's zero", lambda: [m for t, m in cmd_vel.since(at)
+                                                          if t > at and m.linear.x != 0], seconds=0.3)
 
         # Hold forward again and close the browser while holding: the last-will stops the robot.
         t1 = time.monotonic()

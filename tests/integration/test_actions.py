@@ -31,6 +31,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import Received, TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -207,7 +208,9 @@ def test_emergency_stop_cancels_every_goal(stack) -> None:
     stack.alice.wait_for(lambda m: m.topic.endswith("/error") and "turtle1 is driven by admin" in m.json()["error"])
     stack.admin.publish("roslink/turtle1/from/admin/cmd/arm",
                         {"message_id": 104, "sequence_number": 7, "payload": {}})
-    time.sleep(0.5)
+    stack.admin.subscribe("roslink/turtle1/state/control")  # retained: the bridge says when motion is free again
+    stack.admin.wait_for(lambda m: m.topic.endswith("/state/control") and m.payload and not m.json().get("blocked"),
+                         timeout=10)
     again = send_goal(stack.admin, "admin", {"order": 3})
     assert GoalResult.from_json(until_result(stack.admin, "admin", again)[-1].payload).status == "succeeded"
 
@@ -331,9 +334,7 @@ def test_sdk_send_goal_feedback_result_and_cancel(stack) -> None:
         assert handle.accepted(timeout=10)
         result = handle.result(timeout=20)
         assert (result.status, result.result["sequence"]) == ("succeeded", [0, 1, 1, 2, 3, 5, 8])
-        deadline = time.monotonic() + 2
-        while not progress and time.monotonic() < deadline:  # callbacks run in the dispatcher thread
-            time.sleep(0.05)
+        wait_until("feedback of the goal", lambda: progress, timeout=10)  # callbacks run in the dispatcher thread
         assert progress and progress[-1][:3] == [0, 1, 1]
         long = alice.send_goal("turtle1", ACTION, {"order": 40})
         assert long.accepted(timeout=10)
@@ -402,8 +403,13 @@ def test_a_goal_two_action_servers_would_take_is_refused_and_the_bridge_lives(st
         except subprocess.TimeoutExpired:
             second.kill()
             second.wait()
-    deadline = time.monotonic() + 30
-    while (outcome := _try_goal(stack.alice))[1] is None or outcome[1].status != "succeeded":
-        # the bridge lives, and takes goals again once the dead server's status publisher is forgotten
-        assert time.monotonic() < deadline, outcome
-        time.sleep(0.5)
+    outcomes: list[tuple[GoalStatus, GoalResult | None]] = []
+
+    def succeeded() -> bool:  # the bridge lives, and takes goals again once the dead server's status publisher is gone
+        outcomes.append(_try_goal(stack.alice))
+        return outcomes[-1][1] is not None and outcomes[-1][1].status == "succeeded"
+
+    try:
+        wait_until("a goal to succeed again", succeeded, timeout=30, period=0.5)
+    except AssertionError as e:
+        raise AssertionError(f"{e}: {outcomes[-1]}") from None

@@ -20,6 +20,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import paced
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -64,12 +65,16 @@ def test_the_events_executor_serves_goals_parameters_motion_and_the_dead_man(tmp
 
         # motion, then the dead-man stop (supervision timer on the events executor)
         sent = time.monotonic()
-        for seq in range(1, 101):  # until ROS delivers one: the probe must have matched the bridge's publisher
+        seq = 0
+
+        def delivered() -> bool:
+            return seq >= 5 and any(m.linear.x == pytest.approx(0.2) for _, m in cmd_vel.since(sent))
+
+        # until ROS delivers one: the probe must have matched the bridge's publisher
+        for _ in paced(0.1, count=100, stop=delivered):
+            seq += 1
             alice.publish(f"{T}/from/alice/cmd/twist",
                           orjson.dumps({"message_id": 100, "sequence_number": seq, "payload": {"lx": 0.2}}), qos=0)
-            time.sleep(0.1)
-            if seq >= 5 and any(m.linear.x == pytest.approx(0.2) for _, m in cmd_vel.since(sent)):
-                break
         moved_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == pytest.approx(0.2), after=sent, timeout=10)
         stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0.0, after=moved_at + 0.5, timeout=5)
         assert stopped_at - moved_at < 3.0

@@ -19,6 +19,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -27,17 +28,16 @@ ALICE_GRANT = "    grants:\n      - {key: demo-key-turtle1, role: operator}\n  b
 
 
 def _wait_for_log(proc, text: str, count: int, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while proc.output().count(text) < count:
-        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{proc.output()[-3000:]}"
-        time.sleep(0.05)
+    try:
+        wait_until(f"{text!r} in the log", lambda: proc.output().count(text) >= count, timeout=timeout)
+    except AssertionError as err:
+        raise AssertionError(f"no {text!r} in the log:\n{proc.output()[-3000:]}") from err
 
 
 def _stream(client: TestClient, user: str, lx: float, stop: threading.Event) -> threading.Thread:
     def loop() -> None:
-        while not stop.is_set():
+        for _ in paced(0.05, within=120, stop=stop.is_set):  # 120 s: the test's own timeout
             client.publish(f"roslink/turtle1/from/{user}/cmd/twist", {"lx": lx}, qos=0)
-            time.sleep(0.05)
     thread = threading.Thread(target=loop, daemon=True)
     thread.start()
     return thread
@@ -97,7 +97,8 @@ def test_sighup_gives_and_takes_operator_grants(tmp_path: Path) -> None:
                 stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=hup_at,
                                                  timeout=5)
                 err = alice.wait_for(lambda m: "not an operator" in m.json().get("error", ""), timeout=5).json()
-                time.sleep(0.5)  # her stream goes on: none of it may reach the robot
+                never("alice's twists reaching the robot after the revocation",  # her stream goes on meanwhile
+                      lambda: [m for _, m in cmd_vel.since(stopped_at + 0.1) if m.linear.x != 0], seconds=0.5)
             finally:
                 stop_alice.set()
                 streamer.join()

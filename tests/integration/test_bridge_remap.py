@@ -11,6 +11,7 @@ from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -34,10 +35,8 @@ def test_ros_args_remap_and_namespace(tmp_path) -> None:
                 motion = carol.wait_for(lambda m: m.topic == "roslink/turtle2/state/global_motion", timeout=20)
                 assert decode(motion.payload, MessageId.GLOBAL_MOTION).system_id == 2
                 t0 = time.monotonic()
-                deadline = t0 + 15
-                while time.monotonic() < deadline and not remapped.since(t0):
+                for _ in paced(0.1, within=15, stop=lambda: remapped.since(t0)):  # until one arrives
                     carol.publish("roslink/turtle2/from/carol/cmd/twist", {"lx": 0.1}, qos=0)
-                    time.sleep(0.1)
                 _, twist = remapped.wait_for(lambda m: m.linear.x == pytest.approx(0.1), timeout=1)
                 assert default.since(t0) == []  # nothing on the un-remapped name
         finally:
@@ -59,7 +58,8 @@ def test_retained_commands_are_never_replayed(tmp_path) -> None:
             with run(bridge_args("turtle1", port), tmp_path / "bridge.log", bridge_env("turtle1")):
                 err = alice.wait_for(lambda m: m.topic.endswith("/to/alice/error"), timeout=20).json()
                 assert "ignored a retained command" in err["error"]
-                time.sleep(1.0)
+                never("a retained twist moving the robot", lambda: [m for _, m in cmd_vel.since(0) if m.linear.x != 0],
+                      seconds=1.0)
                 assert not [m for _, m in cmd_vel.since(0) if m.linear.x != 0]
         finally:
             probe.close()

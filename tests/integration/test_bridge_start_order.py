@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Callable
-from typing import Any
 
 import pytest
 
@@ -22,25 +20,20 @@ from tests.support.mosquitto import run_mosquitto
 from tests.support.mqtt_client import TestClient
 from tests.support.net import free_port
 from tests.support.procs import bridge_args, bridge_env, run
+from tests.support.waits import never, wait_until
 
 pytestmark = pytest.mark.timeout(90)
-
-
-def wait_until(what: str, check: Callable[[], Any], timeout: float = 20.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (found := check()):
-        assert time.monotonic() < deadline, f"timed out after {timeout} s waiting for {what}"
-        time.sleep(0.05)
-    return found
 
 
 def test_bridge_first_then_robot_then_broker(tmp_path) -> None:
     port = free_port()  # nothing listens here yet
     with run(bridge_args("turtle1", port), tmp_path / "bridge.log", bridge_env("turtle1")) as bridge:
-        time.sleep(2.0)  # the bridge keeps retrying a broker that does not exist
+        # the bridge keeps retrying a broker that does not exist
+        never("the bridge giving up without a broker", lambda: bridge.popen.poll() is not None and bridge.output(),
+              seconds=2.0)
         assert bridge.popen.poll() is None, f"bridge gave up without a broker:\n{bridge.output()}"
-        with run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log"):
-            time.sleep(1.0)
+        with run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log") as sim:
+            wait_until("the simulated robot ready", lambda: "simulated robot ready" in sim.output(), timeout=20)
             conf = f"allow_anonymous false\npassword_file {fleet_password_file(tmp_path)}\n"
             with run_mosquitto(tmp_path, conf, port=port), \
                     TestClient(port, "alice", "alice-demo", operator=True) as alice:
@@ -58,7 +51,7 @@ def test_bridge_started_before_its_broker_says_it_is_retrying(tmp_path) -> None:
     with run(bridge_args("turtle1", port), tmp_path / "bridge.log", bridge_env("turtle1")) as bridge:
         said = wait_until("the third attempt logged", lambda: re.findall(
             rf"WARNING .*broker mqtt://127\.0\.0\.1:{port} unreachable, retrying \(attempt (\d+), next in ([\d.]+) s\)",
-            bridge.output()) if "attempt 3," in bridge.output() else None)
+            bridge.output()) if "attempt 3," in bridge.output() else None, timeout=20)
         assert bridge.popen.poll() is None, bridge.output()
     print("\n" + "\n".join(line for line in bridge.output().splitlines() if "unreachable" in line))
     attempts, delays = [int(a) for a, _ in said], [float(d) for _, d in said]
@@ -75,14 +68,16 @@ def test_refused_login_is_said_and_backed_off_or_ends_the_bridge(tmp_path) -> No
             run(bridge_args("turtle1", broker.port, config=exiting), tmp_path / "exiting.log", wrong) as leaving:
         refused = f"ERROR roslink_mqtt.bridge.core.link: broker mqtt://127.0.0.1:{broker.port} refused turtle1's " \
                   "login: wrong username or password"
-        wait_until("the retrying bridge's refusal", lambda: refused in retrying.output())
+        wait_until("the retrying bridge's refusal", lambda: refused in retrying.output(), timeout=20)
         first = time.monotonic()
         assert "retrying in 5 s" in retrying.output(), retrying.output()
-        wait_until("the other bridge's exit", lambda: leaving.popen.poll() is not None)
+        wait_until("the other bridge's exit", lambda: leaving.popen.poll() is not None, timeout=20)
         assert leaving.popen.returncode == EXIT_LOGIN_REFUSED, leaving.output()
         assert refused in leaving.output() and "exiting with status 5" in leaving.output(), leaving.output()
         # paho's own backoff (0.1 s doubling to 2 s) tried 4 times in 2 s; the refused login waits 5 s
-        wait_until("2 s after the refusal", lambda: time.monotonic() - first > 2.0)
+        never("the retrying bridge trying again or exiting within 2 s of the refusal",
+              lambda: retrying.output().count(refused) > 1 or retrying.popen.poll() is not None,
+              seconds=max(0.0, first + 2.0 - time.monotonic()))
         assert retrying.popen.poll() is None, retrying.output()
         assert retrying.output().count(refused) == 1, retrying.output()
         # (a login the broker's busy password checks turn away at once, "try again", is retried at once, rightly:

@@ -28,6 +28,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.net import free_port
 from tests.support.procs import DEMO_PASSWORDS
+from tests.support.waits import paced, wait_until
 
 MAX_PAYLOAD = 2048
 PW = DEMO_PASSWORDS
@@ -136,7 +137,9 @@ def test_retained_delivery_on_subscribe_is_receive_checked_and_min_qos(broker, c
     admin = clients(broker.port, "admin")
     admin.publish("roslink/turtle2/state/secret", "no", qos=1, retain=True)
     admin.publish("roslink/turtle1/state/q0", "low", qos=0, retain=True)
-    time.sleep(0.2)
+    # held: admin's own SUBSCRIBE, read after its PUBLISHes on the one connection, gets it back retained
+    assert admin.subscribe("roslink/turtle1/state/q0") == [1]
+    admin.wait_for(lambda m: m.topic == "roslink/turtle1/state/q0" and m.retain)
     bob = clients(broker.port, "bob")
     assert bob.subscribe("#", qos=1) == [1]  # granted: it can match turtle1's topics
     got = {m.topic: m for m in bob.collect(1, then=0.5)}
@@ -222,13 +225,20 @@ def test_client_id_takeover_closes_the_old_connection_without_will(broker, clien
     assert watcher.drain(0.3) == [], "will published on take-over"
 
 
+def _close_and_wait_offline(broker: EmbeddedBrokerProcess, client: Probe, client_id: str) -> None:
+    """Disconnect ``client`` and wait until the broker has logged its session's end (it is offline then)."""
+    marker = f"disconnected client_id={client_id!r}"
+    before = broker.output().count(marker)
+    client.close()
+    wait_until(f"the broker to log {client_id}'s disconnect", lambda: broker.output().count(marker) > before)
+
+
 def test_persistent_session_is_not_inherited_by_another_login(broker, clients) -> None:
     alice = clients(broker.port, "alice", "shared-id", clean=False)
     assert alice.subscribe("roslink/turtle1/to/alice/#", qos=1) == [1]
-    alice.close()
-    time.sleep(0.3)
+    _close_and_wait_offline(broker, alice, "shared-id")
+    # its PUBACK comes once the broker has queued it for the offline session
     clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/reply/x", "for alice only", qos=1)
-    time.sleep(0.3)
     carol = clients(broker.port, "carol", "shared-id", clean=False)
     assert not carol.session_present
     assert carol.drain(0.8) == []
@@ -237,10 +247,9 @@ def test_persistent_session_is_not_inherited_by_another_login(broker, clients) -
 def test_offline_queue_is_replayed_once_without_retain_flag(broker, clients) -> None:
     alice = clients(broker.port, "alice", "persistent-alice", clean=False)
     assert alice.subscribe("roslink/turtle1/to/alice/#", qos=1) == [1]
-    alice.close()
-    time.sleep(0.3)
+    _close_and_wait_offline(broker, alice, "persistent-alice")
+    # its PUBACK comes once the broker has queued it for the offline session
     clients(broker.port, "turtle1").publish("roslink/turtle1/to/alice/reply/q", "queued", qos=1)
-    time.sleep(0.3)
     again = clients(broker.port, "alice", "persistent-alice", clean=False)
     assert again.session_present
     got = again.collect(1)
@@ -269,19 +278,15 @@ def test_no_message_lost_while_another_client_subscribes_concurrently(broker, cl
     stop = threading.Event()
 
     def churner() -> None:
-        i = 0
-        while not stop.is_set():
+        for i in paced(0.001, within=60, stop=stop.is_set):  # until the counting ends (within: a bound)
             churn.client.subscribe(f"roslink/churn/{i}", 0)
-            i += 1
-            time.sleep(0.001)
 
     thread = threading.Thread(target=churner)
     thread.start()
     try:
-        for i in range(n):
-            publisher.client.publish("roslink/turtle1/state/ack", str(i), qos=0)
-            if i % 100 == 0:
-                time.sleep(0.01)
+        for batch in paced(0.01, count=n // 100):  # a hundred at a time
+            for i in range(100 * batch, 100 * batch + 100):
+                publisher.client.publish("roslink/turtle1/state/ack", str(i), qos=0)
         deadline = time.monotonic() + 20
         got = 0
         while got < n and time.monotonic() < deadline:

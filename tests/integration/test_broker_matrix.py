@@ -52,6 +52,7 @@ from tests.support.acl_matrix import (
 from tests.support.broker_setup import ExportedMosquitto
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.procs import DEMO_PASSWORDS
+from tests.support.waits import wait_until
 
 # -- running the matrix ---------------------------------------------------------------------
 
@@ -132,14 +133,16 @@ def settle(conns: list[Conn], minimum: float, quiet: float = 0.5, maximum: float
     busy host delays messages; it must not turn an expected delivery into a 'denied')."""
     start = last_change = time.monotonic()
     sizes = [c.messages.qsize() for c in conns]
-    while True:
-        time.sleep(0.05)
+
+    def settled() -> bool:  # true at ``maximum`` at the latest: settling never fails, it only stops waiting
+        nonlocal sizes, last_change
         now = time.monotonic()
         current = [c.messages.qsize() for c in conns]
         if current != sizes:
             sizes, last_change = current, now
-        if (now - start >= minimum and now - last_change >= quiet) or now - start >= maximum:
-            return
+        return (now - start >= minimum and now - last_change >= quiet) or now - start >= maximum
+
+    wait_until("the connections to settle", settled, timeout=maximum + 10)
 
 
 def exact_filter(cls: str, me: str) -> str:

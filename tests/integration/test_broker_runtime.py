@@ -22,6 +22,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.net import free_port
 from tests.support.procs import CONFIG, DEMO_PASSWORDS, ROOT
+from tests.support.waits import paced, wait_until
 
 PW = DEMO_PASSWORDS
 BOB_GRANT = "    grants:\n      - {key: demo-key-turtle1, role: viewer}\n"
@@ -46,6 +47,14 @@ def _broker_cli(*args: str, timeout: float = 20) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=ROOT)
 
 
+def _wait_logged(broker, text: str, timeout: float) -> None:
+    """Until the broker's log says ``text``; failing, show the log's tail."""
+    try:
+        wait_until(f"the broker to log {text!r}", lambda: text in broker.output(), timeout=timeout)
+    except AssertionError as e:
+        raise AssertionError(f"{e}\n{broker.output()[-2000:]}") from None
+
+
 # -- SIGHUP reload -----------------------------------------------------------------------------
 
 
@@ -62,12 +71,9 @@ def test_sighup_revokes_bobs_grant_at_once_and_closes_only_his_connections(tmp_p
         assert alice.subscribe("roslink/turtle1/state/#") == [1]
         stop = threading.Event()
 
-        def stream() -> None:  # turtle1 state at 50 Hz
-            i = 0
-            while not stop.is_set():
+        def stream() -> None:  # turtle1 state at 50 Hz, until stopped
+            for i in paced(0.02, within=120, stop=stop.is_set):
                 robot.client.publish("roslink/turtle1/state/robot_status", str(i), qos=0)
-                i += 1
-                time.sleep(0.02)
 
         streamer = threading.Thread(target=stream)
         streamer.start()
@@ -103,9 +109,7 @@ def test_reload_with_a_broken_file_keeps_the_running_rules_and_removed_logins_ar
         assert carol.connect() == 0
         fleet.write_text(good.replace("system_id: 1", "system_id: one"))
         broker.signal(signal.SIGHUP)
-        deadline = time.monotonic() + 5
-        while "reload refused" not in broker.output() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until("the broker to refuse the reload", lambda: "reload refused" in broker.output(), timeout=10)
         assert "reload refused" in broker.output() and "system_id" in broker.output()
         assert not carol.disconnected.is_set()
         assert carol.subscribe("roslink/turtle2/state/#") == [1]  # old rules still enforced
@@ -340,10 +344,7 @@ def test_a_renewed_certificate_is_served_after_sighup_and_nobody_is_dropped(tmp_
         shutil.copy(new_cert, tmp_path / "cert.pem")  # renewed in place, as certbot does
         shutil.copy(new_key, tmp_path / "key.pem")
         broker.signal(signal.SIGHUP)
-        deadline = time.monotonic() + 10
-        while "reloaded the TLS certificate" not in broker.output() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert "reloaded the TLS certificate" in broker.output(), broker.output()[-2000:]
+        _wait_logged(broker, "reloaded the TLS certificate", timeout=10)
         after = tls_probe(new_ca)
         assert after.connect() == 0  # the new certificate, at once
         assert refused_by_tls(old_ca)  # and not the old one any more
@@ -353,10 +354,7 @@ def test_a_renewed_certificate_is_served_after_sighup_and_nobody_is_dropped(tmp_
             assert before.wait_for(lambda m: m.topic == "roslink/turtle1/state/battery", timeout=10)
         shutil.copy(old_key, tmp_path / "key.pem")  # a key of another certificate: refused, nothing changes
         broker.signal(signal.SIGHUP)
-        deadline = time.monotonic() + 10
-        while "not taken, still serving the previous one" not in broker.output() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert "not taken, still serving the previous one" in broker.output(), broker.output()[-2000:]
+        _wait_logged(broker, "not taken, still serving the previous one", timeout=10)
         assert tls_probe(new_ca).connect() == 0
 
 
@@ -373,10 +371,7 @@ def test_a_tls_only_broker_listens_in_clear_text_nowhere(tmp_path: Path, probes)
     try:
         wait_for_port(tls_port, 15, host="127.0.0.2")
         said = f"listening on mqtts://127.0.0.2:{tls_port}; fleet"
-        deadline = time.monotonic() + 15  # the port answers a moment before the line is written
-        while said not in broker.output() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert said in broker.output(), broker.output()
+        _wait_logged(broker, said, timeout=15)  # the port answers a moment before the line is written
         p = probes(tls_port, "alice", host="127.0.0.2")
         p.client.tls_set(ca_certs=str(tmp_path / "cert.pem"))
         assert p.connect() == 0

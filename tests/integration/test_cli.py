@@ -6,13 +6,13 @@ import math
 import os
 import subprocess
 import sys
-import time
 
 import orjson
 import pytest
 
 from tests.support.procs import ROOT
 from tests.support.robot_stack import turtle1_online
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -71,40 +71,58 @@ def test_echo_prints_state_as_json(port) -> None:
     assert len(lines) == 2 and {"x", "y", "yaw"} <= set(orjson.loads(lines[0]))
 
 
-def _pose(port: int) -> tuple[float, float, float]:
+def _motion(port: int) -> dict:
     out = cli(port, "bob", "echo", "turtle1", "global_motion", "-n", "1", "--timeout", "10")
     assert out.returncode == 0, out.stderr
-    motion = orjson.loads(out.stdout)
+    return orjson.loads(out.stdout)
+
+
+def _pose(port: int) -> tuple[float, float, float]:
+    motion = _motion(port)
     return motion["x"], motion["y"], motion["yaw"]
 
 
+def _centred_pose(port: int) -> tuple[float, float, float]:
+    """turtle1's pose once it shows at the room centre (a reset reaches the state stream a moment later)."""
+    poses: list[tuple[float, float, float]] = []
+
+    def centred() -> bool:
+        poses.append(_pose(port))
+        return abs(poses[-1][0]) < 0.05 and abs(poses[-1][1]) < 0.05
+
+    try:
+        wait_until("turtle1 at the room centre", centred, timeout=15)
+    except AssertionError as e:
+        raise AssertionError(f"{e}: {poses[-1]}") from None
+    return poses[-1]
+
+
 def _reset(port: int) -> None:
-    deadline = time.monotonic() + 20
-    while True:  # a bridge just started finds the sim's reset server a moment later (longer on a busy machine)
+    def found():  # a bridge just started finds the sim's reset server a moment later (longer on a busy machine)
         reset = cli(port, "alice", "call", "turtle1", "reset")
-        if "has no server" not in reset.stdout + reset.stderr or time.monotonic() > deadline:
-            break
-        time.sleep(0.5)
+        return reset if "has no server" not in reset.stdout + reset.stderr else None
+
+    reset = wait_until("the bridge to find the sim's reset server", found, timeout=20, period=0.5)
     assert reset.returncode == 0 and '"success": true' in reset.stdout, reset.stdout + reset.stderr
 
 
 def test_pub_stream_moves_robot_and_call_resets_it(port) -> None:
     # turtle1 is shared by this module's tests: start from the room centre and measure the displacement.
     _reset(port)
-    time.sleep(0.3)
-    x0, y0, yaw0 = _pose(port)
+    x0, y0, yaw0 = _centred_pose(port)
     assert abs(x0) < 0.05 and abs(y0) < 0.05, (x0, y0)
     out = cli(port, "alice", "pub", "turtle1", "twist", '{"lx": 0.5}', "--rate", "10", "--duration", "1.5")
     assert out.returncode == 0 and "sent 15 × twist" in out.stdout, out.stdout + out.stderr
-    time.sleep(1.5)  # the dead-man (command_timeout 1.0 s) has stopped it
-    x1, y1, yaw1 = _pose(port)
+    # the dead-man (command_timeout 1.0 s) stops it: its motion then says so
+    stopped = wait_until("turtle1 stopped by the dead-man",
+                         lambda: (m := _motion(port))["vx"] == 0 and m["wz"] == 0 and m, timeout=15)
+    x1, y1, yaw1 = stopped["x"], stopped["y"], stopped["yaw"]
     ahead = (x1 - x0) * math.cos(yaw0) + (y1 - y0) * math.sin(yaw0)
     aside = -(x1 - x0) * math.sin(yaw0) + (y1 - y0) * math.cos(yaw0)
     # 0.5 m/s for 1.5 s = 0.75 m straight ahead, plus at most the dead-man's 1.0 s of coasting.
     assert 0.6 < ahead < 1.3 and abs(aside) < 0.05 and abs(yaw1 - yaw0) < 0.05, (x0, y0, yaw0, x1, y1, yaw1)
     _reset(port)
-    time.sleep(0.3)
-    x2, y2, _ = _pose(port)
+    x2, y2, _ = _centred_pose(port)
     assert abs(x2) < 0.05 and abs(y2) < 0.05, (x2, y2)  # back at the centre
 
 

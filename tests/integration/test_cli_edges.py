@@ -29,6 +29,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.robot_stack import turtle1_online
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -200,10 +201,13 @@ def test_sim_binds_loopback_without_a_profile_in_its_environment(tmp_path) -> No
     env = {k: v for k, v in os.environ.items() if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")}
     domain = int(env["ROS_DOMAIN_ID"])
     with run(["-m", "roslink_mqtt.sim"], tmp_path / "sim.log", env) as sim:
-        deadline = time.monotonic() + 20
-        while "simulated robot ready" not in sim.output():
-            assert time.monotonic() < deadline and sim.popen.poll() is None, sim.output()
-            time.sleep(0.1)
+
+        def ready() -> bool:
+            out = sim.output()
+            assert "simulated robot ready" in out or sim.popen.poll() is None, out  # it exited
+            return "simulated robot ready" in out
+
+        wait_until("the sim to say it is ready", ready, timeout=20, period=0.1)
         sockets = subprocess.run(["ss", "-uanp"], capture_output=True, text=True, timeout=10).stdout
         log = sim.output()
     base = 7400 + 250 * domain  # RTPS well-known ports of this domain (multicast and unicast discovery, user)
@@ -262,9 +266,9 @@ def test_teleop_drives_an_arc_in_a_terminal(stack) -> None:
         read_until(b"teleop turtle1:", 20)
         with TestClient(port, "bob", "bob-demo") as bob:
             assert bob.connect() == 0
-            for key in b"wwa":
-                os.write(fd, bytes([key]))
-                time.sleep(0.2)
+            keys = b"wwa"
+            for i in paced(0.2, count=len(keys)):
+                os.write(fd, keys[i:i + 1])
             read_until(b"lx=+0.20 m/s az=+0.30 rad/s", 5)
             bob.subscribe("roslink/turtle1/state/global_motion", qos=0)
             motion = bob.wait_for(lambda m: m.json()["payload"]["vx"] > 0.15, timeout=5).json()["payload"]
@@ -293,13 +297,14 @@ def _bridge_lines(log: Path, since: int) -> list[str]:
 
 
 def _wait_line(log: Path, since: int, needle: str, timeout: float = 5) -> list[str]:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    def found() -> list[str]:
         lines = _bridge_lines(log, since)
-        if any(needle in line for line in lines):
-            return lines
-        time.sleep(0.1)
-    raise AssertionError(f"no {needle!r} in the bridge log:\n" + "\n".join(_bridge_lines(log, since)))
+        return lines if any(needle in line for line in lines) else []
+
+    try:
+        return wait_until(f"{needle!r} in the bridge log", found, timeout=timeout, period=0.1)
+    except AssertionError:
+        raise AssertionError(f"no {needle!r} in the bridge log:\n" + "\n".join(_bridge_lines(log, since))) from None
 
 
 def test_finished_pub_is_no_warning_but_the_robot_stops(stack) -> None:
@@ -313,8 +318,8 @@ def test_finished_pub_is_no_warning_but_the_robot_stops(stack) -> None:
     assert not [line for line in lines if " WARNING " in line], lines
     for command in ("arm", "emergency_stop", "arm"):  # commands that start no motion stop nothing
         assert cli(port, "alice", "pub", "turtle1", command).returncode == 0
-    time.sleep(0.5)
-    assert not [line for line in _bridge_lines(log, since) if " WARNING " in line and "failsafe" in line]
+    never("a failsafe warning in the bridge log", lambda: [
+        line for line in _bridge_lines(log, since) if " WARNING " in line and "failsafe" in line], seconds=0.5)
 
 
 def test_a_stream_ended_by_a_zero_twist_is_no_failsafe(stack) -> None:
@@ -324,16 +329,17 @@ def test_a_stream_ended_by_a_zero_twist_is_no_failsafe(stack) -> None:
 
     port, log = stack
     since = len(log.read_text(errors="replace"))
+
+    def stops() -> list[str]:
+        return [line for line in _bridge_lines(log, since) if "dead-man" in line or "stop of turtle1" in line]
+
     with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
         alice.wait_for_robot("turtle1", timeout=10)
-        for _ in range(5):
+        for _ in paced(0.1, count=5):
             alice.twist("turtle1", lx=0.2)
-            time.sleep(0.1)
         alice.twist("turtle1")  # the pad released
-        time.sleep(2.0)  # twice the command_timeout, the operator still present
-    time.sleep(0.5)
-    lines = _bridge_lines(log, since)
-    assert not [line for line in lines if "dead-man" in line or "stop of turtle1" in line], lines
+        never("a stop in the bridge log", stops, seconds=2.0)  # twice the command_timeout, the operator still present
+    never("a stop in the bridge log after alice signed off", stops, seconds=0.5)
 
 
 def test_killed_commanding_client_still_stops_the_robot_with_a_warning(stack) -> None:
@@ -363,9 +369,8 @@ def test_clean_ctrl_c_of_the_bridge_is_not_a_lost_broker(tmp_path) -> None:
             assert alice.connect() == 0
             alice.subscribe("roslink/turtle1/heartbeat")
             alice.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-            for _ in range(5):  # the robot is moving when the bridge is stopped
+            for _ in paced(0.1, count=5):  # the robot is moving when the bridge is stopped
                 alice.publish("roslink/turtle1/from/alice/cmd/twist", {"lx": 0.1}, qos=0)
-                time.sleep(0.1)
             bridge.signal(signal.SIGINT)
             assert bridge.popen.wait(15) == 0
         text = bridge.output()

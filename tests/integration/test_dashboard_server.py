@@ -13,7 +13,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +20,7 @@ import pytest
 from roslink_mqtt.dashboard import DEFAULT_MQTT_JS, DashboardServer, MqttJsMissing
 from roslink_mqtt.localproc import free_port
 from tests.support.procs import CONFIG, ROOT
+from tests.support.waits import wait_until
 
 pytestmark = [
     pytest.mark.timeout(60),
@@ -136,15 +136,14 @@ def test_cli_serves_the_fleet_ws_port_and_stops_on_ctrl_c(tmp_path: Path) -> Non
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:  # the port is free again
+    def free() -> bool:
         try:
             _get(port, "/")
         except OSError:
-            break
-        time.sleep(0.1)
-    else:
-        raise AssertionError(f"port {port} still served after exit")
+            return True
+        return False
+
+    wait_until(f"port {port} no longer served after exit", free, timeout=5, period=0.1)
 
 
 def test_cli_errors_say_why() -> None:

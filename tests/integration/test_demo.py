@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.procs import ROOT
+from tests.support.waits import wait_until
 
 # The demo's default ports (1883, 8083) are the docs' too: under `pytest -n`, these and tests/integration/
 # test_docs_run.py run on one worker, one after the other (tests/conftest.py: SAME_WORKER). The demo runs in this
@@ -117,14 +118,17 @@ def _descendants(pid: int) -> dict[int, str]:
 def _child_running(pid: int, module: str, timeout: float = 10.0) -> int:
     """The process below ``pid`` that runs ``module`` (read from /proc until it shows: a busy machine may show it
     a moment late)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        started = _descendants(pid)
-        found = [child for child, cmd in started.items() if module in cmd]
-        if found:
-            return found[0]
-        assert time.monotonic() < deadline, f"no {module} below pid {pid}: {started}"
-        time.sleep(0.1)
+    started: dict[int, str] = {}
+
+    def found() -> list[int]:
+        started.clear()
+        started.update(_descendants(pid))
+        return [child for child, cmd in started.items() if module in cmd]
+
+    try:
+        return wait_until(f"{module} below pid {pid}", found, timeout=timeout, period=0.1)[0]
+    except AssertionError as err:
+        raise AssertionError(f"no {module} below pid {pid}: {started}") from err
 
 
 def _kill_tree(pid: int) -> None:
@@ -166,9 +170,16 @@ def _kill(pids) -> None:
 
 
 def _wait_gone(pids, timeout: float = 15) -> list[int]:
-    deadline = time.monotonic() + timeout
-    while (left := _alive(pids)) and time.monotonic() < deadline:
-        time.sleep(0.1)
+    left = list(pids)
+
+    def gone() -> bool:
+        left[:] = _alive(pids)
+        return not left
+
+    try:
+        wait_until("the processes gone", gone, timeout=timeout, period=0.1)
+    except AssertionError:
+        pass  # the caller kills and names what is left
     return left
 
 

@@ -12,7 +12,6 @@ import os
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -23,6 +22,7 @@ from roslink_mqtt.protocol.messages import SPECS_BY_NAME
 from roslink_mqtt.protocol.messages import Direction as MsgDirection
 from tests.support.procs import CONFIG, ROOT
 from tests.support.robot_stack import turtle1_online
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -75,12 +75,18 @@ def test_docs_name_only_what_the_demo_fleet_maps() -> None:
 
 
 def _wait_log(log: Path, needle: str, timeout: float = 10, again=None) -> None:
-    deadline = time.monotonic() + timeout
-    while needle not in log.read_text(errors="replace"):
-        assert time.monotonic() < deadline, f"no {needle!r} in the sim's log:\n{log.read_text()[-3000:]}"
+    """Until the sim's log says ``needle``, calling ``again`` between looks (a message DDS may have dropped)."""
+    def logged() -> bool:
+        if needle in log.read_text(errors="replace"):
+            return True
         if again is not None:
             again()
-        time.sleep(0.5)
+        return False
+
+    try:
+        wait_until(f"{needle!r} in the sim's log", logged, timeout=timeout, period=0.5)
+    except AssertionError as e:
+        raise AssertionError(f"{e}:\n{log.read_text()[-3000:]}") from None
 
 
 @pytest.fixture(scope="module")
@@ -99,9 +105,9 @@ def test_sdk_examples_reach_the_sim(stack) -> None:
         # the bridge's ROS publisher may not have matched the sim's subscriber yet (DDS discovery): send again
         _wait_log(sim_log, "mode: GUIDED", again=lambda: client.command("turtle1", "set_mode", {"mode": "GUIDED"}))
         client.advertise("turtle1", "lights", "std_msgs/msg/Bool")  # docs/sdk.md: ahead of the messages
-        time.sleep(1.0)  # a new ROS publisher takes a moment to match (the docs say so)
+        # a new ROS publisher takes a moment to match (the docs say so): sent again until the sim has it
         client.command("turtle1", "lights", {"data": True}, check=1.0)
-        _wait_log(sim_log, "lights on", again=lambda: client.command("turtle1", "lights", {"data": True}))
+        _wait_log(sim_log, "lights on", timeout=15, again=lambda: client.command("turtle1", "lights", {"data": True}))
         client.unadvertise("turtle1", "lights")
         client.command("turtle1", "get_map", {}, check=1.0)
         ack = acks.get(timeout=10)

@@ -19,7 +19,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.procs import ROOT
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -119,13 +119,16 @@ def _start_server(machines: Machines, step: Step, log: Path) -> subprocess.Popen
         proc = subprocess.Popen(machines.command(step.host, step.code), env=machines.env(step.host), stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True)
     machines.servers.append(proc)
-    deadline = time.monotonic() + 45
-    while time.monotonic() < deadline:
-        if READY[step.host] in log.read_text(errors="replace"):
-            return proc
-        assert proc.poll() is None, f"docs/deploy.md:{step.line} ({step.host}) exited:\n{log.read_text()[-3000:]}"
-        time.sleep(0.2)
-    raise AssertionError(f"docs/deploy.md:{step.line} ({step.host}) not up in 45 s:\n{log.read_text()[-3000:]}")
+    ready = READY[step.host]
+    try:
+        wait_until(f"docs/deploy.md:{step.line} ({step.host}) up or ended",
+                   lambda: ready in log.read_text(errors="replace") or proc.poll() is not None, timeout=45, period=0.2)
+    except AssertionError:
+        raise AssertionError(f"docs/deploy.md:{step.line} ({step.host}) not up in 45 s:\n{log.read_text()[-3000:]}") \
+            from None
+    assert ready in log.read_text(errors="replace"), \
+        f"docs/deploy.md:{step.line} ({step.host}) exited:\n{log.read_text()[-3000:]}"
+    return proc
 
 
 def _copy(machines: Machines, host: str) -> None:

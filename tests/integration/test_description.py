@@ -24,6 +24,7 @@ from roslink_mqtt.protocol.description import OPERATORS, VIEWERS, RobotDescripti
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, ROOT
 from tests.support.robot_stack import BROKERS, turtle1_online
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -105,13 +106,13 @@ def test_sdk_reads_the_description(port, request) -> None:
         again = alice.description("turtle1", timeout=10)  # a second call subscribes afresh
     assert d == again and d.entry("fibonacci").ros_type == "test_msgs/action/Fibonacci"
     with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{port}", presence=False) as bob:
-        deadline = time.monotonic() + 20
-        while True:  # the bridge's uplink report, retained on state/link: the first may predate the sim's odometry
+        def offered():  # the bridge's uplink report, retained on state/link: the first may predate the sim's odometry
             link = bob.link("turtle1", timeout=10)
             motion = link.streams.get("global_motion") if link is not None else None
-            if (motion is not None and motion.offered_hz > 0) or time.monotonic() > deadline:
-                break
-            time.sleep(0.5)  # a new report comes every LINK_REPORT_PERIOD
+            return (link, motion) if motion is not None and motion.offered_hz > 0 else None
+
+        # a new report comes every LINK_REPORT_PERIOD
+        link, motion = wait_until("a link report offering global_motion", offered, timeout=20, period=0.5)
     assert link is not None and link.mode == "scheduled" and link.rate_kbit_s > 0
     assert motion is not None
     assert motion.priority == "motion" and motion.max_rate == 10 and 0 < motion.offered_hz <= 11

@@ -35,7 +35,6 @@ import re
 import signal
 import subprocess
 import tempfile
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +46,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.net import wait_for_port
 from tests.support.procs import CONFIG, ROOT, bridge_args, bridge_env, run
+from tests.support.waits import never, stays
 
 # The demo fleet's ports are fixed (the docs name them): under `pytest -n` this module and tests/integration/
 # test_demo.py run on one worker, one after the other (tests/conftest.py: SAME_WORKER).
@@ -249,8 +249,12 @@ def _run_servers(snippet: Snippet, tmp_path: Path) -> None:
             ports = [int(a or b) for c in servers for a, b in re.findall(listens, c)]
             for port in ports:
                 wait_for_port(port, timeout=30)
-            if not ports:
-                time.sleep(2.0)  # one that listens nowhere (a bridge): its exit, if any, shows by then
+            if not ports:  # one that listens nowhere (a bridge): its exit, if any, shows within 2 s
+                try:
+                    never("a server exiting", lambda: [i for i, p in enumerate(procs) if p.poll() is not None],
+                          seconds=2.0)
+                except AssertionError:
+                    pass  # which one, with its log: below
         for i, proc in enumerate(procs):
             assert proc.poll() is None, f"{servers[i]!r} exited:\n{(tmp_path / f'server{i}.log').read_text()[-2000:]}"
         if after:
@@ -279,7 +283,10 @@ def test_with_demo_fleet(snippet: Snippet, demo_fleet, tmp_path: Path) -> None:
     if snippet.language == "python":
         if snippet.serve:
             proc = _start(snippet.code, tmp_path / "program.log", python=True)
-            time.sleep(SERVE_CHECK)
+            try:
+                stays("the program running", lambda: proc.poll() is None, seconds=SERVE_CHECK)
+            except AssertionError:
+                pass  # said below with its log, once it is stopped
             alive = proc.poll() is None
             running = (tmp_path / "program.log").read_text(errors="replace")  # what it wrote before the Ctrl-C
             _stop(proc)

@@ -15,6 +15,7 @@ from contextlib import ExitStack
 import pytest
 
 from tests.support.fault_stack import BROKERS, COMMAND_TIMEOUT, OPERATOR_TIMEOUT, Stack, check, cmd_vel_probe, zero
+from tests.support.waits import never
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -54,7 +55,8 @@ def test_operator_sigkill_stops_robot(stack: Stack) -> None:
         fault = time.monotonic()
         op.signal(signal.SIGKILL)
         check(stack, "operator SIGKILL → zero twist", stack.time_to_stop(fault, 0.5), 0.5)
-        time.sleep(1.0)
+        never("motion after the failsafe",
+              lambda: [m for _, m in stack.probe.cmd_vel.since(fault + 0.5) if not zero(m)], seconds=1.0)
         stack.assert_no_motion_after(fault + 0.5)
 
 
@@ -68,7 +70,8 @@ def test_operator_sigstop_stops_robot(stack: Stack) -> None:
             deadline = OPERATOR_TIMEOUT + 0.5
             check(stack, "operator SIGSTOP → stop", stack.time_to_stop(fault, deadline), deadline)
             stopped = time.monotonic()
-            time.sleep(1.0)
+            never("motion after the failsafe",
+                  lambda: [m for _, m in stack.probe.cmd_vel.since(stopped) if not zero(m)], seconds=1.0)
             stack.assert_no_motion_after(stopped)
         finally:
             op.signal(signal.SIGCONT)

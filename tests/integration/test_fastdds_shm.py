@@ -12,6 +12,7 @@ from pathlib import Path
 
 from roslink_mqtt.fastdds_shm import SHM_DIR, live_port_segments, remove_zombie_segments
 from roslink_mqtt.ros_env import domain_of_port, domains_in_use, unused_domain_id
+from tests.support.waits import wait_until
 
 
 def _segment(dir_: Path, name: str) -> tuple[Path, Path]:
@@ -83,10 +84,9 @@ def test_a_killed_ros_process_leaves_zombies_that_are_removed() -> None:
     killed_domain = unused_domain_id(in_use=domains_in_use() | workers | {domain})
     living, killed = _start_ros_sleeper(domain), _start_ros_sleeper(killed_domain)
     try:
-        deadline = time.monotonic() + 10
-        while not (_mapped_fastdds_files(living.pid) and _mapped_fastdds_files(killed.pid)):
-            assert time.monotonic() < deadline, "no Fast DDS shared-memory segment mapped"
-            time.sleep(0.1)
+        wait_until("Fast DDS shared-memory segments mapped by both processes",
+                   lambda: _mapped_fastdds_files(living.pid) and _mapped_fastdds_files(killed.pid),
+                   timeout=10, period=0.1)
         living_files, killed_files = _mapped_fastdds_files(living.pid), _mapped_fastdds_files(killed.pid)
         killed.send_signal(signal.SIGKILL)
         killed.wait(5)
@@ -110,10 +110,8 @@ def test_a_domain_a_ros_process_uses_is_never_handed_out() -> None:
     domain = unused_domain_id()
     sleeper = _start_ros_sleeper(domain)
     try:
-        deadline = time.monotonic() + 10
-        while domain not in domains_in_use():
-            assert time.monotonic() < deadline, f"domain {domain} of a living rclpy process not seen as in use"
-            time.sleep(0.1)
+        wait_until(f"domain {domain} of a living rclpy process seen as in use", lambda: domain in domains_in_use(),
+                   timeout=10, period=0.1)
         assert domain in {domain_of_port(p) for p in live_port_segments()}  # seen from any network namespace too
         assert domain not in {unused_domain_id() for _ in range(500)}
     finally:

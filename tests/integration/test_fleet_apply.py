@@ -30,6 +30,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -43,20 +44,19 @@ def cli(*args: str, env_password: str = "admin-demo") -> subprocess.CompletedPro
 
 
 def _stream(client: TestClient, user: str, lx: float, stop: threading.Event) -> threading.Thread:
-    def loop() -> None:
-        while not stop.is_set():
+    def loop() -> None:  # 20 Hz until stopped
+        for _ in paced(0.05, within=180, stop=stop.is_set):
             client.publish(TWIST.format(user=user), {"lx": lx}, qos=0)
-            time.sleep(0.05)
     thread = threading.Thread(target=loop, daemon=True)
     thread.start()
     return thread
 
 
 def _wait_for_log(proc, text: str, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while text not in proc.output():
-        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{proc.output()[-3000:]}"
-        time.sleep(0.05)
+    try:
+        wait_until(f"{text!r} in the log", lambda: text in proc.output(), timeout=timeout)
+    except AssertionError as e:
+        raise AssertionError(f"{e}; the log:\n{proc.output()[-3000:]}") from None
 
 
 @contextmanager
@@ -181,7 +181,9 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
                 assert applied.planned is not None
                 stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0,
                                                  after=applied.planned, timeout=5)
-                time.sleep(1.0)  # her stream goes on (her client reconnects): none of it may reach the robot
+                # her stream goes on (her client reconnects): none of it may reach the robot
+                never("a non-zero twist reaching the robot after the revocation",
+                      lambda: [m for _, m in cmd_vel.since(stopped_at + 0.1) if m.linear.x != 0], seconds=1.0)
             finally:
                 stop.set()
                 streamer.join()
@@ -202,10 +204,11 @@ def test_fleet_apply_adds_a_driver_and_cuts_a_revoked_one_off(kind: str, tmp_pat
             # that any reader gets at once did not come
             if kind == "embedded":
                 removed = "your grant to turtle1 was removed by the fleet"
-                deadline = time.monotonic() + 15
-                while not any(removed in e.error for e in list(alice_sdk.recent_errors)):
-                    assert time.monotonic() < deadline, list(alice_sdk.recent_errors)
-                    time.sleep(0.05)
+                try:
+                    wait_until("alice's client to report her removed grant",
+                               lambda: any(removed in e.error for e in list(alice_sdk.recent_errors)), timeout=15)
+                except AssertionError as e:
+                    raise AssertionError(f"{e}: {list(alice_sdk.recent_errors)}") from None
                 with pytest.raises(NotGranted, match=removed):
                     alice_sdk.wait_for_robot("turtle1", timeout=5)
             else:

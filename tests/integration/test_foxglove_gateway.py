@@ -192,7 +192,7 @@ def test_a_page_shows_what_the_gateway_serves(tmp_path, broker_port: int) -> Non
             except AssertionError:
                 raise AssertionError(f"the arc is not in the page: it spans {spans()} m") from None
             driver.set_window_size(1280, 600)
-            time.sleep(0.5)  # the next redraw
+            time.sleep(0.5)  # kept: the next redraw (a 250 ms timer the page counts nowhere); only a screenshot follows
             shot = Path(os.environ.get("FOXGLOVE_SCREENSHOT") or tmp_path / "foxglove-view.png")
             driver.save_screenshot(str(shot))
             print(f"screenshot: {shot}")

@@ -16,6 +16,7 @@ from roslink_mqtt.config import load_fleet
 from roslink_mqtt.localproc import ChildExited, LocalProcess, fleet_copy, free_port, replace_once, wait_for_port
 from tests.support.broker_setup import write_fleet
 from tests.support.procs import CONFIG
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -77,18 +78,13 @@ def test_stop_ends_a_stubborn_child_and_what_it_started(tmp_path: Path) -> None:
               "time.sleep(60)\n")
     child = LocalProcess([sys.executable, "-c", script], tmp_path / "child.log")
     child.spawn()
-    deadline = time.monotonic() + 10
-    while not child.output().strip() and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_until("the child to print its child's pid", lambda: child.output().strip(), timeout=10)
     grandchild = int(child.output().split()[0])
     assert os.getpgid(grandchild) == child.pid  # a process group of its own, led by the child
     started = time.monotonic()
     assert child.stop(timeout=0.5) == -signal.SIGKILL
     assert time.monotonic() - started < 5
-    deadline = time.monotonic() + 5
-    while not _gone(grandchild) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert _gone(grandchild)
+    wait_until("the grandchild to be gone", lambda: _gone(grandchild), timeout=5)
 
 
 def test_stop_sends_the_stop_signal_first_and_survives_a_frozen_child(tmp_path: Path) -> None:

@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from tests.support.mosquitto import MOSQUITTO
 from tests.support.net import free_port, wait_for_port
 from tests.support.procs import DEMO_PASSWORDS as PW
 from tests.support.procs import ROOT
+from tests.support.waits import never
 
 pytestmark = [pytest.mark.timeout(60),
               pytest.mark.skipif(os.geteuid() != 0, reason="the recipe's failure is Mosquitto dropping root")]
@@ -71,7 +71,7 @@ def test_readme_recipe_as_root_then_reexport_and_sighup(site: Path) -> None:
             again = _run(site, README_RECIPE[0])
             assert again.returncode == 0, again.stderr
             mosquitto.send_signal(signal.SIGHUP)
-            time.sleep(1.0)
+            never("alice disconnected by the reload", alice.disconnected.is_set, seconds=1.0)
             with Probe(port, "turtle1", PW["turtle1"]) as robot:
                 assert robot.connect() == 0, "after re-export + SIGHUP Mosquitto refuses the robot"
             assert not alice.disconnected.is_set()

@@ -40,6 +40,7 @@ from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT
 from tests.support.robot_stack import turtle1_online
 from tests.support.ros import RosProbe
+from tests.support.waits import never, stays, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -126,16 +127,15 @@ class NodeRed(LocalProcess):
         assert self._post(f"/inject/{node_id}") == 200
 
     def wait_log(self, pattern: str, timeout: float = 15.0, after: int = 0) -> re.Match:
-        """The first match of ``pattern`` in Node-RED's output from character ``after`` on."""
-        deadline = time.monotonic() + timeout
-        while True:
-            found = re.search(pattern, self.output()[after:], re.M)
-            if found:
-                return found
-            assert self.poll() is None, f"Node-RED exited:\n{self.output()[-3000:]}"
-            assert time.monotonic() < deadline, f"no /{pattern}/ in Node-RED's log after {timeout} s:\n" \
-                                                f"{self.output()[-3000:]}"
-            time.sleep(0.05)
+        """The first match of ``pattern`` in Node-RED's output from character ``after`` on (the log's tail is
+        printed as :func:`node_red` ends, a failed wait included)."""
+
+        def found() -> re.Match | None:
+            match = re.search(pattern, self.output()[after:], re.M)
+            assert match or self.poll() is None, f"Node-RED exited:\n{self.output()[-3000:]}"
+            return match
+
+        return wait_until(f"/{pattern}/ in Node-RED's log", found, timeout=timeout)
 
 
 @contextmanager
@@ -149,7 +149,8 @@ def node_red(work: Path, broker_port: int) -> Iterator[NodeRed]:
         # Connected and watching: the robot's retained heartbeat and its live position reach the flow's debug nodes.
         red.wait_log(r"\[debug:[^\]]*\] turtle1 online: active")
         red.wait_log(r"\[debug:[^\]]*\] turtle1 at x=")
-        time.sleep(max(0.0, started + 1.0 - time.monotonic()))  # as a user would: the flow's timers are running
+        # a second after the start, as a user would: the flow's timers are running
+        stays("Node-RED running", lambda: red.poll() is None, seconds=max(0.0, started + 1.0 - time.monotonic()))
         yield red
     finally:
         red.stop()
@@ -181,10 +182,8 @@ def _pose(odom, at: float) -> tuple[float, float]:
 
 def _quiet(cmd_vel, quiet: float = 1.2, timeout: float = 10.0) -> None:
     """Until nothing reached /cmd_vel for ``quiet`` s (a failsafe stop is republished for 0.5 s)."""
-    deadline = time.monotonic() + timeout
-    while cmd_vel.since(time.monotonic() - quiet):
-        assert time.monotonic() < deadline, "/cmd_vel never went quiet"
-        time.sleep(0.1)
+    wait_until(f"/cmd_vel quiet for {quiet} s", lambda: not cmd_vel.since(time.monotonic() - quiet), timeout=timeout,
+               period=0.1)
 
 
 def _is_forward(m) -> bool:
@@ -205,7 +204,9 @@ def test_forward_inject_moves_robot_and_stop_stops_it(stack, tmp_path) -> None:
         x0, y0 = _pose(odom, t0)
         red.press(forward)
         first, _ = cmd_vel.wait_for(_is_forward, after=t0, timeout=5)
-        time.sleep(2.0)  # longer than the dead-man (1 s): only a repeating stream keeps the robot going
+        # longer than the dead-man (1 s): only a repeating stream keeps the robot going
+        never("a zero twist while the stream runs", lambda: [t for t, m in cmd_vel.since(first) if _is_zero(m)],
+              seconds=2.0)
         pressed_stop = time.monotonic()
         red.press(stop)
         stopped, _ = cmd_vel.wait_for(_is_zero, after=pressed_stop, timeout=3)
@@ -220,8 +221,7 @@ def test_forward_inject_moves_robot_and_stop_stops_it(stack, tmp_path) -> None:
         assert span > 1.7 and 0.05 <= median <= 0.2 and gaps[-1] < 0.9, (len(stream), span, gaps)
         # Still moving at the end of the stream: the dead-man never cut in (it would publish zero twists).
         assert not [t for t, m in cmd_vel.since(first) if t < pressed_stop and _is_zero(m)], "a stop before 'stop'"
-        time.sleep(1.0)
-        assert not [m for t, m in cmd_vel.since(stopped) if not _is_zero(m)], "moved after the stop"
+        never("a move after the stop", lambda: [m for t, m in cmd_vel.since(stopped) if not _is_zero(m)], seconds=1.0)
         x1, y1 = _pose(odom, time.monotonic())
         moved = math.dist((x0, y0), (x1, y1))
         print(f"Node-RED forward: turtle1 moved {moved:.2f} m on /odom")
@@ -265,7 +265,7 @@ def test_killing_nodered_stops_robot_by_its_last_will(stack, tmp_path) -> None:
         t0 = time.monotonic()
         red.press(_inject(flow, "forward"))
         cmd_vel.wait_for(_is_forward, after=t0, timeout=5)
-        time.sleep(0.5)
+        stays("Node-RED running", lambda: red.poll() is None, seconds=0.5)  # driving for a moment
         killed = time.monotonic()
         os.killpg(red.pid, signal.SIGKILL)  # no close message, no clean DISCONNECT: only the will can tell
         at, _ = cmd_vel.wait_for(_is_zero, after=killed, timeout=3)
@@ -274,5 +274,6 @@ def test_killing_nodered_stops_robot_by_its_last_will(stack, tmp_path) -> None:
     record_measurement("Node-RED SIGKILL -> zero twist (last-will)", took, 0.5)
     # The will's guarantee (docs/safety.md); the dead-man (1 s) or the heartbeat timeout (1.5 s) would be slower.
     assert took < 0.5, took
-    time.sleep(0.6)  # (a twist already on its way when Node-RED died may land before the stop, not after it)
-    assert not [m for t, m in cmd_vel.since(at) if not _is_zero(m)], "a twist reached /cmd_vel after the stop"
+    # (a twist already on its way when Node-RED died may land before the stop, not after it)
+    never("a twist on /cmd_vel after the stop", lambda: [m for t, m in cmd_vel.since(at) if not _is_zero(m)],
+          seconds=0.6)

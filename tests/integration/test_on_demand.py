@@ -15,6 +15,7 @@ from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe, Watch
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -32,12 +33,13 @@ def lights_config(tmp: Path) -> Path:
 
 
 def publishers_become(watch: Watch, count: int, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if watch.subscription.get_publisher_count() == count:
-            return True
-        time.sleep(0.05)
-    return False
+    """Whether the watched topic comes to have ``count`` ROS publishers within ``timeout`` (the caller says why)."""
+    try:
+        wait_until(f"{count} ROS publisher(s) on the topic", lambda: watch.subscription.get_publisher_count() == count,
+                   timeout=timeout)
+    except AssertionError:
+        return False
+    return True
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +71,12 @@ def test_sdk_publisher_creates_and_destroys_the_ros_publisher(stack) -> None:
         assert publishers_become(lights, 1), "advertising did not create the ROS publisher"
         # as with any new ROS publisher, subscribers match it a moment later: publish until one arrives (bounded)
         t0 = time.monotonic()
-        for _ in range(50):
+
+        def arrived() -> object:
             pub.publish({"data": True})
-            if lights.since(t0):
-                break
-            time.sleep(0.2)
+            return lights.since(t0)
+
+        wait_until("a message on /lights through the new publisher", arrived, timeout=15, period=0.2)
         lights.wait_for(lambda m: m.data is True, after=t0, timeout=1)
         node.destroy_publisher(pub)
         assert publishers_become(lights, 0), "destroy_publisher did not remove the ROS publisher"

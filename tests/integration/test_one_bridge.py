@@ -18,6 +18,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import Received, TestClient
 from tests.support.procs import bridge_args, bridge_env, run
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(150)
 
@@ -36,13 +37,12 @@ def _online(m: Received, instance: str | None = None) -> bool:
 
 
 def _exit_code(proc, timeout: float) -> int | None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        code = proc.poll()
-        if code is not None:
-            return code
-        time.sleep(0.05)
-    return None
+    """``proc``'s exit code, once it has exited; None if it still runs after ``timeout`` s."""
+    try:
+        wait_until("the process to exit", lambda: proc.poll() is not None, timeout=timeout)
+    except AssertionError:
+        return None
+    return proc.poll()
 
 
 def test_silent_bridge_replaced_and_stands_down_when_it_wakes(tmp_path: Path) -> None:

@@ -33,6 +33,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import Received, TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -151,18 +152,16 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         # -- two operators racing: alice drives first; admin's twists never reach /cmd_vel, and admin learns who
         alice = _driver(port, "alice", stack)
         started = time.monotonic()
-        for _ in range(100):  # until ROS delivers them: the probe must have matched this bridge's publisher
+        # until ROS delivers them: the probe must have matched this bridge's publisher
+        for _ in paced(0.1, count=100,
+                       stop=lambda: any(round(m.linear.x, 2) == 0.11 for _, m in probe.cmd_vel.since(started))):
             alice.twist(0.11)
-            time.sleep(0.1)
-            if any(round(m.linear.x, 2) == 0.11 for _, m in probe.cmd_vel.since(started)):
-                break
         _control_state(watcher, lambda s: s.holder == "alice")
         admin = _driver(port, "admin", stack)
         since = time.monotonic()
-        for _ in range(12):  # both stream at 10 Hz for 1.2 s
+        for _ in paced(0.1, count=12):  # both stream at 10 Hz for 1.2 s
             alice.twist(0.11)
             admin.twist(0.22)
-            time.sleep(0.1)
         error = admin.error("turtle1 is driven by alice since", timeout=10)
         first_refused = error.at - since
         record_measurement(f"learns who drives ({broker})", first_refused, LEARN_WHO_WITHIN)
@@ -182,20 +181,18 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
         alice.control("take_over")
         alice.error("only another supervisor can take it over", timeout=10)
         after = time.monotonic()
-        for _ in range(5):
+        for _ in paced(0.1, count=5):
             admin.twist(0.33)
             alice.twist(0.11)
-            time.sleep(0.1)
         probe.cmd_vel.wait_for(lambda m: round(m.linear.x, 2) == 0.33, timeout=10, after=after)
-        time.sleep(0.3)
-        assert 0.11 not in {round(m.linear.x, 2) for at, m in probe.cmd_vel.items if at >= after}
+        never("alice's twist reaching /cmd_vel",
+              lambda: 0.11 in {round(m.linear.x, 2) for at, m in probe.cmd_vel.since(after)}, seconds=0.3)
         admin.control("release")
         _control_state(watcher, lambda s: s.holder is None and s.event == "released by admin")
 
         # -- a viewer's emergency stop: obeyed and acknowledged; the viewer cannot resume, the holder can
-        for _ in range(3):
+        for _ in paced(0.1, count=3):
             alice.twist(0.11)
-            time.sleep(0.1)
         _control_state(watcher, lambda s: s.holder == "alice")
         stopped_at = time.monotonic()
         watcher.publish("roslink/turtle1/from/bob/cmd/emergency_stop", encode_message(108, {"reason": "viewer"}))
@@ -213,7 +210,10 @@ def test_one_driver(tmp_path: Path, probe, broker: str) -> None:
                                timeout=10)
         assert "emergency stop by bob" in ack.json()["payload"]["text"]
         watcher.publish("roslink/turtle1/from/bob/cmd/arm", encode_message(104, {}))  # not an operator: no effect
-        time.sleep(0.5)  # bob's arm, had it been obeyed, would have been long before this
+        # bob's arm, had it been obeyed, would have been long before this window ends
+        never("bob's arm resuming turtle1",
+              lambda: any(m.topic.endswith("/heartbeat") and not m.retain
+                          and m.json()["payload"]["system_status"] != 6 for m in watcher.drain(0.01)), seconds=0.5)
         beat = watcher.wait_for(lambda m: m.topic.endswith("/heartbeat") and not m.retain, timeout=10)
         assert beat.json()["payload"]["system_status"] == 6  # still blocked
         admin.publish("roslink/turtle1/from/admin/cmd/arm", encode_message(104, {}))

@@ -23,6 +23,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 NODE = "sim_robot"
@@ -45,10 +46,9 @@ def stack(request, tmp_path_factory):
             alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
                            timeout=30)
             stack = SimpleNamespace(backend=request.param, port=broker.port, alice=alice, bob=bob, work=work)
-            deadline = time.monotonic() + 20  # the bridge discovers the sim's parameter services
-            while not ask(stack.alice, "alice", {"op": "list"}).get("result"):
-                assert time.monotonic() < deadline, "the sim's parameters never became available"
-                time.sleep(0.3)
+            # the bridge discovers the sim's parameter services
+            wait_until("the sim's parameters", lambda: ask(stack.alice, "alice", {"op": "list"}).get("result"),
+                       timeout=20, period=0.3)
             yield stack
 
 
@@ -92,13 +92,14 @@ def test_set_changes_the_robot_and_emits_an_event(stack) -> None:
         # a clean-clone run on a busy machine had no odometry at all within the first 1.5 s)
         start = time.monotonic()
         seq = 0
-        while time.monotonic() - start < 15:
+
+        def moving() -> bool:
+            return seq >= 15 and any(m.twist.twist.linear.x > 0.2 for _, m in odom.since(start))
+
+        for _ in paced(0.1, within=15, stop=moving):
             seq += 1
             stack.alice.publish("roslink/turtle1/from/alice/cmd/twist",
                                 {"message_id": 100, "sequence_number": 10_000 + seq, "payload": {"lx": 0.5}}, qos=0)
-            time.sleep(0.1)
-            if seq >= 15 and any(m.twist.twist.linear.x > 0.2 for _, m in odom.since(start)):
-                break
         speeds = [m.twist.twist.linear.x for t, m in odom.since(start)]
         assert speeds and max(speeds) == pytest.approx(0.25, abs=1e-6), speeds[-5:]
     finally:

@@ -13,6 +13,7 @@ import pytest
 from roslink_mqtt.config import verify_password
 from roslink_mqtt.config.passwords import PasswordHashError, check_hash_format, hash_password
 from tests.support.mosquitto import run_mosquitto
+from tests.support.waits import wait_until
 
 MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd")
 
@@ -53,11 +54,7 @@ def _connect_rc(port: int, username: str, password: str) -> int:
     client.connect("127.0.0.1", port)
     client.loop_start()
     try:
-        for _ in range(100):
-            if result:
-                break
-            import time
-            time.sleep(0.05)
+        wait_until("a CONNACK", lambda: result, timeout=5)
     finally:
         client.loop_stop()
         client.disconnect()

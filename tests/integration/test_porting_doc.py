@@ -11,13 +11,13 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from tests.support.procs import ROOT
 from tests.support.ros import RosProbe
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -60,10 +60,12 @@ def test_the_ported_example_runs_with_real_rclpy(tmp_path: Path) -> None:
         client = probe.node.create_client(SetBool, "/enable_motors")
         assert client.wait_for_service(timeout_sec=20), log.read_text()
         future = client.call_async(SetBool.Request(data=True))
-        deadline = time.monotonic() + 15  # the program waits 5 s for a 'reset' service (none here) before it spins
-        while not future.done():
-            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()
-            time.sleep(0.05)
+        try:  # the program waits 5 s for a 'reset' service (none here) before it spins
+            wait_until("the ported program to answer (or end)", lambda: future.done() or proc.poll() is not None,
+                       timeout=15)
+        except AssertionError as e:
+            raise AssertionError(f"{e}\n{log.read_text()}") from None
+        assert future.done(), log.read_text()  # not: the program ended first
         assert (future.result().success, future.result().message) == (True, "on")
         _, twist = cmd_vel.wait_for(lambda m: True, timeout=10)
         assert (twist.linear.x, twist.angular.z) == (pytest.approx(0.1), pytest.approx(0.2))

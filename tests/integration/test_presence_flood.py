@@ -25,6 +25,7 @@ from tests.support.mosquitto import MosquittoProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -75,14 +76,16 @@ def test_presence_flood_neither_delays_commands_nor_lets_stale_motion_follow_a_s
 
         body = _flood_body()
         flood_start = time.monotonic()
-        for _ in range(FLOOD_COUNT):
+        for _ in paced(1 / FLOOD_RATE, count=FLOOD_COUNT):
             bob.client.publish("roslink/operators/bob/bob-flood", body, qos=0)
-            time.sleep(1 / FLOOD_RATE)
         stop_seq = twists.stop() + 1
         zero_sent = time.monotonic()
         alice.client.publish(TWIST, orjson.dumps({"message_id": 100, "sequence_number": stop_seq, "payload": {}}),
                              qos=0)
-        time.sleep(COMMAND_TIMEOUT + 1.0)  # past the dead-man: stale motion would have shown by now
+        # past the dead-man: stale motion would have shown by now
+        never("non-zero motion later than the dead-man after the zero twist",
+              lambda: [round(at - zero_sent, 3) for at, m in cmd_vel.since(zero_sent)
+                       if nonzero(m) and at - zero_sent > COMMAND_TIMEOUT], seconds=COMMAND_TIMEOUT + 1.0)
         assert bridge.popen.poll() is None, bridge.output()[-3000:]
 
         seen = cmd_vel.since(flood_start)

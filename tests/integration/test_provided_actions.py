@@ -20,15 +20,13 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
 
 def _wait(future, timeout: float = 15.0):
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        assert time.monotonic() < deadline, "no answer from the action server"
-        time.sleep(0.02)
+    wait_until("an answer from the action server", future.done, timeout=timeout, period=0.02)
     return future.result()
 
 
@@ -60,10 +58,8 @@ def stack(request, tmp_path_factory):
 
 def gone(client, timeout: float = 10.0) -> None:
     """Wait until no action server answers on /plan (a provider that left takes it down)."""
-    deadline = time.monotonic() + timeout
-    while client.server_is_ready():
-        assert time.monotonic() < deadline, "the action server outlived its provider"
-        time.sleep(0.1)
+    wait_until("the action server to go with its provider", lambda: not client.server_is_ready(), timeout=timeout,
+               period=0.1)
 
 
 def provider(stack, name: str = "provider"):
@@ -85,9 +81,11 @@ def test_goal_feedback_result_cancel_and_rejection(stack) -> None:
         assert result.status == GoalStatus.STATUS_SUCCEEDED
         assert list(result.result.sequence) == [0, 1, 1, 2, 3, 5, 8]
         assert feedback and feedback[-1][:3] == [0, 1, 1]
-        long = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(stack.Goal(order=40))))
+        running: list[list[int]] = []
+        long = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(
+            stack.Goal(order=40), feedback_callback=lambda fb: running.append(list(fb.feedback.sequence)))))
         assert long.accepted
-        time.sleep(0.3)
+        wait_until("feedback from the long goal (it runs)", lambda: running, timeout=15)
         cancel = _wait(stack.probe.on_spin(long.cancel_goal_async))
         assert len(cancel.goals_canceling) == 1
         ended = _wait(stack.probe.on_spin(long.get_result_async))
@@ -101,10 +99,12 @@ def test_provider_sigkill_aborts_its_goal_and_removes_the_server(stack) -> None:
 
     with provider(stack, "doomed") as proc:
         assert stack.client.wait_for_server(timeout_sec=20)
-        handle = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(stack.Goal(order=40))))
+        running: list[list[int]] = []
+        handle = _wait(stack.probe.on_spin(lambda: stack.client.send_goal_async(
+            stack.Goal(order=40), feedback_callback=lambda fb: running.append(list(fb.feedback.sequence)))))
         assert handle.accepted
         result_future = stack.probe.on_spin(handle.get_result_async)
-        time.sleep(0.3)
+        wait_until("feedback from the goal (the provider runs it)", lambda: running, timeout=15)
         killed = time.monotonic()
         proc.signal(signal.SIGKILL)
         result = _wait(result_future, timeout=10)

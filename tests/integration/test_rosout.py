@@ -8,13 +8,13 @@ is not logged in a loop.
 from __future__ import annotations
 
 import logging
-import time
 
 import pytest
 
 from roslink_mqtt.client import rclpy as sdk
 from tests.support.robot_stack import BROKERS, turtle1_online
 from tests.support.ros import RosProbe
+from tests.support.waits import never, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -34,9 +34,8 @@ def test_sdk_logger_reaches_rosout(tmp_path, broker: str) -> None:
             node = sdk.create_node(name, robot="turtle1", url=url, username="alice", password="alice-demo")
             try:
                 node.robot_client.wait_for_robot("turtle1", timeout=10)
-                deadline = time.monotonic() + 5  # the access report says we are an operator
-                while node.robot_client.access("turtle1") is None and time.monotonic() < deadline:
-                    time.sleep(0.05)
+                wait_until("turtle1's access report", lambda: node.robot_client.access("turtle1") is not None,
+                           timeout=10)  # the access report says we are an operator
                 log = node.get_logger()
                 log.debug("not sent: below the default level")
                 log.info("gripper closed")
@@ -52,7 +51,9 @@ def test_sdk_logger_reaches_rosout(tmp_path, broker: str) -> None:
                 log.get_child("wrist").warning("child logger")
                 _, child = rosout.wait_for(lambda m: m.msg == "child logger", timeout=10)
                 assert child.name == f"{name}.wrist" and child.level == Log.WARN
-                time.sleep(0.5)
+                never("the debug line below the default level on /rosout",
+                      lambda: [m for _, m in rosout.since(0) if m.msg == "not sent: below the default level"],
+                      seconds=0.5)
                 assert not [m for _, m in rosout.since(0) if m.msg == "not sent: below the default level"]
             finally:
                 node.destroy_node()
@@ -60,7 +61,8 @@ def test_sdk_logger_reaches_rosout(tmp_path, broker: str) -> None:
             try:
                 viewer.robot_client.wait_for_robot("turtle1", timeout=10)
                 viewer.get_logger().info("from a viewer")
-                time.sleep(1.0)
+                never("a viewer's line on /rosout", lambda: [m for _, m in rosout.since(0) if m.name == "viewer_prog"],
+                      seconds=1.0)
                 assert not [m for _, m in rosout.since(0) if m.name == "viewer_prog"]
             finally:
                 viewer.destroy_node()

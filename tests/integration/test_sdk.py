@@ -35,6 +35,7 @@ from tests.support.mqtt_client import TestClient
 from tests.support.no_ros import no_ros_env
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -109,10 +110,8 @@ def test_reconnect_restores_subscriptions_presence_and_offers(tmp_path) -> None:
             assert offer == {"type": "std_srvs/srv/Trigger", "timeout": 5.0, "client_id": client.client_id}
             admin.wait_for(lambda m: m.topic == f"roslink/operators/alice/{client.client_id}" and m.payload,
                            timeout=5)
-            deadline = time.monotonic() + 5
-            while got.empty() and time.monotonic() < deadline:  # re-subscribed: state flows again
+            for _ in paced(0.1, within=5, stop=lambda: not got.empty()):  # re-subscribed: state flows again
                 admin.publish("roslink/turtle1/state/global_motion", motion, qos=0)
-                time.sleep(0.1)
             assert isinstance(got.get(timeout=1), GlobalMotion)
     finally:
         client.close()
@@ -132,15 +131,20 @@ def stack(tmp_path_factory):
             url = f"mqtt://127.0.0.1:{port}"
             with RobotClient("alice", "alice-demo", url=url, robots=["turtle1"]) as alice:
                 alice.wait_for_robot("turtle1", timeout=20)
-                deadline = time.monotonic() + 15
-                while True:  # the bridge discovers the sim's reset service a moment after start
+                failed: list[ServiceError] = []
+
+                def reset_answers() -> bool:
                     try:
                         alice.call("turtle1", "reset", timeout=5)
-                        break
-                    except ServiceError:
-                        if time.monotonic() > deadline:
-                            raise
-                        time.sleep(0.2)
+                    except ServiceError as err:
+                        failed.append(err)
+                        return False
+                    return True
+
+                try:  # the bridge discovers the sim's reset service a moment after start
+                    wait_until("an answer from the sim's reset service", reset_answers, timeout=15, period=0.2)
+                except AssertionError:
+                    raise failed[-1] from None
                 yield SimpleNamespace(port=port, url=url, work=work, probe=probe, cmd_vel=cmd_vel, alice=alice,
                                       bridge=bridge)
     finally:
@@ -261,9 +265,7 @@ def test_viewer_is_refused(stack) -> None:
         with pytest.raises(CommandRefused, match="not an operator of turtle1"):
             bob.twist("turtle1", lx=0.3, check=3.0)
         offer = bob.provide("turtle1", "bob_service", "std_srvs/srv/Trigger", lambda args: {"success": True})
-        deadline = time.monotonic() + 5
-        while offer.refused is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until("the refusal of bob's offer", lambda: offer.refused is not None, timeout=5)
         assert offer.refused is not None and "may not provide services" in offer.refused
     with pytest.raises(sdk.ConnectError, match="refused bob"):
         RobotClient("bob", "wrong", url=stack.url).connect()
@@ -284,19 +286,13 @@ def _spin_in_thread(node: Node) -> tuple[threading.Thread, threading.Event]:
 
 def _ros_call(client, request, timeout: float = 10.0):
     future = client.call_async(request)
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"{client.srv_name}: no ROS answer in {timeout} s")
-        time.sleep(0.01)
+    wait_until(f"a ROS answer from {client.srv_name}", future.done, timeout=timeout, period=0.01)
     return future.result()
 
 
 def _wait_gone(client, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while client.service_is_ready():
-        assert time.monotonic() < deadline, f"{client.srv_name} is still in the ROS graph"
-        time.sleep(0.1)
+    wait_until(f"{client.srv_name} to leave the ROS graph", lambda: not client.service_is_ready(), timeout=timeout,
+               period=0.1)
 
 
 def test_node_services_called_from_rclpy(stack) -> None:
@@ -348,9 +344,8 @@ def test_node_services_called_from_rclpy(stack) -> None:
         assert entered.wait(5)
         withdrawn_at = time.monotonic()
         node.destroy_service(services["hang"])
-        while not pending.done():
-            assert time.monotonic() - withdrawn_at < 3, "the pending ROS call outlived the withdrawn service"
-            time.sleep(0.01)
+        wait_until("the pending ROS call to end with the withdrawn service", pending.done,
+                   timeout=withdrawn_at + 3 - time.monotonic(), period=0.01)
         assert pending.result().success is False and "withdrawn" in pending.result().message
         release.set()
         assert node.destroy_service(services["enable"]) and not node.destroy_service(services["enable"])
@@ -392,16 +387,12 @@ def test_node_topics_and_client(stack) -> None:
         assert future.result(timeout=10) == {"success": True, "message": "pose reset to the room centre"}
         with TestClient(stack.port, "admin", "admin-demo") as admin:  # sees the QoS the SDK published at
             assert admin.connect() == 0
-            admin.subscribe("roslink/turtle1/from/alice/cmd/go_to_waypoint", qos=1)
-            time.sleep(0.3)
+            admin.subscribe("roslink/turtle1/from/alice/cmd/go_to_waypoint", qos=1)  # in force: SUBACK waited for
             for kind, publisher in waypoints.items():
                 publisher.publish({"x": 0.0, "y": 0.0, "z": 0.0})
                 got = admin.wait_for(lambda m: True)
                 assert got.qos == (1 if kind == "default" else 0), kind
-        deadline = time.monotonic() + 2
-        while len(ticks) < 3:  # the timer keeps ticking in spin
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+        wait_until("three ticks of the node's timer", lambda: len(ticks) >= 3, timeout=2)  # it ticks in spin
     finally:
         stop.set()
         thread.join(5)
@@ -428,12 +419,11 @@ def test_legacy_service_example_end_to_end(stack) -> None:
         self_test = stack.probe.node.create_client(Trigger, "/self_test")
         assert self_test.wait_for_service(timeout_sec=10)
         pending = self_test.call_async(Trigger.Request())
-        time.sleep(0.5)
+        never("the self test (2 s) ending before its provider is killed", pending.done, seconds=0.5)
         killed = time.monotonic()
         legacy.signal(signal.SIGKILL)
-        while not pending.done():
-            assert time.monotonic() - killed < 4, "the pending call did not fail after the provider died"
-            time.sleep(0.01)
+        wait_until("the pending call to fail after the provider died", pending.done,
+                   timeout=killed + 4 - time.monotonic(), period=0.01)
         assert pending.result().success is False and "went away" in pending.result().message
         _wait_gone(self_test)
         stack.probe.node.destroy_client(self_test)

@@ -15,6 +15,7 @@ from roslink_mqtt.client import rclpy as sdk
 from roslink_mqtt.client.rclpy.action import STATUS_CANCELED, STATUS_SUCCEEDED, ActionClient, ActionServer
 from tests.support.robot_stack import turtle1_online
 from tests.support.ros import RosProbe
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -37,9 +38,7 @@ def test_action_client_and_server_shaped_like_rclpy(tmp_path) -> None:
                 assert handle.accepted
                 response = handle.get_result_async().result(timeout=15)
                 assert response.status == STATUS_SUCCEEDED and response.result == {"sequence": [0, 1, 1, 2, 3, 5]}
-                deadline = time.monotonic() + 5
-                while not feedback and time.monotonic() < deadline:
-                    time.sleep(0.05)
+                wait_until("feedback from the fibonacci goal", lambda: feedback, timeout=10)
                 assert feedback and feedback[-1].feedback["sequence"][:2] == [0, 1]
                 rejected = client.send_goal_async({"order": 99}).result(timeout=15)
                 assert not rejected.accepted
@@ -50,7 +49,7 @@ def test_action_client_and_server_shaped_like_rclpy(tmp_path) -> None:
                         if goal_handle.is_cancel_requested:
                             goal_handle.canceled()
                             return {"sequence": sequence}
-                        time.sleep(0.05)
+                        time.sleep(0.05)  # kept: the goal's own work, long enough for a cancel to land mid-goal
                         sequence.append(sequence[-1] + sequence[-2])
                         goal_handle.publish_feedback({"sequence": sequence})
                     goal_handle.succeed()
@@ -65,19 +64,13 @@ def test_action_client_and_server_shaped_like_rclpy(tmp_path) -> None:
                 future.add_done_callback(lambda f: (box.append(f.result()), done.set()))
                 assert done.wait(15) and box[0].accepted
                 result = probe.on_spin(box[0].get_result_async)
-                deadline = time.monotonic() + 15
-                while not result.done() and time.monotonic() < deadline:
-                    time.sleep(0.02)
+                wait_until("the result of the goal of order 4", result.done, timeout=15, period=0.02)
                 assert list(result.result().result.sequence) == [0, 1, 1, 2, 3]
                 long = probe.on_spin(lambda: ros.send_goal_async(Fibonacci.Goal(order=40)))
-                deadline = time.monotonic() + 15
-                while not long.done() and time.monotonic() < deadline:
-                    time.sleep(0.02)
+                wait_until("the answer to the goal of order 40", long.done, timeout=15, period=0.02)
                 probe.on_spin(long.result().cancel_goal_async)
                 ended = probe.on_spin(long.result().get_result_async)
-                deadline = time.monotonic() + 15
-                while not ended.done() and time.monotonic() < deadline:
-                    time.sleep(0.02)
+                wait_until("the result of the canceled goal", ended.done, timeout=15, period=0.02)
                 assert ended.result().status == STATUS_CANCELED
                 server.destroy()
             finally:

@@ -27,6 +27,7 @@ from roslink_mqtt.client.rclpy.parameter import Parameter, ParameterDescriptor, 
 from tests.support.mqtt_client import TestClient
 from tests.support.robot_stack import BROKERS, turtle1_online
 from tests.support.ros import RosProbe
+from tests.support.waits import never, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -34,10 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _wait(future: Any, timeout: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        assert time.monotonic() < deadline, "the ROS parameter service did not answer"
-        time.sleep(0.01)
+    wait_until("the ROS parameter service's answer", future.done, timeout=timeout, period=0.01)
     return future.result()
 
 
@@ -45,22 +43,20 @@ def _first_call(make: Any, timeout: float = 20.0, resend: float = 2.0) -> Any:
     """The first ROS service call to a node just discovered, sent again every ``resend`` s until answered: a
     request sent while the service's request reader is still matching the client's writer (DDS discovery goes on
     after ``wait_for_services``) is lost, and its future never completes (once in a loaded CI run)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        future = make()
-        sent = time.monotonic()
-        while not future.done() and time.monotonic() - sent < resend:
-            time.sleep(0.01)
-        if future.done():
-            return future.result()
-        assert time.monotonic() < deadline, "the ROS parameter service did not answer"
+    calls: list[tuple[float, Any]] = []  # (sent at, future)
+
+    def answered() -> bool:
+        if not calls or (not calls[-1][1].done() and time.monotonic() - calls[-1][0] >= resend):
+            calls.append((time.monotonic(), make()))
+        return calls[-1][1].done()
+
+    wait_until("the ROS parameter service's answer", answered, timeout=timeout, period=0.01)
+    return calls[-1][1].result()
 
 
 def _until(predicate: Any, timeout: float, what: str) -> float:
     start = time.monotonic()
-    while not predicate():
-        assert time.monotonic() - start < timeout, f"{what} not within {timeout} s"
-        time.sleep(0.05)
+    wait_until(what, predicate, timeout=timeout)
     return time.monotonic() - start
 
 
@@ -75,9 +71,8 @@ def _has_parameter_services(probe: RosProbe, node: str) -> bool:
 def _ready_node(url: str, name: str, user: str = "alice", password: str = "alice-demo") -> Any:
     node = sdk.create_node(name, robot="turtle1", url=url, username=user, password=password)
     node.robot_client.wait_for_robot("turtle1", timeout=10)
-    deadline = time.monotonic() + 5  # the access report says what we are
-    while node.robot_client.access("turtle1") is None and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_until("turtle1's access report", lambda: node.robot_client.access("turtle1") is not None,
+               timeout=10)  # the access report says what we are
     return node
 
 
@@ -241,8 +236,8 @@ def test_killed_sdk_node_and_refusals(tmp_path) -> None:
                 error = next(e for e in viewer.robot_client.recent_errors if e.topic.endswith("/declare/viewer_arm"))
                 assert error.error == ("user 'bob' may not declare parameters on turtle1 (as node 'viewer_arm') "
                                        "(operators only): not an operator of turtle1 (a viewer)")
-                time.sleep(1.0)
-                assert not _has_parameter_services(probe, "viewer_arm")
+                never("viewer_arm's parameter services on ROS", lambda: _has_parameter_services(probe, "viewer_arm"),
+                      seconds=1.0)
             finally:
                 viewer.destroy_node()
 

@@ -27,6 +27,7 @@ from tests.support.fleet_brokers import fleet_password_file
 from tests.support.mosquitto import MosquittoProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT
+from tests.support.waits import never, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -43,13 +44,6 @@ def _change_password(pwfile: Path, user: str, like: str) -> None:
     lines = dict(line.split(":", 1) for line in pwfile.read_text().splitlines())
     lines[user] = lines[like]
     pwfile.write_text("".join(f"{name}:{digest}\n" for name, digest in lines.items()))
-
-
-def _wait(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, what
-        time.sleep(0.05)
 
 
 # -- item 1 -------------------------------------------------------------------------------------------------
@@ -87,7 +81,7 @@ def test_commands_while_the_broker_is_away_raise(tmp_path) -> None:
     try:
         with RobotClient("alice", "alice-demo", url=url) as client:
             broker.stop()
-            _wait(lambda: not client.connected, 15, "the client did not notice the broker leave")
+            wait_until("the client to notice the broker leave", lambda: not client.connected, timeout=15)
             with pytest.raises(ConnectError, match="connection .* was lost"):
                 client.twist("turtle1", lx=0.2)
             with pytest.raises(ConnectError, match="was lost"):
@@ -117,7 +111,7 @@ def test_node_publishers_while_the_broker_is_away(tmp_path, caplog) -> None:
         twist = node.create_publisher("geometry_msgs/msg/Twist", "cmd/twist", 10)
         stop = node.create_publisher("std_msgs/msg/Bool", "cmd/emergency_stop", 10)
         broker.stop()
-        _wait(lambda: not node.robot_client.connected, 15, "the node did not notice the broker leave")
+        wait_until("the node to notice the broker leave", lambda: not node.robot_client.connected, timeout=15)
         with caplog.at_level("WARNING"):
             for _ in range(20):
                 twist.publish({"linear": {"x": 0.1}})
@@ -166,11 +160,12 @@ def test_a_refused_login_on_reconnect_is_not_retried(tmp_path) -> None:
         motion = client.subscribe("turtle1", "global_motion")
         _change_password(pwfile, "alice", like="bob")  # the admin changes alice's password; the broker restarts
         broker.stop()
-        _wait(lambda: not client.connected, 15, "the client did not notice the broker leave")
+        wait_until("the client to notice the broker leave", lambda: not client.connected, timeout=15)
         since = len(broker.output())
         broker.start()
-        _wait(lambda: _refusals(broker, since) >= 2, 15, "the clients never tried to log in again")
-        time.sleep(4)  # more than the reconnect backoff cap (3 s): a retrying client would have tried again
+        wait_until("the clients to try to log in again", lambda: _refusals(broker, since) >= 2, timeout=15)
+        # more than the reconnect backoff cap (3 s): a retrying client would have tried again
+        never("a third login try", lambda: _refusals(broker, since) > 2 and broker.output()[since:], seconds=4)
         assert _refusals(broker, since) == 2, f"retried: {broker.output()[since:]}"  # the client and the node
         error = errors.get(timeout=5)
         assert error.robot == "" and "refused the login of alice" in error.error and "not retrying" in error.error
@@ -198,8 +193,9 @@ def test_cli_exits_when_its_login_is_refused_on_reconnect(tmp_path) -> None:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
                             stdin=subprocess.DEVNULL)
     try:
-        _wait(lambda: "as alice" in broker.output() or "u'alice'" in broker.output(), 15, "echo never logged in")
-        time.sleep(0.5)
+        wait_until("echo to log in", lambda: "as alice" in broker.output() or "u'alice'" in broker.output(),
+                   timeout=15)
+        time.sleep(0.5)  # kept: echo's subscription (its SUBACK) after the login shows in no log at this log level
         _change_password(pwfile, "alice", like="bob")
         broker.stop()
         since = len(broker.output())
@@ -207,7 +203,8 @@ def test_cli_exits_when_its_login_is_refused_on_reconnect(tmp_path) -> None:
         out, err = echo.communicate(timeout=20)  # before the fix: it retried forever
         assert echo.returncode == 1, out + err
         assert "refused the login of alice" in err and "Traceback" not in err, err
-        time.sleep(1)
+        wait_until("the broker to log the refused login", lambda: _refusals(broker, since) >= 1)
+        never("a second refused login", lambda: _refusals(broker, since) > 1, seconds=1)
         assert _refusals(broker, since) == 1
     finally:
         if echo.poll() is None:
@@ -231,14 +228,17 @@ def test_the_embedded_broker_refusing_a_changed_password_is_not_retried(tmp_path
         hashes = load_fleet(fleet)
         fleet.write_text(fleet.read_text().replace(hashes.password_hash("alice"), hashes.password_hash("bob")))
         broker.stop()
-        _wait(lambda: not client.connected, 15, "the client did not notice the broker leave")
+        wait_until("the client to notice the broker leave", lambda: not client.connected, timeout=15)
         since = len(broker.output())
         broker.start()
         error = errors.get(timeout=15)
         assert "refused the login of alice" in error.error
-        time.sleep(4)  # more than the reconnect backoff cap (3 s)
-        refused = [line for line in broker.output()[since:].splitlines() if "refused" in line and "alice" in line]
-        assert len(refused) == 1, refused
+
+        def refused() -> list[str]:
+            return [line for line in broker.output()[since:].splitlines() if "refused" in line and "alice" in line]
+
+        never("a second login try", lambda: len(refused()) > 1 and refused(), seconds=4)  # > the backoff cap (3 s)
+        assert len(refused()) == 1, refused()
     finally:
         client.close()
         broker.stop()

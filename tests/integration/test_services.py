@@ -15,6 +15,7 @@ from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import CONFIG, bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -93,21 +94,16 @@ def call(client: TestClient, user: str, service: str, args: dict | None = None, 
     return reply.json()
 
 
-def _wait_until_served(client: TestClient, service: str, timeout: float = 20.0) -> None:
-    """Until the bridge sees the ROS server of ``service``: before that it answers "service not available"."""
-    deadline = time.monotonic() + timeout
-    while not call(client, "alice", service)["result"]:
-        assert time.monotonic() < deadline, f"the bridge never saw a server for '{service}'"
-        time.sleep(0.2)
+def _wait_until_served(client: TestClient, service: str, timeout: float = 20.0) -> dict:
+    """Until the bridge sees the ROS server of ``service`` (before that it answers "service not available"): the
+    first reply that succeeded."""
+    return wait_until(f"the bridge to see a server for '{service}'",
+                      lambda: (reply := call(client, "alice", service))["result"] and reply,
+                      timeout=timeout, period=0.2)
 
 
 def test_ros_service_called_from_mqtt(stack) -> None:
-    deadline = time.monotonic() + 15
-    while True:  # the sim's service may take a moment to be discovered
-        reply = call(stack["alice"], "alice", "reset")
-        if reply["result"] or time.monotonic() > deadline:
-            break
-        time.sleep(0.3)
+    reply = _wait_until_served(stack["alice"], "reset", timeout=15)  # the sim's service may take a moment
     assert reply["result"] is True
     assert reply["values"] == {"success": True, "message": "pose reset to the room centre"}
 
@@ -164,16 +160,15 @@ def test_mqtt_provided_service_called_from_ros(stack) -> None:
         # a call the provider never answers, then the provider dies: it fails cleanly
         assert hang.wait_for_service(timeout_sec=10)
         future = hang.call_async(Trigger.Request())
-        time.sleep(0.5)
+        # the call is pending once the bridge has passed it on (alice, the provider's login, reads its requests too)
+        stack["alice"].wait_for(lambda m: m.topic == "roslink/turtle1/to/alice/request/hang", timeout=10)
         killed = time.monotonic()
         provider.signal(signal.SIGKILL)
         response = _wait(future, 10)
         assert response.success is False and "went away" in response.message
         assert time.monotonic() - killed < 3.0
-    deadline = time.monotonic() + 10
-    while client.service_is_ready() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not client.service_is_ready(), "the provided service outlived its provider"
+    wait_until("the provided service to leave ROS with its provider", lambda: not client.service_is_ready(),
+               timeout=10, period=0.1)
 
 
 def test_provided_calls_overlap_and_time_out(stack) -> None:
@@ -204,11 +199,7 @@ def test_provided_calls_overlap_and_time_out(stack) -> None:
 
 
 def _wait(future, timeout: float):
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        if time.monotonic() > deadline:
-            raise TimeoutError("ROS call did not complete")
-        time.sleep(0.02)
+    wait_until("the ROS call to complete", future.done, timeout=timeout, period=0.02)
     return future.result()
 
 
@@ -219,15 +210,15 @@ def _call_sync(client, request, timeout: float):
 def test_command_preset_carried_out_by_a_ros_service(stack) -> None:
     alice = stack["alice"]
     alice.subscribe("roslink/turtle1/state/ack")
-    deadline = time.monotonic() + 15
-    while True:  # the probe's service may take a moment to be discovered by the bridge
+
+    def acked():  # the probe's service may take a moment to be discovered by the bridge: until then, an error
         seq = int(time.monotonic() * 1000)
         alice.publish("roslink/turtle1/from/alice/cmd/takeoff",
                       {"message_id": 102, "sequence_number": seq, "payload": {"altitude": 1.5}})
         got = alice.wait_for(lambda m: m.topic.endswith("/state/ack") or m.topic.endswith("/to/alice/error"), 5)
-        if got.topic.endswith("/state/ack") or time.monotonic() > deadline:
-            break
-        time.sleep(0.3)
+        return got if got.topic.endswith("/state/ack") else None
+
+    got = wait_until("an ack of takeoff (carried out by the probe's service)", acked, timeout=15, period=0.3)
     ack = got.json()["payload"]
     assert ack["command"] == 102 and ack["result"] == 0 and ack["text"] == "airborne"
     alice.publish("roslink/turtle1/from/alice/cmd/land", {})

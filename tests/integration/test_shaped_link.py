@@ -386,7 +386,7 @@ def test_a_dead_spot_set_from_another_thread_delivers_nothing_and_the_connection
             if flowing.wait(5):
                 moments.append(time.monotonic())
                 link.set_rate(up=0)
-                time.sleep(1.5)  # the dead spot's length
+                time.sleep(1.5)  # kept: the dead spot's length, a span the test makes, not a wait
                 moments.append(time.monotonic())
                 link.set_rate(up=rate)
 

@@ -24,6 +24,7 @@ import pytest
 from roslink_mqtt.client import RobotClient
 from tests.support.procs import ROOT
 from tests.support.robot_stack import turtle1_online
+from tests.support.waits import stays, wait_until
 
 pytestmark = pytest.mark.timeout(150)
 
@@ -71,7 +72,7 @@ def test_a_snapshot_holds_the_robots_own_messages_and_decodes(tmp_path, stack) -
 
         driver = threading.Thread(target=drive, daemon=True)
         driver.start()
-        time.sleep(LAST + 0.5)  # the buffer is full, twists in it
+        stays("alice driving", driver.is_alive, seconds=LAST + 0.5)  # the buffer is full, twists in it
         try:
             done = _cli(port, "alice", "--last", f"{LAST:g}s", "-o", str(out))
         finally:
@@ -139,9 +140,8 @@ def test_a_failsafe_stop_leaves_a_snapshot_on_the_robot(stack) -> None:
     with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{port}") as alice:
         alice.wait_for_robot("turtle1")
         alice.twist("turtle1", lx=0.1)  # then silence: the dead-man's failsafe stop (command_timeout, 1 s)
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline and not (snapshots.exists() and set(snapshots.glob("*.mcap")) - before):
-            time.sleep(0.1)
+        wait_until(f"a failsafe snapshot in {snapshots}",
+                   lambda: snapshots.exists() and set(snapshots.glob("*.mcap")) - before, timeout=15, period=0.1)
     new = sorted(set(snapshots.glob("*.mcap")) - before)
     assert new, f"no failsafe snapshot in {snapshots}"
     from mcap.reader import make_reader
@@ -161,7 +161,8 @@ def test_a_ros2_bag_plays_as_a_robot_through_its_rules(tmp_path, stack) -> None:
     from tests.support.mqtt_client import TestClient
 
     port, _ = stack
-    time.sleep(max(0.0, STARTED[0] + 3.5 - time.monotonic()))  # 3 s in the ring buffer (run alone, it is young)
+    # 3 s in the ring buffer (run alone, it is young). Kept: the buffer's age is time itself, nothing to observe
+    time.sleep(max(0.0, STARTED[0] + 3.5 - time.monotonic()))
     bag = tmp_path / "bag.mcap"
     assert _cli(port, "alice", "--last", "3s", "-o", str(bag)).returncode == 0
     with bag.open("rb") as f:

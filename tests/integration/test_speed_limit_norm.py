@@ -15,6 +15,7 @@ from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import paced
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -36,11 +37,10 @@ def test_combined_speed_is_limited_by_norm(tmp_path) -> None:
                            timeout=20)
             cmd_vel.wait_matched()
             t0 = time.monotonic()
-            for seq in range(1, 11):
+            for i in paced(0.1, count=10):
                 alice.publish("roslink/turtle1/from/alice/cmd/twist", {
-                    "message_id": 100, "sequence_number": seq,
+                    "message_id": 100, "sequence_number": i + 1,
                     "payload": {"lx": 0.5, "ly": 0.5, "lz": -0.5, "ax": 1.5, "ay": 0.0, "az": 1.5}}, qos=0)
-                time.sleep(0.1)
             _, m = cmd_vel.wait_for(lambda m: m.linear.x > 0, timeout=10, after=t0)
     finally:
         probe.close()

@@ -16,6 +16,7 @@ from roslink_mqtt.localproc import can_listen, port_free
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.net import free_port
+from tests.support.waits import wait_until
 
 TIME_WAIT = "06"  # /proc/net/tcp's state code
 
@@ -43,10 +44,7 @@ def _leave_in_time_wait(port: int) -> None:
         while client.recv(1) and time.monotonic() < deadline:
             pass
         client.close()
-    deadline = time.monotonic() + 5
-    while TIME_WAIT not in _states(port) and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert TIME_WAIT in _states(port), f"no TIME_WAIT on {port}: {_states(port)}"
+    wait_until(f"TIME_WAIT on port {port}", lambda: TIME_WAIT in _states(port), timeout=5, period=0.01)
 
 
 def test_a_port_in_time_wait_is_kept_by_the_demo_and_bound_by_the_broker(tmp_path, capsys) -> None:

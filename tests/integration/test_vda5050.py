@@ -31,6 +31,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_args, bridge_env, run
+from tests.support.waits import never, paced, stays, wait_until
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -129,15 +130,13 @@ class Watch:
     def state(self, predicate: Callable[[dict[str, Any]], bool], what: str, timeout: float = 30.0,
               after: int = 0) -> dict[str, Any]:
         """The first state from index ``after`` on that ``predicate`` accepts (waiting for it)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            states = self.of("state")
-            for s in states[after:]:
-                if predicate(s):
-                    return s
-            time.sleep(0.05)
-        last = self.of("state")[-1:] or [None]
-        raise AssertionError(f"no state where {what} within {timeout} s; the last: {json.dumps(last[0])[:1500]}")
+        try:
+            return wait_until(f"a state where {what}", lambda: next(
+                (s for s in self.of("state")[after:] if predicate(s)), None), timeout=timeout)
+        except AssertionError:
+            last = self.of("state")[-1:] or [None]
+            raise AssertionError(f"no state where {what} within {timeout} s; the last: "
+                                 f"{json.dumps(last[0])[:1500]}") from None
 
     def mark(self) -> int:
         return len(self.of("state"))
@@ -203,10 +202,11 @@ def test_a_master_control_drives_the_robot_through_orders(stack: dict[str, Any])
     # -- a clean stop says OFFLINE (retained); a new bridge says ONLINE; killed, the broker publishes the robot's
     #    last will, CONNECTIONBROKEN (retained)
     def connection_becomes(state: str, since: int, within: float) -> None:
-        deadline = time.monotonic() + within
-        while not any(c["connectionState"] == state for c in watch.of("connection")[since:]):
-            assert time.monotonic() < deadline, (state, [c["connectionState"] for c in watch.of("connection")])
-            time.sleep(0.05)
+        try:
+            wait_until(f"connection {state}", lambda: any(c["connectionState"] == state
+                                                          for c in watch.of("connection")[since:]), timeout=within)
+        except AssertionError:
+            raise AssertionError((state, [c["connectionState"] for c in watch.of("connection")])) from None
 
     since = len(watch.of("connection"))
     stack["bridge"].stop()  # SIGINT, as systemd stops it
@@ -238,10 +238,10 @@ def test_a_master_control_drives_the_robot_through_orders(stack: dict[str, Any])
 
 def _drive_orders(port: int, watch: Watch, master: Master, broker: str) -> None:
     # -- ONLINE, retained, and the factsheet listing exactly the instant actions the robot carries out
-    deadline = time.monotonic() + 15
-    while "ONLINE" not in master.connections:
-        assert time.monotonic() < deadline, master.connections
-        time.sleep(0.05)
+    try:
+        wait_until("ONLINE at the master control", lambda: "ONLINE" in master.connections, timeout=15)
+    except AssertionError:
+        raise AssertionError(master.connections) from None
     factsheet = watch.of("factsheet")[-1]
     assert [a["actionType"] for a in factsheet["protocolFeatures"]["agvActions"]] == [
         "startPause", "stopPause", "cancelOrder", "stateRequest", "factsheetRequest", "resetPose"]
@@ -306,10 +306,16 @@ def _drive_orders(port: int, watch: Watch, master: Master, broker: str) -> None:
         "paused and standing", after=mark)
     record_measurement(f"[{broker}] VDA 5050 startPause → standing (state)", time.monotonic() - paused_at, 5.0)
     assert paused["nodeStates"] and not _near(paused, 1.5, 0.0)  # stopped on the way
-    time.sleep(1.0)  # a paused robot stays where it stopped
+
+    def moved(s: dict[str, Any]) -> float:
+        return math.hypot(s["agvPosition"]["x"] - paused["agvPosition"]["x"],
+                          s["agvPosition"]["y"] - paused["agvPosition"]["y"])
+
+    # a paused robot stays where it stopped
+    never("the paused robot moving", lambda: (last := watch.of("state")[-1:]) and moved(last[0]) >= 0.05,
+          seconds=1.0)
     still = watch.state(lambda s: True, "a state", after=watch.mark() - 1)
-    assert math.hypot(still["agvPosition"]["x"] - paused["agvPosition"]["x"],
-                      still["agvPosition"]["y"] - paused["agvPosition"]["y"]) < 0.05
+    assert moved(still) < 0.05
     mark = watch.mark()
     master.call(master.client.resume("RoslinkSim/turtle1", action_id="resume-1"))
     resumed = watch.state(lambda s: s["lastNodeId"] == "p1" and not s["nodeStates"] and not s["driving"],
@@ -360,11 +366,13 @@ def _drive_orders(port: int, watch: Watch, master: Master, broker: str) -> None:
     try:
         pressed = probe.publisher(Bool, "/hw_estop")
         mark = watch.mark()
-        deadline = time.monotonic() + 15
-        while not [s for s in watch.of("state")[mark:] if s["safetyState"]["eStop"] == "MANUAL"]:
-            assert time.monotonic() < deadline, "no eStop MANUAL"
+
+        def manual() -> list[dict[str, Any]]:
+            return [s for s in watch.of("state")[mark:] if s["safetyState"]["eStop"] == "MANUAL"]
+
+        for _ in paced(0.2, within=15, stop=manual):
             probe.on_spin(lambda: pressed.publish(Bool(data=True)))  # until the bridge's subscription matched
-            time.sleep(0.2)
+        assert manual(), "no eStop MANUAL"
         mark = watch.mark()
         probe.on_spin(lambda: pressed.publish(Bool(data=False)))
         watch.state(lambda s: s["safetyState"]["eStop"] == "REMOTE", "eStop back to REMOTE (bob's stop holds)",
@@ -399,12 +407,13 @@ def test_visualization_stays_fresh_on_a_thin_uplink(tmp_path: Path) -> None:
             admin.client.on_message = lambda _c, _u, m: links.append(LinkReport.from_json(m.payload)) \
                 if m.payload else None
             admin.subscribe("roslink/turtle1/state/link")
-            s.enter_context(run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot", "turtle1",
-                                 "--url", f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log",
-                                bridge_env("turtle1")))
+            bridge = s.enter_context(run(["-m", "roslink_mqtt.bridge.main", "--config", str(fleet), "--robot",
+                                          "turtle1", "--url", f"mqtt://127.0.0.1:{link_port}"],
+                                         tmp_path / "bridge.log", bridge_env("turtle1")))
             watch.state(lambda st: "agvPosition" in st, "a first state through the thin link", timeout=60)
             began = len(watch.all)
-            time.sleep(8.0)  # the measured window: the uplink is full all along (the link reports say so below)
+            # the measured window: the uplink is full all along (the link reports say so below)
+            stays("the bridge running", lambda: bridge.poll() is None, seconds=8.0)
             with watch.lock:
                 got = list(zip(watch.all[began:], watch.arrived[began:], strict=True))
             seen = [body for (topic, body), _ in got if topic == T + "visualization"]

@@ -25,6 +25,7 @@ from roslink_mqtt.video.watchers import MAX_CLIENTS_PER_USER
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.robot_stack import turtle1_online
+from tests.support.waits import paced
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -74,10 +75,9 @@ def test_carol_granted_turtle2_only_neither_starts_the_camera_nor_sees_a_frame(p
         assert carol.connect() == 0 and alice.connect() == 0
         alice.subscribe(CAMERA)
         carol.subscribe(CAMERA)
-        for _ in range(3):  # as a watching client would, renewing
+        for _ in paced(0.5, count=3):  # as a watching client would, renewing
             carol.publish(T.user_topic("turtle1", "carol", Verb.WATCH, STREAM),
                           WatchRequest("carol-web", key=True).to_json(), qos=0)
-            time.sleep(0.5)
         # nobody granted watches: alice (who could read them) sees no frame either, so the camera never started
         assert not [m for m in alice.drain(2.0) if m.topic == CAMERA]
         assert not [m for m in carol.drain(0.1) if m.topic == CAMERA]
@@ -94,12 +94,9 @@ def test_a_flood_of_watch_requests_keeps_one_stream(port: int) -> None:
             stop = threading.Event()
 
             def spam() -> None:  # 40 made-up clients, each asking for a keyframe, for 4 s
-                i = 0
-                while not stop.is_set() and i < 1500:
+                for i in paced(0.001, count=1500, stop=stop.is_set):
                     flood.publish(T.user_topic("turtle1", "bob", Verb.WATCH, STREAM),
                                   WatchRequest(f"bob-fake-{i % 40}", key=True).to_json(), qos=0)
-                    i += 1
-                    time.sleep(0.001)
 
             spammer = threading.Thread(target=spam, daemon=True)
             started = time.monotonic()

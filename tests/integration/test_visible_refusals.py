@@ -27,6 +27,7 @@ from tests.support.broker_setup import ExportedMosquitto, write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -53,10 +54,7 @@ def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.Com
 
 
 def _access(client: RobotClient, robot: str, timeout: float = 5.0):  # -> AccessReport
-    deadline = time.monotonic() + timeout
-    while client.access(robot) is None:
-        assert time.monotonic() < deadline, f"no access report from {robot}"
-        time.sleep(0.05)
+    wait_until(f"an access report from {robot}", lambda: client.access(robot) is not None, timeout=timeout)
     report = client.access(robot)
     assert report is not None
     return report
@@ -131,7 +129,7 @@ def test_error_reports_reach_only_their_sender(stack) -> None:
             mine = [got_a.get(timeout=5), got_a.get(timeout=5)]
         finally:
             a.arm("turtle1")
-        time.sleep(1.0)
+        never("a's errors reaching b", lambda: not got_b.empty(), seconds=1.0)
         assert got_b.empty(), f"b saw a's errors: {list(got_b.queue)}"
         assert sorted(e.topic.rsplit("/", 1)[1] for e in mine) == ["fly", "go_to_waypoint"]
         assert "disarmed by alice" in next(e.error for e in mine if e.topic.endswith("go_to_waypoint"))
@@ -156,10 +154,8 @@ def test_cli_pub_does_not_print_another_programs_errors(stack) -> None:
     try:
         with RobotClient("alice", "alice-demo", url=stack.url, robots=["turtle1"]) as other:
             other.wait_for_robot("turtle1", timeout=10)
-            deadline = time.monotonic() + 3
-            while time.monotonic() < deadline and pub.poll() is None:
+            for _ in paced(0.2, within=3, stop=lambda: pub.poll() is not None):
                 other.command("turtle1", "fly", {"x": 1})  # refused: a report for `other`, not for pub
-                time.sleep(0.2)
         out, err = pub.communicate(timeout=30)
     finally:
         if pub.poll() is None:

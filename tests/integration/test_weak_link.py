@@ -10,6 +10,7 @@ side by side with it in ``bench/weak_link.py`` (docs/performance.md, "Weak links
 
 from __future__ import annotations
 
+import contextlib
 import re
 import secrets
 import sys
@@ -19,6 +20,7 @@ import time
 import orjson
 import pytest
 
+from roslink_mqtt.bridge.core.spool import Spool
 from roslink_mqtt.client import RobotClient
 from roslink_mqtt.client.directory import DEFAULT_STALE_AFTER
 from roslink_mqtt.localproc import free_port, wait_for_port
@@ -29,6 +31,7 @@ from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.waits import never, paced, stays, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -43,6 +46,14 @@ RULES = """    rules: &rules
 MEASURE = 4.0  # s of flood measured, after the first pose arrived
 LARGE_FRAME = 300_000  # bytes: 19 s of the thin uplink in one message
 HEARTBEAT_GAP_LINE = DEFAULT_STALE_AFTER - 1.0  # s: a viewer still sees the robot online, with a second to spare
+
+
+def _first_pose(poses: list, log) -> None:
+    """Until the viewer has a pose (30 s); the tail of the bridge's ``log`` if none comes."""
+    try:
+        wait_until("a first pose at the viewer", lambda: poses, timeout=30)
+    except AssertionError:
+        raise AssertionError(f"no pose arrived: {log.read_text()[-2000:]}") from None
 
 
 def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settle: float = 0.0,
@@ -123,16 +134,12 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
 
                 flooder = threading.Thread(target=flood, daemon=True)
                 flooder.start()
-                deadline = time.monotonic() + 30
-                while not seen["poses"] and time.monotonic() < deadline:
-                    time.sleep(0.1)
-                assert seen["poses"], f"no pose arrived: {(tmp_path / 'bridge.log').read_text()[-2000:]}"
-                time.sleep(settle)
+                _first_pose(seen["poses"], tmp_path / "bridge.log")
+                stays("the flood", flooder.is_alive, seconds=settle)
                 recording.set()
                 began = len(seen["poses"])
                 with RobotClient("bob", "bob-demo", url=f"mqtt://127.0.0.1:{broker.port}") as caller:
-                    end = time.monotonic() + measure
-                    while time.monotonic() < end:
+                    for _ in paced(1.0, within=measure):  # a call a second
                         t0 = time.monotonic()
                         try:
                             caller.call("turtle1", "status", timeout=5.0)
@@ -140,11 +147,11 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                         except Exception as err:  # noqa: BLE001 - a lost reply is what the check counts
                             seen["replies"].append(float("inf"))
                             print(f"call failed: {err}", file=sys.stderr)
-                        time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
                 recording.clear()
-                measured_by = time.monotonic() + until_measured
-                while not (seen["link"] is not None and seen["link"].measured) and time.monotonic() < measured_by:
-                    time.sleep(0.2)
+                with contextlib.suppress(AssertionError):  # not measured yet: the test's own check says so
+                    wait_until("a link report that has measured the uplink",
+                               lambda: seen["link"] is not None and seen["link"].measured, timeout=until_measured,
+                               period=0.2)
                 ended.set()
                 seen["poses"] = seen["poses"][began:]
                 stop.set()
@@ -167,6 +174,11 @@ def _disk_events_fleet(tmp_path, *, keepalive: int, mode: str):
     settings = f"      keepalive: {keepalive}\n      uplink: {mode}\n      buffer_dir: {tmp_path / 'spool'}\n"
     return write_fleet(tmp_path, edit=lambda text: text.replace("    rules: &rules\n", DISK_EVENT_RULES, 1).replace(
         "      keepalive: 2\n", settings, 1))
+
+
+def _spooled(spool_dir) -> int:
+    """How many records turtle1's disk buffer holds (a record still being written is not counted)."""
+    return sum(1 for segment in spool_dir.glob("turtle1-*.spool") for _ in Spool._records(segment.read_bytes(), 0))
 
 
 def _quantile(values: list[float], q: float) -> float:
@@ -325,18 +337,17 @@ def test_a_dead_spot_shorter_than_the_keepalive_loses_no_connection_and_no_disk_
                 wait_for_port(link_port, 10)
                 link_up = time.time()  # its phases count from here
                 threading.Thread(target=publish, daemon=True).start()
-                deadline = time.monotonic() + 30
-                while not poses and time.monotonic() < deadline:
-                    time.sleep(0.1)
                 log = tmp_path / "bridge.log"
-                assert poses, f"no pose arrived: {log.read_text()[-2000:]}"
+                _first_pose(poses, log)
                 assert time.time() < link_up + dead_at - 2.0, "the robot came online too late for the dead spot"
-                time.sleep(max(0.0, link_up + dead_at + dead + after - time.time()))
+                # through the dead spot and ``after`` s beyond it, no connection of the bridge may go
+                never("the bridge's last will at the viewer", offline.is_set,
+                      seconds=max(0.0, link_up + dead_at + dead + after - time.time()))
                 stop.set()
                 wanted = list(published)
-                deadline = time.monotonic() + 15
-                while not set(wanted) <= set(events) and time.monotonic() < deadline:
-                    time.sleep(0.1)
+                with contextlib.suppress(AssertionError):  # the checks below say which are missing
+                    wait_until("every published event at the viewer", lambda: set(wanted) <= set(events),
+                               timeout=15, period=0.1)
                 log_text = log.read_text()
                 went = offline.is_set()  # (before the bridge's own offline heartbeat as it shuts down)
     finally:
@@ -398,7 +409,7 @@ def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp
                 measure = MEASURE if conflate else MEASURE / 4
                 end = time.monotonic() + 3 + measure
                 began = time.monotonic()
-                while time.monotonic() < end:  # 10 Hz poses and camera frames
+                for _ in paced(0.1, within=3 + measure):  # 10 Hz poses and camera frames
                     if time.monotonic() > end - measure:
                         recording.set()
                     msg = Odometry()
@@ -406,11 +417,9 @@ def test_a_viewer_on_a_thin_downlink_sees_fresh_poses_while_a_camera_streams(tmp
                     msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
                     odom.publish(msg)
                     camera.publish(frame)
-                    time.sleep(0.1)
                 # FIFO: the poses sent while recording are still queued behind frames; they arrive (stale) later
-                deadline = time.monotonic() + 15
-                while not ages and time.monotonic() < deadline:
-                    time.sleep(0.1)
+                with contextlib.suppress(AssertionError):  # the check below says why none came
+                    wait_until("a recorded pose at the phone", lambda: ages, timeout=15, period=0.1)
             finally:
                 probe.close()
         broker_log = broker.output()
@@ -453,16 +462,13 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
 
         def publish(count: int) -> None:
             nonlocal n
-            for _ in range(count):
+            for _ in paced(0.05, count=count):
                 events.publish(String(data=str(n)))
                 n += 1
-                time.sleep(0.05)
 
         def matched() -> None:
-            deadline = time.monotonic() + 20
-            while events.get_subscription_count() < 1 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert events.get_subscription_count() >= 1, "the bridge never subscribed to /wl/events"
+            wait_until("the bridge's subscription to /wl/events", lambda: events.get_subscription_count() >= 1,
+                       timeout=20)
 
         with EmbeddedBrokerProcess(tmp_path, fleet) as broker:
             url = ["--url", f"mqtt://127.0.0.1:{door_port}"]
@@ -491,11 +497,9 @@ def test_buffered_events_survive_a_broker_outage_and_a_bridge_restart(tmp_path) 
                     assert bob.connect(timeout=10) == 0
                     bob.subscribe("roslink/turtle1/state/events", qos=1)
                     with run(door, tmp_path / "door2.log"):  # only now may the bridge reach the broker
-                        deadline = time.monotonic() + 20
-                        while time.monotonic() < deadline and not set(range(first_offline, last_offline + 1)) <= set(
-                                received):
+                        for _ in paced(0.15, within=20, stop=lambda: set(range(first_offline, last_offline + 1))
+                                       <= set(received)):
                             publish(1)  # live events go on meanwhile
-                            time.sleep(0.1)
     finally:
         probe.close()
     buffered = [i for i in received if first_offline <= i <= last_offline]
@@ -546,13 +550,12 @@ def test_an_emergency_stop_overtakes_a_flooded_downlink(tmp_path) -> None:
 
                 def flood() -> None:
                     line = orjson.dumps({"level": 20, "msg": "x" * 8000})
-                    while flooding.is_set():
+                    for _ in paced(0.05, within=60, stop=lambda: not flooding.is_set()):  # (within: a bound)
                         alice.client.publish("roslink/turtle1/from/alice/log/flood", line, qos=0)
-                        time.sleep(0.05)
 
                 flooder = threading.Thread(target=flood, daemon=True)
                 flooder.start()
-                time.sleep(1.5)  # a queue builds up in front of the robot
+                stays("alice's flood", flooder.is_alive, seconds=1.5)  # a queue builds up in front of the robot
                 sent = time.monotonic()
                 alice.publish("roslink/turtle1/from/alice/cmd/set_mode", {"mode": "AUTO"}, qos=1)
                 alice.publish("roslink/turtle1/from/alice/cmd/emergency_stop", {}, qos=1)
@@ -623,20 +626,17 @@ def test_a_disk_backlog_drains_behind_live_poses_on_a_thin_uplink(tmp_path, mode
                       f"mqtt://127.0.0.1:{link_port}"], tmp_path / "bridge.log", bridge_env("turtle1")):
                 threading.Thread(target=live_poses, daemon=True).start()
                 with run(link_cmd, tmp_path / "link1.log"):
-                    deadline = time.monotonic() + 30
-                    while not poses and time.monotonic() < deadline:
-                        time.sleep(0.1)
-                    assert poses, f"no pose arrived: {(tmp_path / 'bridge.log').read_text()[-2000:]}"
+                    _first_pose(poses, tmp_path / "bridge.log")
                 assert offline.wait(15), "the broker never published the bridge's will when its link went"
-                for n in range(offline_events):  # the link is down: kept on disk
+                for n in paced(0.01, count=offline_events):  # the link is down: kept on disk
                     event_pub.publish(String(data=f"{n:<8}" + "e" * (event_bytes - 8)))
-                    time.sleep(0.01)
-                time.sleep(0.5)  # the last of them reach the bridge
+                wait_until("every event in the bridge's disk buffer", lambda: _spooled(tmp_path / "spool")
+                           >= offline_events)
                 with run(link_cmd, tmp_path / "link2.log"):
                     back = time.time()
-                    deadline = time.monotonic() + 60
-                    while len({n for _, n in events}) < offline_events and time.monotonic() < deadline:
-                        time.sleep(0.2)
+                    with contextlib.suppress(AssertionError):  # the checks below say which are missing
+                        wait_until("every buffered event at the viewer",
+                                   lambda: len({n for _, n in events}) >= offline_events, timeout=60, period=0.2)
     finally:
         stop.set()
         probe.close()
@@ -700,7 +700,7 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
                 if first_chunk.wait(60) and not stop.wait(break_at):
                     killed.append(time.monotonic())
                     link.kill()
-                    time.sleep(1.0)
+                    time.sleep(1.0)  # the outage itself: its length is the scenario, there is nothing to wait for
                     link.spawn()
 
             stop = threading.Event()
@@ -723,10 +723,11 @@ def _thin_link_snapshot(tmp_path, *, break_at: float | None = None) -> tuple:
                         msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
                         odom.publish(msg)
 
-                threading.Thread(target=flood, daemon=True).start()
+                flooder = threading.Thread(target=flood, daemon=True)
+                flooder.start()
                 with RobotClient("alice", "alice-demo", url=f"mqtt://127.0.0.1:{broker.port}") as alice:
                     alice.wait_for_robot("turtle1", timeout=30)
-                    time.sleep(4.5)  # the ring buffer fills
+                    stays("the flood", flooder.is_alive, seconds=4.5)  # the ring buffer fills
                     fetching.set()
                     if break_at is not None:
                         threading.Thread(target=break_link, daemon=True).start()

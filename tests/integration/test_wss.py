@@ -263,8 +263,10 @@ def test_starter_drives_turtle1_over_wss(stack) -> None:
 
     forward = [t for t, m in cmd_vel.since(t0) if m.linear.x == pytest.approx(0.3) and m.angular.z == 0]
     assert len(forward) >= 10, f"{len(forward)} forward twists reached /cmd_vel"
-    cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=forward[-1], timeout=3)
-    time.sleep(0.3)
+    stopped_at, _ = cmd_vel.wait_for(lambda m: m.linear.x == 0 and m.angular.z == 0, after=forward[-1], timeout=3)
+    # the sim obeyed the stop: its odometry says so, and the pose stays where it is from then on
+    odom.wait_for(lambda m: m.twist.twist.linear.x == 0 and m.twist.twist.angular.z == 0, after=stopped_at,
+                  timeout=10)
     end = [m for _, m in odom.since(0)][-1].pose.pose.position
     moved = math.dist((start.x, start.y), (end.x, end.y))
     print(f"MQTT.js starter over wss://: {len(forward)} twists on /cmd_vel, turtle1 moved {moved:.2f} m on /odom")

@@ -31,6 +31,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.procs import DEMO_PASSWORDS as PW
 from tests.support.rawmqtt import RawClient, connect_packet, publish_header, publish_packet, subscribe_packet
+from tests.support.waits import never, paced, wait_until
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.security]
 
@@ -75,12 +76,13 @@ def test_a_viewer_reusing_the_bridges_client_id_disconnects_nobody(tmp_path, cli
                         will=("roslink/operators/alice/alice-sdk-1", b"", 1, True))
         watcher = clients(broker.port, "admin")
         assert watcher.subscribe(["roslink/turtle1/heartbeat", "roslink/operators/#"]) == [1, 1]
+        kicked = lambda: bridge.disconnected.is_set() or alice.disconnected.is_set()  # noqa: E731
         for cid in ["roslink-bridge-turtle1", "alice-sdk-1"] * 5:
             attacker = Probe(broker.port, "bob", PW["bob"], cid)
             assert attacker.connect() == 0  # bob gets a session of his own
-            time.sleep(0.05)
+            never("bob's connection kicking another login's session", kicked, seconds=0.05)
             attacker.close()
-        time.sleep(0.5)
+        never("bob's connections kicking another login's session", kicked, seconds=0.5)
         assert not bridge.disconnected.is_set(), "bob's connection kicked the bridge"
         assert not alice.disconnected.is_set(), "bob's connection kicked alice"
         assert watcher.drain(0.3) == [], "a will fired: a session of another login was ended"
@@ -167,10 +169,9 @@ def test_many_subscribe_packets_within_the_size_limit_do_not_stall(tmp_path) -> 
             for start in range(0, len(filters), 2500):
                 bob.send(subscribe_packet(filters[start:start + 2500], packet_id))
                 packet_id += 1
-            deadline = time.monotonic() + 5.0  # until the broker has read both SUBSCRIBEs (and refused the rest)
-            while "limit 1024" not in broker.output() and time.monotonic() < deadline:
-                time.sleep(0.05)
-            time.sleep(0.3)
+            wait_until("the broker reading both SUBSCRIBEs (and refusing the rest)",
+                       lambda: "limit 1024" in broker.output(), timeout=10)
+            meter.keep_measuring(0.3)
             bob.close()
         seed.close()
         record_measurement("attack: 3,000 filters / 2,000 retained, worst round trip", meter.worst, STALL_BOUND)
@@ -209,7 +210,7 @@ def test_websocket_closed_mid_packet_does_not_stall(tmp_path, before_login: bool
                 t.start()
             for t in threads:
                 t.join(20)
-            time.sleep(1.0)
+            meter.keep_measuring(1.0)
         stopping = time.monotonic()  # held-back logins (the throttle) must not hold up a stop (hardened fix 30)
         code = broker.stop()
         stopped_in = time.monotonic() - stopping
@@ -232,26 +233,22 @@ def test_a_client_that_never_reads_is_bounded_then_dropped(tmp_path, clients) ->
         bob.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         assert bob.login("bob-slow", "bob", PW["bob"]) == 0
         bob.send(subscribe_packet(["roslink/turtle1/state/#"]))
+        assert bob.recv_exactly(5)[0] == 0x90, "no SUBACK for bob"  # subscribed; he reads nothing after it
         robot = clients(broker.port, "turtle1")
-        time.sleep(0.3)
         before = rss_bytes(broker.proc.pid)
         latencies, peak = [], before
         payload = b"s" * 200_000  # 4 MB/s: 16 MB in 4 s, far more than the kernel buffers of a socket
-        deadline = time.monotonic() + 4.0
-        while time.monotonic() < deadline:
+        for _ in paced(0.05, within=4.0):
             sent = time.monotonic()
             robot.client.publish("roslink/turtle1/state/scan", payload, qos=0)
             msg = alice.wait_for(lambda m: m.topic.endswith("/scan"), 5)
             latencies.append(msg.at - sent)
             peak = max(peak, rss_bytes(broker.proc.pid))
-            time.sleep(0.05)
         growth = peak - before
-        dropped = False
-        deadline = time.monotonic() + 6.0  # keep streaming until the broker gives up on bob (timeout 3 s)
-        while not dropped and time.monotonic() < deadline:
+        gave_up = lambda: "slow consumer: over its queue limit" in broker.output()  # noqa: E731
+        for _ in paced(0.05, within=6.0, stop=gave_up):  # stream on until the broker gives up on bob (timeout 3 s)
             robot.client.publish("roslink/turtle1/state/scan", payload, qos=0)
-            time.sleep(0.05)
-            dropped = "slow consumer: over its queue limit" in broker.output()
+        dropped = gave_up()
         bob.close()
         latencies.sort()
         record_measurement("attack: slow consumer, alice's p99 state latency", latencies[int(len(latencies) * .99)],
@@ -423,7 +420,7 @@ def test_mosquitto_takes_a_781_kB_subscribe_without_stalling(tmp_path) -> None:
                 bob.send(subscribe_packet([f"roslink/turtle1/state/{i}" for i in range(200_000)])[:800_000])
             except OSError:
                 pass
-            time.sleep(1.0)
+            meter.keep_measuring(1.0)
             bob.close()
         print(f"Mosquitto, 781 kB SUBSCRIBE: worst honest round trip {meter.worst * 1000:.1f} ms")
         assert meter.p99 < STALL_BOUND and meter.worst < STALL_DEADLINE, (meter.p99, meter.worst)
@@ -438,16 +435,14 @@ def test_mosquitto_and_a_client_that_never_reads(tmp_path, clients, qos: int) ->
         bob.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         assert bob.login("bob-slow", "bob", PW["bob"]) == 0
         bob.send(subscribe_packet(["roslink/turtle1/state/#"], qos=qos))
+        assert bob.recv_exactly(5)[0] == 0x90, "no SUBACK for bob"  # subscribed; he reads nothing after it
         robot = clients(mosquitto.port, "turtle1")
-        time.sleep(0.3)
         before = peak = rss_bytes(mosquitto.proc.pid)
-        deadline = time.monotonic() + (4.0 if qos else 8.0)  # QoS 1: 32 MB offered, 16 x its queue limit
-        while time.monotonic() < deadline:
+        for _ in paced(0.025, within=4.0 if qos else 8.0):  # QoS 1: 32 MB offered, 16 x its queue limit
             robot.client.publish("roslink/turtle1/state/scan", b"s" * 200_000, qos=qos)
             peak = max(peak, rss_bytes(mosquitto.proc.pid))
             if not qos and peak - before > MEMORY_BOUND:
                 break  # QoS 0 has shown the unbounded queue: no need to stream on
-            time.sleep(0.025)
         bob.close()
         growth = peak - before
         print(f"Mosquitto, slow consumer at QoS {qos}: RSS +{growth / 1e6:.1f} MB over at most "

@@ -17,6 +17,7 @@ from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.procs import DEMO_PASSWORDS as PW
 from tests.support.rawmqtt import RawClient
+from tests.support.waits import paced, stays
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.security]
 
@@ -48,7 +49,8 @@ def _spray(port: int, sources: list[str], login: str, abandon_after: float = 0.5
 
 def _robot_login(port: int) -> float:
     started = time.monotonic()
-    while time.monotonic() - started < 30:
+    # a try every 0.5 s at most (the bridge's reconnect backoff), none begun 30 s after the first (a try can take 15)
+    for _ in paced(0.5, within=30):
         client = RawClient(port, timeout=15, source=ROBOT_ADDRESS)
         try:
             if client.login(f"roslink-bridge-turtle1-{time.monotonic_ns()}", "turtle1", PW["turtle1"]) == 0:
@@ -57,7 +59,6 @@ def _robot_login(port: int) -> float:
             pass
         finally:
             client.close()
-        time.sleep(0.5)  # the bridge's reconnect backoff
     return float("inf")
 
 
@@ -126,11 +127,14 @@ def test_a_guessing_flood_neither_stalls_the_fleet_nor_keeps_a_real_user_out(tmp
             StallMeter(broker.port) as meter:
         stop, answers = threading.Event(), []
         threads = _flood(broker.port, stop, answers)
+        flooding = lambda: all(t.is_alive() for t in threads)  # noqa: E731
         try:
-            time.sleep(FLOOD_SECONDS / 2)  # the flood at full strength, measured all along by the meter
+            # the flood at full strength, measured all along by the meter
+            stays("every guesser flooding", flooding, seconds=FLOOD_SECONDS / 2)
             started = time.monotonic()
             codes = []
-            while time.monotonic() - started < 2 * FRESH_LOGIN_BOUND:  # bob, never verified on this broker
+            # bob, never verified on this broker; a try every 0.2 s at most: a client's retry after "server unavailable"
+            for _ in paced(0.2, within=2 * FRESH_LOGIN_BOUND):
                 client = RawClient(broker.port, timeout=10, source="127.0.0.9")
                 try:
                     codes.append(client.login(f"bob-{time.monotonic_ns()}", "bob", PW["bob"]))
@@ -140,9 +144,8 @@ def test_a_guessing_flood_neither_stalls_the_fleet_nor_keeps_a_real_user_out(tmp
                     client.close()
                 if codes[-1] == 0:
                     break
-                time.sleep(0.2)  # a client's retry after "server unavailable"
             fresh = time.monotonic() - started
-            time.sleep(FLOOD_SECONDS / 2)
+            stays("every guesser flooding", flooding, seconds=FLOOD_SECONDS / 2)
         finally:
             stop.set()
             for t in threads:

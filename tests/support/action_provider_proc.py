@@ -9,7 +9,7 @@ each, honouring cancel requests; rejects orders over 40. Prints "serving" once t
 from __future__ import annotations
 
 import sys
-import time
+import threading
 
 from roslink_mqtt.client import RobotClient
 
@@ -33,8 +33,7 @@ def main() -> None:
         client.serve_action(robot, "plan", "test_msgs/action/Fibonacci", execute,
                             goal_callback=lambda goal: 0 <= goal.get("order", 0) <= 40, accept_timeout=5)
         print("serving", flush=True)
-        while True:
-            time.sleep(1)
+        threading.Event().wait()  # serve until the test stops this process
 
 
 if __name__ == "__main__":

@@ -9,8 +9,11 @@
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+
+from tests.support.waits import wait_until
 
 from .broker_client import Probe
 from .procs import DEMO_PASSWORDS
@@ -39,8 +42,20 @@ class StallMeter:
     def __enter__(self) -> StallMeter:
         assert self.probe.connect() == 0, "stall meter refused"
         self._thread.start()
-        time.sleep(0.3)  # a baseline before the attack starts
+        try:
+            self.keep_measuring(0.3)  # a baseline before the attack starts
+        except BaseException:
+            self.__exit__()
+            raise
         return self
+
+    def keep_measuring(self, seconds: float, stalled: float = 1.0, timeout: float = 30.0) -> None:
+        """Until the round trips of at least ``seconds`` more are measured: one per ``period`` at most, so as many
+        as ``seconds`` / ``period`` never take less than ``seconds``, and a busy machine's slower meter still takes
+        them all. Ends early on a round trip of ``stalled`` s: the stall is measured already."""
+        goal = len(self.samples) + math.ceil(seconds / self.period) + 1  # + 1: the round trip under way now
+        wait_until(f"{seconds:g} s of honest round trips", lambda: len(self.samples) >= goal or self.worst >= stalled,
+                   timeout=timeout)
 
     def __exit__(self, *exc) -> None:
         self._stop.set()

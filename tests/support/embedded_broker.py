@@ -17,8 +17,9 @@ The broker's output goes to ``workdir/embedded-broker.log`` (appended across res
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
+
+from tests.support.waits import wait_until
 
 from .managed import ManagedProcess
 from .net import free_port
@@ -49,14 +50,19 @@ class EmbeddedBrokerProcess(ManagedProcess):
 
     def wait_ready(self) -> None:
         """Ready = the 'listening on' line is logged (every listener is bound by then)."""
-        assert self.proc is not None
-        deadline = time.monotonic() + self.ready_timeout
+        proc = self.proc
+        assert proc is not None
         marker = f"listening on mqtt://127.0.0.1:{self.port}".encode()
-        while time.monotonic() < deadline:
+
+        def listening() -> bool:
             if marker in self.log.read_bytes()[self._log_offset:]:
-                return
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"embedded broker exited with {self.proc.returncode}:\n{self.output()[-3000:]}")
-            time.sleep(0.05)
-        raise TimeoutError(f"embedded broker not ready on port {self.port} after {self.ready_timeout} s:\n"
-                           f"{self.output()[-3000:]}")
+                return True
+            if proc.poll() is not None:
+                raise RuntimeError(f"embedded broker exited with {proc.returncode}:\n{self.output()[-3000:]}")
+            return False
+
+        try:
+            wait_until(f"the embedded broker listening on port {self.port}", listening, timeout=self.ready_timeout)
+        except AssertionError:
+            raise TimeoutError(f"embedded broker not ready on port {self.port} after {self.ready_timeout} s:\n"
+                               f"{self.output()[-3000:]}") from None

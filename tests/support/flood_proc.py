@@ -17,6 +17,7 @@ import time
 import orjson
 
 from roslink_mqtt.mqtt import make_client
+from tests.support.waits import wait_until
 
 
 def main() -> None:
@@ -33,10 +34,9 @@ def main() -> None:
     client.max_queued_messages_set(0)
     client.connect("127.0.0.1", args.port, keepalive=30)
     client.loop_start()
-    deadline = time.monotonic() + 5
-    while not client.is_connected() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    if not client.is_connected():
+    try:
+        wait_until("the flood's connection", client.is_connected, timeout=5, period=0.01)
+    except AssertionError:
         sys.exit("flood: could not connect")
     start = time.monotonic()
     n, last = 0, None

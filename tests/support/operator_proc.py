@@ -9,6 +9,8 @@ Runs operator presence and publishes twist commands at 10 Hz for S seconds
 from __future__ import annotations
 
 import argparse
+import math
+import threading
 import time
 
 import orjson
@@ -16,6 +18,7 @@ import orjson
 from roslink_mqtt.client.presence import OperatorPresence
 from roslink_mqtt.mqtt import make_client
 from roslink_mqtt.topics import TopicTree
+from tests.support.waits import paced, wait_until
 
 
 def main() -> None:
@@ -39,8 +42,7 @@ def main() -> None:
     presence = OperatorPresence(client, args.user, client_id)
     client.connect("127.0.0.1", args.port, keepalive=2)
     client.loop_start()
-    while not client.is_connected():
-        time.sleep(0.02)
+    wait_until("the broker connection", client.is_connected, timeout=60, period=0.02)
     presence.beat()
     presence.start()
     print("operator ready", flush=True)
@@ -49,19 +51,18 @@ def main() -> None:
         client.publish(TopicTree().goal(args.robot, args.user, args.goal),
                        orjson.dumps({"id": "proc-goal", "goal": {"order": 40}, "client_id": client_id}), qos=1)
         print("goal sent", flush=True)
-        while True:
-            time.sleep(1.0)
-    start, seq = time.monotonic(), args.first_seq - 1
-    while args.waypoint:  # the same goal once a second (idempotent), no velocity stream
-        client.publish(TopicTree().command(args.robot, args.user, "go_to_waypoint"),
-                       orjson.dumps({"x": 2.0, "y": 1.0}), qos=1)
-        time.sleep(1.0)
-    while True:
-        if args.stream_seconds is None or time.monotonic() - start < args.stream_seconds:
-            seq += 1
-            client.publish(topic, orjson.dumps({"message_id": 100, "sequence_number": seq,
-                                                "payload": {"lx": args.lx}}), qos=0)
-        time.sleep(0.1)
+        threading.Event().wait()  # only presence runs now, until the test stops this process
+    if args.waypoint:  # the same goal once a second (idempotent), no velocity stream, until stopped
+        for _ in paced(1.0, within=math.inf):
+            client.publish(TopicTree().command(args.robot, args.user, "go_to_waypoint"),
+                           orjson.dumps({"x": 2.0, "y": 1.0}), qos=1)
+    seq = args.first_seq - 1
+    streaming = math.inf if args.stream_seconds is None else args.stream_seconds
+    for _ in paced(0.1, within=streaming):  # S s of wall time
+        seq += 1
+        client.publish(topic, orjson.dumps({"message_id": 100, "sequence_number": seq,
+                                            "payload": {"lx": args.lx}}), qos=0)
+    threading.Event().wait()  # the stream is over: only presence runs, until the test stops this process
 
 
 if __name__ == "__main__":

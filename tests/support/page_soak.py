@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from tests.support.waits import paced
+
 
 @dataclass(frozen=True)
 class PageSample:
@@ -36,13 +38,8 @@ def soak(driver: Any, seconds: float, every: float) -> list[PageSample]:
     """Sample the page every ``every`` s for ``seconds`` s (bounded), the first at once."""
     driver.execute_cdp_cmd("Performance.enable", {})
     t0 = time.monotonic()
-    samples = [sample(driver, t0)]
-    n = 1
-    while time.monotonic() - t0 < seconds:
-        time.sleep(max(0.0, t0 + n * every - time.monotonic()))
-        samples.append(sample(driver, t0))
-        n += 1
-    return samples
+    # a sample each tick, up to and including the first tick at or past ``seconds``
+    return [sample(driver, t0) for _ in paced(every, within=seconds + every)]
 
 
 def cpu_share(a: PageSample, b: PageSample) -> float:

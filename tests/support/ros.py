@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from tests.support.waits import wait_until
+
 
 class Watch:
     """Every message seen on one topic, with its arrival time (monotonic)."""
@@ -42,11 +44,10 @@ class Watch:
 
     def wait_matched(self, timeout: float = 10.0) -> None:
         """Block until a publisher is matched, so a one-shot message cannot be missed."""
-        deadline = time.monotonic() + timeout
-        while self.subscription.get_publisher_count() == 0:
-            if time.monotonic() > deadline:
-                raise TimeoutError("no publisher matched")
-            time.sleep(0.05)
+        try:
+            wait_until("a publisher matched", lambda: self.subscription.get_publisher_count() > 0, timeout=timeout)
+        except AssertionError:
+            raise TimeoutError("no publisher matched") from None
 
     def since(self, t: float) -> list[tuple[float, Any]]:
         with self.cond:

@@ -72,9 +72,9 @@ def paced(period: float, count: int | None = None, within: float | None = None,
     """
     if count is None and within is None:
         raise ValueError("paced() needs count or within")
-    start = time.monotonic()
+    start = began = time.monotonic()  # start: the schedule's origin (moved when behind); began: the window's
     tick = 0
-    while (count is None or tick < count) and (within is None or time.monotonic() - start < within):
+    while (count is None or tick < count) and (within is None or time.monotonic() - began < within):
         if stop is not None and stop():
             return
         yield tick

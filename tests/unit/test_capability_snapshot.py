@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import io
 import threading
-import time
 from dataclasses import replace
 
 import orjson
@@ -26,6 +25,7 @@ from roslink_mqtt.bridge.core.snapshot_buffer import SnapshotBuffer, SnapshotFil
 from roslink_mqtt.config import SnapshotSettings, SnapshotTopic
 from roslink_mqtt.protocol.snapshot import SnapshotChunk
 from roslink_mqtt.topics import Verb
+from tests.support.waits import never, wait_until
 from tests.unit.test_bridge_endpoint import FLEET, ROBOT, ROUTES, Harness, T
 
 pytestmark = pytest.mark.unit
@@ -130,9 +130,7 @@ def _ask(h: Harness, user: str, snapshot_id: str, body: dict | bytes) -> None:
 
 
 def _chunks(lane: Lane, count: int, timeout: float = 5.0) -> list[SnapshotChunk]:
-    deadline = time.monotonic() + timeout
-    while len(lane.sent) < count and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(f"{count} chunks", lambda: len(lane.sent) >= count, timeout=timeout, period=0.01)
     return [SnapshotChunk.from_bytes(payload) for _, payload in lane.sent]
 
 
@@ -161,8 +159,7 @@ def test_chunks_wait_for_room_on_the_link() -> None:
     try:
         lane.full.set()
         _ask(h, "alice", "inc-2", {"last": 5})
-        time.sleep(0.2)
-        assert lane.sent == []  # nothing handed over while the link is full
+        never("a chunk handed over while the link is full", lambda: lane.sent, seconds=0.2)
         lane.full.clear()
         assert len(_chunks(lane, 6)) == 6
     finally:
@@ -179,10 +176,7 @@ def test_refusals_name_the_request(user: str, body: dict | bytes, words: str) ->
     h, _port, lane, snapshots = _harness()
     try:
         _ask(h, user, "inc-3", body)
-        deadline = time.monotonic() + 5
-        while not h.link.errors(user) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        errors = h.link.errors(user)
+        errors = wait_until(f"an error for {user}", lambda: h.link.errors(user), timeout=5, period=0.01)
         assert errors and words in errors[0].error, errors
         assert errors[0].id == "inc-3" and lane.sent == []
     finally:
@@ -202,9 +196,7 @@ def test_one_transfer_per_user_a_flood_of_ids_builds_nothing_more() -> None:
     try:
         lane.full.set()  # the first transfer waits for room on the link
         _ask(h, "alice", "first", {"last": 5})
-        deadline = time.monotonic() + 5
-        while not port.builds and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until("the first snapshot's build", lambda: port.builds, timeout=5, period=0.01)
         for i in range(20):
             _ask(h, "alice", f"flood-{i}", {"last": 5})
         errors = h.link.errors("alice")
@@ -213,12 +205,10 @@ def test_one_transfer_per_user_a_flood_of_ids_builds_nothing_more() -> None:
         assert port.builds == [5.0]
         lane.full.clear()
         assert len(_chunks(lane, 6)) == 6
-        deadline = time.monotonic() + 5
-        while time.monotonic() < deadline:  # once it is sent, the next one is taken
+        def ask_again() -> bool:  # once it is sent, the next one is taken
             _ask(h, "alice", "second", {"last": 5})
-            if len(port.builds) == 2:
-                break
-            time.sleep(0.05)
+            return len(port.builds) == 2
+        wait_until("the second snapshot taken", ask_again, timeout=5)
         assert port.builds == [5.0, 5.0]
     finally:
         snapshots.close()

@@ -7,7 +7,6 @@ subscription (a broker that answers SUBACK 0x80) and a refused login.
 from __future__ import annotations
 
 import threading
-import time
 from concurrent.futures import Future
 
 import orjson
@@ -46,6 +45,7 @@ from roslink_mqtt.protocol import (
 )
 from roslink_mqtt.topics import TopicTree
 from tests.support.refusing_broker import refusing_broker
+from tests.support.waits import wait_until
 
 SCAN = {"range_min": 0.1, "range_max": 8.0, "angle_min": -1.0, "angle_max": 1.0, "angle_increment": 1.0,
         "ranges": [1.5, None, 2.0]}
@@ -183,8 +183,8 @@ def test_directory_online_offline_stale_forgotten() -> None:
     assert not directory.update("turtle1", _heartbeat(SystemStatus.OFFLINE)).online  # the bridge's last-will
     directory.update("turtle1", _heartbeat(SystemStatus.EMERGENCY))
     assert directory.get("turtle1").blocked and directory.get("turtle1").online
-    time.sleep(0.25)
-    assert not directory.get("turtle1").online  # nothing new: a frozen bridge is not online
+    # nothing new: a frozen bridge is not online once stale_after has passed
+    wait_until("turtle1 to go stale", lambda: not directory.get("turtle1").online, timeout=5)
     assert directory.update("turtle1", b"garbage") is None and "turtle1" in directory.snapshot()
     directory.update("turtle1", b"")
     assert directory.snapshot() == {}
@@ -248,9 +248,8 @@ def test_scheduler_order_cancel_and_callback_errors() -> None:
         handle = scheduler.call_later(0.04, lambda: fired.append("cancelled"))
         scheduler.call_later(0.01, lambda: 1 / 0)  # logged, the thread goes on
         scheduler.cancel(handle)
-        deadline = time.monotonic() + 5  # "b" is the last due: once it ran, the cancelled one (due before) had its turn
-        while "b" not in fired and time.monotonic() < deadline:
-            time.sleep(0.01)
+        # "b" is the last due: once it ran, the cancelled one (due before) had its turn
+        wait_until("'b' fired", lambda: "b" in fired, timeout=5, period=0.01)
         assert fired == ["a", "b"]
     finally:
         scheduler.close()
@@ -284,10 +283,7 @@ def test_unreachable_broker_and_missing_username() -> None:
     for _ in range(3):  # a failed connect leaves no threads behind (callers may retry in a loop)
         with pytest.raises(ConnectError, match="cannot reach the broker"):
             RobotClient("alice", "x", url=f"mqtt://127.0.0.1:{free_port()}").connect(timeout=2)
-    deadline = time.monotonic() + 2
-    while threading.active_count() > before and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert threading.active_count() <= before
+    wait_until("the failed connects' threads gone", lambda: threading.active_count() <= before, timeout=5)
     with pytest.raises(ValueError, match="no username"):
         RobotClient(None, None)
 

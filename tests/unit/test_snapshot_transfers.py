@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import threading
-import time
 
 import orjson
 import pytest
@@ -15,6 +14,7 @@ from roslink_mqtt.client.errors import RobotError, SnapshotError
 from roslink_mqtt.client.snapshots import SnapshotTransfers
 from roslink_mqtt.protocol.snapshot import SnapshotChunk
 from roslink_mqtt.topics import TopicTree, Verb
+from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.unit
 
@@ -66,9 +66,7 @@ def test_a_stalled_transfer_resumes_from_its_first_missing_chunk() -> None:
     snapshot_id = _snapshot_id(connection)
     for index in (0, 1, 1, 3):  # chunk 2 lost, chunk 1 twice
         transfers.on_chunk("turtle1", snapshot_id, _chunk(index))
-    deadline = time.monotonic() + 5
-    while len(connection.sent) < 2 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until("the resume request", lambda: len(connection.sent) >= 2, timeout=5, period=0.01)
     assert connection.sent[1][1] == {"last": 5.0, "resume_from": 2, "client_id": "alice-sdk"}
     transfers.on_chunk("turtle1", snapshot_id, _chunk(2))
     thread.join(5)

@@ -16,6 +16,7 @@ from roslink_mqtt.video.encoder import frame_from_pixels
 from roslink_mqtt.video.scene import read_stamp, render
 from roslink_mqtt.video.streamer import Picture, VideoStreamer
 from roslink_mqtt.video.watchers import Watchers
+from tests.support.waits import never, wait_until
 
 pytestmark = pytest.mark.unit
 
@@ -67,13 +68,14 @@ class Camera:
 def _until(what: str, check, timeout: float = 10.0, renew: Watchers | None = None,
            clients: tuple[tuple[str, str], ...] = ()) -> None:
     """Wait for ``check``; meanwhile ``clients`` renew their watches (as a viewer's program does)."""
-    deadline = time.monotonic() + timeout
-    while not check():
+    def renewing_check() -> bool:
+        if check():
+            return True
         for user, client in clients:
             assert renew is not None
             renew.watch(user, client, time.monotonic())
-        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
-        time.sleep(0.01)
+        return False
+    wait_until(what, renewing_check, timeout=timeout, period=0.01)
 
 
 @pytest.fixture
@@ -90,8 +92,8 @@ def rig():
 
 def test_nothing_is_encoded_for_nobody_and_a_joining_viewer_starts_at_a_keyframe(rig) -> None:
     lane, watchers, streamer, watched = rig
-    time.sleep(0.3)
-    assert lane.frames == [] and streamer.stats.encoded == 0 and watched == []
+    never("a frame encoded or a camera watched for nobody",
+          lambda: lane.frames or streamer.stats.encoded or watched, seconds=0.3)
     watchers.watch("bob", "bob-web", time.monotonic())
     streamer.wake()
     _until("ten frames", lambda: len(lane.frames) >= 10)
@@ -104,8 +106,7 @@ def test_nothing_is_encoded_for_nobody_and_a_joining_viewer_starts_at_a_keyframe
     # the lease lapses (LEASE here): the stream goes idle, the camera's subscription may go
     _until("the stream to go idle", lambda: watched == [True, False], timeout=LEASE + 5.0)
     sent = len(lane.frames)
-    time.sleep(0.3)
-    assert len(lane.frames) == sent
+    never("a frame sent to an idle stream", lambda: len(lane.frames) != sent, seconds=0.3)
 
 
 def test_ten_viewers_cost_one_encoder(rig) -> None:
@@ -129,8 +130,8 @@ def test_a_full_lane_skips_pictures_before_encoding_and_a_lost_frame_brings_a_ke
     _until("five frames", lambda: len(lane.frames) >= 5, renew=watchers, clients=alice)
     lane.full.set()
     encoded = streamer.stats.encoded
-    time.sleep(0.3)
-    assert streamer.stats.encoded == encoded and streamer.stats.skipped_busy > 0  # never a queue of old video
+    never("a frame encoded while the lane is full", lambda: streamer.stats.encoded != encoded, seconds=0.3)
+    assert streamer.stats.skipped_busy > 0  # never a queue of old video
     lane.full.clear()
     _until("more frames", lambda: len(lane.frames) >= 10, renew=watchers, clients=alice)
     seqs = [f.seq for f in lane.frames]
