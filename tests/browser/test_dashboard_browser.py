@@ -42,8 +42,9 @@ from tests.support.browser import (
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import TestClient
-from tests.support.procs import CONFIG, bridge_args, bridge_env, run
+from tests.support.procs import CONFIG
 from tests.support.ros import RosProbe, Watch
+from tests.support.stack import live_robot
 from tests.support.waits import never, paced, stays
 
 pytestmark = [pytest.mark.timeout(150), CHROMIUM]
@@ -93,22 +94,15 @@ def stack(tmp_path_factory) -> Iterator[dict[str, Any]]:
 
     work = tmp_path_factory.mktemp("dashboard")
     config = _fleet_file(work)
-    with EmbeddedBrokerProcess(work, config, ws=True) as broker, \
-            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port, config=config), work / "bridge.log",
-                bridge_env("turtle1")) as bridge:
+    with live_robot(work, "embedded", fleet=config, ws=True) as live:
         probe = RosProbe()
         server = None
         try:
             cmd_vel = probe.watch(Twist, "/cmd_vel")
             odom = probe.watch(Odometry, "/odom")
             goals = probe.watch(PoseStamped, "/goal_pose")
-            with TestClient(broker.port, "bob", "bob-demo") as bob:
-                assert bob.connect() == 0
-                bob.subscribe("roslink/turtle1/heartbeat")
-                bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-            server = DashboardServer("127.0.0.1", 0, ws_port=broker.ws_port).start()
-            yield {"broker": broker, "bridge": bridge, "cmd_vel": cmd_vel, "odom": odom, "goals": goals,
+            server = DashboardServer("127.0.0.1", 0, ws_port=live.ws_port).start()
+            yield {"broker": live.server, "bridge": live.bridge, "cmd_vel": cmd_vel, "odom": odom, "goals": goals,
                    "url": server.url, "work": work, "probe": probe}
         finally:
             if server is not None:

@@ -25,11 +25,10 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.measure import record_measurement
-from tests.support.mqtt_client import TestClient
-from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.procs import ROOT
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import never, stays, wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -37,19 +36,6 @@ pytestmark = pytest.mark.timeout(120)
 SCRIPT = ROOT / "examples" / "mqttjs" / "watch_and_drive.js"
 NODE = shutil.which("node")
 POSITION = re.compile(r"^position turtle1: x=(-?\d+\.\d+) y=(-?\d+\.\d+) ", re.M)
-
-
-@contextmanager
-def turtle1_online_ws(work: Path) -> Iterator[EmbeddedBrokerProcess]:
-    """tests/support/robot_stack.turtle1_online with the broker's WebSocket listener open too (``.ws_port``)."""
-    with EmbeddedBrokerProcess(work, ws=True) as broker, \
-            run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "bob", "bob-demo") as bob:
-            assert bob.connect() == 0
-            bob.subscribe("roslink/turtle1/heartbeat")
-            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-        yield broker
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +46,10 @@ def stack(tmp_path_factory):
     from nav_msgs.msg import Odometry
 
     work = tmp_path_factory.mktemp("mqttjs")
-    with turtle1_online_ws(work) as broker:
+    with live_robot(work, "embedded", ws=True) as live:
         probe = RosProbe()
         try:
-            yield {"port": broker.port, "ws_port": broker.ws_port, "cmd_vel": probe.watch(Twist, "/cmd_vel"),
+            yield {"port": live.port, "ws_port": live.ws_port, "cmd_vel": probe.watch(Twist, "/cmd_vel"),
                    "odom": probe.watch(Odometry, "/odom")}
         finally:
             probe.close()

@@ -26,11 +26,11 @@ import pytest
 
 from roslink_mqtt.localproc import stop_process
 from roslink_mqtt.protocol.goals import GoalResult, GoalStatus
-from tests.support.broker_setup import ExportedMosquitto, write_fleet
-from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.broker_setup import write_fleet
 from tests.support.measure import record_measurement
 from tests.support.mqtt_client import Received, TestClient
-from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.procs import ROOT, run
+from tests.support.stack import live_robot
 from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(180)
@@ -50,22 +50,12 @@ def _viewer_action(text: str) -> str:
 @pytest.fixture(scope="module", params=["embedded", "mosquitto"])
 def stack(request, tmp_path_factory):
     work = tmp_path_factory.mktemp(f"actions-{request.param}")
-    fleet = write_fleet(work, edit=_viewer_action)
-    broker = EmbeddedBrokerProcess(work, fleet) if request.param == "embedded" else ExportedMosquitto(work, fleet)
-    with broker, run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "alice", "alice-demo", operator=True) as alice, \
-                TestClient(broker.port, "admin", "admin-demo", operator=True) as admin, \
-                TestClient(broker.port, "bob", "bob-demo", operator=True) as bob:
-            for client, user in ((alice, "alice"), (admin, "admin"), (bob, "bob")):
-                assert client.connect() == 0
-                client.subscribe(f"roslink/turtle1/to/{user}/#")
-            alice.subscribe("roslink/turtle1/heartbeat")
-            alice.subscribe("roslink/turtle1/state/ack")
-            alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                           timeout=30)
-            yield SimpleNamespace(backend=request.param, port=broker.port, work=work, alice=alice, admin=admin,
-                                  bob=bob)
+    with live_robot(work, request.param, fleet=write_fleet(work, edit=_viewer_action)) as live:
+        alice = live.client("alice", operator=True, subscribe=(
+            "roslink/turtle1/to/alice/#", "roslink/turtle1/heartbeat", "roslink/turtle1/state/ack"))
+        admin = live.client("admin", operator=True, subscribe=("roslink/turtle1/to/admin/#",))
+        bob = live.client("bob", operator=True, subscribe=("roslink/turtle1/to/bob/#",))
+        yield SimpleNamespace(backend=request.param, port=live.port, work=work, alice=alice, admin=admin, bob=bob)
 
 
 @pytest.fixture(autouse=True)

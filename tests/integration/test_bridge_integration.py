@@ -4,52 +4,34 @@ from __future__ import annotations
 
 import subprocess
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import orjson
 import pytest
 
 from roslink_mqtt.protocol import MessageId, decode
-from tests.support.embedded_broker import EmbeddedBrokerProcess
-from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
-from tests.support.procs import bridge_args, bridge_env, run
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(90)
 
 
-@contextmanager
-def broker(kind: str, work):
-    """The embedded broker (with its ACL) or a Mosquitto that only authenticates (the bridge still checks roles)."""
-    if kind == "embedded":
-        with EmbeddedBrokerProcess(work) as b:
-            yield b.port
-    else:
-        with mosquitto_with_logins(work) as port:
-            yield port
-
-
 @pytest.fixture(scope="module", params=["embedded", "mosquitto"])
 def stack(request, tmp_path_factory):
+    """The embedded broker (with its ACL) or a Mosquitto that only authenticates (the bridge still checks roles)."""
     work = tmp_path_factory.mktemp("bridge")
     from geometry_msgs.msg import Twist
 
-    with broker(request.param, work) as port, \
-            run(["-m", "roslink_mqtt.sim"], work / "sim.log") as sim, \
-            run(bridge_args("turtle1", port), work / "bridge.log", bridge_env("turtle1")) as bridge:
+    kind = "embedded" if request.param == "embedded" else "logins"
+    with live_robot(work, kind) as live:
         probe = RosProbe()
         cmd_vel = probe.watch(Twist, "/cmd_vel")
         try:
-            with TestClient(port, "alice", "alice-demo", operator=True) as alice:
-                assert alice.connect() == 0
-                alice.subscribe("roslink/turtle1/#")
-                alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                               timeout=20)
-                yield {"port": port, "work": work, "cmd_vel": cmd_vel, "alice": alice, "sim": sim, "bridge": bridge,
-                       "broker": request.param}
+            alice = live.client("alice", operator=True, subscribe=("roslink/turtle1/#",))
+            yield {"port": live.port, "work": work, "cmd_vel": cmd_vel, "alice": alice, "sim": live.sim,
+                   "bridge": live.bridge, "broker": request.param}
         finally:
             probe.close()
 

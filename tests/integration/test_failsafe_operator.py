@@ -87,7 +87,7 @@ def test_operator_sigstop_during_goal_stops_after_operator_timeout(stack: Stack)
     t0 = time.monotonic()
     with stack.operator("--waypoint") as op:
         goals.wait_for(lambda m: m.pose.position.x == 2.0, timeout=20, after=t0)
-        time.sleep(0.3)
+        time.sleep(0.3)  # kept: the fault hits a goal under way, not one the bridge has just forwarded
         fault = time.monotonic()
         op.signal(signal.SIGSTOP)
         try:
@@ -118,7 +118,7 @@ def test_driving_client_killed_stops_robot_while_its_user_watches_elsewhere(stac
         t0 = time.monotonic()
         with stack.operator("--waypoint") as op:
             goals.wait_for(lambda m: m.pose.position.x == 2.0, timeout=20, after=t0)
-            time.sleep(0.3)
+            time.sleep(0.3)  # kept: the fault hits a goal under way, not one the bridge has just forwarded
             fault = time.monotonic()
             op.signal(signal.SIGKILL)
             ack = stack.viewer.wait_for(lambda m: m.topic.endswith("/state/ack") and m.at > fault, timeout=5)

@@ -11,10 +11,10 @@ import pytest
 import yaml
 
 from roslink_mqtt.client import rclpy as sdk
-from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
-from tests.support.procs import CONFIG, bridge_args, bridge_env, run
+from tests.support.procs import CONFIG, run
 from tests.support.ros import RosProbe, Watch
+from tests.support.stack import live_robot
 from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -49,14 +49,8 @@ def stack(tmp_path_factory):
     work = tmp_path_factory.mktemp("on_demand")
     probe = RosProbe()
     try:
-        with mosquitto_with_logins(work) as port, \
-                run(bridge_args("turtle1", port, config=lights_config(work)), work / "bridge.log",
-                    bridge_env("turtle1")), \
-                TestClient(port, "admin", "admin-demo") as admin:
-            assert admin.connect() == 0
-            admin.subscribe("roslink/turtle1/heartbeat")
-            admin.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=20)
-            yield {"port": port, "url": f"mqtt://127.0.0.1:{port}", "probe": probe, "work": work,
+        with live_robot(work, "logins", bridge_config=lights_config(work), sim=False, viewer="admin") as live:
+            yield {"port": live.port, "url": live.url, "probe": probe, "work": work,
                    "lights": probe.watch(Bool, "/lights")}
     finally:
         probe.close()

@@ -18,11 +18,11 @@ from types import SimpleNamespace
 import orjson
 import pytest
 
-from tests.support.broker_setup import ExportedMosquitto, write_fleet
-from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.broker_setup import write_fleet
 from tests.support.mqtt_client import TestClient
-from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.procs import ROOT
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
@@ -33,23 +33,15 @@ _ids = itertools.count(1)
 @pytest.fixture(scope="module", params=["embedded", "mosquitto"])
 def stack(request, tmp_path_factory):
     work = tmp_path_factory.mktemp(f"params-{request.param}")
-    fleet = write_fleet(work)
-    broker = EmbeddedBrokerProcess(work, fleet) if request.param == "embedded" else ExportedMosquitto(work, fleet)
-    with broker, run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-            run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "alice", "alice-demo", operator=True) as alice, \
-                TestClient(broker.port, "bob", "bob-demo", operator=True) as bob:
-            for client, user in ((alice, "alice"), (bob, "bob")):
-                assert client.connect() == 0
-                client.subscribe(f"roslink/turtle1/to/{user}/#")
-            alice.subscribe("roslink/turtle1/heartbeat")
-            alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                           timeout=30)
-            stack = SimpleNamespace(backend=request.param, port=broker.port, alice=alice, bob=bob, work=work)
-            # the bridge discovers the sim's parameter services
-            wait_until("the sim's parameters", lambda: ask(stack.alice, "alice", {"op": "list"}).get("result"),
-                       timeout=20, period=0.3)
-            yield stack
+    with live_robot(work, request.param, fleet=write_fleet(work)) as live:
+        alice = live.client("alice", operator=True,
+                            subscribe=("roslink/turtle1/to/alice/#", "roslink/turtle1/heartbeat"))
+        bob = live.client("bob", operator=True, subscribe=("roslink/turtle1/to/bob/#",))
+        stack = SimpleNamespace(backend=request.param, port=live.port, alice=alice, bob=bob, work=work)
+        # the bridge discovers the sim's parameter services
+        wait_until("the sim's parameters", lambda: ask(stack.alice, "alice", {"op": "list"}).get("result"),
+                   timeout=20, period=0.3)
+        yield stack
 
 
 def ask(client: TestClient, user: str, body: dict, node: str = NODE, timeout: float = 10.0) -> dict:

@@ -14,12 +14,11 @@ from types import SimpleNamespace
 
 import pytest
 
-from tests.support.broker_setup import ExportedMosquitto, write_fleet
-from tests.support.embedded_broker import EmbeddedBrokerProcess
+from tests.support.broker_setup import write_fleet
 from tests.support.measure import record_measurement
-from tests.support.mqtt_client import TestClient
-from tests.support.procs import bridge_args, bridge_env, run
+from tests.support.procs import run
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(180)
@@ -38,20 +37,14 @@ def stack(request, tmp_path_factory):
     from test_msgs.action import Fibonacci
 
     work = tmp_path_factory.mktemp(f"provided-actions-{request.param}")
-    fleet = write_fleet(work)
     backend, _, executor = request.param.partition("-")
-    broker = EmbeddedBrokerProcess(work, fleet) if backend == "embedded" else ExportedMosquitto(work, fleet)
     probe = RosProbe()
     try:
-        with broker, run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log",
-                         {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": executor or "single"}):
-            with TestClient(broker.port, "bob", "bob-demo") as bob:
-                assert bob.connect() == 0
-                bob.subscribe("roslink/turtle1/heartbeat")
-                bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
+        with live_robot(work, backend, fleet=write_fleet(work), sim=False,
+                        bridge_env_extra={"ROSLINK_EXECUTOR": executor or "single"}) as live:
             client = ActionClient(probe.node, Fibonacci, "/plan")
-            yield SimpleNamespace(backend=backend, port=broker.port, work=work, client=client, probe=probe,
-                                  Goal=Fibonacci.Goal, url=f"mqtt://127.0.0.1:{broker.port}")
+            yield SimpleNamespace(backend=backend, port=live.port, work=work, client=client, probe=probe,
+                                  Goal=Fibonacci.Goal, url=live.url)
     finally:
         probe.close()
 

@@ -29,12 +29,13 @@ from roslink_mqtt.client.messages import GlobalMotion, RangeFinderData
 from roslink_mqtt.client.rclpy.node import Node
 from roslink_mqtt.client.rclpy.qos import qos_profile_sensor_data
 from roslink_mqtt.protocol import Envelope, MessageId, ProtocolError, SystemStatus, encode
-from tests.support.fleet_brokers import fleet_password_file, mosquitto_with_logins
+from tests.support.fleet_brokers import fleet_password_file
 from tests.support.mosquitto import run_mosquitto
 from tests.support.mqtt_client import TestClient
 from tests.support.no_ros import no_ros_env
-from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.procs import ROOT, run
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -125,10 +126,8 @@ def stack(tmp_path_factory):
     probe = RosProbe()
     cmd_vel = probe.watch(Twist, "/cmd_vel")
     try:
-        with mosquitto_with_logins(work) as port, \
-                run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-                run(bridge_args("turtle1", port), work / "bridge.log", bridge_env("turtle1")) as bridge:
-            url = f"mqtt://127.0.0.1:{port}"
+        with live_robot(work, "logins") as live:
+            port, url, bridge = live.port, live.url, live.bridge
             with RobotClient("alice", "alice-demo", url=url, robots=["turtle1"]) as alice:
                 alice.wait_for_robot("turtle1", timeout=20)
                 failed: list[ServiceError] = []

@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.support.fleet_brokers import mosquitto_with_logins
 from tests.support.mqtt_client import TestClient
-from tests.support.procs import CONFIG, bridge_args, bridge_env, run
+from tests.support.procs import CONFIG, run
 from tests.support.ros import RosProbe
+from tests.support.stack import live_robot
 from tests.support.waits import wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -69,18 +69,12 @@ def stack(tmp_path_factory, request):
     probe.node.create_service(Trigger, "/slow_service", slow)
     probe.node.create_service(Trigger, "/peek", peek)
     try:
-        with mosquitto_with_logins(work) as port, \
-                run(["-m", "roslink_mqtt.sim"], work / "sim.log"), \
-                run(bridge_args("turtle1", port, config=config), work / "bridge.log",
-                    {**bridge_env("turtle1"), "ROSLINK_EXECUTOR": request.param}), \
-                TestClient(port, "alice", "alice-demo", operator=True) as alice:
-            assert alice.connect() == 0
-            alice.subscribe("roslink/turtle1/to/alice/#")
-            alice.subscribe("roslink/turtle1/heartbeat")
-            alice.wait_for(lambda m: m.topic.endswith("/heartbeat") and m.json()["payload"]["system_status"] == 4,
-                           timeout=20)
+        with live_robot(work, "logins", bridge_config=config,
+                        bridge_env_extra={"ROSLINK_EXECUTOR": request.param}) as live:
+            alice = live.client("alice", operator=True,
+                                subscribe=("roslink/turtle1/to/alice/#", "roslink/turtle1/heartbeat"))
             _wait_until_served(alice, "peek")  # the probe's services discovered by the bridge (they share a node)
-            yield {"port": port, "alice": alice, "probe": probe, "work": work, "release": release}
+            yield {"port": live.port, "alice": alice, "probe": probe, "work": work, "release": release}
     finally:
         release.set()
         probe.close()

@@ -23,10 +23,11 @@ from types import SimpleNamespace
 import pytest
 
 from roslink_mqtt.client import CommandRefused, RobotClient, RobotError, ServiceError
-from tests.support.broker_setup import ExportedMosquitto, write_fleet
+from tests.support.broker_setup import write_fleet
 from tests.support.embedded_broker import EmbeddedBrokerProcess
 from tests.support.mqtt_client import TestClient
 from tests.support.procs import ROOT, bridge_args, bridge_env, run
+from tests.support.stack import live_robot
 from tests.support.waits import never, paced, wait_until
 
 pytestmark = pytest.mark.timeout(180)
@@ -36,14 +37,8 @@ pytestmark = pytest.mark.timeout(180)
 def stack(request, tmp_path_factory):
     work = tmp_path_factory.mktemp(f"refusals-{request.param}")
     fleet = write_fleet(work)  # demo fleet + read-only service 'status' (bob, a viewer, may call it)
-    broker = EmbeddedBrokerProcess(work, fleet) if request.param == "embedded" else ExportedMosquitto(work, fleet)
-    with broker, run(bridge_args("turtle1", broker.port, config=fleet), work / "bridge.log", bridge_env("turtle1")):
-        with TestClient(broker.port, "bob", "bob-demo") as bob:
-            assert bob.connect() == 0
-            bob.subscribe("roslink/turtle1/heartbeat")
-            bob.wait_for(lambda m: m.json()["payload"]["system_status"] == 4, timeout=30)
-        yield SimpleNamespace(backend=request.param, port=broker.port, url=f"mqtt://127.0.0.1:{broker.port}",
-                              work=work)
+    with live_robot(work, request.param, fleet=fleet, sim=False) as live:
+        yield SimpleNamespace(backend=request.param, port=live.port, url=live.url, work=work)
 
 
 def cli(port: int, user: str, *args: str, timeout: float = 30) -> subprocess.CompletedProcess:

@@ -10,7 +10,8 @@ viewer, wait for the retained heartbeat to say ACTIVE — each a little differen
   ``logins``, and a written copy of it (``write_fleet``) for ``mosquitto``, which needs its exported files.
 * ``bridge_config``: the file the bridge reads, when not the broker's fleet (a robot file from ``fleet split``).
 * ``sim``: the simulated robot (turtlesim-like), or ``False`` for a bridge with no ROS peer but the test's own.
-* ``bridge_env``: extra environment for the bridge (``ROSLINK_EXECUTOR``…).
+* ``bridge_env_extra``: extra environment for the bridge (``ROSLINK_EXECUTOR``…).
+* ``ws``: the embedded broker's WebSocket listener open too (``ws_port``: browsers, MQTT.js).
 
 The stack is ready when the robot's heartbeat says ACTIVE (status 4). Clients made with :meth:`LiveStack.client`
 are closed with the stack.
@@ -47,6 +48,8 @@ class LiveStack:
     bridge: LocalProcess
     sim: LocalProcess | None
     exits: ExitStack = field(repr=False)
+    server: EmbeddedBrokerProcess | ExportedMosquitto | None = None  # the broker's process (not for ``logins``)
+    ws_port: int = 0
 
     @property
     def url(self) -> str:
@@ -72,24 +75,30 @@ class LiveStack:
 @contextmanager
 def live_robot(work: Path, broker: str = "embedded", *, fleet: Path | None = None, robot: str = "turtle1",
                bridge_config: Path | None = None, sim: bool = True, bridge_env_extra: Mapping[str, str] | None = None,
-               bridge_extra: tuple[str, ...] = (), viewer: str = "bob",
+               bridge_extra: tuple[str, ...] = (), viewer: str = "bob", ws: bool = False,
                ready_timeout: float = 30.0) -> Iterator[LiveStack]:
     """Start ``broker``, the sim and ``robot``'s bridge in ``work``; yield once the robot is ACTIVE."""
     if broker not in BROKERS:
         raise ValueError(f"broker: {broker!r} is not one of {BROKERS}")
+    if ws and broker != "embedded":
+        raise ValueError("ws: only the embedded broker is started with a WebSocket listener here")
+    server: EmbeddedBrokerProcess | ExportedMosquitto | None = None
     with ExitStack() as exits:
         if broker == "mosquitto":
             fleet = fleet or write_fleet(work)
-            port = exits.enter_context(ExportedMosquitto(work, fleet)).port
+            server = exits.enter_context(ExportedMosquitto(work, fleet))
+            port = server.port
         elif broker == "embedded":
             fleet = fleet or CONFIG
-            port = exits.enter_context(EmbeddedBrokerProcess(work, fleet)).port
+            server = exits.enter_context(EmbeddedBrokerProcess(work, fleet, ws=ws))
+            port = server.port
         else:
             fleet = fleet or CONFIG
             port = exits.enter_context(mosquitto_with_logins(work, fleet))
         sim_proc = exits.enter_context(run(["-m", "roslink_mqtt.sim"], work / "sim.log")) if sim else None
         args = bridge_args(robot, port, *bridge_extra, config=bridge_config or fleet)
         bridge = exits.enter_context(run(args, work / "bridge.log", {**bridge_env(robot), **(bridge_env_extra or {})}))
-        stack = LiveStack(work, broker, port, fleet, robot, bridge, sim_proc, exits)
+        stack = LiveStack(work, broker, port, fleet, robot, bridge, sim_proc, exits, server,
+                          server.ws_port if isinstance(server, EmbeddedBrokerProcess) else 0)
         stack.wait_active(viewer, ready_timeout)
         yield stack
