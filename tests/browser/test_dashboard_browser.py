@@ -182,8 +182,11 @@ def arm_if_blocked(stack: dict[str, Any]) -> None:
         assert alice.connect() == 0
         alice.subscribe("roslink/turtle1/state/control")
         alice.publish("roslink/turtle1/from/alice/cmd/arm", {"message_id": 104, "payload": {}})
-        alice.wait_for(lambda m: m.topic.endswith("/state/control") and bool(m.payload)
-                       and not ControlState.from_json(m.payload).blocked, timeout=10)
+        try:
+            alice.wait_for(lambda m: m.topic.endswith("/state/control") and bool(m.payload)
+                           and not ControlState.from_json(m.payload).blocked, timeout=10)
+        except TimeoutError:  # (called in `finally`: the test's own failure is the one to see)
+            print("arm_if_blocked: turtle1 still blocked 10 s after alice's arm")
 
 
 # -- the tests -------------------------------------------------------------------------------------------------
@@ -208,11 +211,10 @@ def test_alice_sees_turtle1_and_drives_it_with_the_pad(stack, tmp_path) -> None:
             # 10 Hz while held: a stream, more than the page's one first command (waited for, not slept on)
             wait_until("ten twists streamed while held", lambda: len(
                 [m for _, m in cmd_vel.since(t_press) if m.linear.x > 0.1]) >= 10, timeout=5)
-            # held ~1.5 s in all (the distance checked below), the stream reaching the robot all along (a gap of
-            # command_timeout, 1 s, would stop it)
-            stays("the pad's twists reaching /cmd_vel", lambda: [m for _, m in cmd_vel.since(time.monotonic() - 1.0)
-                                                                 if m.linear.x > 0.1],
-                  seconds=max(0.0, t_press + 1.5 - time.monotonic()))
+            # held ~1.5 s in all (the distance checked below), and no stop meanwhile (the failsafe would send one)
+            stays("no stop while the pad is held", lambda: not [m for _, m in cmd_vel.since(t_press)
+                                                                if m.linear.x == 0.0 and m.angular.z == 0.0],
+                  seconds=max(0.0, t_press + 1.5 - time.monotonic()), period=0.1)
             page_moved = wait_until("the plot's position to change", lambda: (
                 (p := pose(driver)) and math.hypot(p[0] - first[0], p[1] - first[1]) > 0.2 and p))
         finally:
@@ -738,7 +740,7 @@ def test_carol_does_not_see_turtle1_but_her_turtle2_online_stale_offline(stack, 
         logged_in(driver, "carol")
         # retained heartbeats arrive right after SUBACK; live ones every second
         never("a robot shown to carol", lambda: robot_row(driver, "turtle1") or driver.execute_script(
-            "return [...window.dashboard.robots.keys()]"), seconds=1.5)
+            "return [...window.dashboard.robots.keys()]"), seconds=1.5, period=0.1)
         assert robot_row(driver, "turtle1") is None
         assert visible(driver, "fleet-empty")
         seen = driver.execute_script("return [...window.dashboard.robots.keys()]")
@@ -784,7 +786,7 @@ def test_wrong_password_is_refused_with_a_clear_message(stack, tmp_path) -> None
         assert visible(driver, "login") and not visible(driver, "main")
         # no retry loop: the refusal is final until the user submits again
         stays("the login refusal", lambda: WRONG_LOGIN in driver.find_element(By.ID, "login-error").text,
-              seconds=2.5)
+              seconds=2.5, period=0.1)
 
         # an unknown user reads exactly the same (the broker never says which logins exist)
         driver.execute_script("document.getElementById('login-error').hidden = true")

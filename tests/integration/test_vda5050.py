@@ -312,8 +312,8 @@ def _drive_orders(port: int, watch: Watch, master: Master, broker: str) -> None:
                           s["agvPosition"]["y"] - paused["agvPosition"]["y"])
 
     # a paused robot stays where it stopped
-    never("the paused robot moving", lambda: (last := watch.of("state")[-1:]) and moved(last[0]) >= 0.05,
-          seconds=1.0)
+    never("the paused robot moving", lambda: (last := watch.of("state")[-1:]) and "agvPosition" in last[0]
+          and moved(last[0]) >= 0.05, seconds=1.0)
     still = watch.state(lambda s: True, "a state", after=watch.mark() - 1)
     assert moved(still) < 0.05
     mark = watch.mark()

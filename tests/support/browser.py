@@ -6,14 +6,14 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.support.waits import wait_until
+from tests.support import waits
 
 CHROMIUM = pytest.mark.skipif(
     not (Path("/usr/bin/chromium").exists() and Path("/usr/bin/chromedriver").exists()),
@@ -60,6 +60,12 @@ def browser(tmp_path: Path, name: str, precise_memory: bool = False) -> Iterator
         except Exception:
             pass  # a test may already have closed it (the page-close test does)
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def wait_until(what: str, check: Callable[[], Any], timeout: float = 10.0, period: float = 0.1) -> Any:
+    """:func:`tests.support.waits.wait_until` at a browser's pace: each look is a WebDriver round trip, which
+    competes with the page's own timers (and the latencies measured from them) for the machine's two cores."""
+    return waits.wait_until(what, check, timeout, period)
 
 
 # -- the dashboard page, as the browser tests drive it -------------------------------------------------------
