@@ -266,8 +266,8 @@ class VideoStream:
     bitrate the uplink leaves after control and state, on ``state/<name>``. Every granted user may watch (a viewer
     too: the frames are state, which every granted user reads).
 
-    ``ladder``: (width, height, fps) from the largest to the smallest; () takes the camera's own size at ``fps``,
-    then ¾, ½ and ¼ of it (``roslink_mqtt.video.ladder.Ladder.for_camera``)."""
+    ``ladder``: (width, height, fps) from the largest to the smallest; () takes the camera's own size at ``fps``
+    and at 20, then ¾, ½ and ¼ of it (``roslink_mqtt.video.ladder.Ladder.for_camera``)."""
 
     name: str
     ros_topic: str

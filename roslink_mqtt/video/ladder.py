@@ -76,11 +76,15 @@ class Ladder:
     @classmethod
     def for_camera(cls, width: int, height: int, fps: float, min_bitrate: float = 50_000.0,
                    max_bitrate: float = 2_000_000.0) -> Ladder:
-        """The default ladder for a camera: its own size at its rate, then ¾, ½ and ¼ of the side at fewer frames."""
+        """The default ladder for a camera: its own size at its rate and at 20 fps, then ¾ at 20, ½ at 15 and 10,
+        ¼ at 10 fps. Why the repeated sizes: a link that carries the full picture at 20 fps but not at 30 should
+        keep the picture (an operator reads a scene by its detail) and lose frames, and 10 fps at half size is what a
+        256 kbit/s uplink leaves a camera beside the robot's telemetry."""
+        steps = ((1.0, fps), (1.0, 20.0), (0.75, 20.0), (0.5, 15.0), (0.5, 10.0), (0.25, 10.0))
         rungs: list[Rung] = []
-        for scale, rate in ((1.0, fps), (0.75, min(fps, 20.0)), (0.5, min(fps, 15.0)), (0.25, min(fps, 10.0))):
-            w, h = _even(width * scale), _even(height * scale)
-            if w >= 16 and h >= 16 and all((r.width, r.height) != (w, h) for r in rungs):
+        for scale, most in steps:
+            w, h, rate = _even(width * scale), _even(height * scale), min(fps, most)
+            if w >= 16 and h >= 16 and all((r.width, r.height, r.fps) != (w, h, rate) for r in rungs):
                 rungs.append(Rung(w, h, rate))
         return cls(tuple(rungs), min_bitrate, max_bitrate)
 

@@ -10,10 +10,21 @@ LADDER = Ladder.for_camera(640, 480, 30)
 
 
 def test_the_default_ladder_goes_down_by_size_and_frame_rate() -> None:
-    assert [str(r) for r in LADDER.rungs] == ["640×480@30", "480×360@20", "320×240@15", "160×120@10"]
-    assert LADDER.rung_for(10e6).width == 640
+    assert [str(r) for r in LADDER.rungs] == ["640×480@30", "640×480@20", "480×360@20", "320×240@15", "320×240@10",
+                                              "160×120@10"]
+    assert str(LADDER.rung_for(10e6)) == "640×480@30"
+    assert str(LADDER.rung_for(500_000)) == "640×480@20"  # what 1 Mbit/s leaves: the whole picture, fewer frames
     assert LADDER.rung_for(200_000).width == 320  # 256 kbit/s leaves about this to video: ≥ 10 fps at 320×240
+    assert str(LADDER.rung_for(50_000)) == "320×240@10"
     assert LADDER.rung_for(1_000).width == 160  # below every rung's worth: the smallest
+
+
+@pytest.mark.parametrize("fps, rungs", [
+    (10, ["640×480@10", "480×360@10", "320×240@10", "160×120@10"]),
+    (15, ["640×480@15", "480×360@15", "320×240@15", "320×240@10", "160×120@10"]),
+])
+def test_a_slow_camera_gets_no_rung_twice(fps: float, rungs: list[str]) -> None:
+    assert [str(r) for r in Ladder.for_camera(640, 480, fps).rungs] == rungs
 
 
 @pytest.mark.parametrize("rungs, why", [
