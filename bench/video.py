@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -267,6 +268,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="a row whose uplink falls from 1 Mbit/s to 256 kbit/s (default: on)")
     p.add_argument("--viewers", type=int, default=10, help="a loopback row with this many viewers (0: none)")
     p.add_argument("--plot", type=Path, default=PLOT)
+    p.add_argument("--keep-logs", type=Path, help="copy the broker's, bridges' and links' logs here")
     p.add_argument("--jpeg-load", action="store_true", help=argparse.SUPPRESS)
     return p.parse_args(argv)
 
@@ -325,6 +327,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(line(row), flush=True)
         except KeyboardInterrupt:
             return 130
+        finally:
+            if args.keep_logs is not None:
+                shutil.copytree(work, args.keep_logs, dirs_exist_ok=True)
     print()
     for row in rows:
         print(line(row))

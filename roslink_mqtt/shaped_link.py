@@ -69,6 +69,12 @@ CHUNK = 65536
 QUEUED_CHUNKS = 1024  # per direction: a reader this far ahead of the writer waits (bounded memory)
 MTU_PAYLOAD = 1448  # bytes of one full TCP segment on an Ethernet-sized path: the unit a thin link carries
 RCVBUF = 1024  # SO_RCVBUF of the proxy's sockets on a rate-limited link (the kernel doubles it, to ~2 KiB)
+# The MSS the proxy announces where its window is that small: a sender's segment is at most half the largest window
+# it saw (~576 B here), and a window of fewer bytes than a segment opens nothing: TCP then waits for its persist
+# timer (200 ms, doubling) and sends one window's worth per probe. Seen as a lane stuck at ~1.2 kB/s with 3 kB in
+# its socket (ss: rwnd_limited 100 %, timer persist, snd_wnd 489 < mss 576), while the link was half idle: a
+# stall of the model, not of a modem. Segments of this size fit any window the proxy opens.
+SMALL_MSS = 256
 READ_AHEAD = 512  # asyncio's reader pauses its socket beyond twice this: little read ahead of the wire, unseen
 # The hidden-queue hop: its receive buffers are large enough that a sender on loopback never waits for the hop's
 # reads, yet bounded (the kernel doubles it, to 32 KiB, and autotuning is off), so that once the FIFO is full
@@ -337,6 +343,8 @@ class _Direction:
 
 def _rcvbuf(sock: socket.socket, size: int) -> None:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+    if size == RCVBUF:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_MAXSEG, SMALL_MSS)
 
 
 def peak_rate(rate: float, phases: Phases | None) -> float:

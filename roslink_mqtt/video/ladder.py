@@ -109,7 +109,7 @@ class RateController:
         self.target = self._target_for(start_share * DOWN_TO)
         self._changed_at: float | None = None
         self._room_since: float | None = None  # the share has had room for more since then
-        self._last_frame: float | None = None
+        self._next_frame: float | None = None  # when the next frame is due (the rung's schedule)
         self.share = start_share
 
     def _target_for(self, bitrate: float) -> Target:
@@ -150,8 +150,11 @@ class RateController:
         """Whether a camera frame that arrives now is encoded (its rung's frame rate, never faster), and if so,
         count it. The caller asks only when the stream's lane has room for a frame."""
         period = 1.0 / self.target.rung.fps
-        # a frame up to a fifth of a period early still counts: a camera's own timing jitters
-        if self._last_frame is not None and now - self._last_frame < 0.8 * period:
+        # A schedule, not a least gap: 20 fps from a 30 Hz camera is two frames of three (a least gap of a period
+        # took every second frame: 15 fps). A frame up to a fifth of a period early counts (a camera's own timing
+        # jitters); a late one starts the schedule again (no burst to catch up).
+        due = self._next_frame
+        if due is not None and now < due - 0.2 * period:
             return False
-        self._last_frame = now
+        self._next_frame = now + period if due is None or now > due + period else due + period
         return True

@@ -28,6 +28,7 @@ log = logging.getLogger("roslink_mqtt.video")
 
 IDLE_WAIT = 0.5  # s the thread sleeps when no picture comes (it still ends lapsed watches)
 ROOM_POLL = 0.005  # s between looks at the lane while a picture waits for room
+STATS_PERIOD = 2.0  # s between the stream's counters in the log (DEBUG)
 START_SHARE = 250_000.0  # bits/s assumed before the uplink says more (a thin link's worth: grows within seconds)
 
 
@@ -38,9 +39,10 @@ class VideoLane(Protocol):
         """The last frame has left the robot's hands and the link takes another now."""
         ...
 
-    def share(self) -> tuple[float, bool]:
+    def share(self, wants: float) -> tuple[float, bool]:
         """Bytes/s the stream may use (what control, motion and state leave), and whether the link had room to
-        spare lately (its capacity not yet found: the stream may probe upwards)."""
+        spare lately (its capacity not yet found: the stream may probe upwards); ``wants``: the bytes/s its encoder
+        aims at now (the uplink counts it as the stream's need when it shares the link with other lanes)."""
         ...
 
     def send(self, payload: bytes) -> bool:
@@ -85,6 +87,7 @@ class VideoStreamer:
         self._stopped = False
         self._watched = False
         self._resend_key = False  # a frame was lost on the way: the next one must be a keyframe
+        self._logged = float("-inf")  # when the stats were last logged (DEBUG)
         self._thread = threading.Thread(target=self._run, name=f"video-{settings.name}", daemon=True)
 
     # -- from other threads -------------------------------------------------------------------------------------
@@ -138,6 +141,9 @@ class VideoStreamer:
 
     def _step(self, picture: Picture | None) -> None:
         now = self.clock()
+        if now - self._logged >= STATS_PERIOD and log.isEnabledFor(logging.DEBUG):
+            self._logged = now
+            log.debug("video %s: %s", self.settings.name, self.stats)
         self._set_watched(self.watchers.expire(now) > 0)
         if picture is None or not self._watched:
             return
@@ -164,7 +170,7 @@ class VideoStreamer:
 
     def _control(self, image: av.VideoFrame, now: float) -> RateController:
         controller = self.controller
-        share, headroom = self.lane.share()
+        share, headroom = self.lane.share(controller.target.bitrate / 8 if controller is not None else 0.0)
         if controller is None:
             s = self.settings
             ladder = Ladder(tuple(Rung(w, h, f) for w, h, f in s.ladder), s.min_kbit_s * 1000, s.max_kbit_s * 1000) \

@@ -185,9 +185,24 @@ def test_lanes_of_one_tier_share_what_the_tiers_before_them_leave() -> None:
     meter = LinkMeter(rate=100_000.0)
     meter.lane_rates, meter.lane_demand = [10_000.0, 20_000.0, 0.0, 0.0], [10_000.0, 20_000.0, 500_000.0, 4_000.0]
     tiers = (0, 1, 2, 2)  # main, state, camera, map
-    assert meter.allowance(2, tiers) == pytest.approx((PROBE * 100_000 - 30_000) / 2)
-    assert meter.allowance(3, tiers) == meter.allowance(2, tiers)  # the map is not starved by the camera's demand
+    left = PROBE * 100_000 - 30_000  # what main and state leave the bulk tier
+    assert meter.allowance(3, tiers) == pytest.approx(left / 2)  # the map is not starved by the camera's demand
+    assert meter.allowance(2, tiers) == pytest.approx(left - 4_000)  # the camera gets all the map leaves
     assert meter.allowance(1, tiers) == pytest.approx(PROBE * 100_000 - 10_000)
+
+
+def test_a_tier_is_shared_max_min() -> None:
+    meter = LinkMeter(rate=100_000.0)
+    tiers = (0, 1, 1, 1)  # main; the state lane (a scan), a camera, a second camera
+    meter.lane_rates, meter.lane_demand = [5_000.0, 30_000.0, 0.0, 0.0], [5_000.0, 30_000.0, 0.0, 0.0]
+    assert meter.allowance(2, tiers, probe=1.0) == pytest.approx(95_000 - 30_000)  # idle peers take nothing
+    meter.lane_demand[2] = meter.lane_demand[3] = 10_000.0
+    assert meter.allowance(2, tiers, probe=1.0) == pytest.approx(95_000 - 30_000 - 10_000)
+    meter.lane_demand[3] = 90_000.0  # hungry peers: the rest is split evenly
+    assert meter.allowance(2, tiers, probe=1.0) == pytest.approx((95_000 - 30_000) / 2)
+    meter.lane_demand[1] = 90_000.0
+    assert meter.allowance(2, tiers, probe=1.0) == pytest.approx(95_000 / 3)
+    assert meter.allowance(1, tiers, probe=1.0) == pytest.approx(95_000 - 10_000 - 42_500)
 
 
 def test_ready_streams_in_service_order_and_taking_from_one() -> None:
@@ -204,3 +219,12 @@ def test_ready_streams_in_service_order_and_taking_from_one() -> None:
     assert s.drop(log) == 1 and log.dropped == 1 and [x.name for x in s.ready()] == [pose.name, cam.name]
     assert s.drop(cam) == 1 and cam.dropped == 0  # a latest-only stream's waiting message is simply stale
     assert s.waiting_bytes == 1
+
+
+def test_a_stream_that_says_what_it_wants_is_counted_at_that_even_while_others_take_the_room() -> None:
+    meter = LinkMeter(rate=32_000.0)
+    tiers = (0, 1, 1)  # main; a scan that wants more than the link; a camera that got little room so far
+    meter.lane_rates, meter.lane_demand = [3_000.0, 27_000.0, 2_000.0], [3_000.0, 35_000.0, 2_000.0]
+    assert meter.allowance(1, tiers, probe=1.0) == pytest.approx(29_000 - 2_000)  # the scan takes all it leaves
+    assert meter.allowance(1, tiers, probe=1.0, wants=(0.0, 0.0, 11_000.0)) == pytest.approx(29_000 - 11_000)
+    assert meter.allowance(2, tiers, probe=1.0, wants=(0.0, 0.0, 11_000.0)) == pytest.approx(29_000 / 2)

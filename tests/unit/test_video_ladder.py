@@ -85,6 +85,23 @@ def test_frames_are_encoded_at_the_rung_rate_and_never_faster() -> None:
     assert min(b - a for a, b in zip(encoded, encoded[1:], strict=False)) >= 0.8 / 10
 
 
+@pytest.mark.parametrize(("camera_hz", "fps", "expected"), [(30, 20, 20), (30, 15, 15), (30, 30, 30), (25, 20, 20),
+                                                             (10, 20, 10)])
+def test_a_rung_rate_below_the_camera_rate_is_kept_on_average(camera_hz: float, fps: float, expected: float) -> None:
+    control = RateController(Ladder((Rung(320, 240, fps),), 50_000, 1e6), 200_000)
+    camera = [i / camera_hz for i in range(int(3 * camera_hz))]
+    encoded = [t for t in camera if control.frame_due(t)]
+    assert len(encoded) == pytest.approx(3 * expected, abs=1)  # 20 of 30 Hz, not every second frame (15)
+
+
+def test_a_late_frame_starts_the_schedule_again_without_a_burst() -> None:
+    control = RateController(Ladder((Rung(320, 240, 10),), 50_000, 1e6), 200_000)
+    assert control.frame_due(0.0)
+    assert control.frame_due(1.0)  # a second without pictures
+    assert not control.frame_due(1.033) and not control.frame_due(1.066)  # no catching up on the missed ones
+    assert control.frame_due(1.1)
+
+
 def test_a_link_with_room_to_spare_is_probed_upwards_and_never_a_reason_to_go_down() -> None:
     control = RateController(LADDER, 200_000)  # 150 kbit/s
     # the share is what the uplink saw used, plus a margin: below the bitrate, but the link was never full

@@ -33,7 +33,7 @@ class Lane:
     def room(self) -> bool:
         return not self.full.is_set()
 
-    def share(self) -> tuple[float, bool]:
+    def share(self, wants: float) -> tuple[float, bool]:
         return 31_250.0, False  # 250 kbit/s: the controller starts there and has no reason to change
 
     def send(self, payload: bytes) -> bool:

@@ -72,6 +72,10 @@ DECREASE = 0.85  # over-use: the rate becomes this much of what the path deliver
 INCREASE = 0.5  # under-use: the rate grows by this fraction per second (1.5× per second)
 FAST_INCREASE = 1.25  # per answer while the path shows no queue at all (under a quarter of the target)
 HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
+NEAR_CAPACITY = 0.85  # from this × the capacity found at the last cut, the rate grows gently …
+GENTLE_INCREASE = 0.1  # … by this fraction per second
+FORGET_ABOVE = 1.15  # the path delivered this × that capacity: the link is faster now, the capacity is forgotten
+CAPACITY_MEMORY = 10.0  # s: … or this long after it was found (a link changes)
 MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
 OVERDUE_FLOOR = 0.5  # a cut on a probe overdue (before its answer) leaves at least this × DECREASE of the rate
 STEER_FOR = 30.0  # s: once a queue hidden from the sockets was found, the path steers for this long after the last
@@ -115,6 +119,8 @@ class PathMeter:
     _hidden_at: float | None = None  # when a queue the sockets did not show was last found (a cut)
     _first_sent: float | None = None  # when the first probe left
     tcp_rtt: float | None = None  # the kernel's least round trip of the main connection (to the first hop), s
+    capacity: float | None = None  # bytes/s the path delivered when its queue last grew past the target (a cut)
+    _capacity_at: float = 0.0  # when
 
     # -- probes ----------------------------------------------------------------------------------------------
     def probe_due(self, now: float) -> bool:
@@ -277,6 +283,8 @@ class PathMeter:
                     # looks the same): at most a halving on it; its answer measures
                     delivered = max(delivered, OVERDUE_FLOOR * self.rate)
                 basis = min(self.rate, delivered) if delivered is not None else self.rate
+                if answered and delivered is not None:
+                    self.capacity, self._capacity_at = delivered, now  # what a full path carries
                 self.rate = max(MIN_RATE, DECREASE * basis)
                 self._holds[hold] = now + self.current_rtt(now)
                 self.overused += 1
@@ -290,6 +298,13 @@ class PathMeter:
             # no queue at all: grow per answer, as a path that has room shows within a round trip (a burst on a
             # fast link must not wait seconds for its rate); some queue: grow per second, gently
             grown = self.rate * (FAST_INCREASE if latest < self.target_delay / 4 else 1.0 + INCREASE * min(since, 1.0))
+            capacity = self._known_capacity(now)
+            if capacity is not None:
+                # the capacity found at the last cut: fast up to near it, gently from there (a per-answer growth
+                # of 1.25 took a thin hidden link to 1.6 × its capacity between two cuts, and every lane with it)
+                near = NEAR_CAPACITY * capacity
+                gentle = self.rate * (1.0 + GENTLE_INCREASE * min(since, 1.0))
+                grown = gentle if self.rate >= near else min(grown, max(near, gentle))
             peak = self.peak_rate
             ceiling = HEADROOM * peak if peak > 0 else grown
             self.rate = max(MIN_RATE, min(grown, max(self.rate, ceiling)))
@@ -297,6 +312,17 @@ class PathMeter:
         else:
             self._grown_at = now  # hold: no growth is owed for the time spent near the target
         return self.rate
+
+    def _known_capacity(self, now: float) -> float | None:
+        """The capacity found at the last cut, while it still holds: forgotten CAPACITY_MEMORY after it was found,
+        or as soon as the path delivers FORGET_ABOVE × it (the link got faster)."""
+        capacity = self.capacity
+        if capacity is None:
+            return None
+        delivered = self.delivered_rate()
+        if now - self._capacity_at > CAPACITY_MEMORY or (delivered is not None and delivered > FORGET_ABOVE * capacity):
+            self.capacity = None
+        return self.capacity
 
     def _overdue_bound(self, now: float) -> float | None:
         """The most the path can be delivering while a probe is out: the bytes handed over before it and not yet

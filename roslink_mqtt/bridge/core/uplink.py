@@ -208,9 +208,10 @@ class LinkMeter:
     * ``budget`` = rate × (round trip + ``target_delay``): enough to keep the link busy, little enough that a new
       message never waits long behind old ones.
     * ``allowance(i)``: the rate lane ``i`` may hand over, = PROBE × rate − what the lanes before it need (the
-      larger of what they delivered and what was offered to them; never below MIN_RATE). The state lane gets what
-      control and motion leave, the bulk lane what state leaves too; offering a little more than the estimate
-      (PROBE) is what lets the estimate find a faster link.
+      larger of what they delivered and what was offered to them; never below MIN_RATE), shared max-min with the
+      busy lanes of its own tier (a peer that needs less than an equal share leaves the rest to the others). The
+      state lane gets what control and motion leave, the bulk lane what state leaves too; offering a little more
+      than the estimate (PROBE) is what lets the estimate find a faster link.
     """
 
     rate: float = INITIAL_RATE  # bytes/s
@@ -230,19 +231,28 @@ class LinkMeter:
         return int(min(MAX_BUDGET, max(MIN_BUDGET, self.rate * (self.min_rtt + self.target_delay))))
 
     def allowance(self, lane: int, tiers: Sequence[int] | None = None, rate: float | None = None,
-                  probe: float = PROBE) -> float:
+                  probe: float = PROBE, wants: Sequence[float] = ()) -> float:
         """Bytes/s lane ``lane`` may hand over: what the lanes of earlier tiers (``tiers[i]`` is lane i's; by
         default each lane its own tier) need, taken from ``probe`` × rate, shared by the busy lanes of its tier
         (``rate``: the uplink's, when something other than this meter limits it; ``probe``: 1 where another
-        controller finds a faster link, as the path meter does by its own answers)."""
+        controller finds a faster link, as the path meter does by its own answers; ``wants[i]``: bytes/s lane i
+        would send if it had room, when it says so, as a video stream does: it encodes only when its lane has room,
+        so what it was offered understates its need while other lanes take the room first)."""
         tiers = tiers if tiers is not None else range(len(self.lane_rates))
         rates = self.lane_rates + [0.0] * (len(tiers) - len(self.lane_rates))
         demand = self.lane_demand + [0.0] * (len(tiers) - len(self.lane_demand))
+        demand = [max(d, wants[i]) if i < len(wants) else d for i, d in enumerate(demand)]
         mine = tiers[lane] if lane < len(tiers) else lane
         need = sum(max(rates[i], demand[i]) for i, tier in enumerate(tiers) if tier < mine)
-        peers = sum(1 for i, tier in enumerate(tiers) if tier == mine and (demand[i] > 0 or i == lane))
-        total = probe * (self.rate if rate is None else rate)
-        return max(MIN_RATE, (total - need) / max(1, peers))
+        wants = sorted(max(rates[i], demand[i]) for i, tier in enumerate(tiers)
+                       if tier == mine and i != lane and demand[i] > 0)
+        left = probe * (self.rate if rate is None else rate) - need
+        # max-min among the busy lanes of the tier, this one asking for all it can get: a peer that needs less
+        # than an equal share gets what it needs, the rest is shared (a camera beside a 5 Hz scan gets all the
+        # scan leaves, not half the link while the scan uses a third)
+        for count, wanted in zip(range(len(wants) + 1, 1, -1), wants, strict=False):
+            left -= min(wanted, left / count)
+        return max(MIN_RATE, left)
 
     def sample(self, now: float, acked: tuple[int, ...], limited: bool, min_rtt: float | None = None,
                offered: tuple[int, ...] = ()) -> float | None:

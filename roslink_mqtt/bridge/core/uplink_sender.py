@@ -87,6 +87,7 @@ class Lane:
     offered: int = 0  # bytes offered to its classes since it was made (its demand, superseded messages included)
     refilled: float = 0.0  # monotonic: when credit last accrued
     acked: int = 0  # its socket's bytes acknowledged at the last look (tcpi_bytes_acked)
+    wants: float = 0.0  # bytes/s its stream says it would send if it had room (a video stream's encoder target)
 
 
 class Uplink:
@@ -361,20 +362,25 @@ class Uplink:
             self._refill(lane, time.monotonic())
             return self._blocked(lane, 0) is None
 
-    def share_of(self, lane: Lane) -> tuple[float, bool]:
+    def share_of(self, lane: Lane, wants: float | None = None) -> tuple[float, bool]:
         """Bytes/s ``lane`` may hand over (what the tiers before it leave), and whether the link had room to spare
-        in the last window (its capacity not found yet: a stream may probe upwards)."""
+        in the last window (its capacity not found yet: a stream may probe upwards). ``wants``: the bytes/s the
+        lane's stream aims at, counted as its need when its peers' shares are worked out (a video stream: it
+        sends only when its lane has room, so what it was offered understates what it needs)."""
         with self.lock:
+            if wants is not None:
+                lane.wants = wants
             allowance, steering = self._allowance(lane, time.monotonic())
             return allowance, not steering and not self.meter.full
 
     def _allowance(self, lane: Lane, now: float) -> tuple[float, bool]:
         """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held)."""
         steering = not self.fifo and self.path.steering(now)
+        wants = [other.wants for other in self.lanes]
         if steering:
-            return self.meter.allowance(lane.index, self._tiers, probe=1.0,
+            return self.meter.allowance(lane.index, self._tiers, probe=1.0, wants=wants,
                                         rate=min(PROBE * self.meter.rate, self.path.rate)), True
-        return self.meter.allowance(lane.index, self._tiers, rate=self.rate(now)), False
+        return self.meter.allowance(lane.index, self._tiers, rate=self.rate(now), wants=wants), False
 
     def _refill(self, lane: Lane, now: float) -> None:
         """A paced lane's allowance since its last refill, and while the path steers, the pace of its writes.
@@ -534,10 +540,14 @@ class Uplink:
         offered = tuple(lane.offered for lane in self.lanes)
         if self.meter.sample(now, tuple(acked), limited, min_rtt, offered) is not None:
             log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s, offered %s B/s; path %.0f B/s%s, "
-                      "queue %.0f ms", self.meter.rate, "measured" if self.meter.measured else "assumed",
+                      "queue %.0f ms, room %s; paced at %s B/s, holding %s B", self.meter.rate,
+                      "measured" if self.meter.measured else "assumed",
                       self.meter.budget, [round(r) for r in self.meter.lane_rates],
                       [round(r) for r in self.meter.lane_demand], self.path.rate,
-                      " (steering)" if self.path.steering(now) else "", 1000 * self.path.queue_delay(now))
+                      " (steering)" if self.path.steering(now) else "", 1000 * self.path.queue_delay(now),
+                      self._path_room(now), [None if lane.pacer.rate is None else round(lane.pacer.rate)
+                                             for lane in self.lanes],
+                      [self.unsent(lane) for lane in self.lanes])
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)

@@ -47,8 +47,8 @@ class UplinkVideo:
     def room(self) -> bool:
         return self.uplink.has_room(self.lane, self.stream)
 
-    def share(self) -> tuple[float, bool]:
-        return self.uplink.share_of(self.lane)
+    def share(self, wants: float) -> tuple[float, bool]:
+        return self.uplink.share_of(self.lane, wants)
 
     def send(self, payload: bytes) -> bool:
         if not self.lane.link.connected.is_set():
