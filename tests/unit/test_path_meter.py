@@ -319,3 +319,27 @@ def test_a_busy_brokers_slow_first_answers_are_a_hop_only_until_a_fast_one() -> 
     m.probe_sent(0.3, handed=0)
     m.probe_answered(0.304)
     assert not m.behind_a_hop and not m.steering(0.4)
+
+
+def test_near_the_capacity_found_at_a_cut_the_rate_grows_gently_until_the_path_carries_more() -> None:
+    m = PathMeter(target_delay=0.1, rate=40_000.0)
+    t, crossed = 0.0, 0
+
+    def answer(rtt: float, carried: float) -> None:
+        nonlocal t, crossed
+        m.probe_sent(t, crossed)
+        crossed += int(carried * (rtt + PROBE_PERIOD))  # what crossed by the next probe, at ``carried`` bytes/s
+        m.probe_answered(t + rtt)
+        t += rtt + PROBE_PERIOD
+
+    for _ in range(10):
+        answer(0.08, 32_000.0)  # a 256 kbit/s path: base round trip 80 ms
+    for _ in range(3):  # a queue past the target (the least of three answers: one late answer is jitter): a cut
+        answer(0.3, 32_000.0)
+    assert m.capacity == pytest.approx(32_000.0, rel=0.1) and m.rate < 32_000.0
+    for _ in range(12):  # two seconds of answers that show no queue (a per-answer growth of 1.25 was 1.5 × by now)
+        answer(0.08, 32_000.0)
+    assert 0.85 * 32_000.0 <= m.rate <= 1.2 * 32_000.0
+    for _ in range(12):  # the path carries more than it did: the link got faster, growth is fast again
+        answer(0.08, 1.3 * 32_000.0)
+    assert m.capacity is None and m.rate > 1.3 * 32_000.0

@@ -14,7 +14,7 @@ from roslink_mqtt.protocol.video import VideoFrame
 from roslink_mqtt.video.decoder import VideoDecoder
 from roslink_mqtt.video.encoder import frame_from_pixels
 from roslink_mqtt.video.scene import read_stamp, render
-from roslink_mqtt.video.streamer import Picture, VideoStreamer
+from roslink_mqtt.video.streamer import ROOM_WAIT, Picture, VideoStreamer
 from roslink_mqtt.video.watchers import Watchers
 from tests.support.waits import never, wait_until
 
@@ -151,3 +151,34 @@ def test_a_streamer_never_started_stops_cleanly() -> None:
     streamer.stop()
     streamer.start()  # (never after a stop, but harmless)
     streamer.stop()
+
+
+class OpensLater(Lane):
+    """A lane whose room opens after ``looks`` looks (a frame ahead of it leaves between two pictures)."""
+
+    def __init__(self, looks: int) -> None:
+        super().__init__()
+        self.looks = looks
+
+    def room(self) -> bool:
+        self.looks -= 1
+        return self.looks < 0
+
+
+def _picture() -> Picture:
+    pixels = render(320, 240, 0.0, 0.0, 0.0, time.time())
+    return Picture(time.time(), lambda: frame_from_pixels(pixels, "rgb8"))
+
+
+def test_a_picture_waits_for_room_that_opens_before_the_next_picture() -> None:
+    streamer = VideoStreamer(SETTINGS, OpensLater(3), Watchers(lambda user, client: False, lease=LEASE))
+    assert streamer._wait_for_room(_picture())  # the room opened 3 looks later: this picture goes
+    assert streamer.stats.skipped_busy == 0
+
+
+def test_a_newer_picture_takes_the_place_of_one_waiting_for_room() -> None:
+    streamer = VideoStreamer(SETTINGS, OpensLater(10_000), Watchers(lambda user, client: False, lease=LEASE))
+    threading.Timer(0.05, streamer.offer, args=(_picture(),)).start()
+    began = time.monotonic()
+    assert not streamer._wait_for_room(_picture())  # never encoded late: the newer one goes next
+    assert streamer.stats.skipped_busy == 1 and time.monotonic() - began < ROOM_WAIT

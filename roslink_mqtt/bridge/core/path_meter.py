@@ -74,7 +74,7 @@ FAST_INCREASE = 1.25  # per answer while the path shows no queue at all (under a
 HEADROOM = 1.5  # the rate never exceeds this × the most delivered lately
 NEAR_CAPACITY = 0.85  # from this × the capacity found at the last cut, the rate grows gently …
 GENTLE_INCREASE = 0.1  # … by this fraction per second
-FORGET_ABOVE = 1.15  # the path delivered this × that capacity: the link is faster now, the capacity is forgotten
+FORGET_ABOVE = 1.15  # the rate grew to this × that capacity without a cut: the link is faster, the capacity forgotten
 CAPACITY_MEMORY = 10.0  # s: … or this long after it was found (a link changes)
 MIN_RATE = 1_000.0  # bytes/s (8 kbit/s): the rate never falls below it, so the path always gets probes' worth
 OVERDUE_FLOOR = 0.5  # a cut on a probe overdue (before its answer) leaves at least this × DECREASE of the rate
@@ -315,12 +315,11 @@ class PathMeter:
 
     def _known_capacity(self, now: float) -> float | None:
         """The capacity found at the last cut, while it still holds: forgotten CAPACITY_MEMORY after it was found,
-        or as soon as the path delivers FORGET_ABOVE × it (the link got faster)."""
+        or once the rate has grown to FORGET_ABOVE × it without a cut (the link got faster). Not by what the path
+        delivered: as a queue drains its probes come back in quick succession, and the bytes ahead of them make the
+        path look faster than it is for an answer or two after every cut."""
         capacity = self.capacity
-        if capacity is None:
-            return None
-        delivered = self.delivered_rate()
-        if now - self._capacity_at > CAPACITY_MEMORY or (delivered is not None and delivered > FORGET_ABOVE * capacity):
+        if capacity is not None and (now - self._capacity_at > CAPACITY_MEMORY or self.rate > FORGET_ABOVE * capacity):
             self.capacity = None
         return self.capacity
 
