@@ -134,7 +134,9 @@ class RateController:
                 self._room_since = now
             elif now - self._room_since >= UP_AFTER:
                 self._room_since = None
-                up = max(share * UP_TO, bitrate * PROBE_UP) if headroom else share * UP_TO
+                # probing: half again, but never past half again the share (a quiet scene's encoder sends far less
+                # than it aims at, and each step up is a keyframe: it climbed to 2 Mbit/s on a 1 Mbit/s link)
+                up = min(max(share * UP_TO, bitrate * PROBE_UP), share * PROBE_UP) if headroom else share * UP_TO
                 return self._change(self._target_for(up), now)
         else:
             self._room_since = None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from roslink_mqtt.video.ladder import MIN_GAP, UP_AFTER, Ladder, RateController, Rung
+from roslink_mqtt.video.ladder import MIN_GAP, PROBE_UP, UP_AFTER, Ladder, RateController, Rung
 
 LADDER = Ladder.for_camera(640, 480, 30)
 
@@ -109,3 +109,12 @@ def test_a_link_with_room_to_spare_is_probed_upwards_and_never_a_reason_to_go_do
     new = control.update(160_000, now=UP_AFTER, headroom=True)
     assert new is not None and new.bitrate == pytest.approx(225_000)  # 1.5 × 150 kbit/s
     assert control.update(100_000, now=UP_AFTER + MIN_GAP + 0.1) is not None  # full now: down at once
+
+
+def test_probing_never_aims_past_half_again_the_share() -> None:
+    control = RateController(LADDER, 200_000)
+    start = control.target.bitrate  # 150 kbit/s (uncapped, five steps would have aimed at 1.1 Mbit/s)
+    for step in range(1, 6):  # a quiet scene: the share stays what the uplink saw used, the link never full
+        control.update(start, now=step * (UP_AFTER + MIN_GAP), headroom=True)
+        control.update(start, now=step * (UP_AFTER + MIN_GAP) + UP_AFTER, headroom=True)
+    assert control.target.bitrate <= PROBE_UP * start

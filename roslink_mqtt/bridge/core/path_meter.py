@@ -28,7 +28,9 @@ The controller, one update per answer (and per look while a probe is overdue):
   twice). A probe overdue by more than the target counts as over-use at once, before its answer;
 * under half the target: **probe upward** by :data:`INCREASE` per second (multiplicative: from 128 kbit/s to
   1 Mbit/s in a few seconds), never beyond :data:`HEADROOM` × the most the path delivered lately, so a robot that
-  sends little does not talk its estimate up to a flood (GCC's 1.5× bound);
+  sends little does not talk its estimate up to a flood (GCC's 1.5× bound); near the **capacity** found at the last
+  cut only by :data:`GENTLE_INCREASE` per second, until the rate passes :data:`FORGET_ABOVE` × it without a cut
+  (CUBIC's and BBR's lesson: probe hard far from the last loss, gently near it);
 * in between: hold.
 
 When it steers (:meth:`PathMeter.steering`, :meth:`PathMeter.room`):
@@ -298,7 +300,7 @@ class PathMeter:
             # no queue at all: grow per answer, as a path that has room shows within a round trip (a burst on a
             # fast link must not wait seconds for its rate); some queue: grow per second, gently
             grown = self.rate * (FAST_INCREASE if latest < self.target_delay / 4 else 1.0 + INCREASE * min(since, 1.0))
-            capacity = self._known_capacity(now)
+            capacity = self.known_capacity(now)
             if capacity is not None:
                 # the capacity found at the last cut: fast up to near it, gently from there (a per-answer growth
                 # of 1.25 took a thin hidden link to 1.6 × its capacity between two cuts, and every lane with it)
@@ -313,7 +315,7 @@ class PathMeter:
             self._grown_at = now  # hold: no growth is owed for the time spent near the target
         return self.rate
 
-    def _known_capacity(self, now: float) -> float | None:
+    def known_capacity(self, now: float) -> float | None:
         """The capacity found at the last cut, while it still holds: forgotten CAPACITY_MEMORY after it was found,
         or once the rate has grown to FORGET_ABOVE × it without a cut (the link got faster). Not by what the path
         delivered: as a queue drains its probes come back in quick succession, and the bytes ahead of them make the

@@ -364,14 +364,23 @@ class Uplink:
 
     def share_of(self, lane: Lane, wants: float | None = None) -> tuple[float, bool]:
         """Bytes/s ``lane`` may hand over (what the tiers before it leave), and whether the link had room to spare
-        in the last window (its capacity not found yet: a stream may probe upwards). ``wants``: the bytes/s the
-        lane's stream aims at, counted as its need when its peers' shares are worked out (a video stream: it
-        sends only when its lane has room, so what it was offered understates what it needs)."""
+        lately (its capacity not found yet: a stream may probe upwards). ``wants``: the bytes/s the lane's stream
+        aims at, counted as its need when its peers' shares are worked out (a video stream: it sends only when its
+        lane has room, so what it was offered understates what it needs).
+
+        Room to spare: the socket's meter found no full window, or, while the path steers, its probes come back at
+        the base round trip and no capacity of a recent cut is known. Why the second: the path's rate never grows
+        past 1.5 × what was delivered, and a camera whose encoder sends less than it aims at (a quiet scene) kept
+        the rate, and with it the camera's share, far below a 1 Mbit/s link (half its size at 1 Mbit/s)."""
         with self.lock:
             if wants is not None:
                 lane.wants = wants
-            allowance, steering = self._allowance(lane, time.monotonic())
-            return allowance, not steering and not self.meter.full
+            now = time.monotonic()
+            allowance, steering = self._allowance(lane, now)
+            if not steering:
+                return allowance, not self.meter.full
+            path = self.path
+            return allowance, path.shows_no_queue(now) and path.known_capacity(now) is None
 
     def _allowance(self, lane: Lane, now: float) -> tuple[float, bool]:
         """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held)."""
