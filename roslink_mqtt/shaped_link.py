@@ -112,11 +112,12 @@ class Schedule:
         self.shape, self.rng = shape, rng
         self.last = 0.0  # release time of the previous chunk
 
-    def release_time(self, now: float) -> float:
-        """The moment a chunk read at ``now`` may be written."""
+    def release_time(self, now: float, share: float = 1.0) -> float:
+        """The moment a chunk read at ``now`` may be written; ``share``: the part of one of the link's packets the
+        chunk is (a rate-limited link loses ``loss`` of its packets, however the sender cut them into segments)."""
         shape = self.shape
         delay = max(0.0, self.rng.gauss(shape.delay, shape.jitter)) if shape.jitter else shape.delay
-        if shape.loss and self.rng.random() < shape.loss:
+        if shape.loss and self.rng.random() < shape.loss * min(1.0, share):
             delay += shape.rto  # the segment was lost and sent again after the retransmission timeout
         self.last = max(self.last, now + delay)
         return self.last
@@ -278,7 +279,8 @@ class _Direction:
                 if wire is not None:
                     # the next packet of this connection stays in its sender's socket until this one has left
                     sent = await wire.wait_sent(wire.book(len(chunk), sent))
-                await self.queue.put((self.schedule.release_time(sent), chunk))
+                share = len(chunk) / wire.packet_size if wire is not None else 1.0
+                await self.queue.put((self.schedule.release_time(sent, share), chunk))
         except (ConnectionError, OSError):
             pass
         await self.queue.put(None)

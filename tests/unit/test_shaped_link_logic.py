@@ -38,6 +38,14 @@ def test_a_lost_chunk_costs_a_retransmission_timeout() -> None:
     assert all(abs(e - 0.01) < 1e-9 for e in extra if e <= 0.1)
 
 
+def test_a_chunk_smaller_than_a_link_packet_is_lost_as_that_share_of_one() -> None:
+    """A rate-limited link loses ``loss`` of its packets, however small the sender's segments: a sender cutting
+    its bytes into fifths of a packet must not stall five times as often."""
+    schedule = Schedule(Shape(loss=0.5, rto=0.2), random.Random(3))
+    lost = sum(schedule.release_time(i * 1.0, share=0.2) - i * 1.0 > 0.1 for i in range(2000))
+    assert 150 < lost < 250  # 10 % of the chunks: half of the packets, a fifth of a packet each
+
+
 @pytest.mark.parametrize("bad", [["--delay-ms", "-1"], ["--loss", "1.5"], ["--to", "nohostport"]])
 def test_bad_shapes_are_refused(bad: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--listen", "127.0.0.1:1", "--to", "127.0.0.1:2"] + bad
