@@ -1,7 +1,7 @@
 """Benchmark: the sim's camera as video across thin links, next to today's JPEG path, with the robot's telemetry on.
 
     .venv/bin/python bench/video.py [--seconds 20] [--rates 0,1000,256] [--models visible,hidden] [--fall]
-        [--modes video,jpeg] [--viewers 10]
+        [--modes video,jpeg] [--viewers 10] [--keep-logs DIR]
 
 turtle1 (the demo fleet: its ``video:`` camera, 640×480 at 30 Hz from the simulator) reaches the embedded broker
 through ``roslink_mqtt.shaped_link`` as in bench/weak_link.py: 40 ms each way, an uplink of the row's rate (0: no
@@ -19,7 +19,9 @@ one clock, every process runs here) p50/p95, time to the first picture after the
 heartbeat gap and alice's emergency stop → the bridge's acknowledgement (slowest). The fall row adds the time from
 the fall until a picture comes again and until every picture after is fresh (age < FRESH). ``--viewers N``: a
 loopback row where N viewers watch at once; the robot's uplink bytes for the camera (its state/link report) beside
-one viewer's. Never asserts: a table (and a plot in docs/performance/video.png).
+one viewer's. Never asserts: a table (and a plot in docs/performance/video.png). ``--keep-logs DIR`` copies the
+broker's, bridges' and links' logs there; with ``WEAK_BRIDGE_LOG=DEBUG`` they hold the uplink's windows (rates,
+pacing, what each lane holds) and the stream's counters (pictures, encoded, skipped for want of room).
 """
 
 from __future__ import annotations

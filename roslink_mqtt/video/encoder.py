@@ -34,7 +34,7 @@ ENCODERS: dict[str, tuple[str, dict[str, str], str]] = {
 }
 PIXEL_FORMATS = {"rgb8": "rgb24", "bgr8": "bgr24", "mono8": "gray", "rgba8": "rgba", "bgra8": "bgra"}
 TIME_BASE = Fraction(1, 1000)  # pts in ms since the encoder opened
-VBV_SECONDS = 0.5  # the rate control's buffer: a frame is at most this much of a second's bits above the average
+VBV_SECONDS = 0.25  # the rate control's buffer: a frame is at most this much of a second's bits above the average
 
 
 class VideoEncoder:

@@ -95,3 +95,29 @@ def test_behind_a_hop_the_sockets_meter_may_still_probe_up_to_the_paths_rate() -
     with sender.lock:
         sender._refill(lane, time.monotonic())
     assert lane.pacer.rate == pytest.approx(100_000.0)
+
+
+def test_a_paced_lane_holds_in_its_socket_its_own_share_of_the_budget_not_the_whole_links() -> None:
+    """Where the queue backs up into the robot, a lane's socket drains at the lane's share: a camera behind the
+    link's whole budget of its own frames waited seconds after a fall. Its own allowance's worth, at least one
+    segment, at most the link's budget."""
+    from roslink_mqtt.bridge.core.uplink import MIN_BUDGET
+
+    main, state, camera = Link("main"), Link("state"), Link("camera")
+    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
+    sender.path.tcp_rtt = 0.039  # no hop: the socket steers
+    sender.path.probe_sent(time.monotonic() - 0.04, 0)
+    sender.path.probe_answered(time.monotonic())
+    meter, lane = sender.meter, sender.lanes[2]
+    meter.rate, meter.measured, meter.min_rtt = 32_000.0, True, 0.04
+    meter.lane_rates, meter.lane_demand = [3_000.0, 30_000.0, 2_000.0], [3_000.0, 30_000.0, 2_000.0]
+    with sender.lock:
+        budget = sender.budget()
+        allowance, steering = sender._allowance(lane, time.monotonic())
+        assert not steering
+        mine = sender._lane_budget(lane, budget)
+    assert mine == pytest.approx(max(MIN_BUDGET, allowance * (meter.min_rtt + meter.target_delay)), abs=1)
+    assert mine <= 0.6 * budget  # the scan is owed half of what main leaves: the camera's socket holds its share
+    meter.lane_demand = [3_000.0, 0.0, 0.0]  # alone on the link: the link's budget, no more
+    with sender.lock:
+        assert sender._lane_budget(lane, budget) == budget

@@ -347,9 +347,19 @@ class Uplink:
         budget = self.budget()
         if not lane.paced:
             return "network" if self.unsent(lane) + handed >= budget else None
-        if handed or paho_unsent(lane.link.client) or kernel_unsent(raw_socket(lane.link.client)) >= budget:
+        if handed or paho_unsent(lane.link.client) or \
+                kernel_unsent(raw_socket(lane.link.client)) >= self._lane_budget(lane, budget):
             return "network"
         return "allowance" if lane.credit < 0 else None
+
+    def _lane_budget(self, lane: Lane, budget: int) -> int:
+        """Bytes a paced lane may hold in its socket: its own allowance's worth of the round trip and target delay,
+        not the whole link's (the lock is held). Why: where the queue backs up into the robot, a lane's socket
+        drains at the lane's share, and a camera's frame behind the whole link's budget of its own earlier frames
+        waited seconds after a fall (the link's budget at a quarter of its rate)."""
+        allowance, _ = self._allowance(lane, time.monotonic())
+        meter = self.meter
+        return int(min(budget, max(MIN_BUDGET, allowance * (meter.min_rtt + meter.target_delay))))
 
     def has_room(self, lane: Lane, stream: Stream) -> bool:
         """Whether a message of ``stream`` handed over now would leave at once: nothing of it waits, its lane is
