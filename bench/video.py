@@ -309,6 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     with tempfile.TemporaryDirectory(prefix="roslink-video-") as tmp, ExitStack() as stack:
         work = Path(tmp)
+        if args.keep_logs is not None:  # (callbacks run last first: once the children have stopped and written all)
+            stack.callback(shutil.copytree, work, args.keep_logs, dirs_exist_ok=True)
         port = lat.free_port()
         lat.start_embedded_broker(stack, fleet_for(work, port, "video"), port, work / "broker.log", env,
                                   log_level=wl.BROKER_LOG_LEVEL)
@@ -329,9 +331,6 @@ def main(argv: list[str] | None = None) -> int:
                 print(line(row), flush=True)
         except KeyboardInterrupt:
             return 130
-        finally:
-            if args.keep_logs is not None:
-                shutil.copytree(work, args.keep_logs, dirs_exist_ok=True)
     print()
     for row in rows:
         print(line(row))

@@ -137,6 +137,8 @@ class RateController:
                 # probing: half again, but never past half again the share (a quiet scene's encoder sends far less
                 # than it aims at, and each step up is a keyframe: it climbed to 2 Mbit/s on a 1 Mbit/s link)
                 up = min(max(share * UP_TO, bitrate * PROBE_UP), share * PROBE_UP) if headroom else share * UP_TO
+                if up <= bitrate:
+                    return None  # (probing never steps down: the share says nothing while the link has room)
                 return self._change(self._target_for(up), now)
         else:
             self._room_since = None
@@ -158,5 +160,6 @@ class RateController:
         due = self._next_frame
         if due is not None and now < due - 0.2 * period:
             return False
-        self._next_frame = now + period if due is None or now > due + period else due + period
+        # the next one a period after this one's slot, and never within half a period of this one (no burst)
+        self._next_frame = now + period if due is None or now > due + period else max(due + period, now + 0.5 * period)
         return True

@@ -27,7 +27,7 @@ from .watchers import Watchers
 log = logging.getLogger("roslink_mqtt.video")
 
 IDLE_WAIT = 0.5  # s the thread sleeps when no picture comes (it still ends lapsed watches)
-ROOM_POLL = 0.005  # s between looks at the lane while a picture waits for room
+ROOM_POLL = 0.01  # s between looks at the lane while a picture waits for room (each look takes the uplink's lock)
 ROOM_WAIT = 0.2  # s a picture waits for room at most (a newer one takes its place sooner)
 STATS_PERIOD = 2.0  # s between the stream's counters in the log (DEBUG)
 START_SHARE = 250_000.0  # bits/s assumed before the uplink says more (a thin link's worth: grows within seconds)
@@ -163,10 +163,10 @@ class VideoStreamer:
 
     def _wait_for_room(self, picture: Picture) -> bool:
         """Whether the lane has room for this picture's frame: it waits for room until a newer picture comes (which
-        then takes its place: a picture is never encoded late) or for ROOM_WAIT at most. Why wait at all: the room
-        opens between two pictures, and a stream that looked only when a picture came lost every opening to the
-        streams that always have a message waiting (a thin link's scan took the room, the camera got one picture in
-        two)."""
+        then takes its place: a picture is never encoded behind a newer one) or for ROOM_WAIT at most. Why wait at
+        all: the room opens between two pictures, and a stream that looked only when a picture came lost every
+        opening to the streams that always have a message waiting (a thin link's scan took the room, the camera got
+        one picture in two)."""
         give_up = self.clock() + ROOM_WAIT
         while not self.lane.room():
             with self._cond:

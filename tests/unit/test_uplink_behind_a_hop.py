@@ -113,7 +113,7 @@ def test_a_paced_lane_holds_in_its_socket_its_own_share_of_the_budget_not_the_wh
     meter.lane_rates, meter.lane_demand = [3_000.0, 30_000.0, 2_000.0], [3_000.0, 30_000.0, 2_000.0]
     with sender.lock:
         assert sender._lane_budget(lane, sender.budget()) == sender.budget()  # not a video lane: the link's budget
-    lane.wants = 12_000.0  # the camera's encoder aims at 96 kbit/s
+    lane.wants, lane.wanted_at = 12_000.0, time.monotonic()  # the camera's encoder aims at 96 kbit/s
     with sender.lock:
         budget = sender.budget()
         allowance, steering = sender._allowance(lane, time.monotonic())

@@ -180,6 +180,7 @@ class PathMeter:
         self._sent_at, self._last_sent = None, float("-inf")
         self._crossed = min(self._crossed, handed)
         self.tcp_rtt = None  # (a failover may reach another broker, on another route)
+        self.capacity = None  # (… whose capacity is its own)
         self._recent.clear()
         self._rates.clear()
         self._grown_at = None
@@ -301,7 +302,9 @@ class PathMeter:
             # fast link must not wait seconds for its rate); some queue: grow per second, gently
             grown = self.rate * (FAST_INCREASE if latest < self.target_delay / 4 else 1.0 + INCREASE * min(since, 1.0))
             capacity = self.known_capacity(now)
-            if capacity is not None:
+            if capacity is None:
+                self.capacity = None
+            else:
                 # the capacity found at the last cut: fast up to near it, gently from there (a per-answer growth
                 # of 1.25 took a thin hidden link to 1.6 × its capacity between two cuts, and every lane with it)
                 near = NEAR_CAPACITY * capacity
@@ -322,8 +325,8 @@ class PathMeter:
         path look faster than it is for an answer or two after every cut."""
         capacity = self.capacity
         if capacity is not None and (now - self._capacity_at > CAPACITY_MEMORY or self.rate > FORGET_ABOVE * capacity):
-            self.capacity = None
-        return self.capacity
+            return None  # (forgotten by update(), the one place the controller's state changes)
+        return capacity
 
     def _overdue_bound(self, now: float) -> float | None:
         """The most the path can be delivering while a probe is out: the bytes handed over before it and not yet

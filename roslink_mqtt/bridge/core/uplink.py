@@ -244,13 +244,13 @@ class LinkMeter:
         demand = [max(d, wants[i]) if i < len(wants) else d for i, d in enumerate(demand)]
         mine = tiers[lane] if lane < len(tiers) else lane
         need = sum(max(rates[i], demand[i]) for i, tier in enumerate(tiers) if tier < mine)
-        wants = sorted(max(rates[i], demand[i]) for i, tier in enumerate(tiers)
+        peers = sorted(max(rates[i], demand[i]) for i, tier in enumerate(tiers)
                        if tier == mine and i != lane and demand[i] > 0)
         left = probe * (self.rate if rate is None else rate) - need
         # max-min among the busy lanes of the tier, this one asking for all it can get: a peer that needs less
         # than an equal share gets what it needs, the rest is shared (a camera beside a 5 Hz scan gets all the
         # scan leaves, not half the link while the scan uses a third)
-        for count, wanted in zip(range(len(wants) + 1, 1, -1), wants, strict=False):
+        for count, wanted in zip(range(len(peers) + 1, 1, -1), peers, strict=True):
             left -= min(wanted, left / count)
         return max(MIN_RATE, left)
 

@@ -47,6 +47,8 @@ from .uplink import (
 log = logging.getLogger("roslink_mqtt.bridge.core.uplink")
 
 POLL = 0.01  # s between looks at the socket while messages wait
+WANTS_FOR = 1.0  # s a stream's word on what it wants holds (a video stream says it with every picture it encodes;
+# one nobody watches any more says nothing, and must not keep half its tier from the scan)
 # bytes/s the path steers from behind a hop, before its answers say more (256 kbit/s: a thin link's queue stays
 # short; a fast one is found within a second or two, the rate growing 1.25× per answer while no queue shows)
 PATH_START_RATE = 32_000.0
@@ -88,6 +90,7 @@ class Lane:
     refilled: float = 0.0  # monotonic: when credit last accrued
     acked: int = 0  # its socket's bytes acknowledged at the last look (tcpi_bytes_acked)
     wants: float = 0.0  # bytes/s its stream says it would send if it had room (a video stream's encoder target)
+    wanted_at: float = float("-inf")  # monotonic: when it last said so (a stream that stopped saying wants nothing)
 
 
 class Uplink:
@@ -359,9 +362,10 @@ class Uplink:
         earlier frames waited seconds after a fall (the link's budget at a quarter of its rate). Only a video lane
         (one whose stream says what it wants): a scan's lane held to its share carried 0.6 scans a second on a
         lossy 128 kbit/s modem instead of 1.7, the link half idle (bench/weak_link.py)."""
-        if not lane.wants:
+        now = time.monotonic()
+        if not lane.wants or now - lane.wanted_at >= WANTS_FOR:
             return budget
-        allowance, _ = self._allowance(lane, time.monotonic())
+        allowance, _ = self._allowance(lane, now)
         meter = self.meter
         return int(min(budget, max(MIN_BUDGET, allowance * (meter.min_rtt + meter.target_delay))))
 
@@ -387,9 +391,9 @@ class Uplink:
         past 1.5 × what was delivered, and a camera whose encoder sends less than it aims at (a quiet scene) kept
         the rate, and with it the camera's share, far below a 1 Mbit/s link (half its size at 1 Mbit/s)."""
         with self.lock:
-            if wants is not None:
-                lane.wants = wants
             now = time.monotonic()
+            if wants is not None:
+                lane.wants, lane.wanted_at = wants, now
             allowance, steering = self._allowance(lane, now)
             if not steering:
                 return allowance, not self.meter.full
@@ -399,7 +403,7 @@ class Uplink:
     def _allowance(self, lane: Lane, now: float) -> tuple[float, bool]:
         """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held)."""
         steering = not self.fifo and self.path.steering(now)
-        wants = [other.wants for other in self.lanes]
+        wants = [other.wants if now - other.wanted_at < WANTS_FOR else 0.0 for other in self.lanes]
         if steering:
             return self.meter.allowance(lane.index, self._tiers, probe=1.0, wants=wants,
                                         rate=min(PROBE * self.meter.rate, self.path.rate)), True
@@ -562,15 +566,16 @@ class Uplink:
         limited = queued > 0 and not (not self.fifo and self.path.steering(now) and self.path.shows_no_queue(now))
         offered = tuple(lane.offered for lane in self.lanes)
         if self.meter.sample(now, tuple(acked), limited, min_rtt, offered) is not None:
-            log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s, offered %s B/s; path %.0f B/s%s, "
-                      "queue %.0f ms, room %s; paced at %s B/s, holding %s B", self.meter.rate,
-                      "measured" if self.meter.measured else "assumed",
-                      self.meter.budget, [round(r) for r in self.meter.lane_rates],
-                      [round(r) for r in self.meter.lane_demand], self.path.rate,
-                      " (steering)" if self.path.steering(now) else "", 1000 * self.path.queue_delay(now),
-                      self._path_room(now), [None if lane.pacer.rate is None else round(lane.pacer.rate)
-                                             for lane in self.lanes],
-                      [self.unsent(lane) for lane in self.lanes])
+            if log.isEnabledFor(logging.DEBUG):  # (the line reads every lane's socket)
+                log.debug("uplink: %.0f B/s (%s), budget %d B, lanes %s B/s, offered %s B/s; path %.0f B/s%s, "
+                          "queue %.0f ms, room %s; paced at %s B/s, holding %s B", self.meter.rate,
+                          "measured" if self.meter.measured else "assumed",
+                          self.meter.budget, [round(r) for r in self.meter.lane_rates],
+                          [round(r) for r in self.meter.lane_demand], self.path.rate,
+                          " (steering)" if self.path.steering(now) else "", 1000 * self.path.queue_delay(now),
+                          self._path_room(now), [None if lane.pacer.rate is None else round(lane.pacer.rate)
+                                                 for lane in self.lanes],
+                          [self.unsent(lane) for lane in self.lanes])
             for lane in self.lanes:
                 if lane.paced:
                     self._size_buffer(lane)
