@@ -178,7 +178,7 @@ def _disk_events_fleet(tmp_path, *, keepalive: int, mode: str):
 
 def _spooled(spool_dir) -> int:
     """How many records turtle1's disk buffer holds (a record still being written is not counted)."""
-    return sum(1 for segment in spool_dir.glob("turtle1-*.spool") for _ in Spool._records(segment.read_bytes(), 0))
+    return sum(Spool.whole_records(segment.read_bytes()) for segment in spool_dir.glob("turtle1-*.spool"))
 
 
 def _quantile(values: list[float], q: float) -> float:

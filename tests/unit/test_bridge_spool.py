@@ -59,6 +59,7 @@ def test_a_record_torn_by_a_crash_is_ignored(tmp_path) -> None:
     with open(segment, "ab") as f:
         f.write(b"\x00\x00\x01\x00partial")  # a record header promising 256 bytes, cut short
     assert _drain(Spool(tmp_path, "turtle1", max_bytes=1 << 20, max_age=3600), 2.0) == [b"whole"]
+    assert Spool.whole_records(segment.read_bytes()) == 1  # what a test or a tool counts from outside: whole ones
 
 
 def test_a_record_that_could_not_be_sent_is_put_back(tmp_path) -> None:

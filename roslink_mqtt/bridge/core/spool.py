@@ -154,6 +154,12 @@ class Spool:
             self._cache = (number, size, data)
         return self._cache[2]
 
+    @classmethod
+    def whole_records(cls, data: builtins.bytes) -> int:
+        """How many whole records a segment's bytes hold (a torn or half-written last one is not counted): what a
+        tool or a test reads of a disk buffer from outside the bridge."""
+        return sum(1 for _ in cls._records(data, 0))
+
     @staticmethod
     def _records(data: builtins.bytes, offset: int) -> Iterator[tuple[int, Record]]:
         """(offset after the record, record) from ``offset`` on; stops at a torn record."""
