@@ -343,9 +343,11 @@ class _Direction:
                 wire.release(self.held)
 
 
-def _rcvbuf(sock: socket.socket, size: int) -> None:
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-    if size == RCVBUF:
+def _window(sock: socket.socket, hidden: bool) -> None:
+    """The receive window of a rate-limited link's socket, set before the handshake: the hidden hop's large one, or
+    the visible model's small one with a segment size that fits it (SMALL_MSS)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, HIDDEN_RCVBUF if hidden else RCVBUF)
+    if not hidden:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_MAXSEG, SMALL_MSS)
 
 
@@ -476,7 +478,7 @@ class ShapedLink:
         sock = socket.socket(socket.AF_INET6 if ":" in self.target[0] else socket.AF_INET, socket.SOCK_STREAM)
         try:
             # before connecting: the window the target may fill is set at the handshake
-            _rcvbuf(sock, HIDDEN_RCVBUF if self.hidden_queue else RCVBUF)
+            _window(sock, self.hidden_queue)
             sock.setblocking(False)
             await asyncio.get_running_loop().sock_connect(sock, self.target)
         except OSError:
@@ -512,7 +514,7 @@ class ShapedLink:
             return await asyncio.start_server(self._serve, host, port, reuse_address=True)
         sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        _rcvbuf(sock, HIDDEN_RCVBUF if self.hidden_queue else RCVBUF)  # accepted sockets inherit it, window included
+        _window(sock, self.hidden_queue)  # accepted sockets inherit it, window and segment size included
         sock.bind((host, port))
         return await asyncio.start_server(self._serve, sock=sock,
                                           limit=HIDDEN_READ_AHEAD if self.hidden_queue else READ_AHEAD)

@@ -124,3 +124,27 @@ def test_a_paced_lane_holds_in_its_socket_its_own_share_of_the_budget_not_the_wh
     meter.lane_demand = [3_000.0, 0.0, 0.0]  # alone on the link: the link's budget, no more
     with sender.lock:
         assert sender._lane_budget(lane, budget) == budget
+
+
+def test_while_the_path_steers_a_stream_may_probe_up_only_without_a_queue_or_a_recent_cuts_capacity() -> None:
+    """Behind a hop the path's rate never grows past 1.5 × what was delivered, so a camera whose encoder sends less
+    than it aims at would never find the link: its probes at the base round trip say it may go up; a capacity found
+    at a recent cut says it may not."""
+    sender, _state = behind_a_hop()
+    lane = sender.lanes[1]
+    assert sender.share_of(lane)[1]  # answered at the base round trip: no queue anywhere
+    sender.path.capacity, sender.path._capacity_at = sender.path.rate, time.monotonic()
+    assert not sender.share_of(lane)[1]
+
+
+def test_what_a_stream_wants_counts_only_while_it_keeps_saying_it() -> None:
+    """A camera nobody watches any more says nothing: it must not keep half its tier from the scan."""
+    main, state, camera = Link("main"), Link("state"), Link("camera")
+    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
+    sender.meter.lane_rates, sender.meter.lane_demand = [3_000.0, 30_000.0, 0.0], [3_000.0, 60_000.0, 0.0]
+    scan, cam = sender.lanes[1], sender.lanes[2]
+    alone = sender.share_of(scan)[0]
+    sender.share_of(cam, 10_000.0)  # the camera's encoder aims at 80 kbit/s (under half of what main leaves)
+    assert sender.share_of(scan)[0] == pytest.approx(alone - 10_000.0)
+    cam.wanted_at -= 2.0  # it stopped saying so (nobody watches)
+    assert sender.share_of(scan)[0] == pytest.approx(alone)
