@@ -20,7 +20,7 @@ import av
 import numpy as np
 from av.video.codeccontext import VideoCodecContext
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ...config import Priority, Robot, VideoStream
 from ...config.model import VIDEO_TYPES
@@ -28,6 +28,7 @@ from ...topics import TopicTree
 from ...video.encoder import frame_from_pixels
 from ...video.streamer import Picture, VideoStreamer
 from ...video.watchers import NEEDS_SCHEDULED_UPLINK, Watchers
+from ..core.camera_qos import reads_reliably
 from ..core.on_executor import OnExecutor
 from ..core.ros_types import load_interface
 from ..core.uplink_sender import Uplink
@@ -55,6 +56,14 @@ class UplinkVideo:
             return False
         self.uplink.offer(self.stream, self.topic, payload, 0, False)
         return True
+
+
+def camera_qos(offered: list[ReliabilityPolicy]) -> QoSProfile:
+    """The camera's subscription: the newest picture only, reliable when its publishers allow it
+    (:mod:`..core.camera_qos` says why)."""
+    reliable = reads_reliably(policy == ReliabilityPolicy.RELIABLE for policy in offered)
+    return QoSProfile(depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
 
 
 def stamp_of(msg: Any) -> float:
@@ -160,9 +169,11 @@ class RosVideo:
             settings = self._settings[name]
             offer = self.streamers[name].offer
             callback = self._callback(settings, offer)
+            qos = camera_qos([info.qos_profile.reliability
+                              for info in self.node.get_publishers_info_by_topic(settings.ros_topic)])
             self._subscriptions[name] = self.node.create_subscription(
-                load_interface(settings.ros_type), settings.ros_topic, callback, qos_profile_sensor_data)
-            log.info("video %s: subscribed to %s", name, settings.ros_topic)
+                load_interface(settings.ros_type), settings.ros_topic, callback, qos)
+            log.info("video %s: subscribed to %s (%s)", name, settings.ros_topic, qos.reliability.name.lower())
 
     @staticmethod
     def _callback(settings: VideoStream, offer: Callable[[Picture], None]) -> Callable[[Any], None]:
