@@ -129,12 +129,43 @@ def test_a_paced_lane_holds_in_its_socket_its_own_share_of_the_budget_not_the_wh
 def test_while_the_path_steers_a_stream_may_probe_up_only_without_a_queue_or_a_recent_cuts_capacity() -> None:
     """Behind a hop the path's rate never grows past 1.5 × what was delivered, so a camera whose encoder sends less
     than it aims at would never find the link: its probes at the base round trip say it may go up; a capacity found
-    at a recent cut says it may not."""
+    at a recent cut says it may not; nor may it where the robot's own sockets fill (a modem's queue: the probes
+    of an idle lane come back at the base round trip while the busy lanes' sockets hold the queue)."""
     sender, _state = behind_a_hop()
     lane = sender.lanes[1]
+    sender.meter.full = False  # behind the hop the sockets never fill
     assert sender.share_of(lane)[1]  # answered at the base round trip: no queue anywhere
+    sender.meter.full = True
+    assert not sender.share_of(lane)[1]
+    sender.meter.full = False
     sender.path.capacity, sender.path._capacity_at = sender.path.rate, time.monotonic()
     assert not sender.share_of(lane)[1]
+
+
+def test_a_streams_share_of_a_full_link_is_of_what_it_delivers_not_of_the_probe() -> None:
+    """The lanes may offer PROBE × the socket meter's rate (how a faster link is found), but a camera aiming at
+    its part of that on a full link built a standing queue in its socket (256 kbit/s modem: frames 430 ms old at
+    the viewer); on a full link its share is of the rate; with room, of the probe (and it may probe itself)."""
+    main, state, camera = Link("main"), Link("state"), Link("camera")
+    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
+    sender.path.tcp_rtt = 0.039  # no hop: the socket steers
+    sender.path.probe_sent(time.monotonic() - 0.04, 0)
+    sender.path.probe_answered(time.monotonic())
+    meter, cam = sender.meter, sender.lanes[2]
+    meter.rate, meter.measured = 32_000.0, True
+    meter.lane_rates, meter.lane_demand = [3_000.0, 15_000.0, 14_000.0], [3_000.0, 30_000.0, 14_000.0]
+    meter.full = True
+    share, headroom = sender.share_of(cam, 14_000.0)
+    assert not headroom
+    assert share == pytest.approx((32_000.0 - 3_000.0) / 2)  # the scan wants more than half: half each
+    with sender.lock:
+        paced, steering = sender._allowance(cam, time.monotonic())
+    assert not steering
+    assert paced == pytest.approx((PROBE * 32_000.0 - 3_000.0) / 2)  # what the lane may write: still probes
+    meter.full = False
+    share, headroom = sender.share_of(cam, 14_000.0)
+    assert headroom
+    assert share == pytest.approx(paced)
 
 
 def test_what_a_stream_wants_counts_only_while_it_keeps_saying_it() -> None:

@@ -394,20 +394,26 @@ class Uplink:
             now = time.monotonic()
             if wants is not None:
                 lane.wants, lane.wanted_at = wants, now
-            allowance, steering = self._allowance(lane, now)
+            # a stream's share is its part of what the link delivers now: where the link is full, not the PROBE ×
+            # it the lanes may offer to find a faster link (a camera aiming at that built a standing queue in its
+            # socket: 256 kbit/s modem, frames 430 ms old); a stream finds room by probing itself (headroom)
+            allowance, steering = self._allowance(lane, now, probing=not self.meter.full)
             if not steering:
                 return allowance, not self.meter.full
             path = self.path
-            return allowance, path.shows_no_queue(now) and path.known_capacity(now) is None
+            return allowance, (not self.meter.full and path.shows_no_queue(now)
+                               and path.known_capacity(now) is None)
 
-    def _allowance(self, lane: Lane, now: float) -> tuple[float, bool]:
-        """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held)."""
+    def _allowance(self, lane: Lane, now: float, probing: bool = True) -> tuple[float, bool]:
+        """Bytes/s ``lane`` may hand over, and whether the path steers (:meth:`_refill` says why; the lock is held).
+        ``probing``: of PROBE × the socket meter's rate (how the lanes find a faster link), else of the rate."""
         steering = not self.fifo and self.path.steering(now)
         wants = [other.wants if now - other.wanted_at < WANTS_FOR else 0.0 for other in self.lanes]
+        probe = PROBE if probing else 1.0
         if steering:
             return self.meter.allowance(lane.index, self._tiers, probe=1.0, wants=wants,
-                                        rate=min(PROBE * self.meter.rate, self.path.rate)), True
-        return self.meter.allowance(lane.index, self._tiers, rate=self.rate(now), wants=wants), False
+                                        rate=min(probe * self.meter.rate, self.path.rate)), True
+        return self.meter.allowance(lane.index, self._tiers, rate=self.rate(now), probe=probe, wants=wants), False
 
     def _refill(self, lane: Lane, now: float) -> None:
         """A paced lane's allowance since its last refill, and while the path steers, the pace of its writes.
