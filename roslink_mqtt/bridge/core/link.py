@@ -85,6 +85,7 @@ class MqttLink:
         self._closed_reason: str | None = None  # why the broker hangs up before CONNACK (probed once)
         self._answered = False  # a CONNACK came on this connection (so its end needs no explaining)
         self.keepalive, self.max_payload = keepalive, max_payload
+        self.client_id = client_id  # named in the log: a bridge has several connections, one may drop alone
         self._oversized: set[str] = set()  # topics already logged for an oversized message
         self._subscriptions, self._on_message, self._on_up, self._on_down = subscriptions, on_message, on_up, on_down
         self.connected = threading.Event()
@@ -301,7 +302,8 @@ class MqttLink:
         else:
             lost = self.url
             nxt = self._move_on()
-            log.warning("lost the broker %s (%s); reconnecting%s", lost, reason, f" to {nxt}" if nxt else "")
+            log.warning("lost the broker %s (%s, connection %s); reconnecting%s", lost, reason, self.client_id,
+                        f" to {nxt}" if nxt else "")
         self._on_down(str(reason))
 
     def _handle_subscribe(self, _client: mqtt.Client, _userdata: Any, mid: int, _reason_codes: Any,

@@ -21,6 +21,7 @@ from rclpy.node import Node
 from ...config import Fleet, Priority, Robot
 from ...config.model import BUFFER_DISK
 from ...protocol import AckResult, SystemStatus
+from ...protocol.description import DESCRIPTION
 from ...protocol.lease import CONTROL
 from ...protocol.link import LINK
 from ...topics import Verb, join_leaf, state_name
@@ -235,9 +236,11 @@ class Bridge:
         scheduled = settings.uplink == "scheduled"
 
         def lane(purpose: str) -> MqttLink:
+            # the state lane carries the description too: published again each time that lane connects
             return MqttLink(client_id=bridge_client_id(robot.name, purpose), username=robot.name, password=password,
                             url=broker_url, keepalive=settings.keepalive, will=None, subscriptions=list,
-                            on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload)
+                            on_message=self._on_mqtt, ca_file=ca_file, max_payload=fleet.broker.max_payload,
+                            on_up=self._describe_when_up if purpose == "state" else (lambda: None))
 
         self.state_link, self.bulk_links, self.state_links = self._lanes(outbound, lane) if scheduled else \
             (None, {}, {})
@@ -245,6 +248,11 @@ class Bridge:
                              state_links=self.state_links,
                              target_delay=settings.uplink_target_delay,
                              report_topic=self.topics.state(robot.name, LINK))
+        # The description (several kB: every rule's field layout) is state: on a thin link, sent on the command
+        # connection at each connect, it held heartbeats, acknowledgements and the path's probes back for seconds
+        # (64 kbit/s: the command connection lost its keep-alive behind it, reconnected, sent it again, and again)
+        self._description = self.uplink.stream(self.topics.state(robot.name, DESCRIPTION), Priority.STATE,
+                                               latest_only=True, label=DESCRIPTION)
         if any(o.rule.buffer == BUFFER_DISK for o in outbound):
             directory = buffer_dir(settings.buffer_dir)
             try:
@@ -533,14 +541,21 @@ class Bridge:
         self.endpoint.publish_heartbeat()
         self.endpoint.publish_control()
         self.publish_access()
-        self.publish_description()
+        self._describe_when_up()
+
+    def _describe_when_up(self) -> None:
+        """Once the command connection and the description's own (the state lane, if any) are both up, whichever
+        came second: the uplink drops state offered while the command connection is down."""
+        if self.link.connected.is_set() and (self.state_link is None or self.state_link.connected.is_set()):
+            self.publish_description()
 
     def publish_description(self) -> None:
-        """Retained ``state/description``: what this robot maps, with field layouts (bridge/ros/description.py)."""
+        """Retained ``state/description``: what this robot maps, with field layouts (bridge/ros/description.py).
+        Through the uplink as state: on the state lane where there is one, never in front of control."""
         from .description import description_message
 
         topic, body = description_message(self.robot, self.topics, warnings=self.graph_warnings)
-        self.link.publish(topic, body, qos=1, retain=True)
+        self.uplink.offer(self._description, topic, body, 1, True)
 
     def check_graph(self) -> None:
         """Warn about rules whose ROS topic has no publisher or whose ROS service has no server, with the closest
