@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import random
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -50,3 +51,32 @@ def test_never_above_the_rate_and_the_newest_always_goes_out(times, rate) -> Non
     assert numbers == sorted(numbers)  # order kept: a superseded message never goes out late
     if arrivals:
         assert numbers[-1] == len(arrivals) - 1  # the newest is never left behind
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.005, 0.01, 0.015, 0.02])
+def test_each_slot_goes_to_the_freshest_message_whatever_the_flush_timers_phase(phase: float) -> None:
+    """A 20 Hz odometry throttled to 10 Hz: the slot goes to the message that comes as it opens, not to the one
+    kept 50 ms earlier (a flush that sent that one as soon as the slot opened sent 35 ms old poses for a whole run,
+    depending only on the flush timer's phase against the source's)."""
+    arrivals = [0.0131 + k * 0.05 for k in range(200)]  # 10 s at 20 Hz
+    throttle = Throttle(10.0)
+    sent: list[tuple[float, int]] = []
+    ticks = [phase + i * 0.025 for i in range(int(10.2 / 0.025))]
+    for t, kind, i in sorted([(t, 0, i) for i, t in enumerate(arrivals)] + [(t, 1, -1) for t in ticks]):
+        out = throttle.offer(i, t) if kind == 0 else throttle.flush(t)
+        if out is not None:
+            sent.append((t, out))
+    ages = [t - arrivals[n] for t, n in sent]
+    assert 99 <= len(sent) <= 101
+    # (the first messages teach the throttle the source's period; the last is kept for a next that never comes)
+    assert max(ages[2:-1]) < 0.001
+
+
+def test_a_kept_message_still_goes_out_when_the_next_one_is_late() -> None:
+    """The wait for a fresher message is bounded: a source that stops leaves its last message to go out."""
+    throttle = Throttle(10.0)
+    assert throttle.offer("a", 0.0) == "a"
+    assert throttle.offer("b", 0.05) is None  # kept (the source is at 20 Hz)
+    assert throttle.flush(0.095) is None  # the next one is due at 0.1, within the wait
+    assert throttle.flush(0.12) is None
+    assert throttle.flush(0.13) == "b"  # it did not come: the kept one goes, 25 ms of the period past its due
