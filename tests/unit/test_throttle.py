@@ -80,3 +80,13 @@ def test_a_kept_message_still_goes_out_when_the_next_one_is_late() -> None:
     assert throttle.flush(0.095) is None  # the next one is due at 0.1, within the wait
     assert throttle.flush(0.12) is None
     assert throttle.flush(0.13) == "b"  # it did not come: the kept one goes, 25 ms of the period past its due
+
+
+def test_a_fast_sources_last_message_waits_at_most_one_of_its_gaps() -> None:
+    """At 1 Hz from a 100 Hz source that stops as the slot opens, the slot waits for the next message no longer
+    than the source's own gap (10 ms), not a quarter of the throttle's second."""
+    throttle = Throttle(1.0)
+    for k in range(80):
+        throttle.offer(k, k * 0.01)  # 0 goes out; the rest are kept, newest wins; the slot opens at 0.8
+    assert throttle.flush(0.8) is None  # 79's successor is due at 0.8
+    assert throttle.flush(0.815) == 79  # it did not come: 79 goes, one source gap late (was: at 1.05)

@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any
 
 SLACK = 0.1  # fraction of the period a message may be early for its slot
-WAIT = 0.25  # fraction of the period a slot may wait past its opening for the source's next (fresher) message
+WAIT = 0.25  # fraction of the period (at most one source gap) a slot may wait for the source's next, fresher message
 GAP_WEIGHT = 0.2  # weight of each new gap between offers in the source's period (a moving average)
 
 
@@ -57,7 +57,8 @@ class Throttle:
             return None
         if self.gap is not None:
             fresher_at = self.pending_at + self.gap  # when the source's next message is due
-            if fresher_at <= self.due + WAIT * self.period and now < fresher_at + WAIT * self.period:
+            grace = min(WAIT * self.period, self.gap)  # (a fast source's next is late after one of its own gaps)
+            if fresher_at <= self.due + grace and now < fresher_at + grace:
                 return None  # the slot goes to that one (or to this one, should it be late)
         msg, self.pending = self.pending, None
         self._take(now)
