@@ -29,6 +29,17 @@ def behind_a_hop() -> tuple[Uplink, Link]:
     return sender, state
 
 
+def a_modem_with_a_camera() -> Uplink:
+    """A sender with a state lane and a camera's lane (lanes[2]) on a link whose queue backs up into the robot: the
+    path answered once at the TCP connection's own round trip, so the socket steers."""
+    main, state, camera = Link("main"), Link("state"), Link("camera")
+    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
+    sender.path.tcp_rtt = 0.039
+    sender.path.probe_sent(time.monotonic() - 0.04, 0)
+    sender.path.probe_answered(time.monotonic())
+    return sender
+
+
 def test_a_map_waiting_in_paho_is_not_on_its_way() -> None:
     """A 4 MB map handed to the state lane's paho, written at the lane's pace: the path meter's byte clock does
     not count it as sent (counted, the path looked four megabytes faster than it is, and the next probes let
@@ -103,11 +114,7 @@ def test_a_paced_lane_holds_in_its_socket_its_own_share_of_the_budget_not_the_wh
     segment, at most the link's budget."""
     from roslink_mqtt.bridge.core.uplink import MIN_BUDGET
 
-    main, state, camera = Link("main"), Link("state"), Link("camera")
-    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
-    sender.path.tcp_rtt = 0.039  # no hop: the socket steers
-    sender.path.probe_sent(time.monotonic() - 0.04, 0)
-    sender.path.probe_answered(time.monotonic())
+    sender = a_modem_with_a_camera()
     meter, lane = sender.meter, sender.lanes[2]
     meter.rate, meter.measured, meter.min_rtt = 32_000.0, True, 0.04
     meter.lane_rates, meter.lane_demand = [3_000.0, 30_000.0, 2_000.0], [3_000.0, 30_000.0, 2_000.0]
@@ -146,11 +153,7 @@ def test_a_streams_share_of_a_full_link_is_of_what_it_delivers_not_of_the_probe(
     """The lanes may offer PROBE × the socket meter's rate (how a faster link is found), but a camera aiming at
     its part of that on a full link built a standing queue in its socket (256 kbit/s modem: frames 430 ms old at
     the viewer); on a full link its share is of the rate; with room, of the probe (and it may probe itself)."""
-    main, state, camera = Link("main"), Link("state"), Link("camera")
-    sender = Uplink(main, state, state_links={"state/camera": camera})  # type: ignore[arg-type, dict-item]
-    sender.path.tcp_rtt = 0.039  # no hop: the socket steers
-    sender.path.probe_sent(time.monotonic() - 0.04, 0)
-    sender.path.probe_answered(time.monotonic())
+    sender = a_modem_with_a_camera()
     meter, cam = sender.meter, sender.lanes[2]
     meter.rate, meter.measured = 32_000.0, True
     meter.lane_rates, meter.lane_demand = [3_000.0, 15_000.0, 14_000.0], [3_000.0, 30_000.0, 14_000.0]
@@ -165,7 +168,7 @@ def test_a_streams_share_of_a_full_link_is_of_what_it_delivers_not_of_the_probe(
     meter.full = False
     share, headroom = sender.share_of(cam, 14_000.0)
     assert headroom
-    assert share == pytest.approx(paced)
+    assert share == pytest.approx((PROBE * 32_000.0 - 3_000.0) / 2)
 
 
 def test_what_a_stream_wants_counts_only_while_it_keeps_saying_it() -> None:
