@@ -150,8 +150,8 @@ def _scene(tmp_path, mode: str, *link_args: str, measure: float = MEASURE, settl
                 recording.clear()
                 with contextlib.suppress(AssertionError):  # not measured yet: the test's own check says so
                     wait_until("a link report that has measured the uplink",
-                               lambda: seen["link"] is not None and seen["link"].measured, timeout=until_measured,
-                               period=0.2)
+                               lambda: seen["link"] is not None and _knows_capacity(seen["link"]),
+                               timeout=until_measured, period=0.2)
                 ended.set()
                 seen["poses"] = seen["poses"][began:]
                 stop.set()
@@ -181,6 +181,14 @@ def _spooled(spool_dir) -> int:
     return sum(Spool.whole_records(segment.read_bytes()) for segment in spool_dir.glob("turtle1-*.spool"))
 
 
+def _knows_capacity(link: LinkReport) -> bool:
+    """The report's rate is the link's capacity: the robot's socket found the link full (``measured``), or the path's
+    probes found a queue and the path's rate steers (``hidden``). Where the path steers from the start it keeps the
+    socket from ever filling, so ``measured`` alone may stay false for a whole run (a clean-clone CI run: path rate
+    104 kbit/s for this 128 kbit/s link, steering, ``measured`` false)."""
+    return link.measured or link.hidden
+
+
 def _quantile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
@@ -206,7 +214,7 @@ def test_a_thin_uplink_keeps_poses_fresh_heartbeats_on_time_and_bulk_last(tmp_pa
     assert len(seen["blobs"]) < 0.6 * 10 * MEASURE  # most were superseded (latest wins), yet each is fresh
     assert seen["camera"] < 10 * MEASURE / 2, "the camera was not held back"  # bulk gets what is left
     link = seen["link"]  # the retained state/link report says why the streams are slow
-    assert link is not None and link.mode == "scheduled" and link.measured
+    assert link is not None and link.mode == "scheduled" and _knows_capacity(link), link
     # the estimate the reports show finds the link's rate, and stays near it (each report is a snapshot of an estimate
     # that starts high: loaded clean-clone runs saw 400 then 109 kbit/s, and a single report of 203 or 205 kbit/s, for
     # a 128 kbit/s link; a meter that does not find the link stays at several times it)
