@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import pytest
 
 from roslink_mqtt.bridge.core.path_meter import (
+    CLEAR_QUEUE,
+    FAST_TARGET,
     FIRST_WAIT,
     FRESH_ANSWER,
     MIN_RATE,
@@ -56,8 +58,9 @@ def test_answers_at_the_base_round_trip_show_no_queue_anywhere() -> None:
     assert m.shows_no_queue(t)
     assert not m.shows_no_queue(t + FRESH_ANSWER + 0.01)  # no recent answer: no word
     m.probe_sent(t, handed=0)
-    assert m.shows_no_queue(t + 0.1)  # a probe out for its round trip is no queue
-    assert not m.shows_no_queue(t + 0.08 + 0.03)  # overdue by more than a quarter of the target
+    clear = CLEAR_QUEUE * m.target  # (a quarter of the target, which on this fast path is FAST_TARGET)
+    assert m.shows_no_queue(t + 0.08 + 0.5 * clear)  # a probe out for about its round trip is no queue
+    assert not m.shows_no_queue(t + 0.08 + 1.2 * clear)  # overdue by more than a quarter of the target
     m.probe_answered(t + 0.08)
     t += 0.08 + PROBE_PERIOD
     for _ in range(3):  # the probes wait 60 ms behind the robot's own sockets: the meter's queue says nothing
@@ -227,6 +230,23 @@ def test_a_hidden_queue_stays_short_at_a_fixed_capacity() -> None:
           f"carried {carried * 8 / 1000:.0f} kbit/s, rate {meter.rate * 8 / 1000:.0f} kbit/s")
     assert p99(settled) < 0.4, "the queue behind the hop grew"
     assert carried > 0.7 * capacity, "the link was left idle"
+
+
+def test_a_fast_path_holds_a_few_packets_of_queue_a_thin_one_its_whole_target() -> None:
+    """What waits in a hidden queue waits ahead of an emergency stop's acknowledgement: at 1 Mbit/s the path keeps
+    FAST_TARGET of queue, not the whole configured target; at 256 kbit/s, where three packets take longer than the
+    target, the target stays whole; in between, three packets' time."""
+    assert PathMeter(target_delay=0.1, rate=125_000.0).target == FAST_TARGET
+    assert PathMeter(target_delay=0.1, rate=64_000.0).target == pytest.approx(3 * 1_500 / 64_000.0)
+    assert PathMeter(target_delay=0.1, rate=32_000.0).target == 0.1
+    assert PathMeter(target_delay=0.03, rate=125_000.0).target == 0.03  # never more than configured
+    meter, path, _ = run_loop(lambda t: 125_000.0, 20.0)
+    settled = ages(path, 5.0, 20.0)
+    carried = sum(1 for at, _ in path.delivered if 5.0 <= at < 20.0) * 700 / 15.0
+    queued = p99(settled) - path.base_rtt / 2  # (an age counts half the base round trip: the way to the broker)
+    print(f"1 Mbit/s hidden: queue p99 {queued * 1000:.0f} ms, carried {carried * 8 / 1000:.0f} kbit/s")
+    assert queued < FAST_TARGET + 0.015, "the queue went past the fast path's target"  # 0.1 s: ~96 ms
+    assert carried > 0.9 * 125_000.0, "the link was left idle"
 
 
 def test_a_fall_to_an_eighth_is_followed_within_two_seconds() -> None:

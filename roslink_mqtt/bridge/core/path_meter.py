@@ -86,6 +86,9 @@ HOP_GAP = 0.015  # s: a path round trip this much longer than the TCP connection
 CLEAN_VISIBLE = 0.002  # s: a probe that waited longer than this behind the robot's own sockets teaches no base
 VISIBLE_SHARE = 0.5  # a probe that waited more than this × the target behind the robot's own sockets cannot cut
 CLEAR_QUEUE = 0.25  # × the target: answers whole within this of the base say nothing queues (shows_no_queue)
+FAST_TARGET = 0.05  # s: the least queue target of a fast path (:attr:`PathMeter.target`) …
+TARGET_PACKETS = 3  # … otherwise this many packets' time at the rate, up to the configured target
+PACKET = 1_500  # bytes: one full packet on an Ethernet-sized path
 FRESH_ANSWER = 0.5  # s: how recent the last answer must be for shows_no_queue to speak
 
 
@@ -123,6 +126,17 @@ class PathMeter:
     tcp_rtt: float | None = None  # the kernel's least round trip of the main connection (to the first hop), s
     capacity: float | None = None  # bytes/s the path delivered when its queue last grew past the target (a cut)
     _capacity_at: float = 0.0  # when
+
+    @property
+    def target(self) -> float:
+        """Seconds of queue the path may hold now: ``target_delay``, and on a fast path less, TARGET_PACKETS
+        packets' time at the rate, at least FAST_TARGET. Why: whatever waits in a hidden queue waits ahead of
+        every connection's bytes, an emergency stop's acknowledgement among them; the queue a path needs to stay
+        busy is a few packets, and at 1 Mbit/s 100 ms is eight of them (the acknowledgement 2.3× its idle time
+        behind a camera and a map, bench/weak_link.py). On a thin path a packet alone takes most of the target,
+        and the target stays whole there (a smaller one cut a 128 kbit/s path for every packet)."""
+        packets = TARGET_PACKETS * PACKET / self.rate if self.rate > 0 else self.target_delay
+        return min(self.target_delay, max(FAST_TARGET, packets))
 
     # -- probes ----------------------------------------------------------------------------------------------
     def probe_due(self, now: float) -> bool:
@@ -217,10 +231,10 @@ class PathMeter:
         they wait too."""
         if not self._recent or now - self._recent[-1].at > FRESH_ANSWER:
             return False
-        if self._sent_at is not None and now - self._sent_at - self.base_rtt > CLEAR_QUEUE * self.target_delay:
+        if self._sent_at is not None and now - self._sent_at - self.base_rtt > CLEAR_QUEUE * self.target:
             return False
         last = list(self._recent)[-CURRENT_SAMPLES:]
-        return min(a.raw for a in last) - self.base_rtt < CLEAR_QUEUE * self.target_delay
+        return min(a.raw for a in last) - self.base_rtt < CLEAR_QUEUE * self.target
 
     def queue_delay(self, now: float) -> float:
         """Seconds of queue in the path now: current − base (0 before the first answer)."""
@@ -234,7 +248,7 @@ class PathMeter:
         overdue beyond that earns nothing more, so a dead spot is not filled behind; nor does a path whose queue
         is over the target earn any."""
         unconfirmed = max(0, handed - self._crossed)
-        if now is None or not self._recent or self.queue_delay(now) > self.target_delay:
+        if now is None or not self._recent or self.queue_delay(now) > self.target:
             return unconfirmed  # a path over its target carries less than the rate says: no credit on trust
         since = min(max(0.0, now - self._recent[-1].at), PROBE_PERIOD + self.base_rtt)
         return max(0, unconfirmed - int(self.rate * since))
@@ -267,7 +281,8 @@ class PathMeter:
         if not self.measured:
             return self.rate
         queued = self.queue_delay(now)
-        if queued > self.target_delay:
+        target = self.target
+        if queued > target:
             # An answer measures what the path delivered: the rate goes below it. A probe overdue only says the
             # path is slower than the rate: a cut by DECREASE. Each kind waits a round trip (or the probe's age)
             # before cutting again, since a cut shows only after one: one queue is not punished twice.
@@ -275,7 +290,7 @@ class PathMeter:
             # connections in turns it also waits for the others' turns, which look like a queue and are not one.
             hold = "answer" if answered else "overdue"
             visible = self._answered_visible if answered else self._sent_visible
-            if visible > VISIBLE_SHARE * self.target_delay:
+            if visible > VISIBLE_SHARE * target:
                 self._grown_at = now
                 return self.rate
             if now >= self._holds.get(hold, float("-inf")):
@@ -296,11 +311,11 @@ class PathMeter:
             return self.rate
         elif (latest := self._recent[-1].rtt - self.base_rtt if self._recent else queued) > queued:
             self._grown_at = now  # the last answer alone shows a queue: no growth on it (nor a cut: it may be jitter)
-        elif queued < self.target_delay / 2:
+        elif queued < target / 2:
             since = now - self._grown_at if self._grown_at is not None else 0.0
             # no queue at all: grow per answer, as a path that has room shows within a round trip (a burst on a
             # fast link must not wait seconds for its rate); some queue: grow per second, gently
-            grown = self.rate * (FAST_INCREASE if latest < self.target_delay / 4 else 1.0 + INCREASE * min(since, 1.0))
+            grown = self.rate * (FAST_INCREASE if latest < target / 4 else 1.0 + INCREASE * min(since, 1.0))
             capacity = self.known_capacity(now)
             if capacity is None:
                 self.capacity = None
@@ -340,7 +355,7 @@ class PathMeter:
 
     def budget(self, now: float) -> int:
         """Bytes the path may hold at the rate: one base round trip plus the target's worth of queue."""
-        return int(self.rate * (self.base_rtt + self.target_delay))
+        return int(self.rate * (self.base_rtt + self.target))
 
     # -- steering --------------------------------------------------------------------------------------------
     def steering(self, now: float) -> bool:

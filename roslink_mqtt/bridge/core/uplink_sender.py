@@ -198,8 +198,18 @@ class Uplink:
     def _pong(self, now: float) -> None:
         """A probe's answer (paho's thread): it may open room for what waits."""
         with self.lock:
+            before = self.path.rate, self.path.target, self.path.overused
             self.path.probe_answered(now)
+            self._log_cut("an answer", before, now)
             self.lock.notify()
+
+    def _log_cut(self, what: str, before: tuple[float, float, int], now: float) -> None:
+        """A debug line when ``what`` made the path cut its rate (``before``: its rate, target and count of cuts
+        before; the lock is held)."""
+        path, (rate, target, cuts) = self.path, before
+        if path.overused != cuts and log.isEnabledFor(logging.DEBUG):
+            log.debug("uplink path: queue %.0f ms over its target %.0f ms at %s: rate %.0f -> %.0f B/s",
+                      path.queue_delay(now) * 1000, target * 1000, what, rate, path.rate)
 
     def _probe(self, now: float) -> None:
         """Send the next probe when one is due (the lock is held)."""
@@ -446,7 +456,9 @@ class Uplink:
                 try:
                     if self.main.link.connected.is_set():
                         self._probe(now)
+                        before = self.path.rate, self.path.target, self.path.overused
                         self.path.update(now)
+                        self._log_cut("a probe overdue", before, now)
                     self._pump(now)
                     report = self.report(now) if now - self._reported >= LINK_REPORT_PERIOD else None
                 except Exception:  # a bug here must not silence the robot's state for good
