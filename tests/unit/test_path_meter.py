@@ -16,6 +16,7 @@ from roslink_mqtt.bridge.core.path_meter import (
     FIRST_WAIT,
     FRESH_ANSWER,
     MIN_RATE,
+    NEAR_CAPACITY,
     PROBE_PERIOD,
     STEER_FOR,
     PathMeter,
@@ -363,3 +364,33 @@ def test_near_the_capacity_found_at_a_cut_the_rate_grows_gently_until_the_path_c
     for _ in range(12):  # the path carries more than it did: the link got faster, growth is fast again
         answer(0.08, 1.3 * 32_000.0)
     assert m.capacity is None and m.rate > 1.3 * 32_000.0
+
+
+def test_a_probe_overdue_finds_the_capacity_too_once_and_the_rate_grows_back_gently_near_it() -> None:
+    """Most cuts on a fast path come before the answer, from the probe still out. Such a cut learns what the path
+    delivered lately as its capacity (no more than the rate that overfilled it), so the rate grows back fast only
+    to near it: without it the rate grew 1.25× per answer after every overdue cut, past the capacity within half a
+    second, and a 1 Mbit/s path behind a hop went through a cut and a 200 ms queue every second or two
+    (bench/weak_link.py, camera + map). A later cut of the same probe (a dead spot) finds the rate already cut and
+    keeps the capacity the first one found."""
+    m = PathMeter(target_delay=0.1, rate=150_000.0)
+    t, crossed = 0.0, 0
+    for _ in range(12):  # a 1 Mbit/s path (125 kB/s) at its base round trip of 80 ms, full
+        m.probe_sent(t, crossed)
+        crossed += int(125_000.0 * (0.08 + PROBE_PERIOD))
+        m.probe_answered(t + 0.08)
+        t += 0.08 + PROBE_PERIOD
+    m.rate = 150_000.0  # (grown past the path's 125 kB/s)
+    m.probe_sent(t, crossed)
+    m.update(t + 0.08 + m.target + 0.01)  # overdue by more than the target: a cut before the answer
+    assert m.overused == 1 and m.capacity == pytest.approx(125_000.0, rel=0.05)
+    assert m.rate < 150_000.0
+    m.update(t + 1.0)  # still out: cut again, the capacity kept
+    assert m.overused == 2 and m.capacity == pytest.approx(125_000.0, rel=0.05)
+    m.probe_answered(t + 1.05)
+    t += 1.05
+    for _ in range(8):  # the queue gone: fast up to near the capacity, then gently
+        m.probe_sent(t, crossed)
+        m.probe_answered(t + 0.08)
+        t += 0.08 + PROBE_PERIOD
+    assert NEAR_CAPACITY * 125_000.0 * 0.9 <= m.rate <= 125_000.0

@@ -23,13 +23,16 @@ it, hidden or not). One probe is out at a time, so
 
 The controller, one update per answer (and per look while a probe is overdue):
 
-* queueing delay over the target (``uplink_target_delay``): the path is **over-used**; the rate becomes
+* queueing delay over the target (``uplink_target_delay``; on a fast path less: :attr:`PathMeter.target`, a few
+  packets' time, at least FAST_TARGET, since whatever waits there waits ahead of an emergency stop's
+  acknowledgement): the path is **over-used**; the rate becomes
   :data:`DECREASE` × what the path delivered recently (at most once per round trip, so one queue is not punished
   twice). A probe overdue by more than the target counts as over-use at once, before its answer;
 * under half the target: **probe upward** by :data:`INCREASE` per second (multiplicative: from 128 kbit/s to
   1 Mbit/s in a few seconds), never beyond :data:`HEADROOM` × the most the path delivered lately, so a robot that
   sends little does not talk its estimate up to a flood (GCC's 1.5× bound); near the **capacity** found at the last
-  cut only by :data:`GENTLE_INCREASE` per second, until the rate passes :data:`FORGET_ABOVE` × it without a cut
+  cut (an answer's delivered rate; for a probe overdue, what the answers of the last second delivered) only by
+  :data:`GENTLE_INCREASE` per second, until the rate passes :data:`FORGET_ABOVE` × it without a cut
   (CUBIC's and BBR's lesson: probe hard far from the last loss, gently near it);
 * in between: hold.
 
@@ -126,6 +129,7 @@ class PathMeter:
     tcp_rtt: float | None = None  # the kernel's least round trip of the main connection (to the first hop), s
     capacity: float | None = None  # bytes/s the path delivered when its queue last grew past the target (a cut)
     _capacity_at: float = 0.0  # when
+    _capacity_probe: float | None = None  # the probe out (its departure) whose being overdue found it, if one did
 
     @property
     def target(self) -> float:
@@ -301,8 +305,15 @@ class PathMeter:
                     # looks the same): at most a halving on it; its answer measures
                     delivered = max(delivered, OVERDUE_FLOOR * self.rate)
                 basis = min(self.rate, delivered) if delivered is not None else self.rate
-                if answered and delivered is not None:
-                    self.capacity, self._capacity_at = delivered, now  # what a full path carries
+                # what a full path carries: an answer's delivered rate; for a probe overdue, what the answers of
+                # the last RATE_WINDOW delivered, no more than the rate that overfilled the path (without it the
+                # rate grew back 1.25× per answer after each overdue cut, past the capacity within half a second,
+                # and a 1 Mbit/s path behind a hop went through a cut and a 200 ms queue every second or two)
+                # (once per probe out: a dead spot's later cuts of the same probe find a rate cut already)
+                lately = delivered if answered else self.delivered_rate()
+                if lately is not None and lately > 0 and (answered or self._capacity_probe != self._sent_at):
+                    self.capacity, self._capacity_at = (lately if answered else min(lately, self.rate)), now
+                    self._capacity_probe = None if answered else self._sent_at
                 self.rate = max(MIN_RATE, DECREASE * basis)
                 self._holds[hold] = now + self.current_rtt(now)
                 self.overused += 1
