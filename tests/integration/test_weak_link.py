@@ -182,10 +182,11 @@ def _spooled(spool_dir) -> int:
 
 
 def _knows_capacity(link: LinkReport) -> bool:
-    """The report's rate is the link's capacity: the robot's socket found the link full (``measured``), or the path's
-    probes found a queue and the path's rate steers (``hidden``). Where the path steers from the start it keeps the
-    socket from ever filling, so ``measured`` alone may stay false for a whole run (a clean-clone CI run: path rate
-    104 kbit/s for this 128 kbit/s link, steering, ``measured`` false)."""
+    """The report's rate is the link's capacity: the robot's socket found the link full (``measured``), or the path
+    steers (``hidden``: a queue the sockets did not show was found, so the rate is the path's estimate; this test's
+    link has no hop). Where the path steers from the start it keeps the socket from ever filling, so ``measured``
+    alone may stay false for a whole run (a clean-clone CI run: path rate 104 kbit/s for this 128 kbit/s link,
+    steering, ``measured`` false). The rate band below checks the estimate itself."""
     return link.measured or link.hidden
 
 

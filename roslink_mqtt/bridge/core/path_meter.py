@@ -47,8 +47,10 @@ When it steers (:meth:`PathMeter.steering`, :meth:`PathMeter.room`):
   the path's budget, and the uplink's rate is at most the path's. Otherwise the socket's meter steers alone: on a
   link whose queue backs up into the robot it sees the queue itself, and a fast link's burst is never held to
   the path's estimate. A cut on a probe still out takes at most half the rate (a thread stalled on a busy
-  machine looks the same as a queue until the answer comes), so a false one costs a fast link little;
-* a probe that waited behind the robot's own sockets (more than VISIBLE_SHARE of the target) **cuts nothing**: on
+  machine looks the same as a queue until the answer comes), so a false one costs a fast link little: that
+  halving, and a few seconds in which the rate grows gently near what the path delivered just before;
+* a probe that waited behind the robot's own sockets (more than VISIBLE_SHARE of ``target_delay``, the socket
+  meter's target) **cuts nothing**: on
   a link that serves connections in turns it also waits for the other connections' turns, which look like a
   queue and are not one (the second failure of the first attempt: 19 kbit/s on a 128 kbit/s modem).
 
@@ -199,6 +201,7 @@ class PathMeter:
         self._crossed = min(self._crossed, handed)
         self.tcp_rtt = None  # (a failover may reach another broker, on another route)
         self.capacity = None  # (… whose capacity is its own)
+        self._capacity_probe = None
         self._recent.clear()
         self._rates.clear()
         self._grown_at = None
@@ -235,10 +238,10 @@ class PathMeter:
         they wait too."""
         if not self._recent or now - self._recent[-1].at > FRESH_ANSWER:
             return False
-        if self._sent_at is not None and now - self._sent_at - self.base_rtt > CLEAR_QUEUE * self.target:
+        if self._sent_at is not None and now - self._sent_at - self.base_rtt > CLEAR_QUEUE * self.target_delay:
             return False
         last = list(self._recent)[-CURRENT_SAMPLES:]
-        return min(a.raw for a in last) - self.base_rtt < CLEAR_QUEUE * self.target
+        return min(a.raw for a in last) - self.base_rtt < CLEAR_QUEUE * self.target_delay
 
     def queue_delay(self, now: float) -> float:
         """Seconds of queue in the path now: current − base (0 before the first answer)."""
@@ -294,7 +297,7 @@ class PathMeter:
             # connections in turns it also waits for the others' turns, which look like a queue and are not one.
             hold = "answer" if answered else "overdue"
             visible = self._answered_visible if answered else self._sent_visible
-            if visible > VISIBLE_SHARE * target:
+            if visible > VISIBLE_SHARE * self.target_delay:  # (the sockets' queue: the socket meter's target)
                 self._grown_at = now
                 return self.rate
             if now >= self._holds.get(hold, float("-inf")):
@@ -311,7 +314,8 @@ class PathMeter:
                 # and a 1 Mbit/s path behind a hop went through a cut and a 200 ms queue every second or two)
                 # (once per probe out: a dead spot's later cuts of the same probe find a rate cut already)
                 lately = delivered if answered else self.delivered_rate()
-                if lately is not None and lately > 0 and (answered or self._capacity_probe != self._sent_at):
+                if lately is not None and lately > 0 and \
+                        (answered or (self._sent_at is not None and self._capacity_probe != self._sent_at)):
                     self.capacity, self._capacity_at = (lately if answered else min(lately, self.rate)), now
                     self._capacity_probe = None if answered else self._sent_at
                 self.rate = max(MIN_RATE, DECREASE * basis)
